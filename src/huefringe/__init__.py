@@ -1,0 +1,3 @@
+"""huefringe: one-shot trapezoidal HSI fringe-projection profilometry."""
+
+__version__ = "0.1.0"

@@ -1,0 +1,87 @@
+"""Projected codes of the capture-session format (paper eq. 3 and the phase-shift sinusoids).
+
+Everything here is a pure function of the *code phase* ``phi`` in radians: the position ``x``
+inside one fringe period ``T`` has code phase ``2 pi x / T``. Both the bench (which projects
+these codes) and the measuring modules (which know what was projected) use this module; it
+holds no rig model.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+TWO_PI = 2.0 * np.pi
+
+
+def trapezoid_rgb(phi: ArrayLike) -> NDArray[np.float64]:
+    """Trapezoidal RGB fringe of paper eq. 3 at code phase ``phi``.
+
+    Parameters
+    ----------
+    phi : array_like
+        Code phase in radians; any real value (taken modulo 2 pi).
+
+    Returns
+    -------
+    ndarray
+        Array of shape ``phi.shape + (3,)`` with R, G, B in [0, 1].
+
+    Notes
+    -----
+    With ``s = 6 x / T = 3 phi / pi`` in [0, 6):
+    R = 1, G = s, B = 0 on [0, 1); R = 2 - s, G = 1 on [1, 2); G = 1, B = s - 2 on [2, 3);
+    G = 4 - s, B = 1 on [3, 4); R = s - 4, B = 1 on [4, 5); R = 1, B = 6 - s on [5, 6).
+    The hexcone hue of this colour is exactly ``phi``.
+    """
+    s = np.mod(np.asarray(phi, dtype=np.float64), TWO_PI) * (3.0 / np.pi)
+    r = np.clip(np.maximum(2.0 - s, s - 4.0), 0.0, 1.0)
+    g = np.clip(np.minimum(s, 4.0 - s), 0.0, 1.0)
+    b = np.clip(np.minimum(s - 2.0, 6.0 - s), 0.0, 1.0)
+    return np.stack([r, g, b], axis=-1)
+
+
+def band_phase(i: ArrayLike, n_bands: int) -> NDArray[np.float64]:
+    """Code phase ``2 pi i / N`` projected by hue band ``i`` of ``N``."""
+    return TWO_PI * np.asarray(i, dtype=np.float64) / float(n_bands)
+
+
+def band_rgb(i: int, n_bands: int) -> NDArray[np.float64]:
+    """The uniform RGB colour of hue band ``i`` of ``n_bands`` (shape ``(3,)``)."""
+    return trapezoid_rgb(band_phase(i, n_bands))
+
+
+def phase_shift_steps() -> NDArray[np.float64]:
+    """Phase steps ``delta_s = 2 pi (s - 1) / 3`` for ``s = 0, 1, 2``, as the spec writes them."""
+    return TWO_PI * (np.arange(3) - 1.0) / 3.0
+
+
+def phase_shift_intensity(phi: ArrayLike, s: int) -> NDArray[np.float64]:
+    """Grey sinusoid ``0.5 + 0.5 cos(phi + delta_s)`` of phase-shift capture ``s`` (0, 1, 2)."""
+    delta = phase_shift_steps()[s]
+    return 0.5 + 0.5 * np.cos(np.asarray(phi, dtype=np.float64) + delta)
+
+
+def projector_image(
+    width: int, height: int, period_px: float, phase_map: ArrayLike | None = None
+) -> NDArray[np.uint8]:
+    """An 8-bit projector frame of the trapezoidal pattern (constant along rows).
+
+    Parameters
+    ----------
+    width, height : int
+        Projector resolution in pixels (e.g. 1024 x 768, the paper's DMD).
+    period_px : float
+        Fringe period in projector pixels.
+    phase_map : array_like, optional
+        A 1-D map of length ``width`` giving the code phase to *emit* at each projector column
+        (a pre-distorted pattern); default the linear ``2 pi x / T``.
+    """
+    if phase_map is None:
+        phase = TWO_PI * np.arange(width) / float(period_px)
+    else:
+        phase = np.asarray(phase_map, dtype=np.float64)
+        if phase.shape != (width,):
+            raise ValueError(f"phase_map must have shape ({width},), got {phase.shape}")
+    row = np.round(trapezoid_rgb(phase) * 255.0).astype(np.uint8)
+    return np.broadcast_to(row[None, :, :], (height, width, 3)).copy()
