@@ -1,0 +1,77 @@
+"""Command-line entry point: ``huefringe check|bench|verify ...``."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from collections.abc import Sequence
+from pathlib import Path
+
+
+def _cmd_check(args: argparse.Namespace) -> int:
+    from huefringe.session import SessionError, load_session
+
+    try:
+        s = load_session(args.session, deep=args.deep)
+    except SessionError as exc:
+        print(f"REFUSED: {args.session} is not a valid capture session ({len(exc.problems)} problem(s)):")
+        for p in exc.problems:
+            print(f"  - {p}")
+        return 1
+    extras = []
+    if s.phase_shift:
+        extras.append(f"{len(s.phase_shift)} phase-shift triples")
+    if s.ground_truth:
+        extras.append(f"ground truth for {len(s.ground_truth)} frames")
+    if s.specimen:
+        extras.append(f"specimen with {len(s.specimen['steps'])} steps")
+    print(
+        f"OK: session '{s.id}' at {s.root}: {s.width} x {s.height} px, {s.bit_depth}-bit, "
+        f"pitch {s.pixel_pitch_mm} mm, period {s.period_px:g} px, {s.hue_bands} bands x {s.repeats} repeats, "
+        f"{len(s.planes)} planes, {len(s.frames)} frames" + ("; " + ", ".join(extras) if extras else "")
+    )
+    return 0
+
+
+def _cmd_bench(args: argparse.Namespace) -> int:
+    from huefringe import bench
+
+    try:
+        cfg = bench.load_bench_config(bench.preset_path(args.config) if args.preset else args.config)
+    except bench.BenchConfigError as exc:
+        print(f"REFUSED: {exc}", file=sys.stderr)
+        return 1
+    if args.periods:
+        for out in bench.period_sweep(cfg, periods=args.periods, out_root=Path(args.out)):
+            print(out)
+    else:
+        print(bench.write_session(cfg, Path(args.out), progress=not args.quiet))
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="huefringe", description=__doc__)
+    sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("check", help="validate a capture session; exit 1 if it is refused")
+    p.add_argument("session", help="the session folder (holding session.yaml)")
+    p.add_argument("--deep", action="store_true", help="also decode every image")
+    p.set_defaults(func=_cmd_check)
+
+    p = sub.add_parser("bench", help="write a capture session with the virtual bench")
+    p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1)")
+    p.add_argument("out", help="output session folder (with --periods: a folder for the sweep)")
+    p.add_argument("--preset", action="store_true", help="CONFIG names a packaged preset")
+    p.add_argument("--periods", type=int, nargs="+", help="write a period sweep (e.g. 20 40 60 80 100)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_cmd_bench)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    return int(args.func(args))
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,79 @@
+"""Small file helpers: atomic writes, TIFF/JSON/PNG output.
+
+Every output of the workflow goes through :func:`atomic_path`, so a killed job never leaves a
+complete-looking but truncated file: data goes to a temporary file in the same folder and is
+moved into place with :func:`os.replace`, which is atomic on POSIX file systems.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import tifffile
+
+
+@contextlib.contextmanager
+def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
+    """Yield a temporary path beside ``target``; move it onto ``target`` on success.
+
+    The temporary file keeps the target's suffix so that libraries choosing a format by
+    extension (Open3D, trimesh, OpenCV) behave as for the target.
+    """
+    target = Path(target)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=f".part{target.suffix}", dir=target.parent)
+    os.close(fd)
+    tmp_path = Path(tmp)
+    try:
+        yield tmp_path
+        os.replace(tmp_path, target)
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            tmp_path.unlink()
+        raise
+
+
+def write_tiff(path: str | os.PathLike[str], data: np.ndarray) -> None:
+    """Write an array as an uncompressed TIFF, atomically and byte-reproducibly."""
+    with atomic_path(path) as tmp:
+        tifffile.imwrite(tmp, data, photometric="minisblack" if data.ndim == 2 else "rgb", software=False)
+
+
+def read_tiff(path: str | os.PathLike[str]) -> np.ndarray:
+    """Read a TIFF into a NumPy array."""
+    return tifffile.imread(path)
+
+
+def write_json(path: str | os.PathLike[str], obj: Any) -> None:
+    """Write JSON (sorted keys, 2-space indent, NaN refused), atomically."""
+    text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False, default=_json_default)
+    with atomic_path(path) as tmp:
+        tmp.write_text(text + "\n", encoding="utf-8")
+
+
+def _json_default(o: Any) -> Any:
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def write_png_rgb(path: str | os.PathLike[str], rgb: np.ndarray) -> None:
+    """Write an RGB ``uint8``/``uint16`` array as PNG (OpenCV stores BGR), atomically."""
+    if rgb.dtype not in (np.uint8, np.uint16):
+        raise TypeError(f"PNG needs uint8 or uint16 data, got {rgb.dtype}")
+    with atomic_path(path) as tmp:
+        data = rgb[..., ::-1] if rgb.ndim == 3 else rgb
+        if not cv2.imwrite(str(tmp), np.ascontiguousarray(data)):
+            raise OSError(f"{path}: OpenCV could not write the PNG")

@@ -1,0 +1,509 @@
+"""Capture-session reader and validator (``../shared/spec/capture-session.md``, version 1).
+
+A session is refused *before any work starts* when it breaks the format: :func:`load_session`
+checks session.yaml against a JSON schema (unknown keys refused), every expected file, and the
+header of every image (size, bit depth, RGB, PNG/TIFF not truncated), and raises one
+:class:`SessionError` listing each problem with the file it concerns. Decoding every pixel is
+left to :func:`read_rgb` (which raises the same error type) or to ``deep=True``.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+import struct
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import cv2
+import jsonschema
+import numpy as np
+import tifffile
+import yaml
+
+FORMAT = "capture-session/1"
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_IEND = b"\x00\x00\x00\x00IEND\xaeB`\x82"
+
+
+@dataclass(frozen=True)
+class Problem:
+    """One thing wrong with a session: the file it concerns and what is wrong."""
+
+    path: Path
+    message: str
+
+    def __str__(self) -> str:
+        return f"{self.path}: {self.message}"
+
+
+class SessionError(ValueError):
+    """A capture session (or one of its files) breaks the capture-session format.
+
+    ``problems`` lists every problem found; ``str()`` names each file and what is wrong.
+    """
+
+    def __init__(self, problems: list[Problem] | Problem):
+        self.problems = [problems] if isinstance(problems, Problem) else list(problems)
+        lines = [str(p) for p in self.problems[:20]]
+        if len(self.problems) > 20:
+            lines.append(f"... and {len(self.problems) - 20} more problems")
+        super().__init__("\n".join(lines))
+
+    @classmethod
+    def at(cls, path: str | Path, message: str) -> SessionError:
+        return cls(Problem(Path(path), message))
+
+
+@dataclass(frozen=True)
+class Session:
+    """A validated capture session: its metadata and the paths of all its files."""
+
+    root: Path
+    meta: dict[str, Any]
+    reference_white: Path
+    reference_bands: tuple[tuple[Path, ...], ...]
+    planes: dict[float, Path]
+    object_white: Path
+    object_bands: tuple[tuple[Path, ...], ...]
+    frames: dict[int, Path]
+    phase_shift: dict[int, tuple[Path, Path, Path]] = field(default_factory=dict)
+    ground_truth: dict[int, Path] = field(default_factory=dict)
+
+    @property
+    def id(self) -> str:
+        return str(self.meta["id"])
+
+    @property
+    def width(self) -> int:
+        return int(self.meta["camera"]["width"])
+
+    @property
+    def height(self) -> int:
+        return int(self.meta["camera"]["height"])
+
+    @property
+    def bit_depth(self) -> int:
+        return int(self.meta["camera"]["bit_depth"])
+
+    @property
+    def pixel_pitch_mm(self) -> float:
+        return float(self.meta["camera"]["pixel_pitch_mm"])
+
+    @property
+    def period_px(self) -> float:
+        return float(self.meta["pattern"]["period_px"])
+
+    @property
+    def hue_bands(self) -> int:
+        return int(self.meta["pattern"]["hue_bands"])
+
+    @property
+    def repeats(self) -> int:
+        return int(self.meta["pattern"]["repeats"])
+
+    @property
+    def planes_mm(self) -> list[float]:
+        return [float(z) for z in self.meta["planes_mm"]]
+
+    @property
+    def specimen(self) -> dict[str, Any] | None:
+        return self.meta.get("specimen")
+
+    @property
+    def frame_ids(self) -> list[int]:
+        return sorted(self.frames)
+
+    def all_images(self) -> list[Path]:
+        """Every image path of the session (ground truth excluded)."""
+        out = [self.reference_white, self.object_white, *self.planes.values(), *self.frames.values()]
+        for bands in (self.reference_bands, self.object_bands):
+            out.extend(p for reps in bands for p in reps)
+        for triple in self.phase_shift.values():
+            out.extend(triple)
+        return out
+
+    def input_files(self) -> list[Path]:
+        """Every file of the session, session.yaml and ground truth included, sorted."""
+        return sorted([self.root / "session.yaml", *self.all_images(), *self.ground_truth.values()])
+
+
+# --------------------------------------------------------------------------- schema
+
+
+def _schema() -> dict[str, Any]:
+    text = resources.files("huefringe").joinpath("schemas/capture-session.schema.json").read_text()
+    return json.loads(text)
+
+
+def _schema_problems(meta: Any, yaml_path: Path) -> list[Problem]:
+    validator = jsonschema.Draft202012Validator(_schema())
+    problems = []
+    for err in sorted(validator.iter_errors(meta), key=lambda e: list(map(str, e.absolute_path))):
+        where = "/".join(str(p) for p in err.absolute_path) or "(top level)"
+        msg = err.message
+        if err.validator == "additionalProperties":
+            msg = f"unknown key(s): {msg.split('(')[-1].rstrip(')')}" if "(" in msg else msg
+        problems.append(Problem(yaml_path, f"at {where}: {msg}"))
+    return problems
+
+
+def _semantic_problems(meta: dict[str, Any], yaml_path: Path) -> list[Problem]:
+    problems = []
+    w, h = meta["camera"]["width"], meta["camera"]["height"]
+    planes = [float(z) for z in meta["planes_mm"]]
+    keys = [f"{z:.3f}" for z in planes]
+    if len(set(keys)) != len(keys):
+        problems.append(Problem(yaml_path, f"planes_mm has repeated planes (to 3 decimals): {planes}"))
+    if "0.000" not in keys:
+        problems.append(Problem(yaml_path, "planes_mm must contain the reference plane 0.0"))
+    nonzero = [abs(z) for z in planes if f"{z:.3f}" != "0.000"]
+    if not nonzero:
+        problems.append(Problem(yaml_path, "planes_mm needs at least one plane besides 0.0"))
+    spec = meta.get("specimen")
+    if spec:
+        boxes = [("base_roi", b) for b in spec["base_roi"]] + [
+            (f"steps/{s['name']}/roi", s["roi"]) for s in spec["steps"]
+        ]
+        for where, (u0, v0, u1, v1) in boxes:
+            if not (0 <= u0 < u1 <= w and 0 <= v0 < v1 <= h):
+                problems.append(
+                    Problem(
+                        yaml_path,
+                        f"specimen {where} [{u0}, {v0}, {u1}, {v1}) is empty or outside the "
+                        f"{w} x {h} image",
+                    )
+                )
+        names = [s["name"] for s in spec["steps"]]
+        if len(set(names)) != len(names):
+            problems.append(Problem(yaml_path, f"specimen step names repeat: {names}"))
+    return problems
+
+
+# --------------------------------------------------------------------------- image headers
+
+
+@dataclass(frozen=True)
+class ImageInfo:
+    width: int
+    height: int
+    bit_depth: int
+    channels: int
+
+
+def image_info(path: Path) -> ImageInfo:
+    """Read size, bit depth and channel count from an image header without decoding pixels.
+
+    Raises :class:`SessionError` for an unreadable, truncated or unsupported file.
+    """
+    suffix = path.suffix.lower()
+    try:
+        if suffix == ".png":
+            return _png_info(path)
+        if suffix in (".tif", ".tiff"):
+            return _tiff_info(path)
+    except SessionError:
+        raise
+    except Exception as exc:  # any parser failure is a bad file, reported as such
+        raise SessionError.at(path, f"cannot read image header ({exc.__class__.__name__}: {exc})") from exc
+    raise SessionError.at(path, f"unsupported image type {suffix!r} (PNG or TIFF expected)")
+
+
+def _png_info(path: Path) -> ImageInfo:
+    with open(path, "rb") as f:
+        head = f.read(33)
+        if len(head) < 33 or head[:8] != _PNG_SIGNATURE or head[12:16] != b"IHDR":
+            raise SessionError.at(path, "not a PNG file (bad signature or header)")
+        f.seek(0, 2)
+        size = f.tell()
+        f.seek(max(0, size - 12))
+        if f.read(12) != _PNG_IEND:
+            raise SessionError.at(path, "truncated PNG (no IEND chunk at the end of the file)")
+    width, height, depth, colour_type = struct.unpack(">IIBB", head[16:26])
+    channels = {0: 1, 2: 3, 3: 1, 4: 2, 6: 4}.get(colour_type, 0)
+    if colour_type == 3:
+        raise SessionError.at(path, "palette PNG; an RGB image is expected")
+    return ImageInfo(width, height, depth, channels)
+
+
+def _tiff_info(path: Path) -> ImageInfo:
+    size = path.stat().st_size
+    with tifffile.TiffFile(path) as tif:
+        page = tif.pages[0]
+        end = max((o + c for o, c in zip(page.dataoffsets, page.databytecounts, strict=False)), default=0)
+        if end > size:
+            raise SessionError.at(path, f"truncated TIFF (image data ends at byte {end}, file has {size})")
+        shape = page.shape
+        channels = int(page.samplesperpixel)
+        height, width = (shape[0], shape[1])
+        depth = int(page.bitspersample)
+        if page.dtype is not None and np.dtype(page.dtype).kind == "f":
+            depth = -depth  # float data: marks "not an integer image"
+    return ImageInfo(width, height, depth, channels)
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """Read an 8/16-bit RGB PNG or TIFF as ``float32 (H, W, 3)`` scaled to [0, 1].
+
+    Raises
+    ------
+    SessionError
+        If the file cannot be decoded or is not a 3-channel 8/16-bit image.
+    """
+    path = Path(path)
+    try:
+        if path.suffix.lower() in (".tif", ".tiff"):
+            data = tifffile.imread(path)
+        else:
+            data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            if data is not None and data.ndim == 3 and data.shape[2] == 3:
+                data = data[..., ::-1]
+    except Exception as exc:
+        raise SessionError.at(path, f"cannot decode image ({exc.__class__.__name__}: {exc})") from exc
+    if data is None:
+        raise SessionError.at(path, "cannot decode image (corrupt or truncated)")
+    if data.ndim != 3 or data.shape[2] != 3:
+        raise SessionError.at(path, f"not an RGB image (array shape {data.shape})")
+    if data.dtype == np.uint8:
+        scale = 255.0
+    elif data.dtype == np.uint16:
+        scale = 65535.0
+    else:
+        raise SessionError.at(path, f"unsupported pixel type {data.dtype} (8- or 16-bit expected)")
+    return np.ascontiguousarray(data, dtype=np.float32) * np.float32(1.0 / scale)
+
+
+# --------------------------------------------------------------------------- layout
+
+
+_BAND_RE = re.compile(r"^band_(\d{3})_r(\d+)$")
+_FRAME_RE = re.compile(r"^frame_(\d{4})$")
+_PS_RE = re.compile(r"^frame_(\d{4})_s([0-2])$")
+_PLANE_RE = re.compile(r"^z_(-?\d+\.\d{3})$")
+
+
+def _images_in(folder: Path, problems: list[Problem]) -> dict[str, Path]:
+    """Map stem -> path for the images in ``folder``; report a stem stored twice."""
+    out: dict[str, Path] = {}
+    if not folder.is_dir():
+        return out
+    for p in sorted(folder.iterdir()):
+        if p.name.startswith(".") or p.suffix.lower() not in IMAGE_SUFFIXES:
+            continue
+        if p.stem in out:
+            problems.append(Problem(p, f"the same image is stored twice ({out[p.stem].name} and {p.name})"))
+            continue
+        out[p.stem] = p
+    return out
+
+
+def _single_image(folder: Path, stem: str, problems: list[Problem]) -> Path | None:
+    found = [folder / f"{stem}{s}" for s in IMAGE_SUFFIXES if (folder / f"{stem}{s}").is_file()]
+    if not found:
+        problems.append(Problem(folder / f"{stem}.png", "missing file"))
+        return None
+    if len(found) > 1:
+        problems.append(Problem(found[0], f"the same image is stored twice: {[p.name for p in found]}"))
+    return found[0]
+
+
+def _bands(folder: Path, n: int, repeats: int, problems: list[Problem]) -> tuple[tuple[Path, ...], ...]:
+    if not folder.is_dir():
+        problems.append(Problem(folder, "missing folder of hue bands"))
+        return ()
+    images = _images_in(folder, problems)
+    out = []
+    for i in range(n):
+        row = []
+        for r in range(repeats):
+            p = images.get(f"band_{i:03d}_r{r}")
+            if p is None:
+                problems.append(Problem(folder / f"band_{i:03d}_r{r}.png", "missing file"))
+            else:
+                row.append(p)
+        out.append(tuple(row))
+    for stem, p in images.items():
+        m = _BAND_RE.match(stem)
+        if not m:
+            problems.append(Problem(p, "unexpected file name (band_III_rR expected)"))
+        elif int(m.group(1)) >= n or int(m.group(2)) >= repeats:
+            problems.append(
+                Problem(p, f"band or repeat outside pattern.hue_bands={n}, pattern.repeats={repeats}")
+            )
+    return tuple(out)
+
+
+def _collect(root: Path, meta: dict[str, Any], problems: list[Problem]) -> Session | None:
+    n, repeats = int(meta["pattern"]["hue_bands"]), int(meta["pattern"]["repeats"])
+    ref, obj = root / "reference", root / "object"
+    for folder in (ref, obj):
+        if not folder.is_dir():
+            problems.append(Problem(folder, "missing folder"))
+    if problems:
+        return None
+    ref_white = _single_image(ref, "white", problems)
+    obj_white = _single_image(obj, "white", problems)
+    ref_bands = _bands(ref / "hue", n, repeats, problems)
+    obj_bands = _bands(obj / "hue", n, repeats, problems)
+
+    planes: dict[float, Path] = {}
+    plane_images = _images_in(ref / "planes", problems)
+    if not (ref / "planes").is_dir():
+        problems.append(Problem(ref / "planes", "missing folder of calibration planes"))
+    by_key = {f"{float(z):.3f}": float(z) for z in meta["planes_mm"]}
+    for stem, p in plane_images.items():
+        m = _PLANE_RE.match(stem)
+        if not m:
+            problems.append(Problem(p, "unexpected file name (z_<mm with 3 decimals> expected)"))
+        elif f"{float(m.group(1)):.3f}" not in by_key:
+            problems.append(Problem(p, f"plane z={m.group(1)} mm is not listed in planes_mm {list(by_key.values())}"))
+        else:
+            planes[by_key[f"{float(m.group(1)):.3f}"]] = p
+    for key, z in by_key.items():
+        if z not in planes and (ref / "planes").is_dir():
+            problems.append(Problem(ref / "planes" / f"z_{key}.png", f"missing file for plane {z} mm listed in planes_mm"))
+
+    frames: dict[int, Path] = {}
+    frames_dir = obj / "frames"
+    if not frames_dir.is_dir():
+        problems.append(Problem(frames_dir, "missing folder of frames"))
+    else:
+        for stem, p in _images_in(frames_dir, problems).items():
+            m = _FRAME_RE.match(stem)
+            if m:
+                frames[int(m.group(1))] = p
+            else:
+                problems.append(Problem(p, "unexpected file name (frame_NNNN expected)"))
+        if not frames:
+            problems.append(Problem(frames_dir, "no frames: the folder holds no frame_NNNN image"))
+
+    phase_shift: dict[int, tuple[Path, Path, Path]] = {}
+    ps_dir = obj / "phase_shift"
+    if ps_dir.is_dir():
+        parts: dict[int, dict[int, Path]] = {}
+        for stem, p in _images_in(ps_dir, problems).items():
+            m = _PS_RE.match(stem)
+            if not m:
+                problems.append(Problem(p, "unexpected file name (frame_NNNN_sS expected, S in 0..2)"))
+                continue
+            parts.setdefault(int(m.group(1)), {})[int(m.group(2))] = p
+        for idx, got in sorted(parts.items()):
+            if idx not in frames:
+                problems.append(Problem(ps_dir / f"frame_{idx:04d}_s0.png", f"phase-shift captures for instant {idx:04d}, which has no frame"))
+            missing = [s for s in range(3) if s not in got]
+            if missing:
+                problems.append(Problem(ps_dir / f"frame_{idx:04d}_s{missing[0]}.png", "missing file (all three phase-shift captures are needed)"))
+            else:
+                phase_shift[idx] = (got[0], got[1], got[2])
+
+    ground_truth: dict[int, Path] = {}
+    gt_dir = root / "ground_truth" / "frames"
+    if gt_dir.is_dir():
+        for p in sorted(gt_dir.iterdir()):
+            if p.name.startswith(".") or p.suffix.lower() not in (".tif", ".tiff"):
+                continue
+            m = _FRAME_RE.match(p.stem)
+            if not m or int(m.group(1)) not in frames:
+                problems.append(Problem(p, "ground truth for no frame of the session"))
+            else:
+                ground_truth[int(m.group(1))] = p
+    if problems or ref_white is None or obj_white is None:
+        return None
+    return Session(
+        root=root,
+        meta=meta,
+        reference_white=ref_white,
+        reference_bands=ref_bands,
+        planes=dict(sorted(planes.items())),
+        object_white=obj_white,
+        object_bands=obj_bands,
+        frames=dict(sorted(frames.items())),
+        phase_shift=phase_shift,
+        ground_truth=ground_truth,
+    )
+
+
+def _image_problems(session: Session, deep: bool) -> list[Problem]:
+    problems: list[Problem] = []
+    w, h, depth = session.width, session.height, session.bit_depth
+    for p in session.all_images():
+        try:
+            info = image_info(p)
+        except SessionError as exc:
+            problems.extend(exc.problems)
+            continue
+        before = len(problems)
+        if info.channels != 3:
+            kind = {1: "greyscale", 2: "grey+alpha", 4: "RGBA"}.get(info.channels, f"{info.channels}-channel")
+            problems.append(Problem(p, f"{kind} image; an RGB image is expected"))
+        if (info.width, info.height) != (w, h):
+            problems.append(Problem(p, f"image is {info.width} x {info.height}, session.yaml declares {w} x {h}"))
+        if info.bit_depth != depth:
+            problems.append(Problem(p, f"image is {abs(info.bit_depth)}-bit{' float' if info.bit_depth < 0 else ''}, session.yaml declares {depth}-bit"))
+        if deep and len(problems) == before:
+            try:
+                read_rgb(p)
+            except SessionError as exc:
+                problems.extend(exc.problems)
+    for idx, p in session.ground_truth.items():
+        try:
+            with tifffile.TiffFile(p) as tif:
+                page = tif.pages[0]
+                shape, dtype = page.shape, page.dtype
+        except Exception as exc:
+            problems.append(Problem(p, f"cannot read ground truth TIFF ({exc})"))
+            continue
+        if tuple(shape) != (h, w) or np.dtype(dtype) != np.float32:
+            problems.append(Problem(p, f"ground truth must be float32 {h} x {w}, got {dtype} {tuple(shape)}"))
+    return problems
+
+
+def read_meta(root: str | Path) -> dict[str, Any]:
+    """Read and schema-check ``session.yaml`` only (no file checks)."""
+    root = Path(root)
+    yaml_path = root / "session.yaml"
+    if not root.is_dir():
+        raise SessionError.at(root, "session folder does not exist")
+    if not yaml_path.is_file():
+        raise SessionError.at(yaml_path, "missing file")
+    try:
+        meta = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise SessionError.at(yaml_path, f"not valid YAML ({exc})") from exc
+    problems = _schema_problems(meta, yaml_path)
+    if problems:
+        raise SessionError(problems)
+    problems = _semantic_problems(meta, yaml_path)
+    if problems:
+        raise SessionError(problems)
+    return meta
+
+
+def load_session(root: str | Path, *, deep: bool = False) -> Session:
+    """Read and validate a capture session.
+
+    Parameters
+    ----------
+    root : path
+        The session folder (holding ``session.yaml``).
+    deep : bool
+        Also decode every image (slower; catches corruption inside otherwise well-formed files).
+
+    Raises
+    ------
+    SessionError
+        Listing every problem, each with the file concerned.
+    """
+    root = Path(root)
+    meta = read_meta(root)
+    problems: list[Problem] = []
+    session = _collect(root, meta, problems)
+    if session is None:
+        raise SessionError(problems)
+    problems = _image_problems(session, deep)
+    if problems:
+        raise SessionError(problems)
+    return session

@@ -1,0 +1,153 @@
+"""The capture-session reader accepts valid sessions and refuses broken ones with the right message."""
+
+from __future__ import annotations
+
+import shutil
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from session_factory import make_session, write_image
+
+from huefringe.cli import main
+from huefringe.session import SessionError, load_session, read_rgb
+
+
+@pytest.mark.parametrize(("bit_depth", "ext"), [(8, ".png"), (16, ".png"), (8, ".tiff"), (16, ".tiff")])
+def test_valid_sessions_load(tmp_path: Path, bit_depth: int, ext: str) -> None:
+    root = make_session(tmp_path / "s", bit_depth=bit_depth, ext=ext)
+    s = load_session(root, deep=True)
+    assert s.id == "test-session"
+    assert (s.width, s.height, s.bit_depth) == (32, 24, bit_depth)
+    assert len(s.reference_bands) == 6 and all(len(r) == 2 for r in s.object_bands)
+    assert list(s.planes) == [0.0, 1.0, 2.0]
+    assert s.frame_ids == [0, 1]
+    assert sorted(s.phase_shift) == [0, 1] and sorted(s.ground_truth) == [0, 1]
+    img = read_rgb(s.frames[0])
+    assert img.shape == (24, 32, 3) and img.dtype == np.float32
+    assert 0.0 <= img.min() and img.max() <= 1.0 and img.max() > 0.9
+
+
+def test_read_rgb_scales_16_bit_and_keeps_channel_order(tmp_path: Path) -> None:
+    rgb = np.zeros((4, 5, 3), np.uint16)
+    rgb[..., 0] = 65535  # pure red
+    rgb[..., 2] = 32768
+    for ext in (".png", ".tiff"):
+        p = tmp_path / f"red{ext}"
+        write_image(p, rgb)
+        out = read_rgb(p)
+        np.testing.assert_allclose(out[0, 0], [1.0, 0.0, 32768 / 65535], atol=1e-6)
+
+
+def _edit_yaml(root: Path, edit: Callable[[dict], None]) -> None:
+    meta = yaml.safe_load((root / "session.yaml").read_text())
+    edit(meta)
+    (root / "session.yaml").write_text(yaml.safe_dump(meta))
+
+
+def _truncate(p: Path) -> None:
+    data = p.read_bytes()
+    p.write_bytes(data[: len(data) // 2])
+
+
+def _wrong_size(root: Path) -> None:
+    write_image(root / "object/frames/frame_0001.png", np.zeros((24, 31, 3), np.uint8))
+
+
+def _mixed_depth(root: Path) -> None:
+    write_image(root / "reference/hue/band_002_r1.png", np.zeros((24, 32, 3), np.uint16))
+
+
+def _grey(root: Path) -> None:
+    import cv2
+
+    cv2.imwrite(str(root / "object/white.png"), np.zeros((24, 32), np.uint8))
+
+
+def _rgba(root: Path) -> None:
+    import cv2
+
+    cv2.imwrite(str(root / "reference/white.png"), np.zeros((24, 32, 4), np.uint8))
+
+
+def _empty_frames(root: Path) -> None:
+    for p in (root / "object/frames").iterdir():
+        p.unlink()
+    shutil.rmtree(root / "object/phase_shift")
+    shutil.rmtree(root / "ground_truth")
+
+
+def _extra_plane(root: Path) -> None:
+    shutil.copy(root / "reference/planes/z_1.000.png", root / "reference/planes/z_3.000.png")
+
+
+BROKEN: dict[str, tuple[Callable[[Path], None], str, str]] = {
+    # name: (breakage, file the message must name, words it must contain)
+    "missing file": (lambda r: (r / "object/hue/band_003_r1.png").unlink(), "object/hue/band_003_r1.png", "missing file"),
+    "missing session.yaml": (lambda r: (r / "session.yaml").unlink(), "session.yaml", "missing file"),
+    "wrong size": (_wrong_size, "object/frames/frame_0001.png", "31 x 24"),
+    "mixed bit depth": (_mixed_depth, "reference/hue/band_002_r1.png", "16-bit"),
+    "truncated png": (lambda r: _truncate(r / "object/frames/frame_0000.png"), "object/frames/frame_0000.png", "truncated"),
+    "unknown key": (lambda r: _edit_yaml(r, lambda m: m["camera"].update(gain=2)), "session.yaml", "unknown key"),
+    "unknown top key": (lambda r: _edit_yaml(r, lambda m: m.update(operator="bob")), "session.yaml", "operator"),
+    "bad id": (lambda r: _edit_yaml(r, lambda m: m.update(id="Gauge Blocks!")), "session.yaml", "at id"),
+    "roi outside": (
+        lambda r: _edit_yaml(r, lambda m: m["specimen"]["steps"][0].update(roi=[20, 8, 40, 16])),
+        "session.yaml",
+        "outside the 32 x 24 image",
+    ),
+    "empty frames folder": (_empty_frames, "object/frames", "no frames"),
+    "plane file not listed": (_extra_plane, "reference/planes/z_3.000.png", "not listed in planes_mm"),
+    "listed plane missing": (lambda r: _edit_yaml(r, lambda m: m.update(planes_mm=[0.0, 1.0, 2.0, 5.0])), "z_5.000.png", "missing file"),
+    "no reference plane": (lambda r: _edit_yaml(r, lambda m: m.update(planes_mm=[1.0, 2.0])), "session.yaml", "reference plane"),
+    "greyscale image": (_grey, "object/white.png", "greyscale"),
+    "rgba image": (_rgba, "reference/white.png", "RGBA"),
+    "incomplete phase shift": (lambda r: (r / "object/phase_shift/frame_0001_s2.png").unlink(), "frame_0001_s2.png", "three phase-shift"),
+    "wrong format": (lambda r: _edit_yaml(r, lambda m: m.update(format="capture-session/2")), "session.yaml", "capture-session/1"),
+    "bad bit depth": (lambda r: _edit_yaml(r, lambda m: m["camera"].update(bit_depth=12)), "session.yaml", "camera/bit_depth"),
+    "not yaml": (lambda r: (r / "session.yaml").write_text("format: [unclosed"), "session.yaml", "not valid YAML"),
+    "band outside range": (
+        lambda r: shutil.copy(r / "object/hue/band_000_r0.png", r / "object/hue/band_007_r0.png"),
+        "object/hue/band_007_r0.png",
+        "outside",
+    ),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BROKEN))
+def test_broken_sessions_are_refused_naming_file_and_problem(tmp_path: Path, name: str) -> None:
+    root = make_session(tmp_path / "s")
+    breakage, file_part, words = BROKEN[name]
+    breakage(root)
+    before = {p: p.read_bytes() for p in root.rglob("*") if p.is_file()}
+    with pytest.raises(SessionError) as info:
+        load_session(root)
+    msg = str(info.value)
+    line = next((ln for ln in msg.splitlines() if file_part in ln), None)
+    assert line is not None, f"message does not name {file_part}: {msg}"
+    assert words in line, f"expected {words!r} in {line!r}"
+    after = {p: p.read_bytes() for p in root.rglob("*") if p.is_file()}
+    assert after == before, "validation must not modify the session"
+
+
+def test_corrupt_pixels_caught_by_deep_check(tmp_path: Path) -> None:
+    root = make_session(tmp_path / "s")
+    p = root / "object/frames/frame_0000.png"
+    data = bytearray(p.read_bytes())
+    data[60:90] = b"\x00" * 30  # inside the IDAT stream, header and IEND intact
+    p.write_bytes(bytes(data))
+    load_session(root)  # headers are fine
+    with pytest.raises(SessionError, match="frame_0000.png"):
+        load_session(root, deep=True)
+
+
+def test_cli_check_exit_status(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    root = make_session(tmp_path / "s")
+    assert main(["check", str(root)]) == 0
+    assert "OK: session 'test-session'" in capsys.readouterr().out
+    (root / "object/white.png").unlink()
+    assert main(["check", str(root)]) == 1
+    out = capsys.readouterr().out
+    assert "REFUSED" in out and "object/white.png: missing file" in out
