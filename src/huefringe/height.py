@@ -1,0 +1,250 @@
+"""Phase-to-height calibration on planes at known heights, and accuracy against ground truth.
+
+Model
+-----
+A telecentric camera looks straight down; a pinhole projector sits at ``(Xp, H)`` and casts a
+fringe of period ``P`` onto the reference plane. A surface point at ``(X, h)`` is lit by the ray
+that meets the reference plane at ``X0 = Xp + (X - Xp) H / (H - h)``, so its phase exceeds the
+reference phase at the same pixel by
+
+    dphi = k (X - Xp) h / (H - h),        k = 2 pi / P,
+
+which solves to ``h = dphi / (a + b dphi)`` with ``a = k (X - Xp) / H`` and ``b = 1 / H``. Neither
+``Xp`` nor ``H`` is known (the session gives no projector pose), so ``a`` and ``b`` are fitted per
+pixel by linear least squares over the calibration planes: each plane ``z_j`` with measured
+``dphi_j`` gives one equation ``a z_j + b z_j dphi_j = dphi_j``. With a single plane besides the
+reference, ``b`` is set to 0 (a linear model) and the report says so.
+
+Noise in the plane phases is removed by fitting each plane's phase with a low-order 2-D
+polynomial (degree 3 by default): for a flat plate the phase is exactly linear in ``X`` under
+the model above, and a cubic absorbs smooth lens distortion. ``smooth_degree=None`` keeps the
+raw per-pixel phases instead.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe.phase import unwrap_rows, wrap
+
+
+class CalibrationError(ValueError):
+    """The calibration planes cannot give a phase-to-height model."""
+
+
+@dataclass
+class PlaneCalibration:
+    """Per-pixel phase-to-height model ``h = dphi / (a + b dphi)`` and the reference phase."""
+
+    phi_ref: NDArray[np.float32]
+    """Wrapped phase of the reference plane z = 0, [0, 2 pi)."""
+    a: NDArray[np.float32]
+    b: NDArray[np.float32]
+    planes_mm: list[float]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    def height(self, dphi: NDArray[np.floating]) -> NDArray[np.float32]:
+        """Height in mm from an unwrapped phase difference (NaN stays NaN)."""
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (dphi / (self.a + self.b * dphi)).astype(np.float32)
+
+    def unambiguous_range_mm(self) -> tuple[float, float]:
+        """Heights reachable with |dphi| < pi (reference-relative unwrapping): the worst pixel."""
+        lo = self.height(np.full(self.a.shape, -np.pi, np.float32))
+        hi = self.height(np.full(self.a.shape, np.pi, np.float32))
+        both = np.stack([lo, hi])
+        return float(np.nanmax(np.nanmin(both, axis=0))), float(np.nanmin(np.nanmax(both, axis=0)))
+
+    def save(self, path: str) -> None:
+        from huefringe.io import atomic_path
+
+        with atomic_path(path) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(f, phi_ref=self.phi_ref, a=self.a, b=self.b, planes_mm=np.asarray(self.planes_mm))
+
+    @classmethod
+    def load(cls, path: str) -> PlaneCalibration:
+        with np.load(path) as z:
+            return cls(z["phi_ref"], z["a"], z["b"], [float(v) for v in z["planes_mm"]])
+
+
+def _design(shape: tuple[int, int], degree: int, uu: NDArray, vv: NDArray) -> NDArray[np.float64]:
+    h, w = shape
+    x = (uu / max(w - 1, 1)) * 2.0 - 1.0
+    y = (vv / max(h - 1, 1)) * 2.0 - 1.0
+    cols = [x**i * y**j for i in range(degree + 1) for j in range(degree + 1 - i)]
+    return np.stack(cols, axis=-1)
+
+
+def fit_poly2d(values: NDArray[np.floating], valid: NDArray[np.bool_], degree: int = 3,
+               *, step: int = 2, clip_sigma: float = 3.0, iterations: int = 3) -> NDArray[np.float64]:
+    """Robust least-squares fit of a 2-D polynomial of total degree ``degree``; evaluated everywhere.
+
+    Outliers beyond ``clip_sigma`` robust standard deviations are dropped and the fit repeated.
+    """
+    shape = values.shape
+    vv, uu = np.mgrid[0 : shape[0] : step, 0 : shape[1] : step]
+    sub_vals = values[::step, ::step]
+    keep = valid[::step, ::step] & np.isfinite(sub_vals)
+    n_terms = (degree + 1) * (degree + 2) // 2
+    if keep.sum() < 4 * n_terms:
+        raise CalibrationError(f"only {int(keep.sum())} valid samples for a degree-{degree} fit")
+    A = _design(shape, degree, uu[keep].astype(np.float64), vv[keep].astype(np.float64))
+    y = sub_vals[keep].astype(np.float64)
+    use = np.ones(y.shape, bool)
+    coef = np.zeros(n_terms)
+    for _ in range(iterations):
+        coef, *_ = np.linalg.lstsq(A[use], y[use], rcond=None)
+        r = y - A @ coef
+        mad = 1.4826 * np.median(np.abs(r[use] - np.median(r[use])))
+        if mad == 0:
+            break
+        new = np.abs(r) < clip_sigma * mad
+        if new.sum() < 4 * n_terms or np.array_equal(new, use):
+            break
+        use = new
+    V, U = np.mgrid[0 : shape[0], 0 : shape[1]]
+    full = _design(shape, degree, U.astype(np.float64), V.astype(np.float64))
+    return full @ coef
+
+
+def calibrate_planes(
+    plane_phases: dict[float, NDArray[np.floating]],
+    plane_valid: dict[float, NDArray[np.bool_]],
+    *,
+    smooth_degree: int | None = 3,
+    min_valid_fraction: float = 0.2,
+) -> PlaneCalibration:
+    """Fit the per-pixel model ``h = dphi / (a + b dphi)`` to the calibration planes.
+
+    Parameters
+    ----------
+    plane_phases : dict
+        Wrapped code phase [0, 2 pi) of each plane, keyed by its height in mm; must include 0.0.
+    plane_valid : dict
+        Valid-pixel mask of each plane.
+    smooth_degree : int or None
+        Degree of the 2-D polynomial fitted to each plane's phase, or None for raw pixels.
+
+    Raises
+    ------
+    CalibrationError
+        Missing reference plane, too few valid pixels, planes too close to tell apart.
+    """
+    zs = sorted(plane_phases)
+    if 0.0 not in plane_phases:
+        raise CalibrationError("the reference plane z = 0 is missing")
+    others = sorted((z for z in zs if z != 0.0), key=abs)
+    if not others:
+        raise CalibrationError("at least one plane besides z = 0 is needed")
+    shape = plane_phases[0.0].shape
+    for z in zs:
+        frac = float(np.mean(plane_valid[z]))
+        if frac < min_valid_fraction:
+            raise CalibrationError(f"plane z = {z:.3f} mm has only {100 * frac:.1f} % valid pixels")
+
+    v0 = plane_valid[0.0]
+    phi0 = np.asarray(plane_phases[0.0], np.float64)
+    if smooth_degree is not None:
+        phi0_model = fit_poly2d(unwrap_rows(phi0, v0), v0, smooth_degree)
+        phi_ref = np.mod(phi0_model, 2 * np.pi)
+    else:
+        phi_ref = phi0
+
+    # sequential (temporal) unwrapping of the plane differences, nearest plane first
+    dphis: dict[float, NDArray[np.float64]] = {}
+    raw: dict[float, NDArray[np.float64]] = {}
+    slope: NDArray[np.float64] | None = None
+    for z in others:
+        d = wrap(np.asarray(plane_phases[z], np.float64) - phi_ref)
+        if slope is not None:
+            pred = slope * z
+            d = pred + wrap(d - pred)
+        valid = plane_valid[z] & v0 if smooth_degree is None else plane_valid[z]
+        raw[z] = np.where(valid, d, np.nan)
+        model = fit_poly2d(d, valid, smooth_degree) if smooth_degree is not None else raw[z]
+        dphis[z] = model
+        slope = model / z
+
+    # per-pixel least squares: a z + b z dphi = dphi
+    if len(others) == 1:
+        (z1,) = others
+        a = dphis[z1] / z1
+        b = np.zeros(shape)
+        model_kind = "linear (one plane besides the reference: b = 0)"
+    else:
+        s_zz = sum(z * z for z in others) * np.ones(shape)
+        s_zzd = sum(z * z * dphis[z] for z in others)
+        s_zzdd = sum(z * z * dphis[z] ** 2 for z in others)
+        s_zd = sum(z * dphis[z] for z in others)
+        s_zdd = sum(z * dphis[z] ** 2 for z in others)
+        det = s_zz * s_zzdd - s_zzd**2
+        spread = float(np.nanmedian(np.abs(det)) / max(float(np.nanmedian(s_zz * s_zzdd)), 1e-30))
+        if spread < 1e-8:
+            raise CalibrationError(
+                "the calibration planes are too close together to fit the rational model; "
+                f"planes_mm = {zs}"
+            )
+        with np.errstate(divide="ignore", invalid="ignore"):
+            a = (s_zd * s_zzdd - s_zdd * s_zzd) / det
+            b = (s_zz * s_zdd - s_zzd * s_zd) / det
+        model_kind = "rational h = dphi / (a + b dphi)"
+
+    cal = PlaneCalibration(phi_ref.astype(np.float32), a.astype(np.float32), b.astype(np.float32), zs)
+    # residuals: heights of the raw (unsmoothed) plane phases against the known z
+    per_plane = {}
+    all_res = []
+    for z in others:
+        res = cal.height(raw[z]) - z
+        res = res[np.isfinite(res)]
+        all_res.append(res)
+        per_plane[f"{z:.3f}"] = {
+            "rms_mm": float(np.sqrt(np.mean(res**2))),
+            "median_mm": float(np.median(res)),
+            "valid_fraction": float(np.mean(plane_valid[z])),
+        }
+    res_all = np.concatenate(all_res)
+    lo, hi = cal.unambiguous_range_mm()
+    sensitivity = float(np.nanmedian(np.abs(a)))
+    cal.stats = {
+        "model": model_kind,
+        "smooth_degree": smooth_degree,
+        "planes_mm": zs,
+        "fit_residual_rms_mm": float(np.sqrt(np.mean(res_all**2))),
+        "fit_residual_p95_mm": float(np.percentile(np.abs(res_all), 95)),
+        "per_plane": per_plane,
+        "unambiguous_range_mm": [lo, hi],
+        "sensitivity_rad_per_mm": sensitivity,
+        "projector_height_mm_estimate": float(1.0 / np.nanmedian(b)) if np.nanmedian(b) > 0 else None,
+    }
+    return cal
+
+
+def accuracy(height: NDArray[np.floating], truth: NDArray[np.floating],
+             region: NDArray[np.bool_] | None = None) -> dict[str, float]:
+    """Height error statistics against ground truth.
+
+    ``coverage`` is the valid fraction of the pixels where the truth is finite (and inside
+    ``region`` when given); the error figures use the pixels valid in both.
+    """
+    truth = np.asarray(truth, np.float64)
+    height = np.asarray(height, np.float64)
+    where = np.isfinite(truth) if region is None else (np.isfinite(truth) & region)
+    both = where & np.isfinite(height)
+    n = int(where.sum())
+    if not both.any():
+        return {"rms_mm": float("nan"), "median_abs_mm": float("nan"), "p95_abs_mm": float("nan"),
+                "mean_mm": float("nan"), "coverage": 0.0, "pixels": n}
+    err = height[both] - truth[both]
+    return {
+        "rms_mm": float(np.sqrt(np.mean(err**2))),
+        "median_abs_mm": float(np.median(np.abs(err))),
+        "p95_abs_mm": float(np.percentile(np.abs(err), 95)),
+        "mean_mm": float(np.mean(err)),
+        "coverage": float(both.sum() / max(n, 1)),
+        "pixels": n,
+    }

@@ -1,0 +1,116 @@
+"""Phase, unwrapping and plane calibration against analytic triangulation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from huefringe.height import CalibrationError, accuracy, calibrate_planes
+from huefringe.patterns import TWO_PI, phase_shift_intensity
+from huefringe.phase import three_step_phase, unwrap, wrap
+
+W, H_IMG, PITCH, PERIOD_PX = 160, 120, 0.2, 40.0
+XP, HP = -150.0, 300.0  # projector pupil x and height (mm)
+
+
+def code_phase(h: np.ndarray) -> np.ndarray:
+    """Ideal rig: code phase seen at each pixel for a surface of height h (mm)."""
+    X = np.arange(W)[None, :] * PITCH * np.ones((H_IMG, 1))
+    x0 = XP + (X - XP) * HP / (HP - h)
+    return np.mod(TWO_PI * x0 / (PERIOD_PX * PITCH), TWO_PI)
+
+
+def ideal_calibration(planes=(0.0, 3.0, 6.0), noise=0.0, degree=3, seed=0):
+    rng = np.random.default_rng(seed)
+    phases = {z: np.mod(code_phase(np.full((H_IMG, W), z)) + rng.normal(0, noise, (H_IMG, W)), TWO_PI) for z in planes}
+    valid = {z: np.ones((H_IMG, W), bool) for z in planes}
+    return calibrate_planes(phases, valid, smooth_degree=degree)
+
+
+def test_wrap_range() -> None:
+    x = np.linspace(-20, 20, 1001)
+    w = wrap(x)
+    assert np.all(w > -np.pi - 1e-12) and np.all(w <= np.pi + 1e-12)
+    np.testing.assert_allclose(np.cos(w), np.cos(x), atol=1e-12)
+
+
+def test_three_step_recovers_phase_and_contrast() -> None:
+    phi = np.linspace(0, TWO_PI, 500, endpoint=False)
+    A, B = 0.3, 0.2
+    imgs = [A + B * (2 * phase_shift_intensity(phi, s) - 1) for s in range(3)]
+    out, mod = three_step_phase(*imgs)
+    np.testing.assert_allclose(wrap(out - phi), 0, atol=1e-6)
+    np.testing.assert_allclose(mod, B / A, rtol=1e-5)
+
+
+@pytest.mark.parametrize("degree", [3, None])
+def test_plane_calibration_matches_triangulation(degree) -> None:
+    cal = ideal_calibration(degree=degree)
+    # the model is exact: a = k (X - Xp) / H, b = 1 / H
+    X = np.arange(W) * PITCH
+    k = TWO_PI / (PERIOD_PX * PITCH)
+    np.testing.assert_allclose(cal.a[0], k * (X - XP) / HP, rtol=1e-4)
+    np.testing.assert_allclose(np.median(cal.b), 1 / HP, rtol=1e-3)
+    assert cal.stats["fit_residual_rms_mm"] < 1e-4
+    # a freeform surface within the unambiguous range reconstructs exactly
+    vv, uu = np.mgrid[0:H_IMG, 0:W]
+    h = 2.5 + 2.0 * np.sin(uu / 17.0) * np.cos(vv / 23.0)
+    dphi = wrap(code_phase(h) - cal.phi_ref)
+    np.testing.assert_allclose(cal.height(dphi), h, atol=2e-4)
+    lo, hi = cal.unambiguous_range_mm()
+    assert lo < 0 < 6.0 < hi
+
+
+def test_smoothing_beats_raw_pixels_with_noise() -> None:
+    vv, uu = np.mgrid[0:H_IMG, 0:W]
+    h = np.where((uu > 50) & (uu < 110), 3.0, 0.5)
+    errs = {}
+    for degree in (3, None):
+        cal = ideal_calibration(noise=0.02, degree=degree, seed=1)
+        dphi = wrap(code_phase(h) - cal.phi_ref)
+        errs[degree] = accuracy(cal.height(dphi), h)["rms_mm"]
+    assert errs[3] < 0.6 * errs[None]
+
+
+def test_single_extra_plane_gives_linear_model() -> None:
+    cal = ideal_calibration(planes=(0.0, 2.0))
+    assert np.all(cal.b == 0) and "linear" in cal.stats["model"]
+    dphi = wrap(code_phase(np.full((H_IMG, W), 1.0)) - cal.phi_ref)
+    np.testing.assert_allclose(cal.height(dphi), 1.0, atol=0.01)
+
+
+def test_planes_too_close_refused() -> None:
+    with pytest.raises(CalibrationError, match="too close"):
+        ideal_calibration(planes=(0.0, 1e-7, 2e-7))
+
+
+def test_far_planes_unwrap_sequentially() -> None:
+    # plane 12 mm lies beyond the unambiguous range but is reached through 3, 6, 9 mm
+    cal = ideal_calibration(planes=(0.0, 3.0, 6.0, 9.0, 12.0))
+    assert cal.stats["fit_residual_rms_mm"] < 1e-3
+
+
+def test_reference_unwrap_flags_and_spatial_unwrap() -> None:
+    vv, uu = np.mgrid[0:H_IMG, 0:W]
+    true = 0.06 * (uu - 20.0)  # a ramp from -1.2 to 8.3 rad: crosses pi
+    wrapped = wrap(true)
+    valid = np.ones(true.shape, bool)
+    ref = unwrap(wrapped, valid, "reference")
+    assert ref.flags["wrap_edge"].any() and ref.flags["near_wrap"].any()
+    sp = unwrap(wrapped, valid, "spatial")
+    np.testing.assert_allclose(sp.dphi, true, atol=1e-5)
+    assert not sp.flags["isolated"].any()
+    # an island separated by invalid pixels is flagged isolated
+    valid2 = valid.copy()
+    valid2[:, 100:104] = False
+    sp2 = unwrap(wrapped, valid2, "spatial")
+    assert sp2.flags["isolated"][:, 110].all() and not sp2.flags["isolated"][:, 10].any()
+
+
+def test_accuracy_figures() -> None:
+    truth = np.zeros((10, 10))
+    h = truth + 0.1
+    h[0, 0] = np.nan
+    acc = accuracy(h, truth)
+    assert acc["coverage"] == pytest.approx(0.99)
+    assert acc["rms_mm"] == pytest.approx(0.1) and acc["median_abs_mm"] == pytest.approx(0.1)
