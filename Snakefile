@@ -1,0 +1,24 @@
+# huefringe: one-shot trapezoidal HSI fringe projection, from capture sessions to metrology.
+# Usage: snakemake --cores 2 [--configfile my.yaml]. Rules live in workflow/rules/.
+from snakemake.utils import min_version, validate
+
+min_version("9.0")
+
+configfile: "config.yaml"
+
+
+validate(config, "workflow/schemas/config.schema.yaml")
+
+
+include: "workflow/rules/common.smk"
+include: "workflow/rules/bench.smk"
+include: "workflow/rules/calibration.smk"
+include: "workflow/rules/measurement.smk"
+include: "workflow/rules/surfaces.smk"
+include: "workflow/rules/metrology.smk"
+
+
+rule all:
+    default_target: True
+    input:
+        all_targets(),

@@ -1,0 +1,385 @@
+"""Workflow stages: each function is what one Snakemake script calls, once.
+
+Every stage reads its inputs, calls the library, and writes its outputs atomically. Nothing here
+is Snakemake-specific except :func:`run_from_snakemake`, the adapter the scripts use.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import logging
+import platform
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe import __version__
+from huefringe.calibration import HueTable, build_table
+from huefringe.colour import hue as hue_of
+from huefringe.colour import intensity, white_balance
+from huefringe.height import PlaneCalibration, accuracy, calibrate_planes
+from huefringe.io import read_tiff, write_json, write_tiff
+from huefringe.phase import three_step_phase, unwrap, wrap
+from huefringe.session import Session, load_session, read_rgb
+
+log = logging.getLogger("huefringe")
+
+
+class FrameError(ValueError):
+    """A frame cannot be measured (lens cap, saturated sensor, no fringe); names the file."""
+
+
+# --------------------------------------------------------------------------- masks
+
+
+def shadow_mask(white: NDArray[np.floating], fraction: float) -> NDArray[np.bool_]:
+    """Pixels whose white-image intensity is below ``fraction`` of the image's 99th percentile.
+
+    Shadowed pixels receive only ambient light when the projector shows white, so they carry no
+    fringe; they are invalid in every frame of the session.
+    """
+    level = intensity(white)
+    return level < fraction * float(np.percentile(level, 99))
+
+
+def clipped_mask(rgb: NDArray[np.floating], bit_depth: int) -> NDArray[np.bool_]:
+    """Pixels with any channel at the sensor's maximum code."""
+    top = 1.0 - 0.5 / (2**bit_depth - 1)
+    return np.any(rgb >= top, axis=-1)
+
+
+# --------------------------------------------------------------------------- per frame
+
+
+@dataclass
+class FrameResult:
+    height: NDArray[np.float32]
+    phase: NDArray[np.float32]
+    """Corrected code phase of the object, wrapped, [0, 2 pi) (NaN invalid)."""
+    hue: NDArray[np.float32]
+    """Raw captured hue after white balance (NaN where undefined)."""
+    valid: NDArray[np.bool_]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+def measure_frame(
+    rgb: NDArray[np.floating],
+    white: NDArray[np.floating],
+    table: HueTable,
+    cal: PlaneCalibration,
+    *,
+    hue_model: str = "hexcone",
+    min_saturation: float = 0.08,
+    shadow: NDArray[np.bool_] | None = None,
+    unwrap_mode: str = "reference",
+    bit_depth: int = 8,
+    below_reference_mm: float = 0.25,
+) -> FrameResult:
+    """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
+
+    Parameters
+    ----------
+    rgb, white : ndarray
+        The frame and the object's white image, float (H, W, 3) in [0, 1].
+    table : HueTable
+        The object's per-pixel hue table (captured hue -> projected code phase).
+    cal : PlaneCalibration
+        Reference phase and the per-pixel phase-to-height model.
+    below_reference_mm : float
+        Heights below ``-below_reference_mm`` are flagged: objects stand on the plate, so a
+        large negative height means the phase difference wrapped (a step too tall for the
+        fringe period).
+    """
+    balanced = white_balance(rgb, white)
+    hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
+    phase = table.to_phase(hue)
+    clipped = clipped_mask(rgb, bit_depth)
+    valid = np.isfinite(phase) & ~clipped
+    if shadow is not None:
+        valid &= ~shadow
+    dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
+    un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
+    height = cal.height(un.dphi)
+    valid &= np.isfinite(height)
+    height = np.where(valid, height, np.nan).astype(np.float32)
+    below = valid & (height < -below_reference_mm)
+    n = valid.size
+    flags = {k: int(v.sum()) for k, v in un.flags.items()}
+    flags["below_reference"] = int(below.sum())
+    suspect = (flags["below_reference"] + flags["wrap_edge"]) > 0.001 * n
+    stats = {
+        "valid_fraction": float(valid.mean()),
+        "clipped_fraction": float(clipped.mean()),
+        "hue_undefined_fraction": float(np.mean(~np.isfinite(hue))),
+        "table_invalid_fraction": float(np.mean(~table.valid)),
+        "shadow_fraction": float(shadow.mean()) if shadow is not None else 0.0,
+        "flags": flags,
+        "phase_ambiguity_suspected": bool(suspect),
+        "median_height_mm": float(np.nanmedian(height)) if valid.any() else None,
+        "hue_model": hue_model,
+        "unwrap": unwrap_mode,
+    }
+    return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats)
+
+
+# --------------------------------------------------------------------------- stages
+
+
+def bench_session(config: str, out: str) -> None:
+    """Write a capture session with the virtual bench (the demo, or any bench YAML)."""
+    from huefringe import bench
+
+    bench.write_session(bench.load_bench_config(config), Path(out), progress=False)
+
+
+def _calibration_opts(calibration: Mapping[str, Any]) -> dict[str, Any]:
+    return {"min_saturation": calibration["min_saturation"], "min_intensity": calibration["min_intensity"]}
+
+
+def check_session(session: str, summary: str) -> None:
+    """Deep-validate a session (decode every image) and write a summary."""
+    s = load_session(session, deep=True)
+    write_json(
+        summary,
+        {
+            "session": s.id,
+            "root": str(s.root),
+            "size": [s.width, s.height],
+            "bit_depth": s.bit_depth,
+            "frames": len(s.frames),
+            "phase_shift": len(s.phase_shift),
+            "ground_truth": len(s.ground_truth),
+            "files": len(s.input_files()),
+            "ok": True,
+        },
+    )
+
+
+def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str, Any],
+              table: str, stats: str) -> None:
+    """Build the per-pixel hue table of the reference plate or of the object (streamed)."""
+    s = load_session(session)
+    bands = s.reference_bands if which == "reference" else s.object_bands
+    white = read_rgb(s.reference_white if which == "reference" else s.object_white)
+    t0 = time.perf_counter()
+    built = build_table(bands, white, model=hue_model, progress=False, **_calibration_opts(calibration))
+    built.save(table)
+    info = dict(built.stats)
+    info.update({"which": which, "hue_model": hue_model, "seconds": round(time.perf_counter() - t0, 3)})
+    write_json(stats, info)
+
+
+def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapping[str, Any]):
+    white = read_rgb(s.reference_white)
+    shadow = shadow_mask(white, 0.12)
+    phases, valid = {}, {}
+    for z, path in s.planes.items():
+        hue = hue_of(white_balance(read_rgb(path), white), hue_model, min_saturation=calibration["min_saturation"])
+        phi = table.to_phase(hue)
+        phases[z] = phi
+        valid[z] = np.isfinite(phi) & ~shadow
+    return phases, valid
+
+
+def plane_calibration(session: str, table: str, hue_model: str, calibration: Mapping[str, Any],
+                      model: str, stats: str) -> None:
+    """Fit the per-pixel phase-to-height model on the calibration planes."""
+    s = load_session(session)
+    t = HueTable.load(table)
+    phases, valid = _plane_phases(s, t, hue_model, calibration)
+    cal = calibrate_planes(phases, valid, smooth_degree=calibration["plane_smooth_degree"])
+    cal.save(model)
+    info = dict(cal.stats)
+    info["hue_model"] = hue_model
+    write_json(stats, info)
+
+
+def compensation(session: str, table: str, model: str, hue_model: str, calibration: Mapping[str, Any],
+                 pattern: str, history: str, cross_section: str, residual_map: str) -> None:
+    """Pre-distorted projector pattern (paper Fig. 6) and the calibration QA figures (Fig. 7)."""
+    from huefringe import calibration as calib
+    from huefringe.io import write_png_rgb
+
+    s = load_session(session)
+    t = HueTable.load(table)
+    cal = PlaneCalibration.load(model)
+    comp = calibration["compensation"]
+    image, steps = calib.compensate_pattern(
+        t,
+        period_px_projector=comp["period_px"],
+        projector_size=(comp["projector_width"], comp["projector_height"]),
+        threshold_rad=comp["threshold_rad"],
+        max_iter=comp["max_iter"],
+        gain=comp["gain"],
+    )
+    write_png_rgb(pattern, image)
+    # QA on the reference plane z = 0: raw hue and corrected phase against the plate's phase model
+    white = read_rgb(s.reference_white)
+    hue = hue_of(white_balance(read_rgb(s.planes[0.0]), white), hue_model, min_saturation=calibration["min_saturation"])
+    phase = t.to_phase(hue)
+    truth = cal.phi_ref.astype(np.float64)
+    row = s.height // 2
+    calib.hue_cross_section_figure(hue[row], phase[row], truth[row], cross_section)
+    residual = wrap(phase - truth)
+    calib.residual_map_figure(residual, residual_map)
+    raw_res = wrap(hue - truth)
+    qa = {
+        "rms_rad_before": float(np.sqrt(np.nanmean(raw_res**2))),
+        "rms_rad_after": float(np.sqrt(np.nanmean(residual**2))),
+        "valid_fraction": float(np.mean(np.isfinite(phase))),
+    }
+    write_json(history, {"hue_model": hue_model, "history": steps, "qa_reference_plane": qa,
+                             "pattern_size": [comp["projector_width"], comp["projector_height"]],
+                             "period_px_projector": comp["period_px"]})
+
+
+def measure_frames(session: str, frames: Sequence[int], table: str, model: str, hue_model: str,
+                   measurement: Mapping[str, Any], calibration: Mapping[str, Any],
+                   heights: Sequence[str], clouds: Sequence[str], phases: Sequence[str],
+                   hues: Sequence[str], qa: Sequence[str]) -> None:
+    """Measure a batch of frames: height TIFF, coloured point cloud, phase and hue maps, QA."""
+    from huefringe.cloud import height_to_cloud, write_cloud
+
+    s = load_session(session)
+    t = HueTable.load(table)
+    cal = PlaneCalibration.load(model)
+    white = read_rgb(s.object_white)
+    shadow = shadow_mask(white, measurement["shadow_fraction"])
+    for i, n in enumerate(frames):
+        path = s.frames[n]
+        rgb = read_rgb(path)
+        res = measure_frame(rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
+                            shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth)
+        _refuse_bad_frame(path, res.stats, measurement)
+        write_tiff(heights[i], res.height)
+        write_tiff(phases[i], res.phase)
+        write_tiff(hues[i], res.hue)
+        write_cloud(clouds[i], height_to_cloud(res.height, s.pixel_pitch_mm, colours=white))
+        write_json(qa[i], {"frame": n, "file": str(path), **res.stats})
+        log.info("frame %04d: %.1f %% valid, median %.3f mm", n, 100 * res.stats["valid_fraction"],
+                 res.stats["median_height_mm"] or float("nan"))
+
+
+def _refuse_bad_frame(path: Path, stats: Mapping[str, Any], measurement: Mapping[str, Any]) -> None:
+    if stats["clipped_fraction"] > measurement["max_clipped_fraction"]:
+        raise FrameError(
+            f"{path}: {100 * stats['clipped_fraction']:.1f} % of the pixels are clipped (sensor saturated), "
+            f"above the limit of {100 * measurement['max_clipped_fraction']:.1f} %; reduce the exposure"
+        )
+    if stats["valid_fraction"] < measurement["min_valid_fraction"]:
+        raise FrameError(
+            f"{path}: only {100 * stats['valid_fraction']:.1f} % of the pixels carry a usable fringe "
+            f"(limit {100 * measurement['min_valid_fraction']:.1f} %): lens cap, projector off or no fringe?"
+        )
+
+
+def baseline_frames(session: str, frames: Sequence[int], model: str, object_table: str,
+                    measurement: Mapping[str, Any], heights: Sequence[str], qa: Sequence[str],
+                    min_modulation: float = 0.1) -> None:
+    """Traditional three-step phase shifting through the same plane calibration."""
+    s = load_session(session)
+    cal = PlaneCalibration.load(model)
+    white = read_rgb(s.object_white)
+    shadow = shadow_mask(white, measurement["shadow_fraction"])
+    for i, n in enumerate(frames):
+        imgs = [intensity(read_rgb(p)) for p in s.phase_shift[n]]
+        phi, mod = three_step_phase(*imgs)
+        valid = (mod > min_modulation) & ~shadow
+        un = unwrap(wrap(phi.astype(np.float64) - cal.phi_ref), valid, measurement["unwrap"])
+        h = cal.height(un.dphi)
+        h = np.where(valid & np.isfinite(h), h, np.nan).astype(np.float32)
+        write_tiff(heights[i], h)
+        write_json(qa[i], {"frame": n, "method": "three-step-phase-shift", "valid_fraction": float(np.isfinite(h).mean()),
+                           "median_modulation": float(np.median(mod))})
+
+
+def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str], report: str,
+                    shadow_fraction: float = 0.12) -> None:
+    """Height error against the bench's ground truth, for the method and the baseline."""
+    s = load_session(session)
+    lit = ~shadow_mask(read_rgb(s.object_white), shadow_fraction)
+
+    def block(paths: Sequence[str], frames: Sequence[int]) -> dict[str, Any]:
+        per = []
+        for p, n in zip(paths, frames, strict=True):
+            truth = read_tiff(s.ground_truth[n])
+            h = read_tiff(p)
+            a = accuracy(h, truth)
+            a["coverage_lit"] = accuracy(h, truth, region=lit)["coverage"]
+            a["frame"] = n
+            per.append(a)
+        keys = ["rms_mm", "median_abs_mm", "p95_abs_mm", "coverage", "coverage_lit"]
+        summary = {k: float(np.mean([f[k] for f in per])) for k in keys}
+        return {"summary": summary, "per_frame": per}
+
+    out: dict[str, Any] = {"session": s.id, "method": "trapezoidal-hsi", "trapezoidal-hsi": block(heights, s.frame_ids)}
+    if baseline:
+        out["three-step-phase-shift"] = block(baseline, sorted(s.phase_shift))
+    write_json(report, out)
+
+
+# --------------------------------------------------------------------------- provenance
+
+
+def sha256(path: str | Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def software_versions() -> dict[str, str]:
+    import importlib.metadata as md
+
+    out = {"huefringe": __version__, "python": platform.python_version()}
+    for name in ("numpy", "scipy", "opencv-python-headless", "scikit-image", "open3d-cpu", "trimesh", "pyvista",
+                 "vtk", "matplotlib", "snakemake", "numba", "tifffile"):
+        with contextlib.suppress(md.PackageNotFoundError):
+            out[name] = md.version(name)
+    return out
+
+
+# --------------------------------------------------------------------------- Snakemake adapter
+
+
+def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> None:
+    """Call ``func`` with the job's named inputs, outputs and params as keyword arguments.
+
+    Logging goes to the job's log file. Known input problems end the job with a one-paragraph
+    message naming the file (no traceback); outputs are written atomically by the stages, so a
+    failed job leaves none behind.
+    """
+    from huefringe.height import CalibrationError
+    from huefringe.session import SessionError
+
+    logfile = smk.log[0] if len(smk.log) else None
+    handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
+    if logfile:
+        Path(logfile).parent.mkdir(parents=True, exist_ok=True)
+        handlers.append(logging.FileHandler(logfile, mode="w"))
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", handlers=handlers, force=True)
+    import inspect
+
+    kwargs: dict[str, Any] = {}
+    for source in (smk.wildcards, smk.input, smk.params, smk.output):
+        for key, value in source.items():
+            kwargs[key] = value
+    kwargs.update(extra)
+    accepted = inspect.signature(func).parameters
+    kwargs = {k: v for k, v in kwargs.items() if k in accepted}
+    t0 = time.perf_counter()
+    try:
+        func(**kwargs)
+    except (SessionError, FrameError, CalibrationError) as exc:
+        log.error("%s", exc)
+        sys.stderr.write(f"\nhuefringe: {exc}\n")
+        sys.exit(1)
+    log.info("%s done in %.2f s", func.__name__, time.perf_counter() - t0)

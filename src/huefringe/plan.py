@@ -1,0 +1,101 @@
+"""Plan the workflow at parse time: which sessions, their ids, frames, batches and selections.
+
+Snakemake needs every output path before it runs anything, so the plan is made from the session
+folders (validated here, before any work starts) or, for a session the virtual bench will write,
+from its bench configuration.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from huefringe.session import SessionError, load_session
+
+
+class PlanError(ValueError):
+    """The configuration cannot be planned (bad session, clashing ids, unknown frames)."""
+
+
+@dataclass
+class SessionPlan:
+    path: Path
+    id: str
+    frames: list[int]
+    phase_shift: list[int]
+    ground_truth: bool
+    specimen: bool
+    bench: str | None = None
+    """Bench preset or YAML that writes this session when it is absent."""
+    batches: list[list[int]] = field(default_factory=list)
+
+    def frame_selection(self, sel: Any) -> list[int]:
+        if sel == "first":
+            return self.frames[:1]
+        if sel == "all":
+            return list(self.frames)
+        missing = [f for f in sel if f not in self.frames]
+        if missing:
+            raise PlanError(f"session '{self.id}': frames {missing} selected in the config do not exist")
+        return list(sel)
+
+
+def _from_session(path: Path) -> SessionPlan:
+    s = load_session(path)
+    return SessionPlan(
+        path=path,
+        id=s.id,
+        frames=s.frame_ids,
+        phase_shift=sorted(s.phase_shift),
+        ground_truth=bool(s.ground_truth) and sorted(s.ground_truth) == s.frame_ids,
+        specimen=s.specimen is not None,
+    )
+
+
+def _from_bench(path: Path, bench_ref: str, base: Path) -> SessionPlan:
+    from huefringe import bench
+
+    ref = base / bench_ref
+    cfg_path = ref if ref.suffix in (".yaml", ".yml") else bench.preset_path(bench_ref)
+    cfg = bench.load_bench_config(cfg_path)
+    info = bench.session_plan(cfg)
+    return SessionPlan(
+        path=path,
+        id=info["id"],
+        frames=list(info["frames"]),
+        phase_shift=list(info["phase_shift"]),
+        ground_truth=bool(info["ground_truth"]),
+        specimen=bool(info["specimen"]),
+        bench=str(cfg_path),
+    )
+
+
+def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, SessionPlan]:
+    """Plan every session of the configuration, keyed by session id.
+
+    Raises
+    ------
+    PlanError
+        With a message naming the session folder or file and the problem.
+    """
+    base = Path(base)
+    bench_sessions = {str(Path(k)): v for k, v in (config.get("bench_sessions") or {}).items()}
+    per_job = int(config["measurement"]["frames_per_job"])
+    plans: dict[str, SessionPlan] = {}
+    for entry in config["sessions"]:
+        path = Path(entry)
+        full = path if path.is_absolute() else base / path
+        try:
+            if (full / "session.yaml").exists() or str(path) not in bench_sessions:
+                plan = _from_session(full)
+                plan.path = path
+            else:
+                plan = _from_bench(path, bench_sessions[str(path)], base)
+        except SessionError as exc:
+            raise PlanError(f"session {entry} is refused:\n{exc}") from exc
+        if plan.id in plans:
+            raise PlanError(f"sessions {plans[plan.id].path} and {entry} share the id '{plan.id}'")
+        plan.batches = [plan.frames[i : i + per_job] for i in range(0, len(plan.frames), per_job)]
+        plans[plan.id] = plan
+    return plans

@@ -1,0 +1,89 @@
+# Session check, per-pixel hue tables, plane calibration and the compensated pattern (paper Fig. 6).
+
+
+rule check_session:
+    input:
+        session_yaml,
+    output:
+        summary=R("{sid}", "qa", "session_check.json"),
+    params:
+        session=session_dir,
+    log:
+        "logs/{sid}/check_session.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    script:
+        "../../scripts/check_session.py"
+
+
+rule hue_table:
+    input:
+        check=R("{sid}", "qa", "session_check.json"),
+    output:
+        table=R("{sid}", "calib", "table_{which}.npz"),
+        stats=R("{sid}", "calib", "table_{which}.json"),
+    params:
+        session=session_dir,
+        hue_model=config["hue_model"],
+        calibration=config["calibration"],
+    log:
+        "logs/{sid}/hue_table_{which}.log",
+    threads: 1
+    resources:
+        mem_mb=3000,
+        runtime=30,
+    script:
+        "../../scripts/hue_table.py"
+
+
+rule plane_calibration:
+    input:
+        table=R("{sid}", "calib", "table_reference.npz"),
+    output:
+        model=R("{sid}", "calib", "phase_to_height.npz"),
+        stats=R("{sid}", "calib", "planes.json"),
+    params:
+        session=session_dir,
+        hue_model=config["hue_model"],
+        calibration=config["calibration"],
+    log:
+        "logs/{sid}/plane_calibration.log",
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=20,
+    script:
+        "../../scripts/plane_calibration.py"
+
+
+rule compensation:
+    input:
+        table=R("{sid}", "calib", "table_reference.npz"),
+        model=R("{sid}", "calib", "phase_to_height.npz"),
+    output:
+        pattern=R("{sid}", "calib", "compensated_pattern.png"),
+        history=R("{sid}", "calib", "compensation.json"),
+        cross_section=report(
+            R("{sid}", "calib", "qa_hue_cross_section.png"),
+            caption="../report/hue_cross_section.rst",
+            category="Calibration",
+        ),
+        residual_map=report(
+            R("{sid}", "calib", "qa_residual_map.png"),
+            caption="../report/residual_map.rst",
+            category="Calibration",
+        ),
+    params:
+        session=session_dir,
+        hue_model=config["hue_model"],
+        calibration=config["calibration"],
+    log:
+        "logs/{sid}/compensation.log",
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=20,
+    script:
+        "../../scripts/compensation.py"

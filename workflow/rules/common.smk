@@ -1,0 +1,81 @@
+# Shared planning: sessions, ids, frame batches and the paths of every output.
+import sys
+from pathlib import Path
+
+from huefringe.plan import PlanError, plan_sessions
+
+try:
+    PLANS = plan_sessions(config, base=Path(workflow.basedir))
+except PlanError as exc:
+    sys.stderr.write(f"\nhuefringe: cannot start.\n{exc}\n\n")
+    sys.exit(1)
+
+RESULTS = config["results_dir"]
+
+
+wildcard_constraints:
+    sid="|".join(PLANS) or "^$",
+    frame=r"\d{4}",
+    which="reference|object",
+
+
+def R(sid, *parts):
+    """Path of a result of session ``sid``."""
+    return "/".join([RESULTS, sid, *parts])
+
+
+def fname(n):
+    return f"frame_{n:04d}"
+
+
+def session_dir(wildcards_or_sid):
+    sid = wildcards_or_sid if isinstance(wildcards_or_sid, str) else wildcards_or_sid.sid
+    return str(PLANS[sid].path)
+
+
+def session_yaml(wildcards):
+    return str(Path(session_dir(wildcards)) / "session.yaml")
+
+
+def frame_outputs(sid, frames):
+    return {
+        "heights": [R(sid, "height", f"{fname(n)}.tiff") for n in frames],
+        "clouds": [R(sid, "cloud", f"{fname(n)}.ply") for n in frames],
+        "phases": [R(sid, "phase", f"{fname(n)}.tiff") for n in frames],
+        "hues": [R(sid, "hue", f"{fname(n)}.tiff") for n in frames],
+        "qa": [R(sid, "qa", "frames", f"{fname(n)}.json") for n in frames],
+    }
+
+
+def baseline_outputs(sid, frames):
+    return {
+        "heights": [R(sid, "baseline", "height", f"{fname(n)}.tiff") for n in frames],
+        "qa": [R(sid, "baseline", "qa", f"{fname(n)}.json") for n in frames],
+    }
+
+
+RENDER_VIEWS = ["top", "oblique1", "oblique2"]
+
+
+def render_outputs(sid, n):
+    views = [R(sid, "renders", f"{fname(n)}_{v}.png") for v in RENDER_VIEWS]
+    return views + [R(sid, "renders", f"{fname(n)}_height.png"), R(sid, "renders", f"{fname(n)}_phase.png")]
+
+
+def all_targets():
+    out = []
+    for sid, plan in PLANS.items():
+        out += frame_outputs(sid, plan.frames)["heights"]
+        out += frame_outputs(sid, plan.frames)["clouds"]
+        out += [R(sid, "calib", "compensated_pattern.png")]
+        if plan.phase_shift:
+            out += baseline_outputs(sid, plan.phase_shift)["heights"]
+        if plan.ground_truth:
+            out.append(R(sid, "accuracy.json"))
+        for n in plan.frame_selection(config["mesh"]["frames"]):
+            out.append(R(sid, "mesh", f"{fname(n)}.ply"))
+        for n in plan.frame_selection(config["render"]["frames"]):
+            out += render_outputs(sid, n)
+        if plan.specimen:
+            out += [R(sid, "metrology", "report.json"), R(sid, "metrology", "report.html")]
+    return out

@@ -1,0 +1,71 @@
+# Height maps, point clouds and the three-step baseline, in batches of frames per job
+# (one rule per session and batch, so a 1000-frame session costs 20 job start-ups, not 1000).
+
+for _sid, _plan in PLANS.items():
+    for _b, _frames in enumerate(_plan.batches):
+
+        rule:
+            name:
+                f"measure_{_sid.replace('-', '_')}_{_b:03d}"
+            input:
+                table=R(_sid, "calib", "table_object.npz"),
+                model=R(_sid, "calib", "phase_to_height.npz"),
+            output:
+                **frame_outputs(_sid, _frames),
+            params:
+                session=str(_plan.path),
+                frames=_frames,
+                hue_model=config["hue_model"],
+                measurement=config["measurement"],
+                calibration=config["calibration"],
+            log:
+                f"logs/{_sid}/measure_{_b:03d}.log",
+            threads: 1
+            resources:
+                mem_mb=3000,
+                runtime=max(10, len(_frames) // 10),
+            script:
+                "../../scripts/measure_frames.py"
+
+    _ps = _plan.phase_shift
+    _per = config["measurement"]["frames_per_job"]
+    for _b, _frames in enumerate([_ps[i : i + _per] for i in range(0, len(_ps), _per)]):
+
+        rule:
+            name:
+                f"baseline_{_sid.replace('-', '_')}_{_b:03d}"
+            input:
+                model=R(_sid, "calib", "phase_to_height.npz"),
+                object_table=R(_sid, "calib", "table_object.npz"),
+            output:
+                **baseline_outputs(_sid, _frames),
+            params:
+                session=str(_plan.path),
+                frames=_frames,
+                measurement=config["measurement"],
+            log:
+                f"logs/{_sid}/baseline_{_b:03d}.log",
+            threads: 1
+            resources:
+                mem_mb=2000,
+                runtime=max(10, len(_frames) // 10),
+            script:
+                "../../scripts/baseline_frames.py"
+
+
+rule accuracy:
+    input:
+        heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
+        baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
+    output:
+        report=R("{sid}", "accuracy.json"),
+    params:
+        session=session_dir,
+    log:
+        "logs/{sid}/accuracy.log",
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    script:
+        "../../scripts/accuracy.py"

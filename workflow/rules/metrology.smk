@@ -1,0 +1,29 @@
+# Step-height metrology: report.json (results contract) and the self-contained report.html.
+
+
+rule metrology:
+    input:
+        heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
+        baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
+        planes=R("{sid}", "calib", "planes.json"),
+        tables=R("{sid}", "calib", "table_object.json"),
+        cross_section=R("{sid}", "calib", "qa_hue_cross_section.png"),
+        render=lambda w: render_outputs(w.sid, PLANS[w.sid].frames[0])[0],
+        height_map=lambda w: render_outputs(w.sid, PLANS[w.sid].frames[0])[3],
+        accuracy=lambda w: [R(w.sid, "accuracy.json")] if PLANS[w.sid].ground_truth else [],
+    output:
+        json=report(R("{sid}", "metrology", "report.json"), caption="../report/metrology.rst", category="Metrology"),
+        html=R("{sid}", "metrology", "report.html"),
+        profile=report(R("{sid}", "metrology", "profile.png"), caption="../report/profile.rst", category="Metrology"),
+        per_frame=report(R("{sid}", "metrology", "per_frame.png"), caption="../report/per_frame.rst", category="Metrology"),
+    params:
+        session=session_dir,
+        config=config,
+    log:
+        "logs/{sid}/metrology.log",
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    script:
+        "../../scripts/metrology.py"
