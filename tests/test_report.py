@@ -1,0 +1,280 @@
+"""Tests of huefringe.report: report.json contract, schema, figure and self-contained HTML."""
+
+from __future__ import annotations
+
+import copy
+import json
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from huefringe.io import write_json
+from huefringe.metrology import evaluate_session
+from huefringe.report import (
+    CONTRACT_STEP_KEYS,
+    ReportError,
+    build_report_json,
+    collect_provenance,
+    load_schema,
+    per_frame_figure,
+    render_report_html,
+    validate_report,
+    write_report_html,
+)
+
+CHROMIUM = Path("/usr/bin/chromium")
+PITCH = 0.2
+H, W = 120, 160
+SPECIMEN = {
+    "kind": "step_heights",
+    "base_roi": [[4, 4, 156, 20], [4, 100, 156, 116]],
+    "steps": [
+        {"name": "green", "nominal_mm": 3.0, "roi": [20, 40, 50, 85]},
+        {"name": "blue", "nominal_mm": 1.0, "roi": [65, 40, 95, 85]},
+        {"name": "red", "nominal_mm": 4.0, "roi": [110, 40, 140, 85]},
+    ],
+    "tolerance_mm": 0.05,
+}
+
+
+def frames(n: int, noise: float, seed: int, bias: dict[str, float] | None = None) -> list[np.ndarray]:
+    rng = np.random.default_rng(seed)
+    v, u = np.mgrid[0:H, 0:W].astype(np.float64)
+    out = []
+    for _ in range(n):
+        z = 0.4 + 0.001 * u * PITCH + 0.002 * v * PITCH + rng.uniform(-0.2, 0.2)
+        for s in SPECIMEN["steps"]:
+            u0, v0, u1, v1 = s["roi"]
+            z[v0 - 3 : v1 + 3, u0 - 3 : u1 + 3] += s["nominal_mm"] + (bias or {}).get(s["name"], 0.0)
+        out.append((z + rng.normal(0, noise, z.shape)).astype(np.float32))
+    return out
+
+
+@pytest.fixture(scope="module")
+def method_result():
+    return evaluate_session(frames(8, 0.01, 1), SPECIMEN, PITCH, range_mm=4.0)
+
+
+@pytest.fixture(scope="module")
+def baseline_result():
+    return evaluate_session(
+        frames(8, 0.03, 2, bias={"red": 0.08}), SPECIMEN, PITCH, range_mm=4.0, method="three-step-phase-shift"
+    )
+
+
+@pytest.fixture(scope="module")
+def report(method_result, baseline_result):
+    return build_report_json("gauge-blocks-p60", SPECIMEN, method_result, baseline_result, {"hue_model": "hsi"})
+
+
+def tiny_png(path: Path, colour=(200, 30, 30)) -> Path:
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(3, 2), dpi=50)
+    FigureCanvasAgg(fig)
+    fig.add_subplot().imshow(np.tile(np.array(colour, np.uint8), (8, 8, 1)))
+    fig.savefig(path, format="png")
+    return path
+
+
+# ------------------------------------------------------------------------------------------ json
+
+
+def test_schema_is_valid_and_shipped():
+    schema = load_schema()
+    assert schema["required"] == ["session", "method", "frames", "steps"]
+    assert schema["$defs"]["step"]["required"] == list(CONTRACT_STEP_KEYS)
+
+
+def test_report_has_exactly_the_contract_keys(report, method_result):
+    validate_report(report)
+    assert list(report)[:4] == ["session", "method", "frames", "steps"]
+    assert report["session"] == "gauge-blocks-p60"
+    assert report["method"] == "trapezoidal-hsi"
+    assert report["frames"] == 8 and isinstance(report["frames"], int)
+    assert [s["name"] for s in report["steps"]] == ["green", "blue", "red"]
+    for s, m in zip(report["steps"], method_result["steps"], strict=True):
+        assert list(s)[: len(CONTRACT_STEP_KEYS)] == list(CONTRACT_STEP_KEYS)
+        assert isinstance(s["pass"], bool)
+        assert len(s["per_frame_mm"]) == 8
+        assert s["error_pct"] == 100 * (s["mean_mm"] - s["nominal_mm"]) / s["nominal_mm"]
+        assert s["pass"] == (abs(s["error_mm"]) <= report["tolerance_mm"])
+        assert s["mean_mm"] == m["mean_mm"]
+    b = report["baseline"]
+    assert b["method"] == "three-step-phase-shift"
+    assert set(CONTRACT_STEP_KEYS) <= set(b["steps"][0])
+    assert report["hue_model"] == "hsi"
+    assert report["verdict"] == "PASS"
+    assert b["verdict"] == "FAIL" and not b["steps"][2]["pass"]  # the biased red baseline
+
+
+def test_report_round_trips_through_json(report, tmp_path):
+    path = tmp_path / "metrology" / "report.json"
+    write_json(path, report)  # refuses NaN
+    loaded = json.loads(path.read_text())
+    validate_report(loaded)
+    assert loaded == json.loads(json.dumps(report))
+
+
+def test_baseline_only_when_given(method_result):
+    r = build_report_json("s1", SPECIMEN, method_result)
+    assert "baseline" not in r
+    validate_report(r)
+
+
+def test_wrong_baseline_method_refused(method_result):
+    other = dict(method_result, method="four-step")
+    with pytest.raises(ReportError, match="three-step-phase-shift"):
+        build_report_json("s1", SPECIMEN, method_result, other)
+
+
+def test_extras_may_not_replace_contract_keys(method_result):
+    with pytest.raises(ReportError, match="'frames'"):
+        build_report_json("s1", SPECIMEN, method_result, extras={"frames": 3})
+
+
+def test_specimen_mismatch_refused(method_result):
+    spec = copy.deepcopy(SPECIMEN)
+    spec["steps"][1]["nominal_mm"] = 1.5
+    with pytest.raises(ReportError, match="blue"):
+        build_report_json("s1", spec, method_result)
+
+
+@pytest.mark.parametrize(
+    ("mutate", "message"),
+    [
+        (lambda r: r["steps"][0].pop("pass"), "'pass' is a required property"),
+        (lambda r: r.update(frames="8"), "'8' is not of type 'integer'"),
+        (lambda r: r.update(session="Gauge Blocks"), "does not match"),
+        (lambda r: r["steps"][1].update(per_frame_mm=[]), "should be non-empty"),
+        (lambda r: r["baseline"].update(method="three-step"), "three-step-phase-shift"),
+        (lambda r: r["steps"][0].update(error_pct=r["steps"][0]["error_pct"] + 1e-3), "error_pct"),
+        (lambda r: r["steps"][0].update(error_pct=100 * r["steps"][0]["error_mm"]), "error_pct"),
+        (lambda r: r["steps"][2].update({"pass": not r["steps"][2]["pass"]}), "pass"),
+        (lambda r: r["steps"][1].update(std_mm=r["steps"][1]["std_mm"] * 1.01), "std_mm"),
+        (lambda r: r["steps"][1]["per_frame_mm"].pop(), "per_frame_mm has 7 values"),
+        (lambda r: r.update(verdict="FAIL"), "verdict"),
+    ],
+)
+def test_validate_report_rejects(report, mutate, message):
+    bad = copy.deepcopy(report)
+    mutate(bad)
+    with pytest.raises(ReportError, match=re.escape(message)):
+        validate_report(bad)
+
+
+# ------------------------------------------------------------------------------------------ html
+
+
+def test_per_frame_figure(report, tmp_path):
+    out = per_frame_figure(report, tmp_path / "per_frame.png")
+    data = out.read_bytes()
+    assert data.startswith(b"\x89PNG\r\n\x1a\n") and len(data) > 10_000
+
+
+@pytest.fixture(scope="module")
+def html_file(report, tmp_path_factory):
+    d = tmp_path_factory.mktemp("html")
+    figs = {
+        "per_frame": per_frame_figure(report, d / "per_frame.png"),
+        "height": tiny_png(d / "height.png", (30, 60, 200)),
+        "calibration_qa": tiny_png(d / "qa.png"),
+    }
+    inputs = [figs["height"], figs["calibration_qa"]]
+    prov = collect_provenance("gauge-blocks-p60", {"period_px": 60, "note": "<script>alert(1)</script>"}, inputs, root=d)
+    path = write_report_html(d / "metrology" / "report.html", report, figs, prov)
+    return path, figs, prov
+
+
+def test_html_is_self_contained(html_file):
+    path, figs, prov = html_file
+    text = path.read_text(encoding="utf-8")
+    assert text.startswith("<!DOCTYPE html>")
+    low = text.lower()
+    assert "http://" not in low and "https://" not in low
+    assert 'src="http' not in low and 'src="//' not in low and "url(" not in low and "@import" not in low
+    assert "<script" not in low and "<link" not in low and "<iframe" not in low
+    imgs = re.findall(r"<img\b[^>]*>", text)
+    assert len(imgs) == len(figs)
+    for tag in imgs:
+        assert re.search(r'src="data:image/png;base64,[A-Za-z0-9+/=]+"', tag), tag[:80]
+    assert all(re.search(r'src="([^"]*)"', t).group(1).startswith("data:") for t in re.findall(r"<\w+[^>]*\bsrc=[^>]*>", text))
+    # order: verdict, table, figures (known order), provenance
+    pos = [text.index(k) for k in ('id="verdict"', 'id="steps"', 'id="fig-height"', 'id="fig-per_frame"', 'id="fig-calibration_qa"', "<details")]
+    assert pos == sorted(pos)
+    # escaped text, provenance content
+    assert "&lt;script&gt;alert(1)&lt;/script&gt;" in text
+    assert prov["inputs_sha256"]["height.png"] in text
+    assert ">PASS<" in text and "three-step-phase-shift" in text
+    for s in ("±3σ", "Error / nominal (%)", "Error / range (%)", "green", "blue", "red"):
+        assert s in text
+
+
+def test_html_fail_verdict_and_escaping(method_result, tmp_path):
+    spec = copy.deepcopy(SPECIMEN)
+    spec["tolerance_mm"] = 1e-9
+    res = copy.deepcopy(method_result)
+    res["steps"][0]["name"] = spec["steps"][0]["name"] = "<b>green & co</b>"
+    for s in res["steps"]:
+        s["pass"] = abs(s["error_mm"]) <= spec["tolerance_mm"]
+    r = build_report_json("s2", spec, res)
+    assert r["verdict"] == "FAIL"
+    text = render_report_html(r, {}, {})
+    assert 'class="verdict-word">FAIL<' in text and "verdict-fail" in text
+    assert "&lt;b&gt;green &amp; co&lt;/b&gt;" in text and "<b>green" not in text
+    assert "<img" not in text and "<h2>Figures</h2>" not in text  # figures only if given
+
+
+def test_html_refuses_non_png_figure(report, tmp_path):
+    fake = tmp_path / "fig.png"
+    fake.write_bytes(b"GIF89a not a png")
+    with pytest.raises(ValueError, match="not a PNG"):
+        render_report_html(report, {"profile": fake}, {})
+    with pytest.raises(FileNotFoundError):
+        render_report_html(report, {"profile": tmp_path / "missing.png"}, {})
+    target = tmp_path / "out" / "report.html"
+    with pytest.raises(ValueError, match="not a PNG"):
+        write_report_html(target, report, {"profile": fake}, None)
+    assert not target.exists() and not any(target.parent.glob("*"))  # nothing half-written
+    write_report_html(target, report, None, None)
+    assert target.exists() and [p.name for p in target.parent.iterdir()] == ["report.html"]
+
+
+@pytest.mark.skipif(not CHROMIUM.exists(), reason="needs Debian chromium at /usr/bin/chromium for the headless render check")
+def test_html_renders_in_headless_chromium(html_file, tmp_path):
+    import matplotlib.image
+
+    path, _, _ = html_file
+    flags = [
+        "--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
+        "--disable-background-networking", "--disable-component-update", "--disable-sync",
+        "--hide-scrollbars",
+    ]  # fmt: skip
+    url = path.resolve().as_uri()
+    shot = tmp_path / "screenshot.png"
+    run = subprocess.run(
+        [str(CHROMIUM), *flags, f"--user-data-dir={tmp_path / 'profile-a'}", f"--screenshot={shot}", "--window-size=1280,1400", url],
+        capture_output=True, text=True, timeout=180,
+    )  # fmt: skip
+    assert shot.exists(), run.stderr[-2000:]
+    keep = Path(__file__).resolve().parent.parent / ".pytest_cache" / "report-screenshot.png"
+    keep.parent.mkdir(exist_ok=True)
+    shutil.copyfile(shot, keep)  # for a human look
+    img = matplotlib.image.imread(shot)[..., :3]
+    assert img.shape[0] >= 1000 and img.shape[1] >= 1200
+    assert img.std() > 0.05
+    non_white = (img < 0.9).any(axis=-1).mean()
+    assert non_white > 0.05
+    green = np.all(np.abs(img - np.array([0x1B, 0x6E, 0x35]) / 255) < 0.03, axis=-1).mean()
+    assert green > 0.005  # the PASS banner is drawn
+    dom = subprocess.run(
+        [str(CHROMIUM), *flags, f"--user-data-dir={tmp_path / 'profile-b'}", "--dump-dom", url],
+        capture_output=True, text=True, timeout=180,
+    )  # fmt: skip
+    assert 'class="verdict-word">PASS</div>' in dom.stdout, dom.stderr[-2000:]
+    assert dom.stdout.count("data:image/png;base64,") == 3
