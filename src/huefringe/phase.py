@@ -21,6 +21,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
+from numba import njit
 from scipy import ndimage
 from skimage.restoration import unwrap_phase
 
@@ -144,3 +145,63 @@ def unwrap_rows(phi: NDArray[np.floating], valid: NDArray[np.bool_]) -> NDArray[
     """
     masked = np.ma.masked_array(np.asarray(phi, np.float64), mask=~np.asarray(valid, bool))
     return np.asarray(unwrap_phase(masked, rng=0).filled(np.nan), np.float64)
+
+
+@njit(cache=True, nogil=True)
+def _denoise_kernel(d, sigma, valid, radius, k, out):  # pragma: no cover - compiled
+    h, w = d.shape
+    for v in range(h):
+        for u in range(w):
+            if not valid[v, u]:
+                out[v, u] = np.nan
+                continue
+            di = d[v, u]
+            si2 = sigma[v, u] * sigma[v, u]
+            acc = 0.0
+            wsum = 0.0
+            for dv in range(-radius, radius + 1):
+                vv = v + dv
+                if vv < 0 or vv >= h:
+                    continue
+                for du in range(-radius, radius + 1):
+                    uu = u + du
+                    if uu < 0 or uu >= w or not valid[vv, uu]:
+                        continue
+                    diff = d[vv, uu] - di
+                    diff = diff - 2.0 * np.pi * np.floor((diff + np.pi) / (2.0 * np.pi))
+                    sj2 = sigma[vv, uu] * sigma[vv, uu]
+                    if diff * diff > k * k * (si2 + sj2):
+                        continue
+                    wj = 1.0 / sj2
+                    acc += wj * diff
+                    wsum += wj
+            out[v, u] = di + acc / wsum
+
+
+def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
+                  *, radius: int = 2, k: float = 3.0) -> NDArray[np.float32]:
+    """Edge-preserving, uncertainty-weighted local mean of a phase map.
+
+    Each valid pixel becomes the inverse-variance weighted mean of the valid pixels in its
+    ``(2 radius + 1)^2`` window whose phase agrees with it within ``k`` combined standard
+    deviations (a bilateral filter whose range term is the known per-pixel uncertainty).
+    Differences are taken modulo 2 pi, so wrapped maps are fine. Steps taller than ``k`` sigma
+    (a 1 mm step is tens of sigma) are not blurred; flat regions gain up to
+    ``2 radius + 1`` in precision. Pixels where the hue hardly changes with the code phase
+    (projector gamma flattens the trapezoid's ramps near 0, 2 pi/3 and 4 pi/3) carry large
+    ``sigma`` and are pulled toward their better-determined neighbours.
+
+    Parameters
+    ----------
+    dphi : ndarray
+        Phase (difference) map in radians; NaN where invalid.
+    sigma : ndarray
+        Per-pixel standard deviation of ``dphi`` in radians (finite, > 0 where valid).
+    valid : ndarray of bool
+    """
+    d = np.ascontiguousarray(dphi, dtype=np.float64)
+    ok = np.asarray(valid, bool) & np.isfinite(d) & np.isfinite(sigma) & (np.asarray(sigma) > 0)
+    s = np.ascontiguousarray(np.where(ok, sigma, 1.0), dtype=np.float64)
+    out = np.empty(d.shape, np.float64)
+    _denoise_kernel(np.where(ok, d, 0.0), s, ok, int(radius), float(k), out)
+    return out.astype(np.float32)

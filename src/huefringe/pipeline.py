@@ -7,9 +7,7 @@ is Snakemake-specific except :func:`run_from_snakemake`, the adapter the scripts
 from __future__ import annotations
 
 import contextlib
-import hashlib
 import logging
-import platform
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -20,13 +18,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe import __version__
 from huefringe.calibration import HueTable, build_table
 from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import PlaneCalibration, accuracy, calibrate_planes
 from huefringe.io import read_tiff, write_json, write_tiff
-from huefringe.phase import three_step_phase, unwrap, wrap
+from huefringe.patterns import TWO_PI
+from huefringe.phase import denoise_phase, three_step_phase, unwrap, wrap
 from huefringe.session import Session, load_session, read_rgb
 
 log = logging.getLogger("huefringe")
@@ -81,6 +79,7 @@ def measure_frame(
     unwrap_mode: str = "reference",
     bit_depth: int = 8,
     below_reference_mm: float = 0.25,
+    denoise_radius: int = 2,
 ) -> FrameResult:
     """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
 
@@ -96,6 +95,12 @@ def measure_frame(
         Heights below ``-below_reference_mm`` are flagged: objects stand on the plate, so a
         large negative height means the phase difference wrapped (a step too tall for the
         fringe period).
+    denoise_radius : int
+        Radius of the uncertainty-weighted, edge-preserving phase filter
+        (:func:`huefringe.phase.denoise_phase`); 0 switches it off. Each pixel's phase
+        uncertainty is its hue noise (from the repeats of the hue bands) divided by the local
+        slope of its table, so pixels where projector gamma flattens the hue lean on their
+        neighbours while steps stay sharp.
     """
     balanced = white_balance(rgb, white)
     hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
@@ -106,6 +111,8 @@ def measure_frame(
         valid &= ~shadow
     dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
     un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
+    if denoise_radius > 0:
+        un.dphi = denoise_phase(un.dphi, phase_sigma(table, phase), valid, radius=denoise_radius)
     height = cal.height(un.dphi)
     valid &= np.isfinite(height)
     height = np.where(valid, height, np.nan).astype(np.float32)
@@ -127,6 +134,23 @@ def measure_frame(
         "unwrap": unwrap_mode,
     }
     return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats)
+
+
+def phase_sigma(table: HueTable, phase: NDArray[np.floating], floor_slope: float = 0.05) -> NDArray[np.float64]:
+    """Per-pixel standard deviation (rad) of the code phase decoded from one capture.
+
+    ``sigma_hue / slope``: the hue noise of one capture (the standard error of the bands' mean
+    times sqrt(repeats)) over the local slope d(captured hue)/d(code phase) of the pixel's table.
+    """
+    delta = np.pi / table.n_bands
+    p = np.where(np.isfinite(phase), phase, 0.0)
+    slope = wrap(table.from_phase(np.mod(p + delta, TWO_PI)).astype(np.float64)
+                 - table.from_phase(np.mod(p - delta, TWO_PI))) / (2 * delta)
+    repeats = int(table.stats.get("repeats", 1) or 1)
+    noise = np.asarray(table.noise_rad, np.float64) * np.sqrt(repeats)
+    fallback = float(np.nanmedian(noise)) if np.isfinite(noise).any() else 0.01
+    noise = np.where(np.isfinite(noise) & (noise > 0), noise, fallback)
+    return noise / np.maximum(slope, floor_slope)
 
 
 # --------------------------------------------------------------------------- stages
@@ -256,7 +280,8 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         path = s.frames[n]
         rgb = read_rgb(path)
         res = measure_frame(rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
-                            shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth)
+                            shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
+                            denoise_radius=measurement["denoise_radius"])
         _refuse_bad_frame(path, res.stats, measurement)
         write_tiff(heights[i], res.height)
         write_tiff(phases[i], res.phase)
@@ -325,26 +350,98 @@ def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str
     write_json(report, out)
 
 
-# --------------------------------------------------------------------------- provenance
+# --------------------------------------------------------------------------- surfaces and reports
 
 
-def sha256(path: str | Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for chunk in iter(lambda: f.read(1 << 20), b""):
-            h.update(chunk)
-    return h.hexdigest()
+def _height_limits(s: Session) -> tuple[float, float]:
+    """Colour limits shared by every frame of a session: the calibrated depth range."""
+    return (min(0.0, min(s.planes_mm)), max(s.planes_mm))
 
 
-def software_versions() -> dict[str, str]:
-    import importlib.metadata as md
+def mesh_frame(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str, stats: str) -> None:
+    """Triangle mesh of one height map (no bridging of jumps), cleaned, exported as PLY + STL."""
+    from huefringe import mesh as meshing
 
-    out = {"huefringe": __version__, "python": platform.python_version()}
-    for name in ("numpy", "scipy", "opencv-python-headless", "scikit-image", "open3d-cpu", "trimesh", "pyvista",
-                 "vtk", "matplotlib", "snakemake", "numba", "tifffile"):
-        with contextlib.suppress(md.PackageNotFoundError):
-            out[name] = md.version(name)
-    return out
+    s = load_session(session)
+    h = read_tiff(height)
+    m = meshing.height_to_mesh(h, s.pixel_pitch_mm, colours=read_rgb(s.object_white))
+    m = meshing.clean_mesh(m, min_island_faces=mesh["min_island_faces"])
+    if mesh["decimate_faces"]:
+        m = meshing.decimate(m, mesh["decimate_faces"])
+    meshing.export_mesh(m, ply, stl)
+    if meshing.stats_path(ply) != Path(stats):
+        raise RuntimeError(f"mesh statistics went to {meshing.stats_path(ply)}, the workflow expects {stats}")
+
+
+def render_frame(session: str, mesh: str, height: str, phase: str, render: Mapping[str, Any], frame: str,
+                 top: str, oblique1: str, oblique2: str, height_map: str, phase_map: str) -> None:
+    """Off-screen renders (top and two oblique views) and the height and phase figures of one frame."""
+    import trimesh
+
+    from huefringe import render as rendering
+
+    s = load_session(session)
+    size = (int(render["width"]), int(render["height"]))
+    clim = _height_limits(s)
+    cams = rendering.camera_for_field((s.width - 1) * s.pixel_pitch_mm, (s.height - 1) * s.pixel_pitch_mm, clim, size=size)
+    m = trimesh.load(mesh, process=False, force="mesh")
+    out_dir = Path(top).parent
+    written = rendering.render_views(m, out_dir, f"frame_{frame}", clim=clim, camera=cams, size=size,
+                                     title=f"{s.id} frame {frame}")
+    expected = {Path(top), Path(oblique1), Path(oblique2)}
+    if not expected <= set(written):
+        raise RuntimeError(f"render wrote {written}, expected {sorted(map(str, expected))}")
+    rendering.height_map_figure(read_tiff(height), s.pixel_pitch_mm, height_map, clim=clim,
+                                title=f"{s.id} frame {frame}: height (mm)")
+    rendering.wrapped_phase_figure(read_tiff(phase), phase_map, pitch_mm=s.pixel_pitch_mm,
+                                   title=f"{s.id} frame {frame}: corrected code phase")
+
+
+def metrology_report(session: str, heights: Sequence[str], baseline: Sequence[str], planes: str, tables: str,
+                     cross_section: str, render: str, height_map: str, accuracy: Sequence[str],
+                     config: Mapping[str, Any], json: str, html: str, profile: str, per_frame: str) -> None:
+    """Step-height metrology of every frame: report.json (results contract) and report.html."""
+    import json as jsonlib
+
+    from huefringe import metrology, report
+    from huefringe import render as rendering
+
+    s = load_session(session)
+    spec = s.specimen
+    if spec is None:
+        raise ValueError(f"{s.root / 'session.yaml'}: no specimen block, nothing to evaluate")
+    maps = [read_tiff(p) for p in heights]
+    range_mm = max(s.planes_mm) - min(s.planes_mm)
+    edge = float(config["metrology"]["edge_exclusion"])
+    method = metrology.evaluate_session(maps, spec, s.pixel_pitch_mm, range_mm=range_mm, edge_exclusion=edge)
+    base = None
+    if baseline:
+        base = metrology.evaluate_session([read_tiff(p) for p in baseline], spec, s.pixel_pitch_mm, range_mm=range_mm,
+                                          method="three-step-phase-shift", edge_exclusion=edge)
+    plane_stats = jsonlib.loads(Path(planes).read_text())
+    table_stats = jsonlib.loads(Path(tables).read_text())
+    provenance = report.collect_provenance(s.id, dict(config), s.input_files(), root=s.root)
+    extras: dict[str, Any] = {
+        "hue_model": config["hue_model"],
+        "unwrap": config["measurement"]["unwrap"],
+        "calibration": {
+            "plane_fit_residual_rms_mm": plane_stats.get("fit_residual_rms_mm"),
+            "unambiguous_range_mm": plane_stats.get("unambiguous_range_mm"),
+            "object_table_valid_fraction": table_stats.get("valid_fraction"),
+        },
+    }
+    if accuracy:
+        extras["accuracy"] = jsonlib.loads(Path(accuracy[0]).read_text())
+    doc = report.build_report_json(s.id, spec, method, base, extras=extras)
+    # a profile through the middle of the steps' ROIs (paper Fig. 9 d)
+    rows = [(st["roi"][1] + st["roi"][3]) // 2 for st in spec["steps"]]
+    rendering.profile_figure(maps[0], int(np.median(rows)), s.pixel_pitch_mm, profile,
+                             title=f"{s.id} frame {s.frame_ids[0]:04d}: cross-section")
+    report.per_frame_figure(doc, per_frame)
+    figures = {"profile": Path(profile), "height": Path(height_map), "render": Path(render),
+               "per_frame": Path(per_frame), "calibration_qa": Path(cross_section)}
+    write_json(json, doc)
+    report.write_report_html(html, doc, figures, provenance)
 
 
 # --------------------------------------------------------------------------- Snakemake adapter

@@ -59,16 +59,22 @@ def _from_bench(path: Path, bench_ref: str, base: Path) -> SessionPlan:
     ref = base / bench_ref
     cfg_path = ref if ref.suffix in (".yaml", ".yml") else bench.preset_path(bench_ref)
     cfg = bench.load_bench_config(cfg_path)
-    info = bench.session_plan(cfg)
+    frames = list(range(int(cfg["session"]["frames"])))
     return SessionPlan(
         path=path,
-        id=info["id"],
-        frames=list(info["frames"]),
-        phase_shift=list(info["phase_shift"]),
-        ground_truth=bool(info["ground_truth"]),
-        specimen=bool(info["specimen"]),
+        id=str(cfg["session"]["id"]),
+        frames=frames,
+        phase_shift=frames if cfg["phase_shift"]["enabled"] else [],
+        ground_truth=bool(cfg["session"]["ground_truth"]),
+        specimen=cfg["scene"]["kind"] == "gauge_blocks",
         bench=str(cfg_path),
     )
+
+
+def bench_error() -> type[Exception]:
+    from huefringe.bench import BenchConfigError
+
+    return BenchConfigError
 
 
 def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, SessionPlan]:
@@ -94,6 +100,8 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, S
                 plan = _from_bench(path, bench_sessions[str(path)], base)
         except SessionError as exc:
             raise PlanError(f"session {entry} is refused:\n{exc}") from exc
+        except bench_error() as exc:
+            raise PlanError(f"session {entry} cannot be written by the bench:\n{exc}") from exc
         if plan.id in plans:
             raise PlanError(f"sessions {plans[plan.id].path} and {entry} share the id '{plan.id}'")
         plan.batches = [plan.frames[i : i + per_job] for i in range(0, len(plan.frames), per_job)]

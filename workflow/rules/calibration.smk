@@ -22,8 +22,10 @@ rule hue_table:
     input:
         check=R("{sid}", "qa", "session_check.json"),
     output:
-        table=R("{sid}", "calib", "table_{which}.npz"),
-        stats=R("{sid}", "calib", "table_{which}.json"),
+        table=R("{sid}", "calib", "table_{which}.json"),
+        array=R("{sid}", "calib", "table_{which}.npy"),
+        maps=R("{sid}", "calib", "table_{which}.maps.npz"),
+        stats=R("{sid}", "calib", "table_{which}.stats.json"),
     params:
         session=session_dir,
         hue_model=config["hue_model"],
@@ -40,7 +42,7 @@ rule hue_table:
 
 rule plane_calibration:
     input:
-        table=R("{sid}", "calib", "table_reference.npz"),
+        table=R("{sid}", "calib", "table_reference.json"),
     output:
         model=R("{sid}", "calib", "phase_to_height.npz"),
         stats=R("{sid}", "calib", "planes.json"),
@@ -60,7 +62,7 @@ rule plane_calibration:
 
 rule compensation:
     input:
-        table=R("{sid}", "calib", "table_reference.npz"),
+        table=R("{sid}", "calib", "table_reference.json"),
         model=R("{sid}", "calib", "phase_to_height.npz"),
     output:
         pattern=R("{sid}", "calib", "compensated_pattern.png"),

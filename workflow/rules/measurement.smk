@@ -8,7 +8,7 @@ for _sid, _plan in PLANS.items():
             name:
                 f"measure_{_sid.replace('-', '_')}_{_b:03d}"
             input:
-                table=R(_sid, "calib", "table_object.npz"),
+                table=R(_sid, "calib", "table_object.json"),
                 model=R(_sid, "calib", "phase_to_height.npz"),
             output:
                 **frame_outputs(_sid, _frames),
@@ -36,7 +36,7 @@ for _sid, _plan in PLANS.items():
                 f"baseline_{_sid.replace('-', '_')}_{_b:03d}"
             input:
                 model=R(_sid, "calib", "phase_to_height.npz"),
-                object_table=R(_sid, "calib", "table_object.npz"),
+                object_table=R(_sid, "calib", "table_object.json"),
             output:
                 **baseline_outputs(_sid, _frames),
             params:

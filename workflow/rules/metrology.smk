@@ -6,7 +6,7 @@ rule metrology:
         heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
         baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
         planes=R("{sid}", "calib", "planes.json"),
-        tables=R("{sid}", "calib", "table_object.json"),
+        tables=R("{sid}", "calib", "table_object.stats.json"),
         cross_section=R("{sid}", "calib", "qa_hue_cross_section.png"),
         render=lambda w: render_outputs(w.sid, PLANS[w.sid].frames[0])[0],
         height_map=lambda w: render_outputs(w.sid, PLANS[w.sid].frames[0])[3],

@@ -7,7 +7,7 @@ rule mesh:
     output:
         ply=R("{sid}", "mesh", "frame_{frame}.ply"),
         stl=R("{sid}", "mesh", "frame_{frame}.stl"),
-        stats=R("{sid}", "mesh", "frame_{frame}.json"),
+        stats=R("{sid}", "mesh", "frame_{frame}.stats.json"),
     params:
         session=session_dir,
         mesh=config["mesh"],
