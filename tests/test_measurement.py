@@ -1,0 +1,78 @@
+"""The measurement chain on bench sessions, against the bench's ground truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+from bench_helpers import CONFIG, bench_config, process, write
+
+from huefringe import bench
+from huefringe.height import accuracy
+
+
+@pytest.fixture(scope="module")
+def demo(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    """The embedded demo session (gauge blocks on a vibrating membrane), processed once."""
+    root = tmp_path_factory.mktemp("demo")
+    cfg = bench_config("demo")
+    session = write(cfg, root)
+    out = process(session, root / "out", baseline=True)
+    out["bench_config"] = cfg
+    return out
+
+
+def test_flat_plate_at_known_height(tmp_path: Path) -> None:
+    cfg = bench_config("flat", width=240, height=180, hue_bands=48, frames=2)
+    out = process(write(cfg, tmp_path), tmp_path / "out")
+    for p in out["heights"]:
+        h = tifffile.imread(p)
+        assert np.isfinite(h).mean() > 0.97
+        err = np.nanmedian(np.abs(h - cfg["scene"]["height_mm"]))
+        assert err < 0.02, f"flat plate median |error| {err:.4f} mm"
+
+
+def test_gauge_blocks_match_ground_truth(demo: dict) -> None:
+    s = demo["session"]
+    cfg = demo["bench_config"]
+    b = bench.Bench(cfg)
+    fine = b.lighting(b.object_surface(None, fine=True)).shadow  # the bench's own cast shadows
+    f = fine.shape[0] // s.height
+    shadow = fine.reshape(s.height, f, s.width, f).mean(axis=(1, 3)) > 0
+    assert shadow.shape == (s.height, s.width) and 0 < shadow.mean() < 0.2
+    for n, p in zip(s.frame_ids, demo["heights"], strict=True):
+        h = tifffile.imread(p)
+        gt = tifffile.imread(s.ground_truth[n])
+        acc = accuracy(h, gt)
+        assert acc["median_abs_mm"] < 0.03, acc
+        lit = np.isfinite(gt) & ~shadow
+        assert np.isfinite(h[lit]).mean() >= 0.95
+        qa = json.loads(Path(demo["qa"][s.frame_ids.index(n)]).read_text())
+        assert qa["hue_model"] == "hexcone" and not qa["flags"]["isolated"]
+
+
+def test_baseline_three_step_matches_ground_truth(demo: dict) -> None:
+    s = demo["session"]
+    errs = [accuracy(tifffile.imread(p), tifffile.imread(s.ground_truth[n]))["median_abs_mm"]
+            for n, p in zip(s.frame_ids, demo["baseline"], strict=True)]
+    assert max(errs) < 0.1  # the baseline works, though vibration and residual gamma hurt it
+
+
+def _block_session(tmp_path: Path, name: str, height_mm: float) -> dict:
+    cfg = bench_config("table1", width=200, height=150, hue_bands=32, frames=1, period_px=20,
+                       planes_mm=[0.0, 1.0, 2.0], id=name)
+    cfg["scene"]["blocks"] = [{"name": "block", "nominal_mm": height_mm, "reflectance": [0.5, 0.5, 0.55],
+                               "rect_mm": [14.0, 11.0, 26.0, 19.0]}]
+    out = process(write(cfg, tmp_path), tmp_path / f"out-{name}")
+    return json.loads(Path(out["qa"][0]).read_text())
+
+
+def test_step_too_tall_for_the_period_is_flagged(tmp_path: Path) -> None:
+    # period 20 px = 4 mm at ~32 deg: about 1 rad per mm, so |dphi| < pi holds up to ~3.1 mm.
+    # A 1.0 mm block on the 0.5 mm base is fine; a 3.2 mm one (3.7 mm) wraps to a negative height.
+    assert not _block_session(tmp_path, "low", 1.0)["phase_ambiguity_suspected"]
+    qa = _block_session(tmp_path, "tall", 3.2)
+    assert qa["phase_ambiguity_suspected"] and qa["flags"]["below_reference"] > 100
