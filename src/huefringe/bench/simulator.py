@@ -1,0 +1,273 @@
+"""The virtual bench: a configured rig and scene that produce captures and ground truth.
+
+:class:`Bench` ties :mod:`.geometry`, :mod:`.radiometry` and :mod:`.scenes` together. Its
+captures are pure functions of the configuration, the pattern, the instant and the noise
+generator passed in; nothing is global.
+
+Timing: one-shot frame ``n`` is taken at ``t_n = n / camera.frame_rate_hz``; its three
+phase-shift captures at ``t_n + s / phase_shift.frame_rate_hz``; with ``camera.exposure_ms > 0``
+and ``motion_blur_subframes > 1`` a capture averages that many sub-exposures spread over the
+exposure centred on its instant. White, hue bands and the reference planes are taken with the
+object at rest.
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from .geometry import Grid, cast_shadow_mask, lambert_from_parts, lambert_parts, projector_ray_x0
+from .radiometry import Pattern, Rig, camera_response, emitted_rgb, lens_blur
+from .scenes import Scene, SceneSample, build_scene
+
+__all__ = ["Bench", "Surface", "noise_rng", "simulate_capture"]
+
+F64 = NDArray[np.float64]
+
+
+@dataclass
+class Surface:
+    """What the camera sees on its (fine) grid at one instant: plate plus object."""
+
+    height: F64
+    grad_x: F64
+    grad_y: F64
+    reflectance: NDArray[np.float32]  # (rows, cols, 3)
+    #: height-independent shading terms, shared by surfaces that differ by a vertical shift
+    cache: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class Lighting:
+    """Projector geometry of a surface: ray footprint ``x0`` on z = 0 and irradiance factor."""
+
+    x0: F64
+    irradiance: F64  # Lambertian cosine, 0 in cast shadows
+    shadow: NDArray[np.bool_]
+
+
+def noise_rng(seed: int, name: str) -> np.random.Generator:
+    """The noise generator of one image: independent streams keyed by (seed, image name).
+
+    Keying by name (not by writing order) makes every file's bytes independent of which other
+    files are written and in which order.
+    """
+    return np.random.default_rng([int(seed), zlib.crc32(name.encode("utf-8"))])
+
+
+class Bench:
+    """A configured virtual bench.
+
+    Parameters
+    ----------
+    cfg : dict
+        A validated bench configuration (:func:`huefringe.bench.load_bench_config`).
+    scene : Scene, optional
+        Override the configured scene (tests).
+    """
+
+    def __init__(self, cfg: dict[str, Any], scene: Scene | None = None) -> None:
+        self.cfg = cfg
+        self.rig = Rig.from_config(cfg)
+        s = cfg["session"]
+        self.grid = Grid(int(s["width"]), int(s["height"]), float(s["pixel_pitch_mm"]), int(cfg["camera"]["supersample"]))
+        self.scene = scene if scene is not None else build_scene(cfg)
+        self._xf, self._yf = self.grid.mesh(fine=True)
+        self._xc, self._yc = self.grid.mesh(fine=False)
+        self._rest_fine: SceneSample | None = None
+        self._rest_coarse: SceneSample | None = None
+        self._rest_surface: dict[str, Surface] = {}
+        self._plate_cache: dict[str, Any] = {}
+
+    # ---------------------------------------------------------------- timing and motion
+    def frame_time(self, n: int) -> float:
+        """Instant ``t_n`` (s) of one-shot frame ``n``."""
+        return n / float(self.cfg["camera"]["frame_rate_hz"])
+
+    def phase_shift_time(self, n: int, s: int) -> float:
+        """Instant (s) of phase-shift capture ``s`` of instant ``n``."""
+        return self.frame_time(n) + s / float(self.cfg["phase_shift"]["frame_rate_hz"])
+
+    def motion(self, t: float | None) -> tuple[float, float]:
+        """Rigid displacement ``(dx, dz)`` in mm of the object at time ``t`` (None = at rest)."""
+        if t is None:
+            return 0.0, 0.0
+        v = self.cfg["vibration"]
+        w = 2.0 * np.pi * float(v["frequency_hz"]) * t
+        dz = float(v["amplitude_mm"]) * np.sin(w + float(v["phase_rad"]))
+        dx = float(v["lateral_amplitude_mm"]) * np.sin(w + float(v["lateral_phase_rad"]))
+        return dx, dz
+
+    def exposure_times(self, t: float) -> list[float]:
+        """Sub-exposure instants of a capture centred on ``t``."""
+        cam = self.cfg["camera"]
+        n = int(cam["motion_blur_subframes"])
+        exp_s = float(cam["exposure_ms"]) * 1e-3
+        if n <= 1 or exp_s <= 0.0:
+            return [t]
+        return [t + ((j + 0.5) / n - 0.5) * exp_s for j in range(n)]
+
+    # ---------------------------------------------------------------- surfaces
+    def _object(self, t: float | None, fine: bool) -> tuple[SceneSample, float]:
+        """The scene sampled where the object is at time ``t``, and its vertical offset."""
+        dx, dz = self.motion(t)
+        x, y = (self._xf, self._yf) if fine else (self._xc, self._yc)
+        if dx != 0.0:
+            return self.scene.sample(x - dx, y), dz
+        if fine:
+            if self._rest_fine is None:
+                self._rest_fine = self.scene.sample(x, y)
+            return self._rest_fine, dz
+        if self._rest_coarse is None:
+            self._rest_coarse = self.scene.sample(x, y)
+        return self._rest_coarse, dz
+
+    def _compose(self, smp: SceneSample, dz: float) -> Surface:
+        m = smp.mask
+        h = np.where(m, smp.height + dz, 0.0)
+        top = float(h.max())
+        if top >= self.rig.projector_height_mm - 1.0:
+            raise ValueError(f"the scene reaches {top:.1f} mm, too close to the projector at {self.rig.projector_height_mm} mm")
+        refl = np.where(m[..., None], smp.reflectance, self.rig.plate_reflectance).astype(np.float32)
+        return Surface(h, np.where(m, smp.grad_x, 0.0), np.where(m, smp.grad_y, 0.0), refl)
+
+    def object_surface(self, t: float | None = None, fine: bool = True) -> Surface:
+        """Plate plus the object displaced to its position at time ``t`` (None = at rest)."""
+        smp, dz = self._object(t, fine)
+        if self.motion(t)[0] != 0.0:
+            return self._compose(smp, dz)
+        key = "fine" if fine else "coarse"
+        if key not in self._rest_surface:
+            self._rest_surface[key] = self._compose(smp, 0.0)
+        rest = self._rest_surface[key]
+        if dz == 0.0:
+            return rest
+        return Surface(rest.height + dz * smp.mask, rest.grad_x, rest.grad_y, rest.reflectance, rest.cache)
+
+    def plate_surface(self, z_mm: float = 0.0, fine: bool = True) -> Surface:
+        """The bare reference plate lifted to ``z_mm``."""
+        x = self._xf if fine else self._xc
+        zero = np.zeros(x.shape)
+        refl = np.broadcast_to(self.rig.plate_reflectance.astype(np.float32), x.shape + (3,))
+        return Surface(np.full(x.shape, float(z_mm)), zero, zero, refl, self._plate_cache)
+
+    def ground_truth(self, t: float | None) -> NDArray[np.float32]:
+        """True height (mm, float32) at every pixel centre at time ``t``."""
+        return self.object_surface(t, fine=False).height.astype(np.float32)
+
+    # ---------------------------------------------------------------- light
+    def lighting(self, surf: Surface) -> Lighting:
+        """Ray footprints, Lambertian cosine and cast shadows of a fine-grid surface."""
+        rig = self.rig
+        x0 = projector_ray_x0(self._xf, surf.height, rig.projector_x_mm, rig.projector_height_mm)
+        if rig.lambertian:
+            if "lambert" not in surf.cache:
+                surf.cache["lambert"] = tuple(
+                    p.astype(np.float32)
+                    for p in lambert_parts(self._xf, self._yf, surf.grad_x, surf.grad_y, rig.projector_xyz[:2])
+                )
+            lz = (rig.projector_height_mm - surf.height).astype(np.float32)
+            irr = lambert_from_parts(surf.cache["lambert"], lz)
+        else:
+            irr = np.ones(surf.height.shape, np.float32)
+        if rig.shadows:
+            shadow = cast_shadow_mask(surf.height, self._xf[0], rig.projector_x_mm, rig.projector_height_mm, x0_mm=x0)
+            irr = np.where(shadow, np.float32(0.0), irr)
+        else:
+            shadow = np.zeros(surf.height.shape, dtype=bool)
+        return Lighting(x0, irr, shadow | (irr <= 0.0))
+
+    def radiance(self, surf: Surface, light: Lighting, pattern: Pattern) -> NDArray[np.float32]:
+        """Eq. 7 on the fine grid, box-averaged to camera pixels: ``r_k (E g_k + a_k)``."""
+        em = light.irradiance[..., None] * emitted_rgb(pattern, light.x0, self.rig)
+        em += self.rig.ambient.astype(np.float32)
+        em *= surf.reflectance
+        return self.grid.downsample(em)
+
+    # ---------------------------------------------------------------- captures
+    def capture(
+        self,
+        pattern: Pattern,
+        *,
+        t: float | None = None,
+        plane_z: float | None = None,
+        rng: np.random.Generator | None = None,
+    ) -> NDArray[np.uint8] | NDArray[np.uint16]:
+        """One camera image.
+
+        Parameters
+        ----------
+        pattern : Pattern
+            What the projector shows.
+        t : float, optional
+            Instant (s) for a capture of the moving object; ``None`` = object at rest.
+        plane_z : float, optional
+            Capture the bare plate lifted to this height instead of the object.
+        rng : numpy.random.Generator, optional
+            Noise source (``None``: noiseless).
+        """
+        if plane_z is not None:
+            surf = self.plate_surface(plane_z)
+            rad = self.radiance(surf, self.lighting(surf), pattern)
+        else:
+            times = [None] if t is None else self.exposure_times(t)
+            rad = np.zeros((self.grid.height, self.grid.width, 3), np.float32)
+            for ti in times:
+                surf = self.object_surface(ti)
+                rad += self.radiance(surf, self.lighting(surf), pattern)
+            rad /= np.float32(len(times))
+        return camera_response(rad, self.rig, rng)
+
+    def uniform_capturer(
+        self, plane_z: float | None = None
+    ) -> Callable[[Pattern, np.random.Generator | None], NDArray[np.uint8] | NDArray[np.uint16]]:
+        """A fast capture function for uniform patterns (white, hue bands) of a static surface.
+
+        For a uniform projected colour ``c`` the radiance ``r (E c + a)`` is affine in ``c``, and
+        so is the lens blur; both parts are computed once.
+        """
+        surf = self.plate_surface(plane_z) if plane_z is not None else self.object_surface(None)
+        light = self.lighting(surf)
+        sig = self.rig.lens_blur_sigma_px
+        lit = lens_blur(self.grid.downsample(surf.reflectance * light.irradiance[..., None]), sig)
+        amb = lens_blur(self.grid.downsample(surf.reflectance * self.rig.ambient), sig)
+        rig = self.rig
+
+        def capture(pattern: Pattern, rng: np.random.Generator | None) -> NDArray[np.uint8] | NDArray[np.uint16]:
+            if pattern.kind != "uniform":
+                raise ValueError("uniform_capturer only handles uniform patterns")
+            c = emitted_rgb(pattern, None, rig)
+            return camera_response(lit * c + amb, rig, rng, blurred=True)
+
+        return capture
+
+
+def simulate_capture(
+    cfg: dict[str, Any],
+    pattern: Pattern,
+    *,
+    t: float | None = None,
+    plane_z: float | None = None,
+    rng: np.random.Generator | None = None,
+) -> NDArray[np.uint8] | NDArray[np.uint16]:
+    """One capture of a configured bench (convenience wrapper around :class:`Bench`).
+
+    Parameters
+    ----------
+    cfg : dict
+        Validated bench configuration.
+    pattern : Pattern
+        What is projected.
+    t : float, optional
+        Instant of the moving object (``None`` = at rest).
+    plane_z : float, optional
+        Capture the bare plate at this height instead of the scene.
+    rng : numpy.random.Generator, optional
+        Noise source; ``None`` = noiseless.
+    """
+    return Bench(cfg).capture(pattern, t=t, plane_z=plane_z, rng=rng)
