@@ -114,3 +114,23 @@ def test_accuracy_figures() -> None:
     acc = accuracy(h, truth)
     assert acc["coverage"] == pytest.approx(0.99)
     assert acc["rms_mm"] == pytest.approx(0.1) and acc["median_abs_mm"] == pytest.approx(0.1)
+
+
+def test_nearest_plane_crossing_pi_is_unwrapped() -> None:
+    # fine fringes: the 3 mm plane's phase difference crosses pi inside the field
+    global PERIOD_PX
+    saved = PERIOD_PX
+    PERIOD_PX = 17.0
+    try:
+        h = np.full((H_IMG, W), 3.0)
+        d = code_phase(h) - code_phase(np.zeros((H_IMG, W)))
+        d = np.mod(d, TWO_PI)
+        assert (d > np.pi).any() and (d < np.pi).any()  # the wrapped difference jumps in the field
+        cal = ideal_calibration(planes=(0.0, 3.0, 6.0))
+        assert cal.stats["fit_residual_rms_mm"] < 1e-3
+        for z in (1.5, 4.5):  # heights through the spatial unwrap of dphi, not the wrapped one
+            dphi = code_phase(np.full((H_IMG, W), z)) - cal.phi_ref
+            dphi = wrap(dphi) + TWO_PI * np.round((cal.a * z / (1 - cal.b * z) - wrap(dphi)) / TWO_PI)
+            np.testing.assert_allclose(cal.height(dphi), z, atol=1e-3)
+    finally:
+        PERIOD_PX = saved

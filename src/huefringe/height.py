@@ -161,10 +161,16 @@ def calibrate_planes(
     slope: NDArray[np.float64] | None = None
     for z in others:
         d = wrap(np.asarray(plane_phases[z], np.float64) - phi_ref)
+        valid = plane_valid[z] & v0 if smooth_degree is None else plane_valid[z]
         if slope is not None:
             pred = slope * z
             d = pred + wrap(d - pred)
-        valid = plane_valid[z] & v0 if smooth_degree is None else plane_valid[z]
+        else:
+            # nearest plane: unwrap spatially (its difference may cross +-pi somewhere in the
+            # field) and take the 2 pi offset that puts the median within (-pi, pi]
+            d = unwrap_rows(d, valid)
+            d -= 2 * np.pi * np.round(np.nanmedian(d[valid]) / (2 * np.pi))
+            d = np.where(valid, d, 0.0)
         raw[z] = np.where(valid, d, np.nan)
         model = fit_poly2d(d, valid, smooth_degree) if smooth_degree is not None else raw[z]
         dphis[z] = model

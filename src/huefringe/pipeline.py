@@ -156,11 +156,29 @@ def phase_sigma(table: HueTable, phase: NDArray[np.floating], floor_slope: float
 # --------------------------------------------------------------------------- stages
 
 
-def bench_session(config: str, out: str) -> None:
-    """Write a capture session with the virtual bench (the demo, or any bench YAML)."""
+def bench_session(config: str, out: str, period_px: float | None = None) -> None:
+    """Write a capture session with the virtual bench (a preset or bench YAML, optionally at another period)."""
     from huefringe import bench
+    from huefringe.plan import bench_config_for
 
-    bench.write_session(bench.load_bench_config(config), Path(out), progress=False)
+    bench.write_session(bench_config_for(config, period_px=period_px), Path(out), progress=False)
+
+
+def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_mm: float,
+           markdown: str, csv: str, figure: str) -> None:
+    """The paper's Table 1 from the metrology reports of a period sweep, beside the published values."""
+    import json as jsonlib
+
+    from huefringe import table1 as t1
+
+    results = {}
+    for period, path in zip(periods, reports, strict=True):
+        doc = jsonlib.loads(Path(path).read_text())
+        results[int(period)] = {"method": {"steps": doc["steps"]}}
+        if doc.get("baseline"):
+            results[int(period)]["baseline"] = doc["baseline"]
+    rows = t1.table1_rows(results, step_name=step, nominal=nominal_mm)
+    t1.write_table1(rows, markdown, csv, figure)
 
 
 def _calibration_opts(calibration: Mapping[str, Any]) -> dict[str, Any]:

@@ -28,6 +28,8 @@ class SessionPlan:
     specimen: bool
     bench: str | None = None
     """Bench preset or YAML that writes this session when it is absent."""
+    period_px: float | None = None
+    """Fringe period overriding the bench YAML's (a period sweep, paper Table 1)."""
     batches: list[list[int]] = field(default_factory=list)
 
     def frame_selection(self, sel: Any) -> list[int]:
@@ -53,12 +55,28 @@ def _from_session(path: Path) -> SessionPlan:
     )
 
 
-def _from_bench(path: Path, bench_ref: str, base: Path) -> SessionPlan:
+def bench_config_for(bench_ref: str, base: str | Path = ".", period_px: float | None = None) -> dict[str, Any]:
+    """The bench configuration of a preset name or YAML path, optionally at another period.
+
+    At another period the session id gets the suffix ``-p<period>`` (as the bench's period sweep).
+    """
+    from huefringe import bench
+
+    ref = Path(base) / bench_ref
+    cfg_path = ref if ref.suffix in (".yaml", ".yml") else bench.preset_path(bench_ref)
+    cfg = bench.load_bench_config(cfg_path)
+    if period_px is not None:
+        cfg["session"]["period_px"] = period_px
+        cfg["session"]["id"] = f"{cfg['session']['id']}-p{period_px:g}".replace(".", "-")
+    return cfg
+
+
+def _from_bench(path: Path, bench_ref: str, base: Path, period_px: float | None = None) -> SessionPlan:
     from huefringe import bench
 
     ref = base / bench_ref
     cfg_path = ref if ref.suffix in (".yaml", ".yml") else bench.preset_path(bench_ref)
-    cfg = bench.load_bench_config(cfg_path)
+    cfg = bench_config_for(bench_ref, base, period_px)
     frames = list(range(int(cfg["session"]["frames"])))
     return SessionPlan(
         path=path,
@@ -68,6 +86,7 @@ def _from_bench(path: Path, bench_ref: str, base: Path) -> SessionPlan:
         ground_truth=bool(cfg["session"]["ground_truth"]),
         specimen=cfg["scene"]["kind"] == "gauge_blocks",
         bench=str(cfg_path),
+        period_px=period_px,
     )
 
 
@@ -102,8 +121,41 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, S
             raise PlanError(f"session {entry} is refused:\n{exc}") from exc
         except bench_error() as exc:
             raise PlanError(f"session {entry} cannot be written by the bench:\n{exc}") from exc
-        if plan.id in plans:
-            raise PlanError(f"sessions {plans[plan.id].path} and {entry} share the id '{plan.id}'")
-        plan.batches = [plan.frames[i : i + per_job] for i in range(0, len(plan.frames), per_job)]
-        plans[plan.id] = plan
+        _add(plans, plan, per_job)
     return plans
+
+
+def _add(plans: dict[str, SessionPlan], plan: SessionPlan, per_job: int) -> None:
+    if plan.id in plans:
+        raise PlanError(f"sessions {plans[plan.id].path} and {plan.path} share the id '{plan.id}'")
+    plan.batches = [plan.frames[i : i + per_job] for i in range(0, len(plan.frames), per_job)]
+    plans[plan.id] = plan
+
+
+def plan_table1(config: dict[str, Any], plans: dict[str, SessionPlan], base: str | Path = ".") -> list[str]:
+    """Add the sessions of the paper's Table 1 experiment (a period sweep) to ``plans``.
+
+    Returns their ids, in the configured period order. The sessions are written by the bench
+    under ``table1.root`` when absent, like any bench session.
+    """
+    t1 = config.get("table1")
+    if not t1:
+        return []
+    base = Path(base)
+    ids = []
+    for period in t1["periods"]:
+        cfg = bench_config_for(t1["bench"], base, float(period))
+        sid = str(cfg["session"]["id"])
+        path = Path(t1["root"]) / sid
+        full = base / path
+        if (full / "session.yaml").exists():
+            try:
+                plan = _from_session(full)
+            except SessionError as exc:
+                raise PlanError(f"Table 1 session {path} is refused:\n{exc}") from exc
+            plan.path = path
+        else:
+            plan = _from_bench(path, t1["bench"], base, float(period))
+        _add(plans, plan, int(config["measurement"]["frames_per_job"]))
+        ids.append(plan.id)
+    return ids

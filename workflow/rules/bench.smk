@@ -11,12 +11,15 @@ for _sid, _plan in PLANS.items():
             f"{_plan.path}/session.yaml",
         params:
             config=_plan.bench,
-            out=str(_plan.path),
+            out=lambda wildcards, output: str(Path(output[0]).parent),
+            period_px=_plan.period_px,
         log:
             f"logs/bench/{_sid}.log",
         threads: 1
         resources:
             mem_mb=2000,
             runtime=30,
+        conda:
+            "../envs/huefringe.yaml"
         script:
             "../../scripts/bench_session.py"

@@ -14,6 +14,8 @@ rule check_session:
     resources:
         mem_mb=1000,
         runtime=10,
+    conda:
+        "../envs/huefringe.yaml"
     script:
         "../../scripts/check_session.py"
 
@@ -36,6 +38,8 @@ rule hue_table:
     resources:
         mem_mb=3000,
         runtime=30,
+    conda:
+        "../envs/huefringe.yaml"
     script:
         "../../scripts/hue_table.py"
 
@@ -56,6 +60,8 @@ rule plane_calibration:
     resources:
         mem_mb=2000,
         runtime=20,
+    conda:
+        "../envs/huefringe.yaml"
     script:
         "../../scripts/plane_calibration.py"
 
@@ -87,5 +93,7 @@ rule compensation:
     resources:
         mem_mb=2000,
         runtime=20,
+    conda:
+        "../envs/huefringe.yaml"
     script:
         "../../scripts/compensation.py"

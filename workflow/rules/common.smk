@@ -2,10 +2,11 @@
 import sys
 from pathlib import Path
 
-from huefringe.plan import PlanError, plan_sessions
+from huefringe.plan import PlanError, plan_sessions, plan_table1
 
 try:
-    PLANS = plan_sessions(config, base=Path(workflow.basedir))
+    PLANS = plan_sessions(config, base=Path.cwd())
+    TABLE1_IDS = plan_table1(config, PLANS, base=Path.cwd())
 except PlanError as exc:
     sys.stderr.write(f"\nhuefringe: cannot start.\n{exc}\n\n")
     sys.exit(1)
@@ -65,6 +66,8 @@ def render_outputs(sid, n):
 def all_targets():
     out = []
     for sid, plan in PLANS.items():
+        if sid in TABLE1_IDS:
+            continue
         out += frame_outputs(sid, plan.frames)["heights"]
         out += frame_outputs(sid, plan.frames)["clouds"]
         out += [R(sid, "calib", "compensated_pattern.png")]

@@ -24,6 +24,8 @@ for _sid, _plan in PLANS.items():
             resources:
                 mem_mb=3000,
                 runtime=max(10, len(_frames) // 10),
+            conda:
+                "../envs/huefringe.yaml"
             script:
                 "../../scripts/measure_frames.py"
 
@@ -49,6 +51,8 @@ for _sid, _plan in PLANS.items():
             resources:
                 mem_mb=2000,
                 runtime=max(10, len(_frames) // 10),
+            conda:
+                "../envs/huefringe.yaml"
             script:
                 "../../scripts/baseline_frames.py"
 
@@ -67,5 +71,7 @@ rule accuracy:
     resources:
         mem_mb=2000,
         runtime=10,
+    conda:
+        "../envs/huefringe.yaml"
     script:
         "../../scripts/accuracy.py"

@@ -25,5 +25,30 @@ rule metrology:
     resources:
         mem_mb=2000,
         runtime=10,
+    conda:
+        "../envs/huefringe.yaml"
     script:
         "../../scripts/metrology.py"
+
+
+rule table1:
+    input:
+        reports=[R(sid, "metrology", "report.json") for sid in TABLE1_IDS],
+    output:
+        markdown=report(R("table1", "table1.md"), caption="../report/table1.rst", category="Table 1"),
+        csv=R("table1", "table1.csv"),
+        figure=report(R("table1", "table1.png"), caption="../report/table1.rst", category="Table 1"),
+    params:
+        periods=config.get("table1", {}).get("periods", []),
+        step=config.get("table1", {}).get("step", "blue"),
+        nominal_mm=config.get("table1", {}).get("nominal_mm", 1.0),
+    log:
+        "logs/table1.log",
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=5,
+    conda:
+        "../envs/huefringe.yaml"
+    script:
+        "../../scripts/table1.py"

@@ -17,6 +17,8 @@ rule mesh:
     resources:
         mem_mb=3000,
         runtime=10,
+    conda:
+        "../envs/huefringe.yaml"
     script:
         "../../scripts/mesh.py"
 
@@ -43,5 +45,7 @@ rule render:
     resources:
         mem_mb=3000,
         runtime=10,
+    conda:
+        "../envs/huefringe.yaml"
     script:
         "../../scripts/render.py"

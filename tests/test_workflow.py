@@ -1,0 +1,115 @@
+"""End to end: Snakemake on a small bench session writes everything the results contract names."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import open3d as o3d
+import pytest
+import tifffile
+import trimesh
+import yaml
+from bench_helpers import CONFIG, REPO, bench_config
+
+from huefringe.report import validate_report
+
+
+def small_bench_yaml(path: Path, **session) -> Path:
+    cfg = bench_config("demo", width=200, height=150, hue_bands=24, repeats=2, frames=3, id="e2e-demo", **session)
+    cfg["scene"]["blocks"] = [
+        {"name": "green", "nominal_mm": 3.0, "reflectance": [0.12, 0.65, 0.18], "rect_mm": [6.0, 10.0, 12.0, 20.0]},
+        {"name": "blue", "nominal_mm": 1.0, "reflectance": [0.15, 0.25, 0.7], "rect_mm": [17.0, 10.0, 23.0, 20.0]},
+        {"name": "red", "nominal_mm": 4.0, "reflectance": [0.7, 0.15, 0.12], "rect_mm": [28.0, 10.0, 34.0, 20.0]},
+    ]
+    path.write_text(yaml.safe_dump(cfg))
+    return path
+
+
+def run_snakemake(workdir: Path, *args: str, check: bool = True) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(workdir),
+           "--cores", "2", *args]
+    proc = subprocess.run(cmd, capture_output=True, text=True, env={**os.environ, "PYTHONHASHSEED": "0"})
+    if check and proc.returncode != 0:
+        raise AssertionError(f"snakemake failed ({proc.returncode}):\n{proc.stdout[-3000:]}\n{proc.stderr[-5000:]}")
+    return proc
+
+
+def workdir_with_config(tmp_path: Path, **overrides) -> Path:
+    bench_yaml = small_bench_yaml(tmp_path / "bench.yaml")
+    cfg = json.loads(json.dumps(CONFIG))
+    cfg["sessions"] = ["sessions/e2e-demo"]
+    cfg["bench_sessions"] = {"sessions/e2e-demo": str(bench_yaml)}
+    cfg["render"].update(width=400, height=300)
+    cfg.pop("table1", None)
+    for k, v in overrides.items():
+        cfg[k] = v
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(cfg))
+    return tmp_path
+
+
+@pytest.fixture(scope="module")
+def e2e(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    work = workdir_with_config(tmp_path_factory.mktemp("e2e"))
+    run_snakemake(work)
+    return work
+
+
+def test_results_contract(e2e: Path) -> None:
+    res = e2e / "results" / "e2e-demo"
+    for n in range(3):
+        h = tifffile.imread(res / "height" / f"frame_{n:04d}.tiff")
+        assert h.dtype == np.float32 and h.shape == (150, 200)
+        assert 0.9 < np.isfinite(h).mean() < 1.0  # shadows are NaN
+        pcd = o3d.io.read_point_cloud(str(res / "cloud" / f"frame_{n:04d}.ply"))
+        assert len(pcd.points) == int(np.isfinite(h).sum()) and pcd.has_colors()
+        pts = np.asarray(pcd.points)
+        assert pts[:, 0].max() == pytest.approx(199 * 0.2, abs=1e-6)  # X = u * pitch, mm
+    mesh = trimesh.load(res / "mesh" / "frame_0000.ply", process=False)
+    assert len(mesh.faces) > 10000
+    for view in ("top", "oblique1", "oblique2"):
+        img = (res / "renders" / f"frame_0000_{view}.png")
+        assert img.stat().st_size > 5000
+    doc = json.loads((res / "metrology" / "report.json").read_text())
+    validate_report(doc)
+    assert doc["session"] == "e2e-demo" and doc["method"] == "trapezoidal-hsi" and doc["frames"] == 3
+    assert [s["name"] for s in doc["steps"]] == ["green", "blue", "red"]
+    assert doc["baseline"]["method"] == "three-step-phase-shift"
+    assert all(abs(s["error_mm"]) < 0.05 for s in doc["steps"]), doc["steps"]
+    html = (res / "metrology" / "report.html").read_text()
+    assert "e2e-demo" in html and "data:image/png;base64," in html
+    acc = json.loads((res / "accuracy.json").read_text())
+    assert acc["trapezoidal-hsi"]["summary"]["median_abs_mm"] < 0.05
+
+
+def test_rerun_is_a_no_op(e2e: Path) -> None:
+    proc = run_snakemake(e2e, "-n")
+    assert "Nothing to be done" in proc.stdout + proc.stderr
+
+
+def test_bad_session_refused_before_any_work(tmp_path: Path) -> None:
+    sess = tmp_path / "broken"
+    sess.mkdir()
+    (sess / "session.yaml").write_text("format: capture-session/1\nid: Broken!\n")
+    cfg = json.loads(json.dumps(CONFIG))
+    cfg["sessions"] = [str(sess)]
+    cfg["bench_sessions"] = {}
+    cfg.pop("table1", None)
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(cfg))
+    proc = run_snakemake(tmp_path, check=False)
+    assert proc.returncode != 0
+    err = proc.stdout + proc.stderr
+    assert "session.yaml" in err and "at id" in err and "Traceback" not in err
+    assert not (tmp_path / "results").exists()
+
+
+def test_unknown_config_key_refused(tmp_path: Path) -> None:
+    cfg = json.loads(json.dumps(CONFIG))
+    cfg["measurement"]["unwarp"] = "spatial"
+    (tmp_path / "config.yaml").write_text(yaml.safe_dump(cfg))
+    proc = run_snakemake(tmp_path, "-n", check=False)
+    assert proc.returncode != 0 and "unwarp" in proc.stdout + proc.stderr
