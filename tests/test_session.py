@@ -151,3 +151,36 @@ def test_cli_check_exit_status(tmp_path: Path, capsys: pytest.CaptureFixture[str
     assert main(["check", str(root)]) == 1
     out = capsys.readouterr().out
     assert "REFUSED" in out and "object/white.png: missing file" in out
+
+
+def _write_predistortion(root: Path, rows: list[tuple[float, float]], header: str = "code_phase_rad,emitted_phase_rad") -> None:
+    text = "# test\n" + header + "\n" + "".join(f"{c},{e}\n" for c, e in rows)
+    (root / "predistortion.csv").write_text(text)
+
+
+def test_predistortion_extension_read_and_inverted(tmp_path: Path) -> None:
+    root = make_session(tmp_path / "s")
+    code = np.linspace(0, 2 * np.pi, 64, endpoint=False)
+    emitted = code + 0.2 * np.sin(code)  # invertible pre-distortion
+    _write_predistortion(root, list(zip(code, emitted, strict=True)))
+    s = load_session(root)
+    assert s.predistortion is not None and root / "predistortion.csv" in s.input_files()
+    phi = np.linspace(0.01, 6.2, 50)
+    back = s.predistortion.decode(phi + 0.2 * np.sin(phi))
+    np.testing.assert_allclose(back, phi, atol=2e-3)
+
+
+@pytest.mark.parametrize(
+    ("rows", "header", "words"),
+    [
+        ([(0.1 * i, 0.1 * i) for i in range(20)], "code,emitted", "header"),
+        ([(0.1 * i, 0.1 * (20 - i)) for i in range(20)], "code_phase_rad,emitted_phase_rad", "rise strictly"),
+        ([(0.1 * i, 0.1 * i) for i in range(5)], "code_phase_rad,emitted_phase_rad", "at least 16 rows"),
+    ],
+)
+def test_bad_predistortion_refused(tmp_path: Path, rows, header, words) -> None:
+    root = make_session(tmp_path / "s")
+    _write_predistortion(root, rows, header)
+    with pytest.raises(SessionError, match=words) as info:
+        load_session(root)
+    assert "predistortion.csv" in str(info.value)

@@ -25,7 +25,7 @@ from huefringe.height import PlaneCalibration, accuracy, calibrate_planes
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.patterns import TWO_PI
 from huefringe.phase import denoise_phase, three_step_phase, unwrap, wrap
-from huefringe.session import Session, load_session, read_rgb
+from huefringe.session import Predistortion, Session, load_session, read_rgb
 
 log = logging.getLogger("huefringe")
 
@@ -80,6 +80,7 @@ def measure_frame(
     bit_depth: int = 8,
     below_reference_mm: float = 0.25,
     denoise_radius: int = 2,
+    predistortion: Predistortion | None = None,
 ) -> FrameResult:
     """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
 
@@ -101,10 +102,15 @@ def measure_frame(
         uncertainty is its hue noise (from the repeats of the hue bands) divided by the local
         slope of its table, so pixels where projector gamma flattens the hue lean on their
         neighbours while steps stay sharp.
+    predistortion : Predistortion, optional
+        When the frames were projected through a pre-distortion (paper Fig. 6; the session's
+        ``predistortion.csv``), the table gives the *emitted* phase, which is decoded back to
+        the code phase.
     """
     balanced = white_balance(rgb, white)
     hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
-    phase = table.to_phase(hue)
+    emitted = table.to_phase(hue)
+    phase = emitted if predistortion is None else predistortion.decode(emitted)
     clipped = clipped_mask(rgb, bit_depth)
     valid = np.isfinite(phase) & ~clipped
     if shadow is not None:
@@ -112,7 +118,10 @@ def measure_frame(
     dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
     un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
     if denoise_radius > 0:
-        un.dphi = denoise_phase(un.dphi, phase_sigma(table, phase), valid, radius=denoise_radius)
+        sigma = phase_sigma(table, emitted)
+        if predistortion is not None:
+            sigma = sigma * np.abs(predistortion.decode_slope(emitted))
+        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius)
     height = cal.height(un.dphi)
     valid &= np.isfinite(height)
     height = np.where(valid, height, np.nan).astype(np.float32)
@@ -225,6 +234,8 @@ def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapp
     for z, path in s.planes.items():
         hue = hue_of(white_balance(read_rgb(path), white), hue_model, min_saturation=calibration["min_saturation"])
         phi = table.to_phase(hue)
+        if s.predistortion is not None:
+            phi = s.predistortion.decode(phi)
         phases[z] = phi
         valid[z] = np.isfinite(phi) & ~shadow
     return phases, valid
@@ -266,6 +277,8 @@ def compensation(session: str, table: str, model: str, hue_model: str, calibrati
     white = read_rgb(s.reference_white)
     hue = hue_of(white_balance(read_rgb(s.planes[0.0]), white), hue_model, min_saturation=calibration["min_saturation"])
     phase = t.to_phase(hue)
+    if s.predistortion is not None:
+        phase = s.predistortion.decode(phase)
     truth = cal.phi_ref.astype(np.float64)
     row = s.height // 2
     calib.hue_cross_section_figure(hue[row], phase[row], truth[row], cross_section)
@@ -299,7 +312,7 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         rgb = read_rgb(path)
         res = measure_frame(rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                             shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
-                            denoise_radius=measurement["denoise_radius"])
+                            denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion)
         _refuse_bad_frame(path, res.stats, measurement)
         write_tiff(heights[i], res.height)
         write_tiff(phases[i], res.phase)

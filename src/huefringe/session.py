@@ -72,6 +72,8 @@ class Session:
     frames: dict[int, Path]
     phase_shift: dict[int, tuple[Path, Path, Path]] = field(default_factory=dict)
     ground_truth: dict[int, Path] = field(default_factory=dict)
+    predistortion: Predistortion | None = None
+    """Extension: the pre-distortion the planes and frames were projected with (``predistortion.csv``)."""
 
     @property
     def id(self) -> str:
@@ -128,7 +130,66 @@ class Session:
 
     def input_files(self) -> list[Path]:
         """Every file of the session, session.yaml and ground truth included, sorted."""
-        return sorted([self.root / "session.yaml", *self.all_images(), *self.ground_truth.values()])
+        extra = [self.predistortion.path] if self.predistortion is not None else []
+        return sorted([self.root / "session.yaml", *self.all_images(), *self.ground_truth.values(), *extra])
+
+
+@dataclass(frozen=True)
+class Predistortion:
+    """A pre-distorted trapezoid (paper Fig. 6): code phase ``c`` was projected as phase ``p(c)``.
+
+    huefringe extension of capture-session/1: an optional ``predistortion.csv`` at the session
+    root (comment lines ``#``, a header ``code_phase_rad,emitted_phase_rad``, then rows with
+    ``c`` ascending over [0, 2 pi) and ``p`` strictly increasing, ``p(c) - c`` periodic). It
+    applies to the reference planes and the object frames; hue bands, white images and
+    phase-shift captures are never pre-distorted. Readers of plain capture-session/1 ignore it.
+    """
+
+    path: Path
+    code: np.ndarray
+    emitted: np.ndarray
+
+    def decode(self, emitted_phase: np.ndarray) -> np.ndarray:
+        """Invert ``p``: the code phase (position) whose pre-distorted trapezoid was captured."""
+        two_pi = 2.0 * np.pi
+        e = np.concatenate([self.emitted - two_pi, self.emitted, self.emitted + two_pi])
+        c = np.concatenate([self.code - two_pi, self.code, self.code + two_pi])
+        x = np.mod(np.asarray(emitted_phase, np.float64) - self.emitted[0], two_pi) + self.emitted[0]
+        return np.mod(np.interp(x, e, c), two_pi).astype(np.float32)
+
+    def decode_slope(self, emitted_phase: np.ndarray, step: float = 1e-3) -> np.ndarray:
+        """``d decode / d emitted`` at each emitted phase (scales phase uncertainties)."""
+        e = np.asarray(emitted_phase, np.float64)
+        hi = self.decode(e + step).astype(np.float64)
+        lo = self.decode(e - step).astype(np.float64)
+        return (np.mod(hi - lo + np.pi, 2.0 * np.pi) - np.pi) / (2.0 * step)
+
+
+def read_predistortion(path: str | Path) -> Predistortion:
+    """Read and check ``predistortion.csv``; raise :class:`SessionError` naming the file."""
+    path = Path(path)
+    try:
+        lines = [ln.strip() for ln in path.read_text(encoding="utf-8").splitlines()]
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SessionError.at(path, f"cannot read ({exc})") from exc
+    rows = [ln for ln in lines if ln and not ln.startswith("#")]
+    if not rows or rows[0].replace(" ", "") != "code_phase_rad,emitted_phase_rad":
+        raise SessionError.at(path, "header 'code_phase_rad,emitted_phase_rad' expected")
+    try:
+        data = np.array([[float(v) for v in r.split(",")] for r in rows[1:]], dtype=np.float64)
+    except ValueError as exc:
+        raise SessionError.at(path, f"not numeric ({exc})") from exc
+    if data.ndim != 2 or data.shape[1] != 2 or data.shape[0] < 16:
+        raise SessionError.at(path, "at least 16 rows of two numbers are needed")
+    code, emitted = data[:, 0], data[:, 1]
+    two_pi = 2.0 * np.pi
+    if not np.all(np.isfinite(data)) or code[0] < 0 or code[-1] >= two_pi or np.any(np.diff(code) <= 0):
+        raise SessionError.at(path, "code_phase_rad must rise strictly within [0, 2 pi)")
+    if np.any(np.diff(emitted) <= 0) or emitted[-1] >= emitted[0] + two_pi:
+        raise SessionError.at(path, "emitted_phase_rad must rise strictly by less than one turn (invertible)")
+    if np.any(np.abs(emitted - code) >= np.pi):
+        raise SessionError.at(path, "emitted_phase_rad departs from code_phase_rad by pi or more")
+    return Predistortion(path, code, emitted)
 
 
 # --------------------------------------------------------------------------- schema
@@ -410,6 +471,12 @@ def _collect(root: Path, meta: dict[str, Any], problems: list[Problem]) -> Sessi
                 problems.append(Problem(p, "ground truth for no frame of the session"))
             else:
                 ground_truth[int(m.group(1))] = p
+    predistortion = None
+    if (root / "predistortion.csv").exists():
+        try:
+            predistortion = read_predistortion(root / "predistortion.csv")
+        except SessionError as exc:
+            problems.extend(exc.problems)
     if problems or ref_white is None or obj_white is None:
         return None
     return Session(
@@ -423,6 +490,7 @@ def _collect(root: Path, meta: dict[str, Any], problems: list[Problem]) -> Sessi
         frames=dict(sorted(frames.items())),
         phase_shift=phase_shift,
         ground_truth=ground_truth,
+        predistortion=predistortion,
     )
 
 

@@ -49,6 +49,8 @@ class Pattern:
     kind: Literal["uniform", "trapezoid", "phase_shift"]
     rgb: tuple[float, float, float] = (1.0, 1.0, 1.0)
     step: int = 0
+    emit_offset: tuple[float, ...] | None = None
+    """Pre-distortion of the trapezoid: ``p(c) - c`` sampled at ``c = 2 pi k / M`` (paper Fig. 6)."""
 
     @classmethod
     def white(cls) -> Pattern:
@@ -62,9 +64,9 @@ class Pattern:
         return cls("uniform", (r, g, b))
 
     @classmethod
-    def trapezoid(cls) -> Pattern:
-        """The trapezoidal fringe of paper eq. 3."""
-        return cls("trapezoid")
+    def trapezoid(cls, emit_offset: tuple[float, ...] | None = None) -> Pattern:
+        """The trapezoidal fringe of paper eq. 3, optionally pre-distorted: code ``c`` emits ``p(c)``."""
+        return cls("trapezoid", emit_offset=emit_offset)
 
     @classmethod
     def phase_shift(cls, s: int) -> Pattern:
@@ -170,6 +172,11 @@ def dmd_levels(pattern: Pattern, phi: ArrayLike | None, rig: Rig) -> NDArray[np.
     if pattern.kind == "uniform":
         v = np.asarray(pattern.rgb, dtype=np.float64)
     elif pattern.kind == "trapezoid":
+        if pattern.emit_offset is not None:
+            off = np.asarray(pattern.emit_offset, dtype=np.float64)
+            grid = TWO_PI * np.arange(off.size + 1) / off.size
+            phi = np.asarray(phi, dtype=np.float64)
+            phi = phi + np.interp(np.mod(phi, TWO_PI), grid, np.append(off, off[0]))
         v = patterns.trapezoid_rgb(phi)
     elif pattern.kind == "phase_shift":
         grey = np.clip(patterns.phase_shift_intensity(phi, pattern.step), 0.0, 1.0)

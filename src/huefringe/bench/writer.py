@@ -195,6 +195,51 @@ def _image_writer(fmt: str) -> tuple[str, Callable[[Path, NDArray[Any]], None]]:
     return ".tiff", write_tiff
 
 
+def plate_predistortion(cfg: dict[str, Any], bench: Bench) -> tuple[NDArray[np.float64], NDArray[np.float64], list[dict[str, float]]]:
+    """The pre-distortion an operator computes from the plate's hue bands (paper Fig. 6).
+
+    The plate's median transfer function (captured hue of each uniform band, white-balanced,
+    against its code phase) comes from noiseless captures of the bands: the median over every
+    pixel of the plate removes the noise of real captures just as well. The loop itself is the
+    measuring side's :func:`huefringe.calibration.predistortion`.
+
+    Returns
+    -------
+    code, emitted : ndarray
+        ``samples`` code phases ``2 pi k / M`` and the phase ``p(code)`` to emit for each.
+    history : list of dict
+        The loop's residual per iteration.
+    """
+    from huefringe import colour
+    from huefringe.calibration import predistortion
+
+    comp = cfg["projector"]["compensation"]
+    n = int(cfg["session"]["hue_bands"])
+    cap = bench.uniform_capturer(plane_z=0.0)
+    scale = float((1 << int(cfg["session"]["bit_depth"])) - 1)
+    white = cap(Pattern.white(), None).astype(np.float32) / np.float32(scale)
+    code = 2.0 * np.pi * np.arange(n) / n
+    dist = np.empty(n)
+    for i in range(n):
+        rgb = cap(Pattern.hue_band(i, n), None).astype(np.float32) / np.float32(scale)
+        h = colour.hue(colour.white_balance(rgb, white), "hexcone")
+        dist[i] = np.nanmedian(colour.wrap_pi(h - code[i]))
+    c, p, history = predistortion(code, np.unwrap(dist), threshold_rad=float(comp["threshold_rad"]),
+                                  max_iter=int(comp["max_iter"]), gain=float(comp["gain"]))
+    m = int(comp["samples"])
+    cs = 2.0 * np.pi * np.arange(m) / m
+    offset = np.interp(cs, np.append(c, 2.0 * np.pi), np.append(p - c, (p - c)[0]))
+    return cs, cs + offset, history
+
+
+def _predistortion_csv(code: NDArray[np.float64], emitted: NDArray[np.float64]) -> str:
+    lines = ["# huefringe predistortion/1: the trapezoidal planes and frames of this session were projected",
+             "# with code phase c emitting the trapezoid of phase p(c) (paper Fig. 6); uniform bands were not.",
+             "code_phase_rad,emitted_phase_rad"]
+    lines += [f"{c:.9f},{e:.9f}" for c, e in zip(code, emitted, strict=True)]
+    return "\n".join(lines) + "\n"
+
+
 def _jobs(cfg: dict[str, Any], bench: Bench, root: Path) -> list[Job]:
     """Every file of the session (except session.yaml) as (relative name, writer) pairs."""
     s = cfg["session"]
@@ -208,6 +253,18 @@ def _jobs(cfg: dict[str, Any], bench: Bench, root: Path) -> list[Job]:
             write_img(root / rel, make(noise_rng(seed, rel)))
 
         jobs.append((rel, run))
+
+    trapezoid = Pattern.trapezoid()
+    if cfg["projector"]["compensation"]["enabled"]:
+        code, emitted, _ = plate_predistortion(cfg, bench)
+        trapezoid = Pattern.trapezoid(tuple(float(v) for v in emitted - code))
+        text = _predistortion_csv(code, emitted)
+
+        def write_predistortion() -> None:
+            with atomic_path(root / "predistortion.csv") as tmp:
+                tmp.write_text(text, encoding="utf-8")
+
+        jobs.append(("predistortion.csv", write_predistortion))
 
     for where in ("reference", "object"):
         capturer = bench.uniform_capturer(plane_z=0.0 if where == "reference" else None)
@@ -223,12 +280,12 @@ def _jobs(cfg: dict[str, Any], bench: Bench, root: Path) -> list[Job]:
             for z in s["planes_mm"]:
                 add_image(
                     f"reference/planes/z_{float(z):.3f}{ext}",
-                    lambda rng, z=float(z): bench.capture(Pattern.trapezoid(), plane_z=z, rng=rng),
+                    lambda rng, z=float(z): bench.capture(trapezoid, plane_z=z, rng=rng),
                 )
     for n in range(frames):
         add_image(
             f"object/frames/frame_{n:04d}{ext}",
-            lambda rng, n=n: bench.capture(Pattern.trapezoid(), t=bench.frame_time(n), rng=rng),
+            lambda rng, n=n: bench.capture(trapezoid, t=bench.frame_time(n), rng=rng),
         )
     if cfg["phase_shift"]["enabled"]:
         for n in range(frames):
