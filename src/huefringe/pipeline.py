@@ -275,22 +275,18 @@ def compensation(session: str, table: str, model: str, hue_model: str, calibrati
     write_png_rgb(pattern, image)
     # QA on the reference plane z = 0: raw hue and corrected phase against the plate's phase model
     white = read_rgb(s.reference_white)
-    hue = hue_of(white_balance(read_rgb(s.planes[0.0]), white), hue_model, min_saturation=calibration["min_saturation"])
+    balanced = white_balance(read_rgb(s.planes[0.0]), white)
+    hue = hue_of(balanced, hue_model, min_saturation=calibration["min_saturation"])
     phase = t.to_phase(hue)
     if s.predistortion is not None:
         phase = s.predistortion.decode(phase)
     truth = cal.phi_ref.astype(np.float64)
     row = s.height // 2
     calib.hue_cross_section_figure(hue[row], phase[row], truth[row], cross_section)
-    residual = wrap(phase - truth)
-    calib.residual_map_figure(residual, residual_map)
-    raw_res = wrap(hue - truth)
-    qa = {
-        "rms_rad_before": float(np.sqrt(np.nanmean(raw_res**2))),
-        "rms_rad_after": float(np.sqrt(np.nanmean(residual**2))),
-        "valid_fraction": float(np.mean(np.isfinite(phase))),
-    }
+    calib.residual_map_figure(wrap(phase - truth), residual_map)
+    qa = calib.qa_stats(hue, phase, true_phase=truth, table=t, raw_rgb=balanced)
     write_json(history, {"hue_model": hue_model, "history": steps, "qa_reference_plane": qa,
+                             "predistorted_session": s.predistortion is not None,
                              "pattern_size": [comp["projector_width"], comp["projector_height"]],
                              "period_px_projector": comp["period_px"]})
 
