@@ -45,12 +45,8 @@ def main() -> None:
     captures(demo, OUT / "demo_captures.png")
     copies = {
         "results/gauge-blocks-demo/renders/frame_0000_oblique1.png": "demo_render.png",
-        "results/gauge-blocks-demo/calib/qa_hue_cross_section.png": "flat_plate_hue.png",
-        "results/gauge-blocks-demo/metrology/profile.png": "demo_profile.png",
         "results/dental-model/renders/frame_0000_oblique1.png": "dental_render.png",
-        "results/dental-model/renders/frame_0000_height.png": "dental_height.png",
         "results/flat-board/calib/qa_hue_cross_section.png": "flat_board_hue.png",
-        "results/table1/table1.png": "table1.png",
     }
     for src, dst in copies.items():
         if (REPO / src).exists():
