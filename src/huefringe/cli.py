@@ -49,6 +49,39 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_verify(args: argparse.Namespace) -> int:
+    from huefringe.archive import ArchiveError, verify_archive
+
+    try:
+        result = verify_archive(args.archive)
+    except ArchiveError as exc:
+        print(f"FAILED: {exc}")
+        return 1
+    print(result.summary())
+    return 0 if result.ok else 1
+
+
+def _cmd_archive(args: argparse.Namespace) -> int:
+    import yaml
+
+    from huefringe.archive import ArchiveError, write_archive
+
+    config = None
+    if args.config:
+        try:
+            config = yaml.safe_load(Path(args.config).read_text(encoding="utf-8"))
+        except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
+            print(f"REFUSED: {args.config}: cannot read the configuration ({exc})", file=sys.stderr)
+            return 1
+    try:
+        out = write_archive(args.session, args.results, args.out, config=config)
+    except ArchiveError as exc:
+        print(f"REFUSED: {exc}", file=sys.stderr)
+        return 1
+    print(out)
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="huefringe", description=__doc__)
     sub = parser.add_subparsers(dest="command", required=True)
@@ -65,6 +98,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--periods", type=int, nargs="+", help="write a period sweep (e.g. 20 40 60 80 100)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=_cmd_bench)
+
+    p = sub.add_parser("verify", help="check every file of an archive against its RO-Crate sha256; exit 1 on any problem")
+    p.add_argument("archive", help="an archive (results/<id>.archive.zip) or the folder it was extracted into")
+    p.set_defaults(func=_cmd_verify)
+
+    p = sub.add_parser("archive", help="pack a session and its results into one ZIP with RO-Crate metadata")
+    p.add_argument("session", help="the session folder (holding session.yaml)")
+    p.add_argument("results", help="its results folder, results/<id>")
+    p.add_argument("out", help="the archive to write, e.g. results/<id>.archive.zip")
+    p.add_argument("--config", help="the workflow configuration YAML used (stored as config.yaml)")
+    p.set_defaults(func=_cmd_archive)
     return parser
 
 
