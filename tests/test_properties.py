@@ -203,10 +203,6 @@ def test_to_phase_on_realistic_hues_is_nan_or_in_0_2pi(table: HueTable, hue: np.
     assert_angles(table.from_phase(np.nan_to_num(hue)), (3, 4))
 
 
-@pytest.mark.xfail(strict=True, raises=AssertionError, reason=(
-    "known defect: calibration._to_phase_kernel reduces hue modulo 2 pi with math.floor, which numba "
-    "returns as int64: it overflows for |hue| above ~6e19 rad and -1e20 gives a negative phase "
-    "(-inf for -1e300); fix proposed in the reliability report (math.fmod)"))  # fmt: skip
 @settings(max_examples=30, deadline=None)
 @example(hue=np.full((3, 4), -1e20))
 @given(arrays(np.float64, (3, 4), elements=finite64))

@@ -335,11 +335,12 @@ def _to_phase_kernel(table, start, valid, hue, out):  # pragma: no cover - numba
     for v in range(h):
         for u in range(w):
             x = hue[v, u]
-            if not valid[v, u] or not (x == x):
+            if not valid[v, u] or not math.isfinite(x):
                 out[v, u] = np.nan
                 continue
-            hq = np.float64(x) * scale
-            hq = hq - 65536.0 * math.floor(hq / 65536.0)
+            hq = (np.float64(x) * scale) % 65536.0  # float modulo; math.floor gives an int64 (overflows)
+            if hq >= 65536.0:  # -tiny % 65536 rounds to 65536
+                hq -= 65536.0
             s0 = np.int64(start[v, u])
             lo = 0
             hi = n

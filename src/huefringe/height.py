@@ -118,6 +118,7 @@ def calibrate_planes(
     *,
     smooth_degree: int | None = 3,
     min_valid_fraction: float = 0.2,
+    min_shift_rad: float = 0.02,
 ) -> PlaneCalibration:
     """Fit the per-pixel model ``h = dphi / (a + b dphi)`` to the calibration planes.
 
@@ -175,6 +176,24 @@ def calibrate_planes(
         model = fit_poly2d(d, valid, smooth_degree) if smooth_degree is not None else raw[z]
         dphis[z] = model
         slope = model / z
+
+    # every plane must shift the phase, in the same direction, and more the further it is from z = 0
+    med = {z: float(np.nanmedian(raw[z])) if np.isfinite(raw[z]).any() else float("nan") for z in others}
+    for z in others:
+        if not np.isfinite(med[z]) or abs(med[z]) < min_shift_rad:
+            raise CalibrationError(
+                f"plane z = {z:.3f} mm shifts the phase by only {med[z]:.4f} rad relative to z = 0 "
+                f"(less than {min_shift_rad} rad): the same image as the reference plane, or a plane too close to it"
+            )
+    if len({np.sign(med[z] / z) for z in others}) > 1:
+        raise CalibrationError(f"the planes shift the phase in opposite directions ({med} rad): planes_mm mislabelled?")
+    ordered = sorted(others)
+    for z1, z2 in zip(ordered, ordered[1:], strict=False):
+        if np.sign(med[z2] - med[z1]) == -np.sign(med[z1] / z1):  # equal shifts: "too close" below
+            raise CalibrationError(
+                f"planes out of order: plane z = {z2:.3f} mm shifts the phase by {med[z2]:.3f} rad, no more than "
+                f"plane z = {z1:.3f} mm ({med[z1]:.3f} rad): plane images swapped or planes_mm mislabelled?"
+            )
 
     # per-pixel least squares: a z + b z dphi = dphi
     if len(others) == 1:

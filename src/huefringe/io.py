@@ -20,6 +20,10 @@ import numpy as np
 import tifffile
 
 
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
+
 @contextlib.contextmanager
 def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
     """Yield a temporary path beside ``target``; move it onto ``target`` on success.
@@ -34,11 +38,27 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
+        os.chmod(tmp_path, 0o666 & ~_UMASK)  # mkstemp creates 0600; give the usual permissions
         os.replace(tmp_path, target)
     except BaseException:
         with contextlib.suppress(FileNotFoundError):
             tmp_path.unlink()
         raise
+
+
+def remove_stale_parts(target: str | os.PathLike[str]) -> list[Path]:
+    """Delete temporary files that a killed writer of ``target`` left beside it.
+
+    :func:`atomic_path` cleans up after exceptions, but not after SIGKILL; a rerun calls this.
+    """
+    target = Path(target)
+    if not target.parent.is_dir():
+        return []
+    stale = sorted(target.parent.glob(f".{target.stem}.*.part{target.suffix}"))
+    for p in stale:
+        with contextlib.suppress(FileNotFoundError):
+            p.unlink()
+    return stale
 
 
 def write_tiff(path: str | os.PathLike[str], data: np.ndarray) -> None:

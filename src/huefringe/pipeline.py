@@ -21,7 +21,7 @@ from numpy.typing import NDArray
 from huefringe.calibration import HueTable, build_table
 from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
-from huefringe.height import PlaneCalibration, accuracy, calibrate_planes
+from huefringe.height import CalibrationError, PlaneCalibration, accuracy, calibrate_planes
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.patterns import TWO_PI
 from huefringe.phase import denoise_phase, three_step_phase, unwrap, wrap
@@ -213,6 +213,32 @@ def check_session(session: str, summary: str) -> None:
     )
 
 
+#: A hue table usable for fewer pixels than this is refused: the bands are not what they claim.
+MIN_TABLE_VALID_FRACTION = 0.2
+
+_TABLE_HINTS = {
+    "low_signal": "the white image is too dark there (projector off, lens cap, exposure too short?)",
+    "low_saturation": "the bands carry no colour there (projector off, or the sensor saturated?)",
+    "noise": "the repeats of a band disagree (vibration, flicker or a changing exposure?)",
+    "coverage": "the captured hue does not go once round the colour circle with the band index "
+                "(bands mislabelled, out of order or captured with another pattern?)",
+    "order": "the captured hue does not rise monotonically with the band index "
+             "(bands mislabelled, out of order or captured with another pattern?)",
+}
+
+
+def _refuse_bad_table(folder: Path, stats: Mapping[str, Any], min_valid: float = MIN_TABLE_VALID_FRACTION) -> None:
+    if stats["valid_fraction"] >= min_valid:
+        return
+    masked = stats["masked_by_reason"]
+    worst = max(masked, key=masked.get)
+    raise CalibrationError(
+        f"{folder}: the hue table is usable for only {100 * stats['valid_fraction']:.1f} % of the pixels "
+        f"(limit {100 * min_valid:.0f} %); {100 * masked[worst] / stats['n_pixels']:.1f} % are masked as "
+        f"'{worst}': {_TABLE_HINTS.get(worst, '')}"
+    )
+
+
 def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str, Any],
               table: str, stats: str) -> None:
     """Build the per-pixel hue table of the reference plate or of the object (streamed)."""
@@ -221,10 +247,12 @@ def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str
     white = read_rgb(s.reference_white if which == "reference" else s.object_white)
     t0 = time.perf_counter()
     built = build_table(bands, white, model=hue_model, progress=False, **_calibration_opts(calibration))
+    _refuse_bad_table(s.root / which / "hue", built.stats)
     built.save(table)
     info = dict(built.stats)
-    info.update({"which": which, "hue_model": hue_model, "seconds": round(time.perf_counter() - t0, 3)})
+    info.update({"which": which, "hue_model": hue_model})
     write_json(stats, info)
+    log.info("%s table built in %.2f s", which, time.perf_counter() - t0)
 
 
 def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapping[str, Any]):
@@ -247,7 +275,14 @@ def plane_calibration(session: str, table: str, hue_model: str, calibration: Map
     s = load_session(session)
     t = HueTable.load(table)
     phases, valid = _plane_phases(s, t, hue_model, calibration)
-    cal = calibrate_planes(phases, valid, smooth_degree=calibration["plane_smooth_degree"])
+    try:
+        cal = calibrate_planes(phases, valid, smooth_degree=calibration["plane_smooth_degree"])
+    except CalibrationError as exc:
+        files = ", ".join(f"z = {z:g} mm: {p.name}" for z, p in s.planes.items())
+        raise CalibrationError(
+            f"{s.root / 'reference' / 'planes'}: {exc} (plane images {files}; heights from planes_mm in "
+            f"{s.root / 'session.yaml'})"
+        ) from exc
     cal.save(model)
     info = dict(cal.stats)
     info["hue_model"] = hue_model
@@ -440,11 +475,17 @@ def metrology_report(session: str, heights: Sequence[str], baseline: Sequence[st
     maps = [read_tiff(p) for p in heights]
     range_mm = max(s.planes_mm) - min(s.planes_mm)
     edge = float(config["metrology"]["edge_exclusion"])
-    method = metrology.evaluate_session(maps, spec, s.pixel_pitch_mm, range_mm=range_mm, edge_exclusion=edge)
-    base = None
-    if baseline:
-        base = metrology.evaluate_session([read_tiff(p) for p in baseline], spec, s.pixel_pitch_mm, range_mm=range_mm,
-                                          method="three-step-phase-shift", edge_exclusion=edge)
+
+    def evaluate(paths: Sequence[str], **kw: Any) -> dict[str, Any]:
+        try:
+            return metrology.evaluate_session([read_tiff(p) for p in paths], spec, s.pixel_pitch_mm,
+                                              range_mm=range_mm, edge_exclusion=edge, **kw)
+        except metrology.MetrologyError as exc:
+            where = paths[exc.frame] if exc.frame is not None and exc.frame < len(paths) else s.root / "session.yaml"
+            raise metrology.MetrologyError(f"{where}: {exc} (specimen in {s.root / 'session.yaml'})") from exc
+
+    method = evaluate(heights)
+    base = evaluate(baseline, method="three-step-phase-shift") if baseline else None
     plane_stats = jsonlib.loads(Path(planes).read_text())
     table_stats = jsonlib.loads(Path(tables).read_text())
     provenance = report.collect_provenance(s.id, dict(config), s.input_files(), root=s.root)
@@ -481,7 +522,7 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
     message naming the file (no traceback); outputs are written atomically by the stages, so a
     failed job leaves none behind.
     """
-    from huefringe.height import CalibrationError
+    from huefringe.metrology import MetrologyError
     from huefringe.session import SessionError
 
     logfile = smk.log[0] if len(smk.log) else None
@@ -492,6 +533,11 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", handlers=handlers, force=True)
     import inspect
 
+    from huefringe.io import remove_stale_parts
+
+    for out in smk.output:
+        for stale in remove_stale_parts(out):
+            log.info("removed %s, left by an interrupted run", stale)
     kwargs: dict[str, Any] = {}
     for source in (smk.wildcards, smk.input, smk.params, smk.output):
         for key, value in source.items():
@@ -502,7 +548,7 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
     t0 = time.perf_counter()
     try:
         func(**kwargs)
-    except (SessionError, FrameError, CalibrationError) as exc:
+    except (SessionError, FrameError, CalibrationError, MetrologyError) as exc:
         log.error("%s", exc)
         sys.stderr.write(f"\nhuefringe: {exc}\n")
         sys.exit(1)
