@@ -75,7 +75,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import colour
-from .io import atomic_path
+from .io import atomic_path, json_default
 from .patterns import TWO_PI, projector_image
 from .session import read_rgb
 
@@ -518,7 +518,7 @@ class HueTable:
             "token": token,
             "stats": self.stats,
         }
-        text = json.dumps(meta, indent=2, sort_keys=True, allow_nan=False, default=_json_default)
+        text = json.dumps(meta, indent=2, sort_keys=True, allow_nan=False, default=json_default)
         with atomic_path(base.with_suffix(".json")) as tmp:
             tmp.write_text(text + "\n", encoding="utf-8")
         return base.with_suffix(".json")
@@ -556,16 +556,6 @@ def _base(path: str | os.PathLike[str]) -> Path:
     if p.name.endswith(".maps"):
         p = p.with_name(p.name[: -len(".maps")])
     return p
-
-
-def _json_default(o: Any) -> Any:
-    if isinstance(o, np.generic):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
 def _to_phase_numpy(table: NDArray[np.uint16], start: NDArray[np.uint16], valid: NDArray[np.bool_],

@@ -74,12 +74,13 @@ def read_tiff(path: str | os.PathLike[str]) -> np.ndarray:
 
 def write_json(path: str | os.PathLike[str], obj: Any) -> None:
     """Write JSON (sorted keys, 2-space indent, NaN refused), atomically."""
-    text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False, default=_json_default)
+    text = json.dumps(obj, indent=2, sort_keys=True, allow_nan=False, default=json_default)
     with atomic_path(path) as tmp:
         tmp.write_text(text + "\n", encoding="utf-8")
 
 
-def _json_default(o: Any) -> Any:
+def json_default(o: Any) -> Any:
+    """``json.dumps`` fallback for NumPy scalars and arrays and paths."""
     if isinstance(o, np.generic):
         return o.item()
     if isinstance(o, np.ndarray):
