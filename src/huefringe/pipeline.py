@@ -459,7 +459,7 @@ def render_frame(session: str, mesh: str, height: str, phase: str, render: Mappi
                                    title=f"{s.id} frame {frame}: corrected code phase")
 
 
-def metrology_report(session: str, heights: Sequence[str], baseline: Sequence[str], planes: str, tables: str,
+def metrology_report(session: str, heights: Sequence[str], qa: Sequence[str], baseline: Sequence[str], planes: str, tables: str,
                      cross_section: str, render: str, height_map: str, accuracy: Sequence[str],
                      config: Mapping[str, Any], json: str, html: str, profile: str, per_frame: str) -> None:
     """Step-height metrology of every frame: report.json (results contract) and report.html."""
@@ -500,6 +500,15 @@ def metrology_report(session: str, heights: Sequence[str], baseline: Sequence[st
     }
     if accuracy:
         extras["accuracy"] = jsonlib.loads(Path(accuracy[0]).read_text())
+    frame_qa = [jsonlib.loads(Path(p).read_text()) for p in qa]
+    extras["frame_qa"] = {
+        "phase_ambiguity_suspected": [q["frame"] for q in frame_qa if q["phase_ambiguity_suspected"]],
+        "valid_fraction_min": min(q["valid_fraction"] for q in frame_qa),
+        "clipped_fraction_max": max(q["clipped_fraction"] for q in frame_qa),
+    }
+    if extras["frame_qa"]["phase_ambiguity_suspected"]:
+        log.warning("frames %s: phase ambiguity suspected (a step may be too tall for the fringe period)",
+                    extras["frame_qa"]["phase_ambiguity_suspected"])
     doc = report.build_report_json(s.id, spec, method, base, extras=extras)
     # a profile through the middle of the steps' ROIs (paper Fig. 9 d)
     rows = [(st["roi"][1] + st["roi"][3]) // 2 for st in spec["steps"]]

@@ -596,6 +596,18 @@ def _conditions(report: Mapping[str, Any]) -> str:
         )
     if "hue_model" in report:
         items.append(("Hue model", _e(report["hue_model"])))
+    if "unwrap" in report:
+        items.append(("Phase unwrapping", _e(report["unwrap"])))
+    cal = report.get("calibration") or {}
+    if cal.get("unambiguous_range_mm"):
+        lo, hi = cal["unambiguous_range_mm"]
+        items.append(("Unambiguous depth", f"{_num(lo, '.2f')} to {_num(hi, '.2f')} mm"))
+    fq = report.get("frame_qa") or {}
+    if "phase_ambiguity_suspected" in fq:
+        bad = fq["phase_ambiguity_suspected"]
+        items.append(("Phase ambiguity", "none suspected" if not bad else
+                      f"<strong>suspected in frames {_e(', '.join(str(n) for n in bad))}</strong> "
+                      "(a step may exceed the unambiguous depth)"))
     if not items:
         return ""
     body = "".join(f"<dt>{_e(k)}</dt><dd>{v}</dd>" for k, v in items)

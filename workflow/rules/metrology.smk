@@ -4,6 +4,7 @@
 rule metrology:
     input:
         heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
+        qa=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["qa"],
         baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
         planes=R("{sid}", "calib", "planes.json"),
         tables=R("{sid}", "calib", "table_object.stats.json"),
