@@ -257,7 +257,7 @@ def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str
 
 def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapping[str, Any]):
     white = read_rgb(s.reference_white)
-    shadow = shadow_mask(white, 0.12)
+    shadow = shadow_mask(white, calibration["shadow_fraction"])
     phases, valid = {}, {}
     for z, path in s.planes.items():
         hue = hue_of(white_balance(read_rgb(path), white), hue_model, min_saturation=calibration["min_saturation"])
@@ -388,10 +388,10 @@ def baseline_frames(session: str, frames: Sequence[int], model: str, object_tabl
 
 
 def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str], report: str,
-                    shadow_fraction: float = 0.12) -> None:
+                    measurement: Mapping[str, Any]) -> None:
     """Height error against the bench's ground truth, for the method and the baseline."""
     s = load_session(session)
-    lit = ~shadow_mask(read_rgb(s.object_white), shadow_fraction)
+    lit = ~shadow_mask(read_rgb(s.object_white), measurement["shadow_fraction"])
 
     def block(paths: Sequence[str], frames: Sequence[int]) -> dict[str, Any]:
         per = []

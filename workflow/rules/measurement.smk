@@ -65,6 +65,7 @@ rule accuracy:
         report=R("{sid}", "accuracy.json"),
     params:
         session=session_dir,
+        measurement=config["measurement"],
     log:
         "logs/{sid}/accuracy.log",
     threads: 1
