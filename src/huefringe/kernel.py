@@ -1,0 +1,901 @@
+"""Fast per-frame kernel: one RGB frame to a height map, with the calibration prepared once.
+
+:func:`prepare` lays out, once per session, everything a frame needs (white-balance gains of the
+object white, the object's hue table, the pixel mask, the reference phase and the per-pixel
+height model); :func:`frame_to_height` then takes each frame through one compiled loop:
+
+    white balance -> hexcone or HSI hue -> search in the pixel's table column
+    -> dphi = wrap(phi - phi_ref) -> h = dphi / (a + b dphi)
+
+with no full-size temporaries, reading ``uint8``/``uint16`` frames directly (no float conversion
+pass). It is the reference-relative path of :func:`huefringe.pipeline.measure_frame`
+(``unwrap_mode="reference"``) and repeats its arithmetic operation by operation (float32 where
+the NumPy reference is float32, float64 where it is float64; the HSI ``arctan2`` is NumPy's own,
+in a pass of its own): the heights and the valid mask are bit for bit those of the reference.
+
+``denoise_radius > 0`` adds the uncertainty-weighted edge-preserving filter
+(:func:`huefringe.phase.denoise_phase`, called as is) on the phase difference; the per-pixel
+phase uncertainty (:func:`huefringe.pipeline.phase_sigma`) is computed inside the fused loop.
+
+Example
+-------
+>>> prep = prepare(table, cal, white, hue_model="hexcone", min_saturation=0.08,
+...                shadow=shadow_mask(white, 0.12), bit_depth=8)        # doctest: +SKIP
+>>> for path in frames:                                                  # doctest: +SKIP
+...     height, valid = frame_to_height(prep, cv2.imread(path)[..., ::-1])
+
+Table layout
+------------
+The :class:`~huefringe.calibration.HueTable` is band-major ``(N, H, W)``: a bisection in one
+pixel's column touches ~log2(N) cache lines, each in a different band plane, and a frame ends
+up reading most of the table (194 MB for 256 bands at 768 x 494). :func:`prepare` copies it once
+into a pixel-major layout: each usable pixel's column, rotated to start at its minimum (so sorted
+ascending), cut into 64-byte cache lines of 32 entries that overlap by one entry (line ``j``
+holds entries ``31 j .. 31 j + 31``), so that both entries bracketing a hue are always in one
+line. Hue tables vary little from pixel to pixel, so a small table per 32 x 32 tile of the image
+tells, from the hue, which line of the column most likely brackets it (~99 % of the pixels).
+A lookup is then one line, prefetched a hundred pixels ahead, counted with two 16-wide vector
+compares; when the guess misses, the first entries of the lines (one more line) give the right
+one. A pixel thus costs one cache line of table instead of about eight.
+
+Memory: ``64 ceil(N / 31) H W`` bytes of columns (576 per pixel for N = 256), 32 per pixel of line
+heads (N <= 496), 35 of gains, reference phase, a, b, mask, start and noise, and 1 KB of guess
+table per 32 x 32 tile: 244 MB for 256 bands at 768 x 494, 843 MB at 1280 x 1024 (the band-major
+table is 194 and 671 MB; it is not kept, and a memory-mapped one is read once). Per frame:
+``5 H W`` bytes of output.
+
+Speed: one core spends most of a frame fetching each pixel's table line from memory (24 MB of
+lines per frame at 768 x 494, at random offsets); splitting the arithmetic off into vectorised
+loops was measured slower, as it then no longer overlaps those fetches.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numba
+import numpy as np
+from llvmlite import ir
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic, overload
+from numpy.typing import NDArray
+
+from huefringe.calibration import HueTable
+from huefringe.colour import HUE_MODELS, white_gains
+from huefringe.height import PlaneCalibration
+from huefringe.phase import denoise_phase
+from huefringe.session import Predistortion
+
+__all__ = ["FrameMaps", "Prepared", "frame_maps", "frame_to_height", "prepare"]
+
+_INT_SCALE = {np.dtype(np.uint8): 1.0 / 255.0, np.dtype(np.uint16): 1.0 / 65535.0}
+_LINE = 32
+"""Entries per 64-byte cache line of a pixel's column."""
+_STEP = 31
+"""New entries per line: consecutive lines share one entry (line j holds 31 j .. 31 j + 31)."""
+_SHIFT = 6
+"""Hue buckets of the guess tables: ``65536 >> _SHIFT`` = 1024 buckets of 64 counts."""
+_TILE = 32
+"""Side (pixels) of the image tiles that have their own guess table."""
+_CHUNK = 128
+"""Pixels per two-pass run: pass 1 prefetches the lines that pass 2 reads."""
+
+
+# =============================================================================================
+# prepared calibration
+# =============================================================================================
+@dataclass(eq=False)
+class Prepared:
+    """Calibration data of one session, laid out for :func:`frame_to_height`.
+
+    Built by :func:`prepare`; treat as read-only. Per-pixel arrays are C-contiguous, ``[v, u]``.
+    """
+
+    hue_model: str
+    n_bands: int
+    shape: tuple[int, int]
+    bit_depth: int
+    min_saturation: float
+    floor_slope: float
+    nlines: int
+    """Lines per column, ``ceil(N / 31)``."""
+    cols: NDArray[np.uint16]
+    """``(H, W, 32 nlines)``: each usable pixel's column rotated to start at its minimum (band
+    ``start``), so sorted ascending, in overlapping lines; padded with 65535; 64-byte aligned.
+    Zero for pixels that are never valid."""
+    heads: NDArray[np.uint16]
+    """``(H, W, P)``: the first entry of every line, padded with 65535 to ``P``, a multiple of 16."""
+    guess: NDArray[np.integer]
+    """``(tiles, 1024)``: per 32 x 32 tile and hue bucket, the line that most often brackets it."""
+    tiles_x: int
+    start: NDArray[np.uint16]
+    ok: NDArray[np.bool_]
+    """Pixels that can ever be valid: table valid, not in shadow."""
+    gains: NDArray[np.float32]
+    """``(H, W, 3)`` white-balance gains ``1 / max(white, floor)``."""
+    phi_ref: NDArray[np.float32]
+    a: NDArray[np.float32]
+    b: NDArray[np.float32]
+    noise: NDArray[np.float64]
+    """Hue noise of one capture (rad) per pixel, for the denoise weights (see ``phase_sigma``)."""
+    pd_emitted: NDArray[np.float64] | None = None
+    """Pre-distortion (``session.Predistortion``), or None: emitted phases, extended by -2 pi and
+    +2 pi as ``Predistortion.decode`` extends them, ..."""
+    pd_code: NDArray[np.float64] | None = None
+    """... the code phases, extended alike, ..."""
+    pd_slope: NDArray[np.float64] | None = None
+    """... the slopes between samples, ..."""
+    pd_index: NDArray[np.int32] | None = None
+    """... and per bucket of ``[emitted[0], emitted[0] + 2 pi)`` the last sample at or below it."""
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def nbytes(self) -> int:
+        """Bytes of the prepared data."""
+        arrays = (self.cols, self.heads, self.guess, self.start, self.ok, self.gains, self.phi_ref, self.a, self.b,
+                  self.noise, self.pd_emitted, self.pd_code, self.pd_slope, self.pd_index)
+        return int(sum(x.nbytes for x in arrays if x is not None))
+
+
+def _unit_white(white: NDArray[Any]) -> NDArray[np.float32]:
+    w = np.asarray(white)
+    if w.dtype in _INT_SCALE:
+        return np.ascontiguousarray(w, dtype=np.float32) * np.float32(_INT_SCALE[w.dtype])
+    return np.asarray(w, dtype=np.float32)
+
+
+def _aligned_empty(shape: tuple[int, ...], align: int = 64) -> NDArray[np.uint16]:
+    """uint16 array whose data starts on a cache-line boundary (``malloc`` gives 16 bytes)."""
+    n = int(np.prod(shape))
+    raw = np.empty(n + align, dtype=np.uint16)
+    off = (-raw.ctypes.data % align) // 2
+    return raw[off : off + n].reshape(shape)
+
+
+def prepare(
+    table: HueTable,
+    cal: PlaneCalibration,
+    white: NDArray[Any],
+    *,
+    hue_model: str | None = None,
+    min_saturation: float = 0.08,
+    shadow: NDArray[np.bool_] | float | None = None,
+    bit_depth: int = 8,
+    floor: float = 1.0 / 255.0,
+    floor_slope: float = 0.05,
+    predistortion: Predistortion | None = None,
+) -> Prepared:
+    """Prepare a session's calibration for :func:`frame_to_height` (once per session).
+
+    Parameters
+    ----------
+    table : HueTable
+        The object's hue table (captured hue -> code phase); a memory-mapped one is read once.
+    cal : PlaneCalibration
+        Reference phase and per-pixel height model.
+    white : ndarray, (H, W, 3)
+        The object's white image: float in [0, 1], or uint8/uint16 codes.
+    hue_model : {"hexcone", "hsi"}, optional
+        Default: the table's model (frames must be decoded with the model of the table).
+    min_saturation : float
+        Frame pixels whose white-balanced saturation is ``<= min_saturation`` are invalid.
+    shadow : bool ndarray (H, W) or float, optional
+        Pixels to reject in every frame (True = shadow), e.g.
+        ``pipeline.shadow_mask(white, fraction)``; a float is taken as that ``fraction``.
+    bit_depth : int
+        Sensor bit depth: pixels with a channel at the top code are clipped (invalid).
+    floor : float
+        White-balance floor (as :func:`huefringe.colour.white_balance`).
+    floor_slope : float
+        Denoise only: lower bound of the table slope in the phase uncertainty (as
+        :func:`huefringe.pipeline.phase_sigma`).
+    predistortion : Predistortion, optional
+        The session's pre-distortion (``Session.predistortion``): the table then gives the
+        emitted phase, decoded back to the code phase (as ``measure_frame(predistortion=...)``).
+    """
+    model = table.model if hue_model is None else hue_model
+    if model not in HUE_MODELS:
+        raise ValueError(f"unknown hue model {model!r}; expected one of {HUE_MODELS}")
+    h, w = table.shape
+    wf = _unit_white(white)
+    if wf.shape != (h, w, 3):
+        raise ValueError(f"white has shape {wf.shape}, the table expects {(h, w, 3)}")
+    for name in ("phi_ref", "a", "b"):
+        if np.shape(getattr(cal, name)) != (h, w):
+            raise ValueError(f"plane calibration {name} has shape {np.shape(getattr(cal, name))}, the table {(h, w)}")
+    if shadow is None:
+        shadow_arr = np.zeros((h, w), dtype=bool)
+    elif np.ndim(shadow) == 0:
+        from huefringe.pipeline import shadow_mask  # lazy: pipeline may import this module
+
+        shadow_arr = shadow_mask(wf, float(shadow))  # type: ignore[arg-type]
+    else:
+        shadow_arr = np.asarray(shadow, dtype=bool)
+        if shadow_arr.shape != (h, w):
+            raise ValueError(f"shadow has shape {shadow_arr.shape}, expected {(h, w)}")
+    ok = np.ascontiguousarray(np.asarray(table.valid, bool) & ~shadow_arr)
+    # per-pixel hue noise of one capture, exactly as pipeline.phase_sigma
+    repeats = int(table.stats.get("repeats", 1) or 1)
+    noise = np.asarray(table.noise_rad, np.float64) * np.sqrt(repeats)
+    fallback = float(np.nanmedian(noise)) if np.isfinite(noise).any() else 0.01
+    noise = np.ascontiguousarray(np.where(np.isfinite(noise) & (noise > 0), noise, fallback))
+
+    n = int(table.n_bands)
+    nlines = -(-n // _STEP)
+    start = np.ascontiguousarray(table.start, dtype=np.uint16)
+    cols = _aligned_empty((h, w, nlines * _LINE))
+    heads = _aligned_empty((h, w, -(-nlines // 16) * 16))
+    _pixel_major(np.asarray(table.table), start, ok, cols, heads)
+    tiles_x, tiles_y = -(-w // _TILE), -(-h // _TILE)
+    guess = np.zeros((tiles_x * tiles_y, 65536 >> _SHIFT), dtype=np.uint8 if nlines <= 256 else np.uint16)
+    _guess_lines(cols, ok, nlines, guess, tiles_x)
+    prep = Prepared(
+        hue_model=model,
+        n_bands=n,
+        shape=(h, w),
+        bit_depth=int(bit_depth),
+        min_saturation=float(min_saturation),
+        floor_slope=float(floor_slope),
+        nlines=nlines,
+        cols=cols,
+        heads=heads,
+        guess=guess,
+        tiles_x=tiles_x,
+        start=start,
+        ok=ok,
+        gains=np.ascontiguousarray(white_gains(wf, floor), dtype=np.float32),
+        phi_ref=np.ascontiguousarray(cal.phi_ref, dtype=np.float32),
+        a=np.ascontiguousarray(cal.a, dtype=np.float32),
+        b=np.ascontiguousarray(cal.b, dtype=np.float32),
+        noise=noise,
+    )
+    if predistortion is not None:
+        prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index = _predistortion_arrays(predistortion)
+    prep.stats = {
+        "table_invalid_fraction": float(np.mean(~np.asarray(table.valid, bool))),
+        "shadow_fraction": float(shadow_arr.mean()),
+        "prepared_mb": prep.nbytes / 1e6,
+    }
+    return prep
+
+
+_PD_BUCKETS = 32768
+
+
+def _predistortion_arrays(pd: Predistortion) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64],
+                                                      NDArray[np.int32]]:
+    """The sample arrays ``Predistortion.decode`` interpolates in, their slopes (as ``np.interp``
+    precomputes them), and a bucket index into them."""
+    two_pi = 2.0 * np.pi
+    e = np.concatenate([pd.emitted - two_pi, pd.emitted, pd.emitted + two_pi]).astype(np.float64)
+    c = np.concatenate([pd.code - two_pi, pd.code, pd.code + two_pi]).astype(np.float64)
+    e0 = float(pd.emitted[0])
+    lows = e0 + two_pi * np.arange(_PD_BUCKETS) / _PD_BUCKETS
+    index = np.maximum(np.searchsorted(e, lows, side="right") - 1, 0).astype(np.int32)
+    slopes = np.append((c[1:] - c[:-1]) / (e[1:] - e[:-1]), 0.0)
+    return np.ascontiguousarray(e), np.ascontiguousarray(c), slopes, index
+
+
+# =============================================================================================
+# compiled pieces: layout
+# =============================================================================================
+@numba.njit(cache=True, nogil=True)
+def _pixel_major(table, start, ok, cols, heads):  # pragma: no cover - numba
+    """Rotated, sorted columns in overlapping lines (see the module docstring), and line heads."""
+    n, h, w = table.shape
+    ncols = cols.shape[2]
+    nl = ncols // 32
+    for v in range(h):
+        for u in range(w):
+            if not ok[v, u]:
+                cols[v, u, :] = 0
+                heads[v, u, :] = 65535
+        for i in range(n):  # one contiguous row of the band-major table at a time
+            for u in range(w):
+                if ok[v, u]:
+                    j = i - np.int64(start[v, u])
+                    if j < 0:
+                        j += n
+                    line = j // 31
+                    pos = j - 31 * line
+                    cols[v, u, 32 * line + pos] = table[i, v, u]
+                    if pos == 0 and line > 0:
+                        cols[v, u, 32 * line - 1] = table[i, v, u]  # shared with the line before
+        for u in range(w):
+            if ok[v, u]:
+                for j in range(n, 31 * nl + 1):  # padding (the last line's tail)
+                    line = min(j // 31, nl - 1)
+                    pos = j - 31 * line
+                    cols[v, u, 32 * line + pos] = 65535
+                for line in range(heads.shape[2]):
+                    heads[v, u, line] = cols[v, u, 32 * line] if line < nl else 65535
+
+
+@numba.njit(cache=True, nogil=True)
+def _guess_lines(cols, ok, nl, guess, tiles_x):  # pragma: no cover - numba
+    """Per tile and hue bucket, the line that brackets the bucket's centre in most pixels.
+
+    Line ``j`` brackets the hues ``[cols[32 j], cols[32 j + 31])`` (the first line also those
+    below the column's minimum, the last one those above its maximum); every usable pixel of the
+    tile votes, per line, for the buckets whose centre falls in that range.
+    """
+    h, w, _ = cols.shape
+    nb = guess.shape[1]
+    size = 65536 // nb
+    shift = 0
+    while (1 << shift) < size:
+        shift += 1
+    votes = np.zeros((nl, nb + 1), dtype=np.int32)
+    run = np.zeros(nl, dtype=np.int64)
+    for t in range(guess.shape[0]):
+        ty, tx = t // tiles_x, t % tiles_x
+        votes[:, :] = 0
+        for v in range(ty * _TILE, min(h, ty * _TILE + _TILE)):
+            for u in range(tx * _TILE, min(w, tx * _TILE + _TILE)):
+                if not ok[v, u]:
+                    continue
+                for j in range(nl):
+                    lo = 0 if j == 0 else np.int64(cols[v, u, 32 * j])
+                    hi = 65536 if j == nl - 1 else np.int64(cols[v, u, 32 * j + 31])
+                    k0 = min(nb, (lo - size // 2 + size - 1) >> shift)  # first bucket centre >= lo
+                    k1 = min(nb, (hi - size // 2 + size - 1) >> shift)
+                    if k1 > k0:
+                        votes[j, k0] += 1
+                        votes[j, k1] -= 1
+        run[:] = 0
+        for k in range(nb):
+            best = 0
+            for j in range(nl):
+                run[j] += votes[j, k]
+                if run[j] > run[best]:
+                    best = j
+            guess[t, k] = best
+
+
+# =============================================================================================
+# compiled pieces: per pixel
+# =============================================================================================
+def _unit(x, scale):  # pragma: no cover - replaced by the overload inside compiled code
+    raise NotImplementedError
+
+
+@overload(_unit, inline="always")
+def _unit_ov(x, scale):
+    """Sample to float32 in [0, 1], as ``session.read_rgb`` (codes) or ``np.asarray(x, float32)``."""
+    if isinstance(x, types.Integer):
+        return lambda x, scale: np.float32(x) * scale
+    if x == types.float32:
+        return lambda x, scale: x
+    return lambda x, scale: np.float32(x)
+
+
+def _clipped(x, xf, top32, top64):  # pragma: no cover - replaced by the overload
+    raise NotImplementedError
+
+
+@overload(_clipped, inline="always")
+def _clipped_ov(x, xf, top32, top64):
+    """``pipeline.clipped_mask``: float32 frames compare in float32 (NEP 50), float64 in float64."""
+    if x == types.float64:
+        return lambda x, xf, top32, top64: x >= top64
+    return lambda x, xf, top32, top64: xf >= top32
+
+
+@intrinsic
+def _prefetch(typingctx, arr, i):
+    """Software prefetch of ``arr[i]`` (1-D) into all cache levels (``llvm.prefetch``)."""
+    sig = types.void(arr, i)
+
+    def codegen(context, builder, signature, args):  # pragma: no cover - compile time
+        aryty, ity = signature.args
+        ary = context.make_array(aryty)(context, builder, args[0])
+        idx = context.cast(builder, args[1], ity, types.intp)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [idx], wraparound=False)
+        i32 = ir.IntType(32)
+        fn = cgutils.get_or_insert_function(builder.module, ir.FunctionType(ir.VoidType(), [ptr.type, i32, i32, i32]),
+                                            "llvm.prefetch.p0")
+        builder.call(fn, [ptr, i32(0), i32(3), i32(1)])
+        return context.get_dummy_value()
+
+    if not (isinstance(arr, types.Array) and arr.ndim == 1):
+        return None
+    return sig, codegen
+
+
+@intrinsic
+def _count16_le(typingctx, arr, offset, x):
+    """Number of the 16 entries ``arr[offset:offset + 16]`` (uint16, 1-D) that are ``<= x``.
+
+    One vector compare, mask and popcount (``vpcmpuw``/``kmov``/``popcnt`` with AVX-512,
+    ``vpcmpgtw``/``pmovmskb``/``popcnt`` with AVX2): no branches, no bisection.
+    """
+    sig = types.intp(arr, offset, x)
+
+    def codegen(context, builder, signature, args):  # pragma: no cover - compile time
+        aryty, offty, xty = signature.args
+        ary = context.make_array(aryty)(context, builder, args[0])
+        off = context.cast(builder, args[1], offty, types.intp)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [off], wraparound=False)
+        i16, i32 = ir.IntType(16), ir.IntType(32)
+        vty = ir.VectorType(i16, 16)
+        vec = builder.load(builder.bitcast(ptr, vty.as_pointer()), align=2)
+        xi = builder.trunc(context.cast(builder, args[2], xty, types.int64), i16)
+        splat = builder.insert_element(ir.Constant(vty, ir.Undefined), xi, i32(0))
+        splat = builder.shuffle_vector(splat, ir.Constant(vty, ir.Undefined), ir.Constant(ir.VectorType(i32, 16), [0] * 16))
+        mask = builder.bitcast(builder.icmp_unsigned("<=", vec, splat), i16)
+        ctpop = cgutils.get_or_insert_function(builder.module, ir.FunctionType(i16, [i16]), "llvm.ctpop.i16")
+        return builder.zext(builder.call(ctpop, [mask]), ir.IntType(64))
+
+    if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.dtype == types.uint16):
+        return None
+    return sig, codegen
+
+
+# Helpers below take scalars only: a helper given an array, once inlined, costs numba two
+# reference-count calls per pixel.
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _mod(x, m):  # pragma: no cover - numba
+    """``np.mod(x, m)`` for ``m > 0`` (float32 or float64, bit for bit), without a libm ``fmod``
+    call on the usual range ``-m <= x < 2 m`` (there ``x - m`` is exact, Sterbenz)."""
+    if x >= -m and x < m + m:
+        if x == 0:
+            return x - x  # +0, as NumPy
+        if x < 0:
+            return x + m
+        if x < m:
+            return x
+        return x - m
+    r = np.fmod(x, m)
+    if r != 0 and r < 0:
+        r = r + m
+    return r
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _phys(i):  # pragma: no cover - numba
+    """Offset in the column lines of entry ``i`` of the sorted column."""
+    line = i // 31
+    return 32 * line + (i - 31 * line)
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _interp(bb, hq, lo_val, hi_val, n):  # pragma: no cover - numba
+    """Code phase between band ``bb`` (entry ``lo_val``) and the next one (``hi_val``), as
+    ``calibration._to_phase_kernel``."""
+    two_pi = 2.0 * np.pi
+    c = (bb + (hq - lo_val) / (hi_val - lo_val)) * (two_pi / n)
+    if c >= two_pi:
+        c -= two_pi
+    r = np.float32(c)
+    if r >= np.float32(two_pi):
+        r = np.float32(0.0)
+    return r
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _forward_pos(phase64, n):  # pragma: no cover - numba
+    """``HueTable.from_phase``, first half: band index and fraction of a phase."""
+    two_pi = 2.0 * np.pi
+    ph = _mod(phase64, two_pi)  # np.mod: float32(2 pi) > 2 pi, so wrap again
+    pos = ph * (n / two_pi)
+    bi = int(math.floor(pos))
+    if bi > n - 1:
+        bi = n - 1
+    return bi, pos - bi
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
+def _forward_val(lo, hi, frac):  # pragma: no cover - numba
+    """``HueTable.from_phase``, second half: hue between the band's entry and the next one."""
+    two_pi = 2.0 * np.pi
+    step = hi - lo
+    step = step - 65536.0 * math.floor(step / 65536.0)
+    y = (lo + frac * step) * (two_pi / 65536.0)
+    r = np.float32(_mod(y, two_pi))
+    if r >= np.float32(two_pi):
+        r = np.float32(0.0)
+    return r
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles_x, n, start, phi_ref, a, b, noise,
+                  atan, min_sat, use_min_sat, floor_slope, chunk, pd_e, pd_c, pd_s, pd_index, out_h, out_valid,
+                  out_dphi, out_sigma, out_phase, out_hue):  # pragma: no cover - numba
+    """The fused per-pixel loop; returns (clipped, hue undefined, valid, guess missed) counts.
+
+    Each run of ``chunk`` pixels of a row is done in two passes: (1) white balance, hue, masks,
+    the guessed line of the column and its prefetch; (2) the count in that line, interpolation,
+    phase difference and height. With ``out_sigma`` (and ``out_dphi``) given, the float32 phase
+    difference and the phase uncertainty are written instead of the height (the denoise filter
+    runs between this loop and :func:`_height_kernel`). ``out_phase``, ``out_hue``, ``out_dphi``
+    and ``out_sigma`` may be None: numba compiles a version without them (``is None`` pruning);
+    so may the pre-distortion ``pd_e, pd_c, pd_s, pd_index`` (no decoding). ``cols`` and ``heads`` are
+    flat views.
+    """
+    h, w, _ = rgb.shape
+    ncols = cols.size // (h * w)
+    nheads = heads.size // (h * w)
+    nl = ncols // 32
+    two_pi = 2.0 * np.pi
+    pi = np.pi
+    two_pi_f32 = np.float32(two_pi)
+    third = np.float32(np.pi / 3.0)
+    k3 = np.float32(math.sqrt(3.0) / 2.0)
+    half = np.float32(0.5)
+    to_counts = 65536.0 / two_pi
+    delta64 = np.pi / n
+    nan32 = np.float32(np.nan)
+    row_hq = np.empty(w, dtype=np.float64)
+    row_g = np.empty(w, dtype=np.int64)  # guessed line; -1 = pixel invalid
+    pd_last = 0
+    pd_e0 = 0.0
+    pd_nb = 1
+    pd_scale = 0.0
+    if pd_e is not None:
+        pd_last = pd_e.size - 1
+        pd_e0 = pd_e[pd_e.size // 3]
+        pd_nb = pd_index.size
+        pd_scale = pd_nb / two_pi
+    n_clip = 0
+    n_undef = 0
+    n_valid = 0
+    n_miss = 0
+    for v in range(h):
+        tile_row = (v // _TILE) * tiles_x
+        for u0 in range(0, w, chunk):
+            u1 = min(w, u0 + chunk)
+            # ---------------------------------------------------------------- pass 1: colour
+            for u in range(u0, u1):
+                x0 = rgb[v, u, 0]
+                x1 = rgb[v, u, 1]
+                x2 = rgb[v, u, 2]
+                f0 = _unit(x0, scale)
+                f1 = _unit(x1, scale)
+                f2 = _unit(x2, scale)
+                clipped = _clipped(x0, f0, top32, top64) or _clipped(x1, f1, top32, top64) or _clipped(x2, f2, top32, top64)
+                if clipped:
+                    n_clip += 1
+                r = f0 * gains[v, u, 0]
+                g = f1 * gains[v, u, 1]
+                bl = f2 * gains[v, u, 2]
+                mx = max(max(r, g), bl)
+                mn = min(min(r, g), bl)
+                c = mx - mn
+                # hue in float32, as colour.hue on the float32 white-balanced image
+                if atan is not None:  # HSI
+                    xx = r - half * (g + bl)
+                    yy = k3 * (g - bl)
+                    defined = not (xx == 0 and yy == 0)
+                    if use_min_sat:
+                        den = (r + g) + bl
+                        sat = (den - np.float32(3) * mn) / den if den > 0 else np.float32(0.0)
+                        defined = defined and sat > min_sat
+                    if defined:
+                        # NumPy's float32 arctan2 of the same x, y (computed before this loop by
+                        # _hsi_xy + np.arctan2: its SIMD loops differ from libm by a few ulp,
+                        # which the table slope and the pre-distortion amplify)
+                        hue = atan[v, u]
+                        if hue < 0:
+                            hue = np.float32(hue + two_pi_f32)
+                        if hue >= two_pi_f32:
+                            hue = np.float32(0.0)
+                    else:
+                        hue = nan32
+                else:
+                    defined = c != 0
+                    if use_min_sat:
+                        sat = c / mx if mx > 0 else np.float32(0.0)
+                        defined = defined and sat > min_sat
+                    if defined:
+                        if mx == r:
+                            h6 = (g - bl) / c
+                        elif mx == g:
+                            h6 = (bl - r) / c + np.float32(2)
+                        else:
+                            h6 = (r - g) / c + np.float32(4)
+                        hue = h6 * third
+                        if hue < 0:
+                            hue = np.float32(hue + two_pi_f32)
+                        if hue >= two_pi_f32:
+                            hue = np.float32(0.0)
+                    else:
+                        hue = nan32
+                if not defined:
+                    n_undef += 1
+                if out_hue is not None:
+                    out_hue[v, u] = hue
+                if not defined or not ok[v, u] or clipped:
+                    row_g[u] = -1
+                    continue
+                hq = np.float64(hue) * to_counts
+                if hq >= 65536.0:  # never for hue < float32(2 pi); kept for exactness
+                    hq = hq - 65536.0 * math.floor(hq / 65536.0)
+                gl = np.int64(guess[tile_row + u // _TILE, np.int64(hq) >> _SHIFT])
+                row_hq[u] = hq
+                row_g[u] = gl
+                _prefetch(cols, (v * w + u) * ncols + 32 * gl)
+            # ---------------------------------------------------------------- pass 2: table, height
+            for u in range(u0, u1):
+                gl = row_g[u]
+                if gl < 0:
+                    out_valid[v, u] = False
+                    out_h[v, u] = nan32
+                    if out_phase is not None:
+                        out_phase[v, u] = nan32
+                    if out_sigma is not None:
+                        out_dphi[v, u] = nan32
+                        out_sigma[v, u] = 1.0
+                    continue
+                hq = row_hq[u]
+                hqi = np.int64(hq)  # entries are integers: entry <= hq  <=>  entry <= floor(hq)
+                s0 = np.int64(start[v, u])
+                o = (v * w + u) * ncols
+                # -- table lookup (calibration._to_phase_kernel). Its bisection finds p + 1, the
+                # number of entries <= hue in the rotated, sorted column. Counted here in the
+                # guessed line: exact when the line brackets the hue (its first entry <= hue or
+                # it is the first line; its last entry > hue or it is the last line); otherwise
+                # the line heads give the line.
+                f = _count16_le(cols, o + 32 * gl, hqi) + _count16_le(cols, o + 32 * gl + 16, hqi)
+                if not ((f > 0 or gl == 0) and (f < 32 or gl == nl - 1)):
+                    n_miss += 1
+                    oh = (v * w + u) * nheads
+                    cl = 0
+                    for k in range(0, nheads, 16):
+                        cl += _count16_le(heads, oh + k, hqi)
+                    if cl > nl:  # padding counted
+                        cl = nl
+                    gl = cl - 1 if cl > 0 else 0
+                    f = 0 if cl == 0 else _count16_le(cols, o + 32 * gl, hqi) + _count16_le(cols, o + 32 * gl + 16, hqi)
+                cnt = 31 * gl + f
+                p = (cnt if cnt < n else n) - 1  # padding counted: every real entry is <= hue
+                if p < 0:
+                    bb = s0 - 1 if s0 > 0 else n - 1
+                    lo_val = np.float64(cols[np.uint64(o + _phys(n - 1))]) - 65536.0
+                    hi_val = np.float64(cols[np.uint64(o)])
+                else:
+                    bb = s0 + p
+                    if bb >= n:
+                        bb -= n
+                    op = o + _phys(p)
+                    lo_val = np.float64(cols[np.uint64(op)])
+                    if p == n - 1:
+                        hi_val = np.float64(cols[np.uint64(o)]) + 65536.0
+                    else:
+                        hi_val = np.float64(cols[np.uint64(op + 1)])  # same line (lines overlap)
+                emitted = _interp(bb, hq, lo_val, hi_val, n)
+                phase = emitted
+                pd_hi = np.float32(0.0)
+                pd_lo = np.float32(0.0)
+                if pd_e is not None:
+                    # Predistortion.decode of the emitted phase (and, for the denoise weights, of
+                    # emitted +- 1e-3: decode_slope), bit for bit: np.interp on the extended
+                    # samples (same bracketing and slope formula), np.mod, float32. Written out
+                    # here, not in a helper: a helper taking arrays costs reference counting.
+                    e64 = np.float64(emitted)
+                    for q in range(1 if out_sigma is None else 3):
+                        xq = e64 if q == 0 else (e64 + 1e-3 if q == 1 else e64 - 1e-3)
+                        x = _mod(xq - pd_e0, two_pi) + pd_e0
+                        if x > pd_e[pd_last]:
+                            y = pd_c[pd_last]
+                        elif x < pd_e[0]:
+                            y = pd_c[0]
+                        else:
+                            kb = min(max(int((x - pd_e0) * pd_scale), 0), pd_nb - 1)
+                            jp = np.int64(pd_index[kb])
+                            while jp > 0 and pd_e[jp] > x:
+                                jp -= 1
+                            while jp < pd_last and pd_e[jp + 1] <= x:
+                                jp += 1
+                            if jp == pd_last or pd_e[jp] == x:
+                                y = pd_c[jp]
+                            else:
+                                sl = pd_s[jp]
+                                y = sl * (x - pd_e[jp]) + pd_c[jp]
+                                if y != y:
+                                    y = sl * (x - pd_e[jp + 1]) + pd_c[jp + 1]
+                                    if y != y and pd_c[jp] == pd_c[jp + 1]:
+                                        y = pd_c[jp]
+                        res = np.float32(_mod(y, two_pi))
+                        if q == 0:
+                            phase = res
+                        elif q == 1:
+                            pd_hi = res
+                        else:
+                            pd_lo = res
+                d = np.float64(phase) - np.float64(phi_ref[v, u])
+                dphi = np.float32(pi - _mod(pi - d, two_pi))  # phase.wrap
+                if out_phase is not None:
+                    out_phase[v, u] = phase
+                if out_sigma is not None:
+                    # pipeline.phase_sigma: slope of the forward table over +-pi/N around the
+                    # (emitted) phase
+                    dl = np.float32(delta64)
+                    bi, fr = _forward_pos(np.float64(_mod(np.float32(emitted + dl), two_pi_f32)), n)
+                    jj = bi - s0 if bi >= s0 else bi - s0 + n
+                    oj = o + _phys(jj)
+                    y_hi = _forward_val(np.float64(cols[np.uint64(oj)]),
+                                        np.float64(cols[np.uint64(oj + 1 if jj < n - 1 else o)]), fr)
+                    bi, fr = _forward_pos(np.float64(_mod(np.float32(emitted - dl), two_pi_f32)), n)
+                    jj = bi - s0 if bi >= s0 else bi - s0 + n
+                    oj = o + _phys(jj)
+                    y_lo = _forward_val(np.float64(cols[np.uint64(oj)]),
+                                        np.float64(cols[np.uint64(oj + 1 if jj < n - 1 else o)]), fr)
+                    dh = np.float64(y_hi) - np.float64(y_lo)
+                    slope = (pi - _mod(pi - dh, two_pi)) / (2 * delta64)
+                    sig = noise[v, u] / max(slope, floor_slope)
+                    if pd_e is not None:  # times |Predistortion.decode_slope(emitted)|
+                        dd = np.float64(pd_hi) - np.float64(pd_lo)
+                        sig = sig * abs((_mod(dd + pi, two_pi) - pi) / (2.0 * 1e-3))
+                    out_sigma[v, u] = sig
+                    out_dphi[v, u] = dphi
+                    out_valid[v, u] = True
+                    n_valid += 1
+                    continue
+                hh = dphi / (a[v, u] + b[v, u] * dphi)
+                if hh - hh == 0:  # finite
+                    out_h[v, u] = hh
+                    out_valid[v, u] = True
+                    n_valid += 1
+                else:
+                    out_h[v, u] = nan32
+                    out_valid[v, u] = False
+                    if out_phase is not None:
+                        out_phase[v, u] = nan32
+    return n_clip, n_undef, n_valid, n_miss
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _hsi_xy(rgb, scale, gains, out_x, out_y):  # pragma: no cover - numba
+    """The arguments of the HSI ``arctan2`` (``colour.hue_hsi``) of the white-balanced frame."""
+    h, w, _ = rgb.shape
+    half = np.float32(0.5)
+    k3 = np.float32(math.sqrt(3.0) / 2.0)
+    for v in range(h):
+        for u in range(w):
+            r = _unit(rgb[v, u, 0], scale) * gains[v, u, 0]
+            g = _unit(rgb[v, u, 1], scale) * gains[v, u, 1]
+            bl = _unit(rgb[v, u, 2], scale) * gains[v, u, 2]
+            out_x[v, u] = r - half * (g + bl)
+            out_y[v, u] = k3 * (g - bl)
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _height_kernel(dphi, a, b, valid, out_h, out_phase):  # pragma: no cover - numba
+    """Height from a (denoised) float32 phase difference; clears pixels without a finite height."""
+    h, w = dphi.shape
+    nan32 = np.float32(np.nan)
+    n_valid = 0
+    for v in range(h):
+        for u in range(w):
+            if valid[v, u]:
+                d = dphi[v, u]
+                hh = d / (a[v, u] + b[v, u] * d)
+                if hh - hh == 0:
+                    out_h[v, u] = hh
+                    n_valid += 1
+                    continue
+                valid[v, u] = False
+                if out_phase is not None:
+                    out_phase[v, u] = nan32
+            out_h[v, u] = nan32
+    return n_valid
+
+
+# =============================================================================================
+# public per-frame API
+# =============================================================================================
+@dataclass
+class FrameMaps:
+    """Everything :func:`frame_maps` computes for one frame."""
+
+    height: NDArray[np.float32]
+    """Height in mm, NaN where invalid."""
+    valid: NDArray[np.bool_]
+    phase: NDArray[np.float32] | None = None
+    """Corrected code phase [0, 2 pi), NaN where invalid (``want_maps``)."""
+    hue: NDArray[np.float32] | None = None
+    """White-balanced hue, NaN where undefined (``want_maps``)."""
+    counts: dict[str, int] = field(default_factory=dict)
+    """Pixel counts: ``clipped``, ``hue_undefined``, ``valid``, and ``guess_missed`` (lookups
+    whose guessed line did not bracket the hue: a speed statistic, not a quality one)."""
+
+
+def _check_frame(prep: Prepared, rgb: NDArray[Any]) -> tuple[NDArray[Any], float]:
+    a = np.asarray(rgb)
+    if a.shape != (*prep.shape, 3):
+        raise ValueError(f"frame has shape {a.shape}, the calibration expects {(*prep.shape, 3)}")
+    if a.dtype in _INT_SCALE:
+        scale = _INT_SCALE[a.dtype]
+    elif a.dtype in (np.float32, np.float64):
+        scale = 1.0
+    else:
+        raise TypeError(f"frame dtype {a.dtype} not supported (uint8, uint16, float32, float64)")
+    if not a.flags.c_contiguous:
+        a = np.ascontiguousarray(a)
+    return a, scale
+
+
+def frame_maps(
+    prep: Prepared,
+    rgb: NDArray[Any],
+    *,
+    denoise_radius: int = 0,
+    denoise_k: float = 3.0,
+    want_maps: bool = False,
+    out: tuple[NDArray[np.float32], NDArray[np.bool_]] | None = None,
+) -> FrameMaps:
+    """One frame through the kernel; :func:`frame_to_height` with optional phase and hue maps.
+
+    ``want_maps=True`` also returns the corrected code phase and the white-balanced hue (as
+    ``measure_frame``'s ``phase`` and ``hue``); ``counts`` hold the pixel counts of the frame
+    statistics. ``out`` = (height, valid) buffers to reuse (float32 and bool, shape (H, W)).
+    """
+    a, scale = _check_frame(prep, rgb)
+    h, w = prep.shape
+    if out is None:
+        height = np.empty((h, w), dtype=np.float32)
+        valid = np.empty((h, w), dtype=bool)
+    else:
+        height, valid = out
+        if height.shape != (h, w) or height.dtype != np.float32 or valid.shape != (h, w) or valid.dtype != bool:
+            raise ValueError("out must be (float32 (H, W), bool (H, W))")
+    denoise = int(denoise_radius) > 0
+    phase = np.empty((h, w), dtype=np.float32) if want_maps else None
+    hue = np.empty((h, w), dtype=np.float32) if want_maps else None
+    dphi = np.empty((h, w), dtype=np.float32) if denoise else None
+    sigma = np.empty((h, w), dtype=np.float64) if denoise else None
+    top = 1.0 - 0.5 / (2**prep.bit_depth - 1)
+    hsi = prep.hue_model == "hsi"
+    atan = None
+    if hsi:  # NumPy's own float32 arctan2, as colour.hue_hsi (one extra pass; hexcone needs none)
+        x = np.empty((h, w), dtype=np.float32)
+        y = np.empty((h, w), dtype=np.float32)
+        _hsi_xy(a, np.float32(scale), prep.gains, x, y)
+        atan = np.arctan2(y, x, out=y)
+    n_clip, n_undef, n_valid, n_miss = _frame_kernel(
+        a, np.float32(scale), np.float32(top), float(top), prep.gains, prep.ok, prep.cols.reshape(-1),
+        prep.heads.reshape(-1), prep.guess, prep.tiles_x, prep.n_bands, prep.start, prep.phi_ref, prep.a, prep.b,
+        prep.noise, atan, np.float32(prep.min_saturation), prep.min_saturation > 0.0,
+        prep.floor_slope, _CHUNK, prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, height, valid, dphi, sigma, phase,
+        hue,
+    )
+    if denoise:
+        smooth = denoise_phase(dphi, sigma, valid, radius=int(denoise_radius), k=float(denoise_k))
+        n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
+    counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss)}
+    return FrameMaps(height, valid, phase, hue, counts)
+
+
+def frame_to_height(
+    prep: Prepared,
+    rgb: NDArray[Any],
+    *,
+    denoise_radius: int = 0,
+    denoise_k: float = 3.0,
+    out: tuple[NDArray[np.float32], NDArray[np.bool_]] | None = None,
+) -> tuple[NDArray[np.float32], NDArray[np.bool_]]:
+    """Height map of one frame: ``(height float32 mm, NaN where invalid; valid bool)``.
+
+    Parameters
+    ----------
+    prep : Prepared
+        From :func:`prepare`.
+    rgb : ndarray (H, W, 3)
+        RGB frame: ``uint8``/``uint16`` sensor codes (read directly, scaled by 1/255 or 1/65535
+        as :func:`huefringe.session.read_rgb` does) or float in [0, 1].
+    denoise_radius : int
+        Radius of :func:`huefringe.phase.denoise_phase` on the phase difference; 0 = off
+        (``measure_frame``'s default is 2).
+    denoise_k : float
+        Its edge threshold in combined standard deviations (``denoise_phase``'s ``k``).
+    out : (ndarray, ndarray), optional
+        Preallocated ``(height, valid)`` buffers, written in place and returned.
+
+    Equals ``pipeline.measure_frame(rgb, white, table, cal, unwrap_mode="reference", ...)`` with
+    the same parameters (see the module docstring for how exactly).
+    """
+    m = frame_maps(prep, rgb, denoise_radius=denoise_radius, denoise_k=denoise_k, out=out)
+    return m.height, m.valid

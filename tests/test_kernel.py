@@ -1,0 +1,210 @@
+"""The fused per-frame kernel against the NumPy reference (pipeline.measure_frame) on bench data."""
+
+from __future__ import annotations
+
+import copy
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from huefringe import bench, kernel, pipeline
+from huefringe.calibration import HueTable
+from huefringe.height import PlaneCalibration
+from huefringe.session import load_session, read_rgb
+
+REPO = Path(__file__).resolve().parents[1]
+CONFIG = yaml.safe_load((REPO / "config.yaml").read_text())
+TOL_MM = 1e-4
+
+
+def _bench_cfg() -> dict:
+    """The demo rig (gauge blocks, vibrating membrane) on a small sensor: 160 x 120, 32 bands."""
+    cfg = copy.deepcopy(bench.load_bench_config(bench.preset_path("demo")))
+    # coarser pixels keep the 80 x 60 mm field of the demo (and its blocks); same 12 mm period
+    cfg["session"].update(width=160, height=120, pixel_pitch_mm=0.5, period_px=24, hue_bands=32, repeats=3, frames=2)
+    cfg["phase_shift"]["enabled"] = False
+    cfg["projector"]["compensation"]["enabled"] = True  # frames carry a pre-distortion to decode
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def rig(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    root = tmp_path_factory.mktemp("kernel")
+    session = bench.write_session(_bench_cfg(), root / "session")
+    s = load_session(session)
+    out: dict = {"session": s, "white": read_rgb(s.object_white)}
+    for model in ("hexcone", "hsi"):
+        d = root / model
+        d.mkdir()
+        for which in ("reference", "object"):
+            pipeline.hue_table(str(session), which, model, CONFIG["calibration"], table=str(d / f"table_{which}.json"),
+                               stats=str(d / f"table_{which}.stats.json"))
+        pipeline.plane_calibration(str(session), str(d / "table_reference.json"), model, CONFIG["calibration"],
+                                   model=str(d / "model.npz"), stats=str(d / "planes.json"))
+        out[model] = (HueTable.load(d / "table_object.json"), PlaneCalibration.load(str(d / "model.npz")))
+    return out
+
+
+def _reference(rig: dict, model: str, rgb: np.ndarray, shadow: np.ndarray, denoise: int,
+               pd: bool = True) -> pipeline.FrameResult:
+    table, cal = rig[model]
+    m = CONFIG["measurement"]
+    return pipeline.measure_frame(rgb, rig["white"], table, cal, hue_model=model, min_saturation=m["min_saturation"],
+                                  shadow=shadow, unwrap_mode="reference", bit_depth=8, denoise_radius=denoise,
+                                  predistortion=rig["session"].predistortion if pd else None)
+
+
+def _prepare(rig: dict, model: str, shadow: np.ndarray, pd: bool = True) -> kernel.Prepared:
+    table, cal = rig[model]
+    return kernel.prepare(table, cal, rig["white"], hue_model=model,
+                          min_saturation=CONFIG["measurement"]["min_saturation"], shadow=shadow, bit_depth=8,
+                          predistortion=rig["session"].predistortion if pd else None)
+
+
+def _frame_u8(rig: dict, n: int) -> np.ndarray:
+    return np.ascontiguousarray(cv2.imread(str(rig["session"].frames[n]), cv2.IMREAD_UNCHANGED)[..., ::-1])
+
+
+def _assert_same(h: np.ndarray, valid: np.ndarray, ref: pipeline.FrameResult) -> None:
+    assert h.dtype == np.float32 and valid.dtype == bool
+    np.testing.assert_array_equal(valid, ref.valid)
+    np.testing.assert_array_equal(np.isnan(h), ~valid)  # NaN exactly where invalid, in both
+    np.testing.assert_array_equal(np.isnan(ref.height), ~ref.valid)
+    assert valid.mean() > 0.8
+    err = np.abs(h[valid].astype(np.float64) - ref.height[valid])
+    assert err.max() <= TOL_MM, f"max |kernel - reference| = {err.max():.2e} mm"
+
+
+@pytest.mark.parametrize(("model", "pd"), [("hexcone", True), ("hsi", True), ("hexcone", False)])
+@pytest.mark.parametrize("denoise", [0, 2])
+def test_kernel_matches_reference(rig: dict, model: str, pd: bool, denoise: int) -> None:
+    """Same heights (to 1e-4 mm; bit for bit with hexcone) and valid mask as measure_frame, with
+    and without the session's pre-distortion (the demo bench projects through one)."""
+    assert rig["session"].predistortion is not None
+    shadow = pipeline.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
+    prep = _prepare(rig, model, shadow, pd)
+    for n in rig["session"].frame_ids:
+        ref = _reference(rig, model, read_rgb(rig["session"].frames[n]), shadow, denoise, pd)
+        h, valid = kernel.frame_to_height(prep, _frame_u8(rig, n), denoise_radius=denoise)
+        _assert_same(h, valid, ref)
+        np.testing.assert_array_equal(h, ref.height)  # in fact bit for bit
+
+
+def test_uint8_and_float_input_agree(rig: dict) -> None:
+    prep = _prepare(rig, "hexcone", pipeline.shadow_mask(rig["white"], 0.12))
+    u8 = _frame_u8(rig, 0)
+    f32 = read_rgb(rig["session"].frames[0])
+    h8, v8 = kernel.frame_to_height(prep, u8)
+    # uint8 codes are scaled exactly as session.read_rgb does: bit for bit the same heights
+    for other in (f32, f32.astype(np.float64)):
+        h, v = kernel.frame_to_height(prep, other)
+        np.testing.assert_array_equal(v, v8)
+        np.testing.assert_array_equal(h, h8)
+    # 16-bit codes of the same levels (x 257) differ only by float32 rounding of the scaling
+    h, v = kernel.frame_to_height(prep, u8.astype(np.uint16) * np.uint16(257))
+    np.testing.assert_array_equal(v, v8)
+    np.testing.assert_allclose(h, h8, rtol=0, atol=TOL_MM, equal_nan=True)
+
+
+def test_invalid_pixels_are_nan_in_both(rig: dict) -> None:
+    """Clipped, grey, shadowed and table-masked pixels: NaN and invalid, as the reference."""
+    white = rig["white"]
+    shadow = pipeline.shadow_mask(white, 0.12)
+    shadow[:10, :10] = True
+    prep = _prepare(rig, "hexcone", shadow)
+    u8 = _frame_u8(rig, 1).copy()
+    u8[20:30, 40:60, 1] = 255  # clipped channel
+    grey = np.round(white[50:55, 50:90] * 127).astype(np.uint8)  # the white, dimmed: grey once balanced
+    u8[50:55, 50:90] = grey
+    u8[70:72, :] = 0  # black
+    rgb = u8.astype(np.float32) * np.float32(1 / 255)
+    for denoise in (0, 2):
+        ref = _reference(rig, "hexcone", rgb, shadow, denoise)
+        m = kernel.frame_maps(prep, u8, denoise_radius=denoise, want_maps=True)
+        _assert_same(m.height, m.valid, ref)
+        assert not m.valid[20:30, 40:60].any() and not m.valid[50:55, 50:90].any() and not m.valid[:10, :10].any()
+        np.testing.assert_array_equal(m.phase, ref.phase)
+        np.testing.assert_array_equal(m.hue, ref.hue)
+        assert m.counts["clipped"] == round(ref.stats["clipped_fraction"] * u8[..., 0].size)
+        assert m.counts["valid"] == int(ref.valid.sum())
+        assert m.counts["hue_undefined"] == round(ref.stats["hue_undefined_fraction"] * u8[..., 0].size)
+
+
+def test_out_buffers_and_shadow_fraction(rig: dict) -> None:
+    table, cal = rig["hexcone"]
+    p1 = _prepare(rig, "hexcone", pipeline.shadow_mask(rig["white"], 0.12))
+    p2 = kernel.prepare(table, cal, rig["white"], min_saturation=0.08, shadow=0.12,  # fraction form
+                        predistortion=rig["session"].predistortion)
+    np.testing.assert_array_equal(p1.ok, p2.ok)
+    u8 = _frame_u8(rig, 0)
+    buf = (np.empty(p1.shape, np.float32), np.empty(p1.shape, bool))
+    h, v = kernel.frame_to_height(p1, u8, out=buf)
+    assert h is buf[0] and v is buf[1]
+    np.testing.assert_array_equal(h, kernel.frame_to_height(p2, u8)[0])
+    with pytest.raises(ValueError, match="shape"):
+        kernel.frame_to_height(p1, u8[:-1])
+    with pytest.raises(TypeError, match="dtype"):
+        kernel.frame_to_height(p1, u8.astype(np.int16))
+    with pytest.raises(ValueError, match="hue model"):
+        kernel.prepare(table, cal, rig["white"], hue_model="lab")
+
+
+def test_prepared_layout(rig: dict) -> None:
+    """Pixel-major columns: each usable pixel's column rotated to its start, sorted, in lines of
+    32 entries that overlap by one; line heads; guess tables that mostly hit."""
+    table, cal = rig["hexcone"]
+    prep = kernel.prepare(table, cal, rig["white"])
+    assert prep.cols.ctypes.data % 64 == 0 and prep.cols.shape[2] == 32 * prep.nlines
+    n = table.n_bands
+    vv, uu = np.nonzero(prep.ok)
+    for v, u in list(zip(vv, uu, strict=True))[:: max(1, len(vv) // 200)]:
+        col = np.roll(np.asarray(table.table)[:, v, u], -int(table.start[v, u])).astype(np.int64)
+        assert np.all(np.diff(col) >= 0)
+        lines = prep.cols[v, u].reshape(prep.nlines, 32).astype(np.int64)
+        logical = np.concatenate([lines[j, :31] for j in range(prep.nlines)])
+        np.testing.assert_array_equal(logical[:n], col)
+        assert np.all(logical[n:] == 65535)
+        np.testing.assert_array_equal(lines[:-1, 31], lines[1:, 0])  # overlap
+        np.testing.assert_array_equal(prep.heads[v, u, : prep.nlines], lines[:, 0])
+    m = kernel.frame_maps(prep, _frame_u8(rig, 0))
+    assert m.counts["guess_missed"] < 0.05 * m.counts["valid"]
+
+
+@pytest.mark.parametrize("n_bands", [6, 31, 32, 33, 100, 520])
+def test_lookup_matches_table_to_phase(n_bands: int) -> None:
+    """Random sorted columns (rotated, with ties, any N): the kernel's phase is to_phase(hue)."""
+    rng = np.random.default_rng(n_bands)
+    h, w = 40, 70
+    cols = np.sort(rng.integers(0, 65536, (h, w, n_bands)), axis=2)
+    cols[:, :5, 1:3] = cols[:, :5, :1]  # ties
+    start = rng.integers(0, n_bands, (h, w))
+    idx = (start[..., None] + np.arange(n_bands)) % n_bands
+    tab = np.empty((n_bands, h, w), np.uint16)
+    np.put_along_axis(tab, np.moveaxis(idx, 2, 0), np.moveaxis(cols, 2, 0).astype(np.uint16), axis=0)
+    valid = rng.random((h, w)) > 0.1
+    table = HueTable("hexcone", n_bands, tab, valid, start.astype(np.uint16), np.zeros((h, w), np.uint8),
+                     np.full((h, w), 0.01, np.float32), {"repeats": 1})
+    cal = PlaneCalibration(np.zeros((h, w), np.float32), np.ones((h, w), np.float32), np.zeros((h, w), np.float32),
+                           [0.0, 1.0])
+    prep = kernel.prepare(table, cal, np.ones((h, w, 3), np.float32), min_saturation=0.0)
+    for _ in range(3):
+        frame = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
+        m = kernel.frame_maps(prep, frame, want_maps=True)
+        np.testing.assert_array_equal(m.phase[m.valid], table.to_phase(m.hue)[m.valid])
+        assert m.valid.sum() > 0.8 * valid.sum()
+    assert m.counts["guess_missed"] > 0 or prep.nlines == 1  # random columns: the fallback is exercised
+
+
+def test_quick_benchmark_runs(tmp_path: Path) -> None:
+    """``benchmarks/run_all.py --quick`` runs end to end (a smoke test: no speed is asserted)."""
+    env = dict(os.environ, NUMBA_NUM_THREADS="1")
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "run_all.py"), "--quick", "--work", str(tmp_path)],
+                          capture_output=True, text=True, timeout=300, env=env, cwd=REPO)
+    assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
+    assert "summary" in proc.stdout and "frames/s" in proc.stdout
