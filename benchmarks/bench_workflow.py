@@ -3,7 +3,7 @@
 Usage::
 
     ./run python benchmarks/bench_workflow.py [--frames 1000 --width 640 --height 480] [--cores 2]
-                                              [--work DIR] [--json OUT] [--quick] [--no-proposed]
+                                              [--work DIR] [--json OUT] [--quick]
 
 Steps (each timed):
 
@@ -17,10 +17,7 @@ Steps (each timed):
 3. ``heights``  ``snakemake --cores N`` with the height maps of every frame as explicit targets
    (the measurement rule also writes phase and hue maps, a point cloud and a QA file per frame:
    that is the workflow as it stands). frames/s = frames / wall time of this step.
-4. ``proposed`` (unless ``--no-proposed``) the same batches through the kernel-based stage of
-   ``proposed_measure.py`` (the proposed ``pipeline.measure_frames``), one process per batch,
-   ``--cores`` at a time, like Snakemake's jobs; without point clouds (the proposal makes them a
-   rule of their own), and with them too given ``--proposed-clouds``.
+   The measurement jobs use the fused kernel (``measurement.kernel: true``, the default).
 
 Peak memory: the largest sum of the resident set sizes of the process tree (sampled every 0.1 s
 with psutil) and the largest single process (``ru_maxrss`` of the children). Every job runs with
@@ -141,42 +138,6 @@ def run_snakemake(workdir: Path, config: Path, targets: list[str], cores: int, l
     return {"seconds": dt, "peak_tree_mb": mem.peak / 1e6}
 
 
-def run_proposed(session: Path, plan: list[list[int]], calib: Path, cfg: dict[str, Any], out: Path, cores: int,
-                 clouds: bool) -> dict[str, Any]:
-    """The proposed kernel-based stage, one process per batch, ``cores`` at a time."""
-    shutil.rmtree(out, ignore_errors=True)
-    jobs = []
-    for b, frames in enumerate(plan):
-        paths = {k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
-                 for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"),
-                                ("qa", "json"))}
-        for k in paths:
-            (out / k).mkdir(parents=True, exist_ok=True)
-        if not clouds:
-            paths["clouds"] = None
-        args = {"session": str(session), "frames": frames, "table": str(calib / "table_object.json"),
-                "model": str(calib / "phase_to_height.npz"), "hue_model": cfg["hue_model"],
-                "measurement": cfg["measurement"], "calibration": cfg["calibration"], **paths}
-        f = out / f"job_{b:03d}.json"
-        f.write_text(json.dumps(args))
-        jobs.append([sys.executable, str(HERE / "proposed_measure.py"), str(f)])
-    running: list[subprocess.Popen] = []
-    t = time.perf_counter()
-    with TreeMemory() as mem:
-        while jobs or running:
-            while jobs and len(running) < cores:
-                p = subprocess.Popen(jobs.pop(0), env=_env(), cwd=REPO)
-                mem.watch(p.pid)
-                running.append(p)
-            time.sleep(0.02)
-            for p in list(running):
-                if p.poll() is not None:
-                    if p.returncode != 0:
-                        raise RuntimeError(f"proposed stage failed: {p.args}")
-                    running.remove(p)
-    return {"seconds": time.perf_counter() - t, "peak_tree_mb": mem.peak / 1e6}
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=1000)
@@ -186,9 +147,6 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--cores", type=int, default=2)
     ap.add_argument("--work", type=Path, default=None, help="keep (and reuse) the session and results here")
-    ap.add_argument("--no-proposed", action="store_true", help="skip the kernel-based stage")
-    ap.add_argument("--proposed-clouds", action="store_true",
-                    help="also time the kernel-based stage writing point clouds (adds ~2 min at 1000 frames)")
     ap.add_argument("--quick", action="store_true", help="smoke mode: 6 frames at 160 x 120, 32 bands")
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
@@ -216,7 +174,6 @@ def main(argv: list[str] | None = None) -> int:
     (wf / "config.yaml").write_text(yaml.safe_dump(wcfg, sort_keys=False))
     sid = bcfg["session"]["id"]
     calib_rel = Path("results") / sid / "calib"  # targets: relative to the workflow folder
-    calib = wf / calib_rel
     res: dict[str, Any] = {"frames": a.frames, "size": [a.width, a.height], "bands": a.bands, "cores": a.cores,
                            "machine_cores": os.cpu_count(), "session_seconds": t_session, "session_reused": reused}
 
@@ -235,16 +192,6 @@ def main(argv: list[str] | None = None) -> int:
     print(f"heights ({-(-a.frames // per_job)} jobs of {per_job} frames): {h['seconds']:.1f} s = {h['fps']:.1f} frames/s, "
           f"peak {h['peak_tree_mb']:.0f} MB (whole tree); calibration + heights {res['end_to_end_fps']:.1f} frames/s")
 
-    if not a.no_proposed:
-        plan = [list(range(i, min(a.frames, i + per_job))) for i in range(0, a.frames, per_job)]
-        # warm-up, untimed: compiles (once per installation) and caches the kernel's signatures
-        run_proposed(session, [[0]], calib, wcfg, a.work / "proposed", 1, a.proposed_clouds)
-        for clouds in ((False, True) if a.proposed_clouds else (False,)):
-            p = run_proposed(session, plan, calib, wcfg, a.work / "proposed", a.cores, clouds)
-            p["fps"] = a.frames / p["seconds"]
-            res["proposed_clouds" if clouds else "proposed"] = p
-            print(f"proposed kernel stage{' with clouds' if clouds else ', no clouds'}: {p['seconds']:.1f} s = "
-                  f"{p['fps']:.1f} frames/s, peak {p['peak_tree_mb']:.0f} MB")
     res["max_single_process_mb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
     res["target_fps"], res["target_mb"] = TARGET_FPS, TARGET_MB
     if a.json:

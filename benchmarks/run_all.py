@@ -10,7 +10,7 @@ Parts (each in its own process, so that one-core settings and peak memory are it
                  against cv2.cvtColor RGB->HSV (floor) and the NumPy reference, same frame.
 ``calibration``  ``bench_calibration.py``: hue tables from 256 bands x 3 repeats at 768 x 494.
 ``workflow``     ``bench_workflow.py``: a 1000-frame 640 x 480 bench session through height maps
-                 with ``snakemake --cores 2``, plus the proposed kernel-based stage.
+                 with ``snakemake --cores 2`` (measurement through the fused kernel).
 
 The full run takes 6-10 minutes on 2 cores (most of it writing the 1000-frame session and
 running the current measurement stage); ``--quick`` shrinks everything to a smoke test of a
@@ -141,11 +141,6 @@ def summary(res: dict[str, Any], quick: bool, elapsed: float) -> None:
         rows.append(("  with the calibration jobs", f"{wf['end_to_end_fps']:.1f} frames/s", "", "info"))
         peak = max(hh["peak_tree_mb"], wf["calibration"]["peak_tree_mb"])
         rows.append(("  peak memory (process tree)", f"{peak:.0f} MB", "< 4096 MB", _status(peak < wf["target_mb"], quick)))
-        for key, label in (("proposed", "proposed kernel stage, no clouds"), ("proposed_clouds", "proposed, with clouds")):
-            if key in wf:
-                p = wf[key]
-                rows.append((f"  {label}", f"{p['fps']:.1f} frames/s, peak {p['peak_tree_mb']:.0f} MB", ">= 50 frames/s",
-                             _status(p["fps"] >= wf["target_fps"], quick)))
     width = max(len(r[0]) for r in rows) if rows else 10
     print(f"\n=== summary ({'QUICK smoke run: figures are meaningless' if quick else 'full run'}; "
           f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} now; {elapsed / 60:.1f} min)")

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
-from bench_helpers import CONFIG, bench_config, process, write
+from bench_helpers import bench_config, process, write
 
 from huefringe import bench
 from huefringe.height import accuracy
@@ -90,3 +90,21 @@ def test_predistorted_projection_beats_plain_trapezoid(tmp_path: Path) -> None:
         h = tifffile.imread(out["heights"][0])
         errors[comp] = float(np.nanpercentile(np.abs(h - cfg["scene"]["height_mm"]), 95))
     assert errors[True] < 0.7 * errors[False], errors
+
+
+def test_kernel_stage_equals_reference_stage(tmp_path: Path) -> None:
+    """measurement.kernel only changes the speed: same height, phase and hue maps, same QA."""
+    import copy
+
+    from bench_helpers import CONFIG
+
+    bcfg = bench_config("dental", width=160, height=120, hue_bands=32, frames=2, id="k")
+    session = write(bcfg, tmp_path)
+    outs = {}
+    for fast in (True, False):
+        cfg = copy.deepcopy(CONFIG)
+        cfg["measurement"]["kernel"] = fast
+        outs[fast] = process(session, tmp_path / f"out{int(fast)}", config=cfg)
+    for key in ("heights", "phases", "hues", "qa"):
+        for a, b in zip(outs[True][key], outs[False][key], strict=True):
+            assert Path(a).read_bytes() == Path(b).read_bytes(), (key, a)

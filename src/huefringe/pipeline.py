@@ -6,7 +6,6 @@ is Snakemake-specific except :func:`run_from_snakemake`, the adapter the scripts
 
 from __future__ import annotations
 
-import contextlib
 import logging
 import sys
 import time
@@ -125,24 +124,42 @@ def measure_frame(
     height = cal.height(un.dphi)
     valid &= np.isfinite(height)
     height = np.where(valid, height, np.nan).astype(np.float32)
-    below = valid & (height < -below_reference_mm)
-    n = valid.size
-    flags = {k: int(v.sum()) for k, v in un.flags.items()}
-    flags["below_reference"] = int(below.sum())
-    suspect = (flags["below_reference"] + flags["wrap_edge"]) > 0.001 * n
-    stats = {
+    stats = frame_stats(
+        valid, height, un.flags,
+        clipped_fraction=float(clipped.mean()),
+        hue_undefined_fraction=float(np.mean(~np.isfinite(hue))),
+        table_invalid_fraction=float(np.mean(~table.valid)),
+        shadow_fraction=float(shadow.mean()) if shadow is not None else 0.0,
+        hue_model=hue_model, unwrap_mode=unwrap_mode, below_reference_mm=below_reference_mm,
+    )
+    return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats)
+
+
+def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Mapping[str, NDArray[np.bool_]], *,
+                clipped_fraction: float, hue_undefined_fraction: float, table_invalid_fraction: float,
+                shadow_fraction: float, hue_model: str, unwrap_mode: str,
+                below_reference_mm: float = 0.25) -> dict[str, Any]:
+    """The QA figures of one frame (``qa/frames/frame_NNNN.json``).
+
+    ``phase_ambiguity_suspected`` is set when more than 0.1 % of the pixels lie below
+    ``-below_reference_mm`` (objects stand on the plate, so a large negative height means the
+    phase difference wrapped) or sit on a wrap edge.
+    """
+    counts = {k: int(v.sum()) for k, v in flags.items()}
+    counts["below_reference"] = int((valid & (height < -below_reference_mm)).sum())
+    suspect = (counts["below_reference"] + counts["wrap_edge"]) > 0.001 * valid.size
+    return {
         "valid_fraction": float(valid.mean()),
-        "clipped_fraction": float(clipped.mean()),
-        "hue_undefined_fraction": float(np.mean(~np.isfinite(hue))),
-        "table_invalid_fraction": float(np.mean(~table.valid)),
-        "shadow_fraction": float(shadow.mean()) if shadow is not None else 0.0,
-        "flags": flags,
+        "clipped_fraction": clipped_fraction,
+        "hue_undefined_fraction": hue_undefined_fraction,
+        "table_invalid_fraction": table_invalid_fraction,
+        "shadow_fraction": shadow_fraction,
+        "flags": counts,
         "phase_ambiguity_suspected": bool(suspect),
         "median_height_mm": float(np.nanmedian(height)) if valid.any() else None,
         "hue_model": hue_model,
         "unwrap": unwrap_mode,
     }
-    return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats)
 
 
 def phase_sigma(table: HueTable, phase: NDArray[np.floating], floor_slope: float = 0.05) -> NDArray[np.float64]:
@@ -330,7 +347,13 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
                    measurement: Mapping[str, Any], calibration: Mapping[str, Any],
                    heights: Sequence[str], clouds: Sequence[str], phases: Sequence[str],
                    hues: Sequence[str], qa: Sequence[str]) -> None:
-    """Measure a batch of frames: height TIFF, coloured point cloud, phase and hue maps, QA."""
+    """Measure a batch of frames: height TIFF, coloured point cloud, phase and hue maps, QA.
+
+    With ``measurement.kernel`` (and reference-relative unwrapping) each frame goes through the
+    fused kernel (:mod:`huefringe.kernel`), prepared once per batch; it gives the same numbers as
+    :func:`measure_frame`, the reference implementation used otherwise.
+    """
+    from huefringe import kernel
     from huefringe.cloud import height_to_cloud, write_cloud
 
     s = load_session(session)
@@ -338,12 +361,29 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
     cal = PlaneCalibration.load(model)
     white = read_rgb(s.object_white)
     shadow = shadow_mask(white, measurement["shadow_fraction"])
+    fast = bool(measurement["kernel"]) and measurement["unwrap"] == "reference"
+    if fast:
+        prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=measurement["min_saturation"],
+                              shadow=shadow, bit_depth=s.bit_depth, predistortion=s.predistortion)
+        table_invalid = float(np.mean(~t.valid))
+        del t  # the kernel's pixel-major copy replaces the band-major table
+        phi_ref = cal.phi_ref.astype(np.float64)
     for i, n in enumerate(frames):
         path = s.frames[n]
         rgb = read_rgb(path)
-        res = measure_frame(rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
-                            shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
-                            denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion)
+        if fast:
+            m = kernel.frame_maps(prep, rgb, denoise_radius=measurement["denoise_radius"], want_maps=True)
+            flags = unwrap(wrap(m.phase.astype(np.float64) - phi_ref), m.valid, "reference").flags
+            px = m.valid.size
+            stats = frame_stats(m.valid, m.height, flags, clipped_fraction=m.counts["clipped"] / px,
+                                hue_undefined_fraction=m.counts["hue_undefined"] / px,
+                                table_invalid_fraction=table_invalid, shadow_fraction=float(shadow.mean()),
+                                hue_model=hue_model, unwrap_mode="reference")
+            res = FrameResult(m.height, m.phase, m.hue, m.valid, stats)
+        else:
+            res = measure_frame(rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
+                                shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
+                                denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion)
         _refuse_bad_frame(path, res.stats, measurement)
         write_tiff(heights[i], res.height)
         write_tiff(phases[i], res.phase)
