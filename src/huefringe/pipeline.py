@@ -561,6 +561,17 @@ def metrology_report(session: str, heights: Sequence[str], qa: Sequence[str], ba
     report.write_report_html(html, doc, figures, provenance)
 
 
+def archive_session(session: str, results: str, config: Mapping[str, Any], archive: str) -> None:
+    """Pack a session and its results with RO-Crate metadata, then read the archive back once."""
+    from huefringe.archive import ArchiveError, verify_archive, write_archive
+
+    write_archive(session, results, archive, config=dict(config))
+    check = verify_archive(archive)
+    if not check.ok:
+        raise ArchiveError(check.summary())
+    log.info("%s", check.summary())
+
+
 # --------------------------------------------------------------------------- Snakemake adapter
 
 
@@ -571,6 +582,7 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
     message naming the file (no traceback); outputs are written atomically by the stages, so a
     failed job leaves none behind.
     """
+    from huefringe.archive import ArchiveError
     from huefringe.metrology import MetrologyError
     from huefringe.session import SessionError
 
@@ -597,7 +609,7 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
     t0 = time.perf_counter()
     try:
         func(**kwargs)
-    except (SessionError, FrameError, CalibrationError, MetrologyError) as exc:
+    except (SessionError, FrameError, CalibrationError, MetrologyError, ArchiveError) as exc:
         log.error("%s", exc)
         sys.stderr.write(f"\nhuefringe: {exc}\n")
         sys.exit(1)

@@ -5,12 +5,6 @@
 #   snakemake --cores 2 results/<id>.archive.zip         one session
 
 
-def session_results(sid):
-    """Every declared result of session ``sid`` (the part of all_targets() under results/<sid>/)."""
-    prefix = R(sid, "")
-    return [p for p in all_targets() if p.startswith(prefix)]
-
-
 rule archive_session:
     input:
         session=session_yaml,
@@ -20,31 +14,22 @@ rule archive_session:
     params:
         session=session_dir,
         results=lambda w: R(w.sid),
+        config=config,
     log:
         "logs/{sid}/archive.log",
     threads: 1
     resources:
         mem_mb=1000,
         runtime=30,
-    run:
-        from huefringe.archive import ArchiveError, verify_archive, write_archive
-
-        Path(log[0]).parent.mkdir(parents=True, exist_ok=True)
-        try:
-            write_archive(params.session, params.results, output.archive, config=config)
-            check = verify_archive(output.archive)  # read back once: the archive is what it claims
-            if not check.ok:
-                raise ArchiveError(check.summary())
-        except ArchiveError as exc:
-            Path(log[0]).write_text(f"{exc}\n")
-            sys.stderr.write(f"\nhuefringe: {exc}\n")
-            raise
-        Path(log[0]).write_text(check.summary() + "\n")
+    conda:
+        "../envs/huefringe.yaml"
+    script:
+        "../../scripts/archive_session.py"
 
 
 rule archive:
     input:
-        [f"{RESULTS}/{sid}.archive.zip" for sid in PLANS],
+        [f"{RESULTS}/{sid}.archive.zip" for sid in PLANS if sid not in TABLE1_IDS],
 
 
 localrules:

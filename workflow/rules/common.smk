@@ -82,3 +82,9 @@ def all_targets():
         if plan.specimen:
             out += [R(sid, "metrology", "report.json"), R(sid, "metrology", "report.html")]
     return out
+
+
+def session_results(sid):
+    """Every declared result of session ``sid`` (the part of all_targets() under results/<sid>/)."""
+    prefix = R(sid, "")
+    return [p for p in all_targets() if p.startswith(prefix)]
