@@ -45,25 +45,23 @@ REPO = Path(__file__).resolve().parents[1]
 SID = "tiny-bench"
 BENCH = {"id": SID, "width": 160, "height": 120, "hue_bands": 24, "repeats": 2, "frames": 4,
          "pixel_pitch_mm": 0.5, "period_px": 24}  # the demo scene at a quarter of the pixels, 4 frames
+# the repository's config.yaml, scaled down for the tiny session (new keys reach these tests too)
+_BASE: dict[str, Any] = yaml.safe_load((REPO / "config.yaml").read_text())
 CALIBRATION: dict[str, Any] = {
-    "min_saturation": 0.08, "min_intensity": 0.03, "plane_smooth_degree": 3,
+    **_BASE["calibration"],
     "compensation": {"projector_width": 64, "projector_height": 48, "period_px": 16,
                      "threshold_rad": 0.005, "max_iter": 5, "gain": 0.8},
 }  # fmt: skip
-MEASUREMENT: dict[str, Any] = {
-    "unwrap": "reference", "min_saturation": 0.08, "shadow_fraction": 0.12, "max_clipped_fraction": 0.05,
-    "min_valid_fraction": 0.05, "frames_per_job": 50, "denoise_radius": 2,
-}  # fmt: skip
+MEASUREMENT: dict[str, Any] = {**_BASE["measurement"], "frames_per_job": 50}
 CONFIG: dict[str, Any] = {
+    **{k: v for k, v in _BASE.items() if k != "table1"},
     "sessions": ["resources/tiny"],
     "bench_sessions": {"resources/tiny": "tiny.yaml"},
     "results_dir": "results",
-    "hue_model": "hexcone",
     "calibration": CALIBRATION,
     "measurement": MEASUREMENT,
-    "mesh": {"frames": "first", "decimate_faces": 0, "min_island_faces": 50},
+    "mesh": {**_BASE["mesh"], "frames": "first"},
     "render": {"frames": "first", "width": 64, "height": 64},
-    "metrology": {"edge_exclusion": 0.3333},
 }
 
 
@@ -375,9 +373,12 @@ def _metrology(session: Path, tiny_run: Path, heights: list[Path], out: Path) ->
     png = out / "figure.png"
     write_image(png, np.zeros((8, 8, 3), np.uint8))
     pipeline.metrology_report(
-        str(session), [str(h) for h in heights], [], str(tiny_run / "planes.json"),
-        str(tiny_run / "table_object.stats.json"), str(png), str(png), str(png), [], CONFIG,
-        str(out / "report.json"), str(out / "report.html"), str(out / "profile.png"), str(out / "per_frame.png"),
+        session=str(session), heights=[str(h) for h in heights],
+        qa=[str(tiny_run / "qa" / f"frame_{n:04d}.json") for n in range(len(heights))], baseline=[],
+        planes=str(tiny_run / "planes.json"), tables=str(tiny_run / "table_object.stats.json"),
+        cross_section=str(png), render=str(png), height_map=str(png), accuracy=[], config=CONFIG,
+        json=str(out / "report.json"), html=str(out / "report.html"), profile=str(out / "profile.png"),
+        per_frame=str(out / "per_frame.png"),
     )  # fmt: skip
 
 
