@@ -658,3 +658,15 @@ def test_outputs_get_umask_permissions_and_stale_parts_are_removed(tmp_path: Pat
         raise RuntimeError("killed")
     assert json.loads(target.read_text()) == {"a": 1}
     assert not list(target.parent.glob(".x.*"))
+
+
+def test_saturated_white_image_is_refused(session_copy: Path, tmp_path: Path) -> None:
+    white = session_copy / "object" / "white.png"
+    img = cv2.imread(str(white), cv2.IMREAD_UNCHANGED)
+    img[: img.shape[0] // 4] = 255  # a quarter of the sensor saturated
+    cv2.imwrite(str(white), img)
+    before = snapshot(session_copy)
+    with pytest.raises(CalibrationError, match=r"white\.png: .*clipped"):
+        build_tables(session_copy, tmp_path, which=("object",))
+    assert snapshot(session_copy) == before
+    assert not (tmp_path / "table_object.json").exists()

@@ -232,6 +232,8 @@ def check_session(session: str, summary: str) -> None:
 
 #: A hue table usable for fewer pixels than this is refused: the bands are not what they claim.
 MIN_TABLE_VALID_FRACTION = 0.2
+#: A white image with more clipped pixels than this is refused: white balance needs the true level.
+MAX_WHITE_CLIPPED_FRACTION = 0.01
 
 _TABLE_HINTS = {
     "low_signal": "the white image is too dark there (projector off, lens cap, exposure too short?)",
@@ -261,7 +263,14 @@ def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str
     """Build the per-pixel hue table of the reference plate or of the object (streamed)."""
     s = load_session(session)
     bands = s.reference_bands if which == "reference" else s.object_bands
-    white = read_rgb(s.reference_white if which == "reference" else s.object_white)
+    white_path = s.reference_white if which == "reference" else s.object_white
+    white = read_rgb(white_path)
+    clipped = float(clipped_mask(white, s.bit_depth).mean())
+    if clipped > MAX_WHITE_CLIPPED_FRACTION:
+        raise CalibrationError(
+            f"{white_path}: {100 * clipped:.1f} % of the pixels are clipped (sensor saturated; limit "
+            f"{100 * MAX_WHITE_CLIPPED_FRACTION:.0f} %): white balance needs the unclipped level; reduce the exposure"
+        )
     t0 = time.perf_counter()
     built = build_table(bands, white, model=hue_model, progress=False, **_calibration_opts(calibration))
     _refuse_bad_table(s.root / which / "hue", built.stats)
