@@ -75,7 +75,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from . import colour
-from .io import atomic_path, json_default
+from .io import atomic_path, json_default, write_figure_png
 from .patterns import TWO_PI, projector_image
 from .session import read_rgb
 
@@ -1054,9 +1054,7 @@ def hue_cross_section_figure(
     axes[-1].set_xlabel("image column u (px)")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    out = Path(out_png)
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=120, format="png")
+    out = write_figure_png(fig, out_png, dpi=120)
     plt.close(fig)
     return out
 
@@ -1083,9 +1081,7 @@ def residual_map_figure(residual: NDArray[np.floating], out_png: str | os.PathLi
     ax.set_xlabel("u (px)")
     ax.set_ylabel("v (px)")
     fig.tight_layout()
-    out = Path(out_png)
-    with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=110, format="png")
+    out = write_figure_png(fig, out_png, dpi=110)
     plt.close(fig)
     return out
 

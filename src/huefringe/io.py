@@ -90,6 +90,15 @@ def json_default(o: Any) -> Any:
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
+def write_figure_png(fig: Any, path: str | os.PathLike[str], dpi: float | None = None) -> Path:
+    """Save a Matplotlib figure as PNG, atomically and without the library-version metadata
+    (so the same figure gives the same bytes across Matplotlib releases)."""
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png", dpi=dpi if dpi is not None else "figure", metadata={"Software": None})
+    return path
+
+
 def write_png_rgb(path: str | os.PathLike[str], rgb: np.ndarray) -> None:
     """Write an RGB ``uint8``/``uint16`` array as PNG (OpenCV stores BGR), atomically."""
     if rgb.dtype not in (np.uint8, np.uint16):

@@ -47,7 +47,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from numpy.typing import ArrayLike
 
-from huefringe.io import atomic_path, write_png_rgb
+from huefringe.io import write_figure_png, write_png_rgb
 
 if TYPE_CHECKING:
     import trimesh
@@ -422,10 +422,7 @@ def _new_figure(figsize: tuple[float, float]) -> Figure:
 
 
 def _save_figure(fig: Figure, out_png: str | os.PathLike[str], dpi: int) -> Path:
-    out_png = Path(out_png)
-    with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, format="png", dpi=dpi, metadata={"Software": None})
-    return out_png
+    return write_figure_png(fig, out_png, dpi)
 
 
 def _image_extent(shape: tuple[int, ...], pitch_mm: float | None) -> tuple[float, float, float, float]:

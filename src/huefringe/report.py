@@ -46,7 +46,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 
-from huefringe.io import atomic_path
+from huefringe.io import atomic_path, write_figure_png
 
 __all__ = [
     "BASELINE_METHOD",
@@ -338,9 +338,7 @@ def per_frame_figure(report: Mapping[str, Any], out_png: str | os.PathLike[str])
         ax.ticklabel_format(axis="y", useOffset=False)
     axes.ravel()[0].legend(fontsize=7, loc="best")
     fig.suptitle(f"Session {report.get('session', '')}: per-frame step heights", fontsize=11)
-    with atomic_path(out_png) as tmp:
-        fig.savefig(tmp, format="png", metadata={"Software": None})
-    return Path(out_png)
+    return write_figure_png(fig, out_png)
 
 
 # --------------------------------------------------------------------------------------------

@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from huefringe.io import atomic_path
+from huefringe.io import atomic_path, write_figure_png
 
 __all__ = [
     "CSV_COLUMNS",
@@ -211,8 +211,7 @@ def _figure(rows: list[dict[str, Any]], png_path: str | os.PathLike[str]) -> Non
     axes[0].legend(fontsize=8)
     step = rows[0]["step"] if rows else ""
     fig.suptitle(f"Table 1: {step} gauge block {rows[0]['nominal_mm'] if rows else PAPER_NOMINAL_MM:g} mm, ours vs. paper", fontsize=11)
-    with atomic_path(png_path) as tmp:
-        fig.savefig(tmp, format="png", metadata={"Software": None})
+    write_figure_png(fig, png_path)
 
 
 def write_table1(
