@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from huefringe import bench
 from huefringe.session import SessionError, load_session
 
 
@@ -55,28 +56,20 @@ def _from_session(path: Path) -> SessionPlan:
     )
 
 
-def bench_config_for(bench_ref: str, base: str | Path = ".", period_px: float | None = None) -> dict[str, Any]:
-    """The bench configuration of a preset name or YAML path, optionally at another period.
-
-    At another period the session id gets the suffix ``-p<period>`` (as the bench's period sweep).
-    """
-    from huefringe import bench
-
+def bench_yaml(bench_ref: str, base: str | Path = ".") -> Path:
+    """The bench YAML a config names: a path (``.yaml``/``.yml``, relative to ``base``) or a preset."""
     ref = Path(base) / bench_ref
-    cfg_path = ref if ref.suffix in (".yaml", ".yml") else bench.preset_path(bench_ref)
-    cfg = bench.load_bench_config(cfg_path)
-    if period_px is not None:
-        cfg["session"]["period_px"] = period_px
-        cfg["session"]["id"] = f"{cfg['session']['id']}-p{period_px:g}".replace(".", "-")
-    return cfg
+    return ref if ref.suffix in (".yaml", ".yml") else bench.preset_path(bench_ref)
 
 
-def _from_bench(path: Path, bench_ref: str, base: Path, period_px: float | None = None) -> SessionPlan:
-    from huefringe import bench
+def bench_config_for(bench_ref: str, base: str | Path = ".", period_px: float | None = None) -> dict[str, Any]:
+    """The bench configuration of a preset name or YAML path, optionally at another period
+    (:func:`huefringe.bench.sweep_config`: the session id gets the suffix ``-p<period>``)."""
+    cfg = bench.load_bench_config(bench_yaml(bench_ref, base))
+    return cfg if period_px is None else bench.sweep_config(cfg, period_px)
 
-    ref = base / bench_ref
-    cfg_path = ref if ref.suffix in (".yaml", ".yml") else bench.preset_path(bench_ref)
-    cfg = bench_config_for(bench_ref, base, period_px)
+
+def _from_bench(path: Path, cfg: dict[str, Any], cfg_path: Path, period_px: float | None = None) -> SessionPlan:
     frames = list(range(int(cfg["session"]["frames"])))
     return SessionPlan(
         path=path,
@@ -88,12 +81,6 @@ def _from_bench(path: Path, bench_ref: str, base: Path, period_px: float | None 
         bench=str(cfg_path),
         period_px=period_px,
     )
-
-
-def bench_error() -> type[Exception]:
-    from huefringe.bench import BenchConfigError
-
-    return BenchConfigError
 
 
 def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, SessionPlan]:
@@ -116,10 +103,11 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, S
                 plan = _from_session(full)
                 plan.path = path
             else:
-                plan = _from_bench(path, bench_sessions[str(path)], base)
+                ref = bench_sessions[str(path)]
+                plan = _from_bench(path, bench_config_for(ref, base), bench_yaml(ref, base))
         except SessionError as exc:
             raise PlanError(f"session {entry} is refused:\n{exc}") from exc
-        except bench_error() as exc:
+        except bench.BenchConfigError as exc:
             raise PlanError(f"session {entry} cannot be written by the bench:\n{exc}") from exc
         _add(plans, plan, per_job)
     return plans
@@ -155,7 +143,7 @@ def plan_table1(config: dict[str, Any], plans: dict[str, SessionPlan], base: str
                 raise PlanError(f"Table 1 session {path} is refused:\n{exc}") from exc
             plan.path = path
         else:
-            plan = _from_bench(path, t1["bench"], base, float(period))
+            plan = _from_bench(path, cfg, bench_yaml(t1["bench"], base), float(period))
         _add(plans, plan, int(config["measurement"]["frames_per_job"]))
         ids.append(plan.id)
     return ids

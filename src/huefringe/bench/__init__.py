@@ -42,7 +42,7 @@ from .geometry import (
 from .radiometry import Pattern, Rig, camera_response, dmd_levels, emitted_rgb
 from .scenes import build_scene
 from .simulator import Bench, noise_rng, simulate_capture
-from .writer import period_sweep, rig_summary, session_document, write_session
+from .writer import period_sweep, rig_summary, session_document, sweep_config, write_session
 
 __all__ = [
     "Bench",
@@ -63,6 +63,7 @@ __all__ = [
     "load_bench_config",
     "noise_rng",
     "period_sweep",
+    "sweep_config",
     "preset_path",
     "projector_ray_x0",
     "rig_summary",

@@ -411,9 +411,15 @@ def period_sweep(
     base = validate_bench_config(config)
     out = []
     for p in periods:
-        cfg = copy.deepcopy(base)
-        cfg["session"]["period_px"] = p
-        tag = f"{p:g}".replace(".", "-")
-        cfg["session"]["id"] = f"{base['session']['id']}-p{tag}"
+        cfg = sweep_config(base, p)
         out.append(write_session(cfg, Path(out_root) / cfg["session"]["id"], progress=progress))
     return out
+
+
+def sweep_config(config: dict[str, Any], period_px: float) -> dict[str, Any]:
+    """A copy of a validated configuration at another fringe period, id suffixed ``-p<period>``."""
+    cfg = copy.deepcopy(config)
+    cfg["session"]["period_px"] = period_px
+    tag = f"{period_px:g}".replace(".", "-")
+    cfg["session"]["id"] = f"{config['session']['id']}-p{tag}"
+    return cfg
