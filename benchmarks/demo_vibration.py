@@ -29,7 +29,6 @@ def main() -> None:
     ap.add_argument("--amplitudes", type=float, nargs="+", default=[0.0, 0.03, 0.1])
     args = ap.parse_args()
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    cal, meas, model = cfg["calibration"], cfg["measurement"], cfg["hue_model"]
     with tempfile.TemporaryDirectory() as tmp:
         for amp in args.amplitudes:
             b = copy.deepcopy(bench.load_bench_config(bench.preset_path("demo")))
@@ -37,23 +36,11 @@ def main() -> None:
             b["vibration"]["amplitude_mm"] = amp
             root = Path(tmp) / f"a{amp:g}"
             session = bench.write_session(b, root / "session")
-            out = root / "out"
-            out.mkdir()
-            for which in ("reference", "object"):
-                pipeline.hue_table(str(session), which, model, cal, table=str(out / f"t_{which}.json"),
-                                   stats=str(out / f"t_{which}.stats.json"))
-            pipeline.plane_calibration(str(session), str(out / "t_reference.json"), model, cal,
-                                       model=str(out / "m.npz"), stats=str(out / "planes.json"))
-            s = pipeline.load_session(session)
+            p = pipeline.measure_session(session, root / "out", cfg, baseline=True)
+            s = p["session"]
             n = s.frame_ids
-            p = {k: [str(out / k / f"{i}.{e}") for i in n]
-                 for k, e in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"))}
-            pipeline.measure_frames(str(session), n, str(out / "t_object.json"), str(out / "m.npz"), model, meas, cal, **p)
-            bl = [str(out / "bl" / f"{i}.tiff") for i in n]
-            pipeline.baseline_frames(str(session), n, str(out / "m.npz"), str(out / "t_object.json"), meas,
-                                     heights=bl, qa=[str(out / "bl" / f"{i}.json") for i in n])
             print(f"\nvibration amplitude {amp:g} mm at {b['vibration']['frequency_hz']:g} Hz, {len(n)} frames")
-            for name, paths in (("trapezoidal-hsi", p["heights"]), ("three-step", bl)):
+            for name, paths in (("trapezoidal-hsi", p["heights"]), ("three-step", p["baseline"])):
                 maps = [tifffile.imread(x) for x in paths]
                 acc = [accuracy(h, tifffile.imread(s.ground_truth[i])) for h, i in zip(maps, n, strict=True)]
                 med = np.mean([a["median_abs_mm"] for a in acc])

@@ -25,21 +25,11 @@ from huefringe.height import accuracy
 REPO = Path(__file__).resolve().parents[1]
 
 
-def run(preset: str, model: str, session: Path, out: Path, cfg: dict) -> dict:
-    cal = cfg["calibration"]
-    out.mkdir(parents=True, exist_ok=True)
-    for which in ("reference", "object"):
-        pipeline.hue_table(str(session), which, model, cal, table=str(out / f"t_{which}.json"),
-                           stats=str(out / f"t_{which}.stats.json"))
-    pipeline.plane_calibration(str(session), str(out / "t_reference.json"), model, cal, model=str(out / "m.npz"),
-                               stats=str(out / "planes.json"))
-    s = pipeline.load_session(session)
-    n = s.frame_ids
-    paths = {k: [str(out / k / f"{i}.{e}") for i in n]
-             for k, e in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"))}
-    pipeline.measure_frames(str(session), n, str(out / "t_object.json"), str(out / "m.npz"), model,
-                            cfg["measurement"], cal, **paths)
-    accs = [accuracy(tifffile.imread(p), tifffile.imread(s.ground_truth[i])) for i, p in zip(n, paths["heights"], strict=True)]
+def run(model: str, session: Path, out: Path, cfg: dict) -> dict:
+    p = pipeline.measure_session(session, out, {**cfg, "hue_model": model})
+    s = p["session"]
+    accs = [accuracy(tifffile.imread(h), tifffile.imread(s.ground_truth[i]))
+            for i, h in zip(s.frame_ids, p["heights"], strict=True)]
     return {k: float(np.mean([a[k] for a in accs])) for k in ("median_abs_mm", "p95_abs_mm", "rms_mm", "coverage")}
 
 
@@ -55,7 +45,7 @@ def main() -> None:
             bcfg["session"]["frames"] = args.frames
             session = bench.write_session(bcfg, Path(tmp) / preset)
             for model in ("hexcone", "hsi"):
-                r = run(preset, model, session, Path(tmp) / f"{preset}-{model}", cfg)
+                r = run(model, session, Path(tmp) / f"{preset}-{model}", cfg)
                 print(f"{preset:8} {model:9} {r['median_abs_mm']:13.4f} {r['p95_abs_mm']:10.4f} {r['rms_mm']:8.4f} {r['coverage']:8.3f}")
 
 

@@ -461,6 +461,40 @@ def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str
     write_json(report, out)
 
 
+def measure_session(session: str | Path, out: str | Path, config: Mapping[str, Any], *,
+                    frames: Sequence[int] | None = None, baseline: bool = False) -> dict[str, Any]:
+    """Tables, plane calibration and height maps of a session into ``out``, without Snakemake.
+
+    The same stages, in the same order, as the workflow's ``hue_table``, ``plane_calibration``,
+    ``measure_*`` (and ``baseline_*``) jobs; for scripts, benchmarks and tests. Returns the
+    output paths by kind (``heights``, ``clouds``, ``phases``, ``hues``, ``qa``, optionally
+    ``baseline``) and the loaded ``session``.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    s = load_session(session)
+    frames = s.frame_ids if frames is None else list(frames)
+    model, cal = config["hue_model"], config["calibration"]
+    for which in ("reference", "object"):
+        hue_table(str(session), which, model, cal, table=str(out / f"table_{which}.json"),
+                  stats=str(out / f"table_{which}.stats.json"))
+    plane_calibration(str(session), str(out / "table_reference.json"), model, cal,
+                      model=str(out / "model.npz"), stats=str(out / "planes.json"))
+    paths: dict[str, Any] = {
+        k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
+        for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"))
+    }
+    measure_frames(str(session), frames, str(out / "table_object.json"), str(out / "model.npz"), model,
+                   config["measurement"], cal, **paths)
+    if baseline:
+        paths["baseline"] = [str(out / "baseline" / f"frame_{n:04d}.tiff") for n in frames]
+        baseline_frames(str(session), frames, str(out / "model.npz"), str(out / "table_object.json"),
+                        config["measurement"], heights=paths["baseline"],
+                        qa=[str(out / "baseline" / f"frame_{n:04d}.json") for n in frames])
+    paths["session"] = s
+    return paths
+
+
 # --------------------------------------------------------------------------- surfaces and reports
 
 
