@@ -9,6 +9,7 @@ from __future__ import annotations
 import functools
 import tracemalloc
 import weakref
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -173,6 +174,41 @@ def test_forward_and_inverse_tables_are_consistent():
     # where the table slope is tiny (flat gamma stretches) many codes share a hue: compare hues
     assert np.max(np.abs(circ(tab.from_phase(back)[ok], h[ok]))) < 2e-4
     assert np.median(np.abs(circ(back[ok], c[ok]))) < 1e-3
+
+
+def test_hue_slope_is_the_slope_of_the_bracketing_band():
+    _, _, tab = built("gamma2.2")
+    rng = np.random.default_rng(4)
+    c = rng.uniform(0, TWO_PI, tab.shape)
+    hue = tab.from_phase(c)
+    slope = tab.hue_slope(hue)
+    ok = tab.valid & np.isfinite(hue)
+    assert np.isnan(slope[~tab.valid]).all()
+    # a central difference of the forward table within the band gives the same slope
+    band = TWO_PI / tab.n_bands
+    b = np.floor(tab.to_phase(hue).astype(np.float64) / band)
+    mid = (b + 0.5) * band
+    fd = circ(tab.from_phase(np.mod(mid + 0.25 * band, TWO_PI)).astype(np.float64),
+              tab.from_phase(np.mod(mid - 0.25 * band, TWO_PI))) / (0.5 * band)
+    assert np.median(np.abs(slope[ok] - fd[ok])) < 0.01
+    # gamma 2.2 bends the hue: slopes well away from 1 on both sides, mean about 1 (one turn)
+    assert np.percentile(slope[ok], 5) < 0.7 and np.percentile(slope[ok], 95) > 1.3
+    assert abs(np.mean(slope[ok]) - 1.0) < 0.1
+
+
+def test_decode_slope_is_the_slope_of_the_decode_segment():
+    from huefringe.session import Predistortion
+
+    code = TWO_PI * np.arange(64) / 64
+    emitted = code + 0.3 * np.sin(code)  # d emitted / d code = 1 + 0.3 cos(code)
+    pd = Predistortion(path=Path("predistortion.csv"), code=code, emitted=emitted)
+    e = np.linspace(-1.0, 8.0, 997)
+    fd = circ(pd.decode(e + 1e-4).astype(np.float64), pd.decode(e - 1e-4)) / 2e-4
+    slope = pd.decode_slope(e)
+    inside = np.abs(slope - fd) < 1e-2  # central differences straddle a knot at a few points
+    assert inside.mean() > 0.97
+    c = pd.decode(e).astype(np.float64)
+    assert np.max(np.abs(slope - 1.0 / (1.0 + 0.3 * np.cos(c)))) < 0.02
 
 
 def test_tables_are_circularly_sorted_from_start():

@@ -325,8 +325,11 @@ def _finalise_kernel(table, sigma, reason, start, coef, max_noise, max_gap, orde
 
 
 @numba.njit(cache=True, parallel=False)
-def _to_phase_kernel(table, start, valid, hue, out):  # pragma: no cover - numba
-    """Inverse lookup: binary search of each pixel's hue in its rotated sorted table column."""
+def _to_phase_kernel(table, start, valid, hue, out, out_slope):  # pragma: no cover - numba
+    """Inverse lookup: binary search of each pixel's hue in its rotated sorted table column.
+
+    ``out_slope`` (or None): the slope d(hue)/d(code phase) of the bracketing band.
+    """
     n, h, w = table.shape
     two_pi = 2.0 * np.pi
     scale = 65536.0 / two_pi
@@ -337,6 +340,8 @@ def _to_phase_kernel(table, start, valid, hue, out):  # pragma: no cover - numba
             x = hue[v, u]
             if not valid[v, u] or not math.isfinite(x):
                 out[v, u] = np.nan
+                if out_slope is not None:
+                    out_slope[v, u] = np.nan
                 continue
             hq = (np.float64(x) * scale) % 65536.0  # float modulo; math.floor gives an int64 (overflows)
             if hq >= 65536.0:  # -tiny % 65536 rounds to 65536
@@ -370,6 +375,8 @@ def _to_phase_kernel(table, start, valid, hue, out):  # pragma: no cover - numba
                     if k >= n:
                         k -= n
                     hi_val = np.float64(table[k, v, u])
+            if out_slope is not None:
+                out_slope[v, u] = (hi_val - lo_val) * n / 65536.0
             c = (b + (hq - lo_val) / (hi_val - lo_val)) * step
             if c >= two_pi:
                 c -= two_pi
@@ -456,11 +463,26 @@ class HueTable:
             raise ValueError(f"hue has shape {hue.shape}, table expects {self.shape}")
         if method == "numba":
             out = np.empty(self.shape, dtype=np.float32)
-            _to_phase_kernel(np.asarray(self.table), self.start, self.valid, np.ascontiguousarray(hue), out)
+            _to_phase_kernel(np.asarray(self.table), self.start, self.valid, np.ascontiguousarray(hue), out, None)
             return out
         if method == "numpy":
             return _to_phase_numpy(np.asarray(self.table), self.start, self.valid, hue)
         raise ValueError(f"unknown method {method!r}")
+
+    def hue_slope(self, hue: NDArray[np.floating]) -> NDArray[np.float64]:
+        """Local slope d(captured hue)/d(code phase) of each pixel's table at ``hue``.
+
+        The slope of the band that brackets ``hue`` in the inverse lookup of :meth:`to_phase`
+        (its hue step over the band width ``2 pi / N``): 1 for an undistorted table, below 1
+        where projector gamma flattens the captured hue. NaN where :meth:`to_phase` is NaN.
+        """
+        hue = np.asarray(hue)
+        if hue.shape != self.shape:
+            raise ValueError(f"hue has shape {hue.shape}, table expects {self.shape}")
+        phase = np.empty(self.shape, dtype=np.float32)
+        slope = np.empty(self.shape, dtype=np.float64)
+        _to_phase_kernel(np.asarray(self.table), self.start, self.valid, np.ascontiguousarray(hue), phase, slope)
+        return slope
 
     def from_phase(self, phase: NDArray[np.floating]) -> NDArray[np.float32]:
         """Forward table: expected captured hue at each pixel for a projected code ``phase``.

@@ -475,31 +475,6 @@ def _interp(bb, hq, lo_val, hi_val, n):  # pragma: no cover - numba
     return r
 
 
-@numba.njit(cache=True, inline="always", error_model="numpy")
-def _forward_pos(phase64, n):  # pragma: no cover - numba
-    """``HueTable.from_phase``, first half: band index and fraction of a phase."""
-    two_pi = 2.0 * np.pi
-    ph = _mod(phase64, two_pi)  # np.mod: float32(2 pi) > 2 pi, so wrap again
-    pos = ph * (n / two_pi)
-    bi = int(math.floor(pos))
-    if bi > n - 1:
-        bi = n - 1
-    return bi, pos - bi
-
-
-@numba.njit(cache=True, inline="always", error_model="numpy")
-def _forward_val(lo, hi, frac):  # pragma: no cover - numba
-    """``HueTable.from_phase``, second half: hue between the band's entry and the next one."""
-    two_pi = 2.0 * np.pi
-    step = hi - lo
-    step = step - 65536.0 * math.floor(step / 65536.0)
-    y = (lo + frac * step) * (two_pi / 65536.0)
-    r = np.float32(_mod(y, two_pi))
-    if r >= np.float32(two_pi):
-        r = np.float32(0.0)
-    return r
-
-
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles_x, n, start, phi_ref, a, b, noise,
                   atan, min_sat, use_min_sat, floor_slope, chunk, pd_e, pd_c, pd_s, pd_index, out_h, out_valid,
@@ -526,7 +501,6 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     k3 = np.float32(math.sqrt(3.0) / 2.0)
     half = np.float32(0.5)
     to_counts = 65536.0 / two_pi
-    delta64 = np.pi / n
     nan32 = np.float32(np.nan)
     row_hq = np.empty(w, dtype=np.float64)
     row_g = np.empty(w, dtype=np.int64)  # guessed line; -1 = pixel invalid
@@ -667,68 +641,49 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                         hi_val = np.float64(cols[np.uint64(op + 1)])  # same line (lines overlap)
                 emitted = _interp(bb, hq, lo_val, hi_val, n)
                 phase = emitted
-                pd_hi = np.float32(0.0)
-                pd_lo = np.float32(0.0)
+                pd_slope = 1.0
                 if pd_e is not None:
-                    # Predistortion.decode of the emitted phase (and, for the denoise weights, of
-                    # emitted +- 1e-3: decode_slope), bit for bit: np.interp on the extended
-                    # samples (same bracketing and slope formula), np.mod, float32. Written out
-                    # here, not in a helper: a helper taking arrays costs reference counting.
-                    e64 = np.float64(emitted)
-                    for q in range(1 if out_sigma is None else 3):
-                        xq = e64 if q == 0 else (e64 + 1e-3 if q == 1 else e64 - 1e-3)
-                        x = _mod(xq - pd_e0, two_pi) + pd_e0
-                        if x > pd_e[pd_last]:
-                            y = pd_c[pd_last]
-                        elif x < pd_e[0]:
-                            y = pd_c[0]
+                    # Predistortion.decode of the emitted phase, bit for bit: np.interp on the
+                    # extended samples (same bracketing and slope formula), np.mod, float32; and
+                    # for the denoise weights decode_slope, the slope of the bracketing segment.
+                    # Written out here, not in a helper: a helper taking arrays costs reference
+                    # counting.
+                    x = _mod(np.float64(emitted) - pd_e0, two_pi) + pd_e0
+                    if x > pd_e[pd_last]:
+                        y = pd_c[pd_last]
+                        pd_slope = pd_s[pd_last - 1]
+                    elif x < pd_e[0]:
+                        y = pd_c[0]
+                        pd_slope = pd_s[0]
+                    else:
+                        kb = min(max(int((x - pd_e0) * pd_scale), 0), pd_nb - 1)
+                        jp = np.int64(pd_index[kb])
+                        while jp > 0 and pd_e[jp] > x:
+                            jp -= 1
+                        while jp < pd_last and pd_e[jp + 1] <= x:
+                            jp += 1
+                        pd_slope = pd_s[jp if jp < pd_last else pd_last - 1]
+                        if jp == pd_last or pd_e[jp] == x:
+                            y = pd_c[jp]
                         else:
-                            kb = min(max(int((x - pd_e0) * pd_scale), 0), pd_nb - 1)
-                            jp = np.int64(pd_index[kb])
-                            while jp > 0 and pd_e[jp] > x:
-                                jp -= 1
-                            while jp < pd_last and pd_e[jp + 1] <= x:
-                                jp += 1
-                            if jp == pd_last or pd_e[jp] == x:
-                                y = pd_c[jp]
-                            else:
-                                sl = pd_s[jp]
-                                y = sl * (x - pd_e[jp]) + pd_c[jp]
-                                if y != y:
-                                    y = sl * (x - pd_e[jp + 1]) + pd_c[jp + 1]
-                                    if y != y and pd_c[jp] == pd_c[jp + 1]:
-                                        y = pd_c[jp]
-                        res = np.float32(_mod(y, two_pi))
-                        if q == 0:
-                            phase = res
-                        elif q == 1:
-                            pd_hi = res
-                        else:
-                            pd_lo = res
+                            sl = pd_s[jp]
+                            y = sl * (x - pd_e[jp]) + pd_c[jp]
+                            if y != y:
+                                y = sl * (x - pd_e[jp + 1]) + pd_c[jp + 1]
+                                if y != y and pd_c[jp] == pd_c[jp + 1]:
+                                    y = pd_c[jp]
+                    phase = np.float32(_mod(y, two_pi))
                 d = np.float64(phase) - np.float64(phi_ref[v, u])
                 dphi = np.float32(pi - _mod(pi - d, two_pi))  # phase.wrap
                 if out_phase is not None:
                     out_phase[v, u] = phase
                 if out_sigma is not None:
-                    # pipeline.phase_sigma: slope of the forward table over +-pi/N around the
-                    # (emitted) phase
-                    dl = np.float32(delta64)
-                    bi, fr = _forward_pos(np.float64(_mod(np.float32(emitted + dl), two_pi_f32)), n)
-                    jj = bi - s0 if bi >= s0 else bi - s0 + n
-                    oj = o + _phys(jj)
-                    y_hi = _forward_val(np.float64(cols[np.uint64(oj)]),
-                                        np.float64(cols[np.uint64(oj + 1 if jj < n - 1 else o)]), fr)
-                    bi, fr = _forward_pos(np.float64(_mod(np.float32(emitted - dl), two_pi_f32)), n)
-                    jj = bi - s0 if bi >= s0 else bi - s0 + n
-                    oj = o + _phys(jj)
-                    y_lo = _forward_val(np.float64(cols[np.uint64(oj)]),
-                                        np.float64(cols[np.uint64(oj + 1 if jj < n - 1 else o)]), fr)
-                    dh = np.float64(y_hi) - np.float64(y_lo)
-                    slope = (pi - _mod(pi - dh, two_pi)) / (2 * delta64)
+                    # pipeline.phase_sigma with HueTable.hue_slope: the slope of the bracketing
+                    # band, times |Predistortion.decode_slope|
+                    slope = (hi_val - lo_val) * n / 65536.0
                     sig = noise[v, u] / max(slope, floor_slope)
-                    if pd_e is not None:  # times |Predistortion.decode_slope(emitted)|
-                        dd = np.float64(pd_hi) - np.float64(pd_lo)
-                        sig = sig * abs((_mod(dd + pi, two_pi) - pi) / (2.0 * 1e-3))
+                    if pd_e is not None:
+                        sig = sig * abs(pd_slope)
                     out_sigma[v, u] = sig
                     out_dphi[v, u] = dphi
                     out_valid[v, u] = True

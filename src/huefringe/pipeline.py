@@ -117,7 +117,7 @@ def measure_frame(
     dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
     un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
     if denoise_radius > 0:
-        sigma = phase_sigma(table, emitted)
+        sigma = phase_sigma(table, table.hue_slope(hue))
         if predistortion is not None:
             sigma = sigma * np.abs(predistortion.decode_slope(emitted))
         un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius)
@@ -162,16 +162,14 @@ def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Ma
     }
 
 
-def phase_sigma(table: HueTable, phase: NDArray[np.floating], floor_slope: float = 0.05) -> NDArray[np.float64]:
+def phase_sigma(table: HueTable, slope: NDArray[np.floating], floor_slope: float = 0.05) -> NDArray[np.float64]:
     """Per-pixel standard deviation (rad) of the code phase decoded from one capture.
 
     ``sigma_hue / slope``: the hue noise of one capture (the standard error of the bands' mean
-    times sqrt(repeats)) over the local slope d(captured hue)/d(code phase) of the pixel's table.
+    times sqrt(repeats)) over the local slope d(captured hue)/d(code phase) of the pixel's table
+    (:meth:`HueTable.hue_slope` at the captured hue), floored at ``floor_slope``.
     """
-    delta = np.pi / table.n_bands
-    p = np.where(np.isfinite(phase), phase, 0.0)
-    slope = wrap(table.from_phase(np.mod(p + delta, TWO_PI)).astype(np.float64)
-                 - table.from_phase(np.mod(p - delta, TWO_PI))) / (2 * delta)
+    slope = np.where(np.isfinite(slope), slope, 1.0)
     repeats = int(table.stats.get("repeats", 1) or 1)
     noise = np.asarray(table.noise_rad, np.float64) * np.sqrt(repeats)
     fallback = float(np.nanmedian(noise)) if np.isfinite(noise).any() else 0.01

@@ -157,12 +157,16 @@ class Predistortion:
         x = np.mod(np.asarray(emitted_phase, np.float64) - self.emitted[0], two_pi) + self.emitted[0]
         return np.mod(np.interp(x, e, c), two_pi).astype(np.float32)
 
-    def decode_slope(self, emitted_phase: np.ndarray, step: float = 1e-3) -> np.ndarray:
-        """``d decode / d emitted`` at each emitted phase (scales phase uncertainties)."""
-        e = np.asarray(emitted_phase, np.float64)
-        hi = self.decode(e + step).astype(np.float64)
-        lo = self.decode(e - step).astype(np.float64)
-        return (np.mod(hi - lo + np.pi, 2.0 * np.pi) - np.pi) / (2.0 * step)
+    def decode_slope(self, emitted_phase: np.ndarray) -> np.ndarray:
+        """``d decode / d emitted`` at each emitted phase: the slope of the piecewise-linear
+        segment :meth:`decode` interpolates on (scales phase uncertainties)."""
+        two_pi = 2.0 * np.pi
+        e = np.concatenate([self.emitted - two_pi, self.emitted, self.emitted + two_pi])
+        c = np.concatenate([self.code - two_pi, self.code, self.code + two_pi])
+        x = np.mod(np.asarray(emitted_phase, np.float64) - self.emitted[0], two_pi) + self.emitted[0]
+        j = np.clip(np.searchsorted(e, x, side="right") - 1, 0, e.size - 2)
+        slopes = (c[1:] - c[:-1]) / (e[1:] - e[:-1])
+        return np.where(np.isfinite(x), slopes[j], np.nan)
 
 
 def read_predistortion(path: str | Path) -> Predistortion:
