@@ -15,8 +15,9 @@ Steps (each timed):
    tables, plane calibration) in a workflow folder of its own (``--directory``) with a config file
    listing the session.
 3. ``heights``  ``snakemake --cores N`` with the height maps of every frame as explicit targets
-   (the measurement rule also writes phase and hue maps, a point cloud and a QA file per frame:
-   that is the workflow as it stands). frames/s = frames / wall time of this step.
+   (the measurement rule also writes phase and hue maps and a QA file per frame: that is the
+   workflow as it stands; the point clouds are ``cloud_*`` jobs of their own, made from the
+   height maps, so they are not part of this step). frames/s = frames / wall time of this step.
    The measurement jobs use the fused kernel (``measurement.kernel: true``, the default).
 
 Peak memory: the largest sum of the resident set sizes of the process tree (sampled every 0.1 s

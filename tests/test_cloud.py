@@ -70,3 +70,36 @@ def test_empty_cloud_is_a_valid_ply(tmp_path):
     assert b"element vertex 0" in out.read_bytes()
     with pytest.raises(ValueError):
         cloud.write_cloud(tmp_path / "e.pcd", pcd)
+
+
+def test_cloud_frames_stage_writes_the_clouds_of_a_batch_from_its_height_maps(tmp_path):
+    """pipeline.cloud_frames (the workflow's cloud_* jobs): the same PLY bytes as building the cloud
+    from the in-memory height map with the session's white image, one file per frame."""
+    from session_factory import make_session
+
+    from huefringe import pipeline
+    from huefringe.io import write_tiff
+    from huefringe.session import load_session, read_rgb
+
+    root = make_session(tmp_path / "s", frames=3)
+    s = load_session(root)
+    rng = np.random.default_rng(4)
+    frames = [0, 2]
+    heights, clouds, maps = [], [], []
+    for n in frames:
+        h = rng.normal(1.0, 0.3, (s.height, s.width)).astype(np.float32)
+        h[rng.random(h.shape) < 0.1] = np.nan
+        heights.append(str(tmp_path / "height" / f"frame_{n:04d}.tiff"))
+        clouds.append(str(tmp_path / "cloud" / f"frame_{n:04d}.ply"))
+        write_tiff(heights[-1], h)
+        maps.append(h)
+    pipeline.cloud_frames(str(root), frames, heights, clouds)
+    white = read_rgb(s.object_white)
+    for h, path in zip(maps, clouds, strict=True):
+        direct = cloud.write_cloud(tmp_path / "direct.ply", cloud.height_to_cloud(h, s.pixel_pitch_mm, colours=white))
+        with open(path, "rb") as f:
+            assert f.read() == direct.read_bytes()
+        assert len(o3d.io.read_point_cloud(path).points) == np.isfinite(h).sum()
+    assert sorted(p.name for p in (tmp_path / "cloud").iterdir()) == ["frame_0000.ply", "frame_0002.ply"]
+    with pytest.raises(ValueError):
+        pipeline.cloud_frames(str(root), frames, heights[:1], clouds)

@@ -92,7 +92,6 @@ def known_defect(condition: bool, what: str) -> None:
 def stage_paths(out: Path, frames: list[int]) -> dict[str, list[str]]:
     return {
         "heights": [str(out / "height" / f"frame_{n:04d}.tiff") for n in frames],
-        "clouds": [str(out / "cloud" / f"frame_{n:04d}.ply") for n in frames],
         "phases": [str(out / "phase" / f"frame_{n:04d}.tiff") for n in frames],
         "hues": [str(out / "hue" / f"frame_{n:04d}.tiff") for n in frames],
         "qa": [str(out / "qa" / f"frame_{n:04d}.json") for n in frames],

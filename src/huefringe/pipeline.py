@@ -352,16 +352,18 @@ def compensation(session: str, table: str, model: str, hue_model: str, calibrati
 
 def measure_frames(session: str, frames: Sequence[int], table: str, model: str, hue_model: str,
                    measurement: Mapping[str, Any], calibration: Mapping[str, Any],
-                   heights: Sequence[str], clouds: Sequence[str], phases: Sequence[str],
-                   hues: Sequence[str], qa: Sequence[str]) -> None:
-    """Measure a batch of frames: height TIFF, coloured point cloud, phase and hue maps, QA.
+                   heights: Sequence[str], phases: Sequence[str], hues: Sequence[str],
+                   qa: Sequence[str]) -> None:
+    """Measure a batch of frames: height TIFF, phase and hue maps, QA.
+
+    The coloured point clouds are written from the height TIFFs by :func:`cloud_frames`, a stage
+    (and workflow job) of its own.
 
     With ``measurement.kernel`` (and reference-relative unwrapping) each frame goes through the
     fused kernel (:mod:`huefringe.kernel`), prepared once per batch; it gives the same numbers as
     :func:`measure_frame`, the reference implementation used otherwise.
     """
     from huefringe import kernel
-    from huefringe.cloud import height_to_cloud, write_cloud
 
     s = load_session(session)
     t = HueTable.load(table)
@@ -395,10 +397,43 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         write_tiff(heights[i], res.height)
         write_tiff(phases[i], res.phase)
         write_tiff(hues[i], res.hue)
-        write_cloud(clouds[i], height_to_cloud(res.height, s.pixel_pitch_mm, colours=white))
         write_json(qa[i], {"frame": n, "file": str(path), **res.stats})
         log.info("frame %04d: %.1f %% valid, median %.3f mm", n, 100 * res.stats["valid_fraction"],
                  res.stats["median_height_mm"] or float("nan"))
+
+
+def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], clouds: Sequence[str]) -> None:
+    """Coloured point clouds of a batch of measured frames, from their height TIFFs.
+
+    Parameters
+    ----------
+    session : str
+        Session folder; gives the pixel pitch and the object's white image (the colours, read
+        once per batch).
+    frames : sequence of int
+        Frame numbers of the batch (for the log only).
+    heights : sequence of str
+        Height TIFFs written by :func:`measure_frames`, one per frame, in the order of ``frames``.
+    clouds : sequence of str
+        Target ``.ply`` files, one per frame, written atomically by
+        :func:`huefringe.cloud.write_cloud`.
+
+    Raises
+    ------
+    ValueError
+        If ``frames``, ``heights`` and ``clouds`` differ in length, or a height map does not
+        match the white image's size.
+    """
+    from huefringe.cloud import height_to_cloud, write_cloud
+
+    if not len(frames) == len(heights) == len(clouds):
+        raise ValueError(f"cloud_frames: {len(frames)} frames, {len(heights)} height maps, {len(clouds)} clouds")
+    s = load_session(session)
+    white = read_rgb(s.object_white)
+    for n, height, cloud in zip(frames, heights, clouds, strict=True):
+        pcd = height_to_cloud(read_tiff(height), s.pixel_pitch_mm, colours=white)
+        write_cloud(cloud, pcd)
+        log.info("frame %04d: %d points", n, len(pcd.points))
 
 
 def _refuse_bad_frame(path: Path, stats: Mapping[str, Any], measurement: Mapping[str, Any]) -> None:
@@ -464,7 +499,7 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
     """Tables, plane calibration and height maps of a session into ``out``, without Snakemake.
 
     The same stages, in the same order, as the workflow's ``hue_table``, ``plane_calibration``,
-    ``measure_*`` (and ``baseline_*``) jobs; for scripts, benchmarks and tests. Returns the
+    ``measure_*``, ``cloud_*`` (and ``baseline_*``) jobs; for scripts, benchmarks and tests. Returns the
     output paths by kind (``heights``, ``clouds``, ``phases``, ``hues``, ``qa``, optionally
     ``baseline``) and the loaded ``session``.
     """
@@ -483,7 +518,9 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
         for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"))
     }
     measure_frames(str(session), frames, str(out / "table_object.json"), str(out / "model.npz"), model,
-                   config["measurement"], cal, **paths)
+                   config["measurement"], cal, heights=paths["heights"], phases=paths["phases"], hues=paths["hues"],
+                   qa=paths["qa"])
+    cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"])
     if baseline:
         paths["baseline"] = [str(out / "baseline" / f"frame_{n:04d}.tiff") for n in frames]
         baseline_frames(str(session), frames, str(out / "model.npz"), str(out / "table_object.json"),

@@ -1,5 +1,7 @@
-# Height maps, point clouds and the three-step baseline, in batches of frames per job
-# (one rule per session and batch, so a 1000-frame session costs 20 job start-ups, not 1000).
+# Height maps (with phase, hue and QA), point clouds and the three-step baseline, in batches of
+# frames per job (one rule per session and batch, so a 1000-frame session costs 20 job start-ups,
+# not 1000). The clouds are jobs of their own (cloud_*), made from the batch's height maps, so
+# that the height maps do not wait for them.
 
 for _sid, _plan in PLANS.items():
     for _b, _frames in enumerate(_plan.batches):
@@ -11,7 +13,7 @@ for _sid, _plan in PLANS.items():
                 table=R(_sid, "calib", "table_object.json"),
                 model=R(_sid, "calib", "phase_to_height.npz"),
             output:
-                **frame_outputs(_sid, _frames),
+                **{k: v for k, v in frame_outputs(_sid, _frames).items() if k != "clouds"},
             params:
                 session=str(_plan.path),
                 frames=_frames,
@@ -28,6 +30,27 @@ for _sid, _plan in PLANS.items():
                 "../envs/huefringe.yaml"
             script:
                 "../../scripts/measure_frames.py"
+
+        rule:
+            name:
+                f"cloud_{_sid.replace('-', '_')}_{_b:03d}"
+            input:
+                heights=frame_outputs(_sid, _frames)["heights"],
+            output:
+                clouds=frame_outputs(_sid, _frames)["clouds"],
+            params:
+                session=str(_plan.path),
+                frames=_frames,
+            log:
+                f"logs/{_sid}/cloud_{_b:03d}.log",
+            threads: 1
+            resources:
+                mem_mb=2000,
+                runtime=max(10, len(_frames) // 10),
+            conda:
+                "../envs/huefringe.yaml"
+            script:
+                "../../scripts/cloud_frames.py"
 
     _ps = _plan.phase_shift
     _per = config["measurement"]["frames_per_job"]
