@@ -80,8 +80,6 @@ _SHIFT = 6
 """Hue buckets of the guess tables: ``65536 >> _SHIFT`` = 1024 buckets of 64 counts."""
 _TILE = 32
 """Side (pixels) of the image tiles that have their own guess table."""
-_CHUNK = 128
-"""Pixels per two-pass run: pass 1 prefetches the lines that pass 2 reads."""
 
 
 # =============================================================================================
@@ -477,13 +475,14 @@ def _interp(bb, hq, lo_val, hi_val, n):  # pragma: no cover - numba
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles_x, n, start, phi_ref, a, b, noise,
-                  atan, min_sat, use_min_sat, floor_slope, chunk, pd_e, pd_c, pd_s, pd_index, out_h, out_valid,
+                  atan, min_sat, use_min_sat, floor_slope, pd_e, pd_c, pd_s, pd_index, out_h, out_valid,
                   out_dphi, out_sigma, out_phase, out_hue):  # pragma: no cover - numba
     """The fused per-pixel loop; returns (clipped, hue undefined, valid, guess missed) counts.
 
-    Each run of ``chunk`` pixels of a row is done in two passes: (1) white balance, hue, masks,
-    the guessed line of the column and its prefetch; (2) the count in that line, interpolation,
-    phase difference and height. With ``out_sigma`` (and ``out_dphi``) given, the float32 phase
+    Rows go through two passes, pass 1 one row ahead of pass 2: (1) white balance, hue, masks
+    (:func:`_colour_row`, vectorised), the guessed line of each pixel's column and its
+    prefetch; (2) the count in that line, then interpolation, phase difference and height
+    (:func:`_finish_row`, vectorised, when there is neither pre-distortion nor denoising). With ``out_sigma`` (and ``out_dphi``) given, the float32 phase
     difference and the phase uncertainty are written instead of the height (the denoise filter
     runs between this loop and :func:`_height_kernel`). ``out_phase``, ``out_hue``, ``out_dphi``
     and ``out_sigma`` may be None: numba compiles a version without them (``is None`` pruning);
@@ -502,8 +501,14 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     half = np.float32(0.5)
     to_counts = 65536.0 / two_pi
     nan32 = np.float32(np.nan)
-    row_hq = np.empty(w, dtype=np.float64)
-    row_g = np.empty(w, dtype=np.int64)  # guessed line; -1 = pixel invalid
+    rows_hq = np.empty((2, w), dtype=np.float64)  # hue in table counts, two rows in flight
+    rows_g = np.empty((2, w), dtype=np.int64)  # guessed line; -1 = pixel invalid
+    # split path (no pre-distortion, no denoise): pass 2 only looks up; the arithmetic after
+    # the lookup runs in a loop of its own that LLVM vectorises (_finish_row)
+    split = pd_e is None and out_sigma is None
+    row_bb = np.zeros(w, dtype=np.float64)
+    row_lo = np.zeros(w, dtype=np.float64)
+    row_hi = np.ones(w, dtype=np.float64)
     pd_last = 0
     pd_e0 = 0.0
     pd_nb = 1
@@ -517,84 +522,42 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     n_undef = 0
     n_valid = 0
     n_miss = 0
-    for v in range(h):
-        tile_row = (v // _TILE) * tiles_x
-        for u0 in range(0, w, chunk):
-            u1 = min(w, u0 + chunk)
-            # ---------------------------------------------------------------- pass 1: colour
-            for u in range(u0, u1):
-                x0 = rgb[v, u, 0]
-                x1 = rgb[v, u, 1]
-                x2 = rgb[v, u, 2]
-                f0 = _unit(x0, scale)
-                f1 = _unit(x1, scale)
-                f2 = _unit(x2, scale)
-                clipped = _clipped(x0, f0, top32, top64) or _clipped(x1, f1, top32, top64) or _clipped(x2, f2, top32, top64)
-                if clipped:
-                    n_clip += 1
-                r = f0 * gains[v, u, 0]
-                g = f1 * gains[v, u, 1]
-                bl = f2 * gains[v, u, 2]
-                mx = max(max(r, g), bl)
-                mn = min(min(r, g), bl)
-                c = mx - mn
-                # hue in float32, as colour.hue on the float32 white-balanced image
-                if atan is not None:  # HSI
-                    xx = r - half * (g + bl)
-                    yy = k3 * (g - bl)
-                    defined = not (xx == 0 and yy == 0)
-                    if use_min_sat:
-                        den = (r + g) + bl
-                        sat = (den - np.float32(3) * mn) / den if den > 0 else np.float32(0.0)
-                        defined = defined and sat > min_sat
-                    if defined:
-                        # NumPy's float32 arctan2 of the same x, y (computed before this loop by
-                        # _hsi_xy + np.arctan2: its SIMD loops differ from libm by a few ulp,
-                        # which the table slope and the pre-distortion amplify)
-                        hue = atan[v, u]
-                        if hue < 0:
-                            hue = np.float32(hue + two_pi_f32)
-                        if hue >= two_pi_f32:
-                            hue = np.float32(0.0)
-                    else:
-                        hue = nan32
-                else:
-                    defined = c != 0
-                    if use_min_sat:
-                        sat = c / mx if mx > 0 else np.float32(0.0)
-                        defined = defined and sat > min_sat
-                    if defined:
-                        if mx == r:
-                            h6 = (g - bl) / c
-                        elif mx == g:
-                            h6 = (bl - r) / c + np.float32(2)
-                        else:
-                            h6 = (r - g) / c + np.float32(4)
-                        hue = h6 * third
-                        if hue < 0:
-                            hue = np.float32(hue + two_pi_f32)
-                        if hue >= two_pi_f32:
-                            hue = np.float32(0.0)
-                    else:
-                        hue = nan32
-                if not defined:
-                    n_undef += 1
-                if out_hue is not None:
-                    out_hue[v, u] = hue
-                if not defined or not ok[v, u] or clipped:
-                    row_g[u] = -1
+    for vi in range(h + 1):
+        # ------------------------------------------------------------ pass 1 (row vi): colour,
+        # guessed lines and their prefetch, one row ahead of pass 2, so that the lines have a
+        # whole row's time to arrive (a row of lines, 48 KB at 768 px, stays in L2)
+        if vi < h:
+            hq1 = rows_hq[vi & 1]
+            g1 = rows_g[vi & 1]
+            nc, nu = _colour_row(rgb, vi, 0, w, scale, top32, top64, gains, ok, atan, min_sat, use_min_sat, hq1,
+                                 out_hue)
+            n_clip += nc
+            n_undef += nu
+            tile_row = (vi // _TILE) * tiles_x
+            for u in range(w):
+                hq = hq1[u]
+                if hq < 0:
+                    g1[u] = -1
                     continue
-                hq = np.float64(hue) * to_counts
-                if hq >= 65536.0:  # never for hue < float32(2 pi); kept for exactness
-                    hq = hq - 65536.0 * math.floor(hq / 65536.0)
                 gl = np.int64(guess[tile_row + u // _TILE, np.int64(hq) >> _SHIFT])
-                row_hq[u] = hq
-                row_g[u] = gl
-                _prefetch(cols, (v * w + u) * ncols + 32 * gl)
+                g1[u] = gl
+                _prefetch(cols, (vi * w + u) * ncols + 32 * gl)
+        if vi > 0:
+            v = vi - 1
+            row_hq = rows_hq[v & 1]
+            row_g = rows_g[v & 1]
+            u0 = 0
+            u1 = w
             # ---------------------------------------------------------------- pass 2: table, height
             for u in range(u0, u1):
                 gl = row_g[u]
                 if gl < 0:
+                    if split:  # neutral values for the vector loop, which masks the pixel
+                        row_hq[u] = 0.0
+                        row_bb[u] = 0.0
+                        row_lo[u] = 0.0
+                        row_hi[u] = 1.0
+                        continue
                     out_valid[v, u] = False
                     out_h[v, u] = nan32
                     if out_phase is not None:
@@ -639,6 +602,11 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                         hi_val = np.float64(cols[np.uint64(o)]) + 65536.0
                     else:
                         hi_val = np.float64(cols[np.uint64(op + 1)])  # same line (lines overlap)
+                if split:
+                    row_bb[u] = bb
+                    row_lo[u] = lo_val
+                    row_hi[u] = hi_val
+                    continue
                 emitted = _interp(bb, hq, lo_val, hi_val, n)
                 phase = emitted
                 pd_slope = 1.0
@@ -699,7 +667,144 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                     out_valid[v, u] = False
                     if out_phase is not None:
                         out_phase[v, u] = nan32
+            if split:
+                if out_phase is not None:
+                    n_valid += _finish_row(row_bb[u0:u1], row_hq[u0:u1], row_lo[u0:u1], row_hi[u0:u1], row_g[u0:u1],
+                                           phi_ref[v, u0:u1], a[v, u0:u1], b[v, u0:u1], n, out_h[v, u0:u1],
+                                           out_valid[v, u0:u1], out_phase[v, u0:u1])
+                else:
+                    n_valid += _finish_row(row_bb[u0:u1], row_hq[u0:u1], row_lo[u0:u1], row_hi[u0:u1], row_g[u0:u1],
+                                           phi_ref[v, u0:u1], a[v, u0:u1], b[v, u0:u1], n, out_h[v, u0:u1],
+                                           out_valid[v, u0:u1], None)
     return n_clip, n_undef, n_valid, n_miss
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _colour_row(rgb, v, u0, u1, scale, top32, top64, gains, ok, atan, min_sat, use_min_sat, out_hq,
+                out_hue):  # pragma: no cover - numba
+    """White balance, clipping, hue and saturation of pixels ``u0 .. u1`` of row ``v``.
+
+    Writes ``out_hq[u]``, the hue in table counts (``hue * 65536 / 2 pi``), or -1 where the pixel
+    is invalid (clipped, hue undefined or unsaturated, or not ``ok``); ``out_hue`` (or None)
+    the white-balanced hue, NaN where undefined. Hue in float32, as ``colour.hue`` on the float32
+    white-balanced image (HSI: from ``atan``, NumPy's float32 ``arctan2`` of the same x, y,
+    computed by ``_hsi_xy`` + ``np.arctan2`` before the loop: its SIMD loops differ from libm by
+    a few ulp, which the table slope and the pre-distortion amplify). Branch-free, so that LLVM
+    vectorises it. Returns (clipped, hue undefined) counts.
+    """
+    two_pi_f32 = np.float32(2.0 * np.pi)
+    third = np.float32(np.pi / 3.0)
+    k3 = np.float32(math.sqrt(3.0) / 2.0)
+    half = np.float32(0.5)
+    zero32 = np.float32(0.0)
+    nan32 = np.float32(np.nan)
+    to_counts = 65536.0 / (2.0 * np.pi)
+    n_clip = 0
+    n_undef = 0
+    # 1-D row slices indexed from 0: provably non-negative indices, no wraparound selects
+    px = rgb[v].reshape(-1)[3 * u0 : 3 * u1]
+    gn = gains[v].reshape(-1)[3 * u0 : 3 * u1]
+    okr = ok[v, u0:u1]
+    hqr = out_hq[u0:u1]
+    if atan is not None:
+        atr = atan[v, u0:u1]
+    if out_hue is not None:
+        hur = out_hue[v, u0:u1]
+    for i in range(u1 - u0):
+        x0 = px[3 * i]
+        x1 = px[3 * i + 1]
+        x2 = px[3 * i + 2]
+        f0 = _unit(x0, scale)
+        f1 = _unit(x1, scale)
+        f2 = _unit(x2, scale)
+        clipped = _clipped(x0, f0, top32, top64) | _clipped(x1, f1, top32, top64) | _clipped(x2, f2, top32, top64)
+        r = f0 * gn[3 * i]
+        g = f1 * gn[3 * i + 1]
+        bl = f2 * gn[3 * i + 2]
+        mx = max(max(r, g), bl)
+        mn = min(min(r, g), bl)
+        c = mx - mn
+        if atan is not None:  # HSI
+            xx = r - half * (g + bl)
+            yy = k3 * (g - bl)
+            defined = (xx != 0) | (yy != 0)
+            if use_min_sat:
+                den = (r + g) + bl
+                sat = (den - np.float32(3) * mn) / den
+                sat = sat if den > 0 else zero32
+                defined = defined & (sat > min_sat)
+            hue = atr[i]
+        else:
+            defined = c != 0
+            if use_min_sat:
+                sat = c / mx
+                sat = sat if mx > 0 else zero32
+                defined = defined & (sat > min_sat)
+            num = g - bl if mx == r else (bl - r if mx == g else r - g)
+            h6 = num / c
+            h6 = h6 if mx == r else (h6 + np.float32(2) if mx == g else h6 + np.float32(4))
+            hue = h6 * third
+        hue = np.float32(hue + two_pi_f32) if hue < 0 else hue
+        hue = zero32 if hue >= two_pi_f32 else hue
+        hue = hue if defined else nan32
+        n_clip += clipped
+        n_undef += not defined
+        if out_hue is not None:
+            hur[i] = hue
+        hq = np.float64(hue) * to_counts  # < 65536 for hue < float32(2 pi)
+        hqr[i] = hq if (defined & okr[i] & (not clipped)) else -1.0
+    return n_clip, n_undef
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _finish_row(bb, hq, lo, hi, g, phi_ref, a, b, n, out_h, out_valid, out_phase):  # pragma: no cover - numba
+    """Looked-up bands to heights for a run of pixels: ``_interp``, the phase difference
+    (``phase.wrap``) and ``h = dphi / (a + b dphi)``, operation by operation as the fused loop,
+    but branch-free so that LLVM vectorises it. ``g < 0`` marks invalid pixels. Returns the
+    number of valid pixels.
+
+    The wrap uses ``_mod``'s exact fast path, valid while ``pi - dphi`` lies in [-2 pi, 4 pi)
+    (``phi_ref`` in [0, 2 pi)); pixels outside it are redone with ``_mod`` afterwards.
+    """
+    two_pi = 2.0 * np.pi
+    pi = np.pi
+    step = two_pi / n
+    two_pi_f32 = np.float32(two_pi)
+    zero32 = np.float32(0.0)
+    nan32 = np.float32(np.nan)
+    n_valid = 0
+    n_out = 0
+    for u in range(bb.size):
+        c = (bb[u] + (hq[u] - lo[u]) / (hi[u] - lo[u])) * step
+        c = c - two_pi if c >= two_pi else c
+        r = np.float32(c)
+        r = zero32 if r >= two_pi_f32 else r
+        x = pi - (np.float64(r) - np.float64(phi_ref[u]))
+        n_out += (x < -two_pi) | (x >= two_pi + two_pi)
+        m = x + two_pi if x < 0 else (x if x < two_pi else x - two_pi)
+        dphi = np.float32(pi - m)
+        hh = dphi / (a[u] + b[u] * dphi)
+        ok = (g[u] >= 0) & (hh - hh == 0)
+        out_h[u] = hh if ok else nan32
+        out_valid[u] = ok
+        if out_phase is not None:
+            out_phase[u] = r if ok else nan32
+        n_valid += ok
+    if n_out:
+        for u in range(bb.size):
+            if g[u] < 0:
+                continue
+            r = _interp(bb[u], hq[u], lo[u], hi[u], n)
+            d = np.float64(r) - np.float64(phi_ref[u])
+            dphi = np.float32(pi - _mod(pi - d, two_pi))
+            hh = dphi / (a[u] + b[u] * dphi)
+            ok = hh - hh == 0
+            n_valid += np.int64(ok) - np.int64(out_valid[u])
+            out_h[u] = hh if ok else nan32
+            out_valid[u] = ok
+            if out_phase is not None:
+                out_phase[u] = r if ok else nan32
+    return n_valid
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -814,7 +919,7 @@ def frame_maps(
         a, np.float32(scale), np.float32(top), float(top), prep.gains, prep.ok, prep.cols.reshape(-1),
         prep.heads.reshape(-1), prep.guess, prep.tiles_x, prep.n_bands, prep.start, prep.phi_ref, prep.a, prep.b,
         prep.noise, atan, np.float32(prep.min_saturation), prep.min_saturation > 0.0,
-        prep.floor_slope, _CHUNK, prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, height, valid, dphi, sigma, phase,
+        prep.floor_slope, prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, height, valid, dphi, sigma, phase,
         hue,
     )
     if denoise:
