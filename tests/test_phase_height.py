@@ -134,3 +134,19 @@ def test_nearest_plane_crossing_pi_is_unwrapped() -> None:
             np.testing.assert_allclose(cal.height(dphi), z, atol=1e-3)
     finally:
         PERIOD_PX = saved
+
+
+def test_wrap_edge_flags_exactly_the_pixels_on_both_sides_of_a_jump() -> None:
+    d = np.zeros((6, 7))
+    d[:, 4:] = 3.0  # a jump of 3 rad between columns 3 and 4 (not > pi): no edge
+    d[2:, 5:] = -3.0  # 6 rad between columns 4 and 5 and between rows 1 and 2: edges
+    valid = np.ones(d.shape, bool)
+    valid[5, 4] = False  # an invalid pixel is never flagged, and breaks its edges
+    f = unwrap(d, valid, "reference").flags["wrap_edge"]
+    want = np.zeros(d.shape, bool)
+    want[2:5, 4:6] = True  # the u-jump, rows 2..4 (row 5's left side is invalid)
+    want[5, 5] = False
+    want[1:3, 5:] = True  # the v-jump between rows 1 and 2, columns 5, 6
+    want[5, 5] = False
+    assert np.array_equal(f, want), np.argwhere(f != want)
+    assert unwrap(d[:, :4], valid[:, :4], "reference").flags["wrap_edge"].sum() == 0

@@ -12,7 +12,7 @@ import yaml
 from session_factory import make_session, write_image
 
 from huefringe.cli import main
-from huefringe.session import SessionError, load_session, read_rgb
+from huefringe.session import SessionError, load_session, read_rgb, read_rgb_codes
 
 
 @pytest.mark.parametrize(("bit_depth", "ext"), [(8, ".png"), (16, ".png"), (8, ".tiff"), (16, ".tiff")])
@@ -39,6 +39,13 @@ def test_read_rgb_scales_16_bit_and_keeps_channel_order(tmp_path: Path) -> None:
         write_image(p, rgb)
         out = read_rgb(p)
         np.testing.assert_allclose(out[0, 0], [1.0, 0.0, 32768 / 65535], atol=1e-6)
+        codes = read_rgb_codes(p)  # what the kernel reads: the same pixels, unscaled
+        assert codes.dtype == np.uint16 and codes.flags.c_contiguous
+        np.testing.assert_array_equal(codes, rgb)
+        np.testing.assert_array_equal(codes.astype(np.float32) * np.float32(1 / 65535), out)
+    p8 = tmp_path / "rgb8.png"
+    write_image(p8, (np.arange(60).reshape(4, 5, 3) * 4).astype(np.uint8))
+    np.testing.assert_array_equal(read_rgb_codes(p8), (np.arange(60).reshape(4, 5, 3) * 4).astype(np.uint8))
 
 
 def _edit_yaml(root: Path, edit: Callable[[dict], None]) -> None:

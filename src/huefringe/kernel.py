@@ -493,31 +493,15 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     ncols = cols.size // (h * w)
     nheads = heads.size // (h * w)
     nl = ncols // 32
-    two_pi = 2.0 * np.pi
-    pi = np.pi
-    two_pi_f32 = np.float32(two_pi)
-    third = np.float32(np.pi / 3.0)
-    k3 = np.float32(math.sqrt(3.0) / 2.0)
-    half = np.float32(0.5)
-    to_counts = 65536.0 / two_pi
-    nan32 = np.float32(np.nan)
     rows_hq = np.empty((2, w), dtype=np.float64)  # hue in table counts, two rows in flight
     rows_g = np.empty((2, w), dtype=np.int64)  # guessed line; -1 = pixel invalid
-    # split path (no pre-distortion, no denoise): pass 2 only looks up; the arithmetic after
-    # the lookup runs in a loop of its own that LLVM vectorises (_finish_row)
-    split = pd_e is None and out_sigma is None
+    # pass 2 only looks up; the arithmetic after the lookup is _finish_row's
     row_bb = np.zeros(w, dtype=np.float64)
     row_lo = np.zeros(w, dtype=np.float64)
     row_hi = np.ones(w, dtype=np.float64)
-    pd_last = 0
-    pd_e0 = 0.0
-    pd_nb = 1
-    pd_scale = 0.0
-    if pd_e is not None:
-        pd_last = pd_e.size - 1
-        pd_e0 = pd_e[pd_e.size // 3]
-        pd_nb = pd_index.size
-        pd_scale = pd_nb / two_pi
+    row_em = np.zeros(w, dtype=np.float32)
+    row_ph = np.zeros(w, dtype=np.float32)
+    row_pds = np.ones(w, dtype=np.float64)
     n_clip = 0
     n_undef = 0
     n_valid = 0
@@ -546,25 +530,14 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
             v = vi - 1
             row_hq = rows_hq[v & 1]
             row_g = rows_g[v & 1]
-            u0 = 0
-            u1 = w
-            # ---------------------------------------------------------------- pass 2: table, height
-            for u in range(u0, u1):
+            # ---------------------------------------------------------------- pass 2: table lookup
+            for u in range(w):
                 gl = row_g[u]
-                if gl < 0:
-                    if split:  # neutral values for the vector loop, which masks the pixel
-                        row_hq[u] = 0.0
-                        row_bb[u] = 0.0
-                        row_lo[u] = 0.0
-                        row_hi[u] = 1.0
-                        continue
-                    out_valid[v, u] = False
-                    out_h[v, u] = nan32
-                    if out_phase is not None:
-                        out_phase[v, u] = nan32
-                    if out_sigma is not None:
-                        out_dphi[v, u] = nan32
-                        out_sigma[v, u] = 1.0
+                if gl < 0:  # neutral values for _finish_row, which masks the pixel
+                    row_hq[u] = 0.0
+                    row_bb[u] = 0.0
+                    row_lo[u] = 0.0
+                    row_hi[u] = 1.0
                     continue
                 hq = row_hq[u]
                 hqi = np.int64(hq)  # entries are integers: entry <= hq  <=>  entry <= floor(hq)
@@ -602,80 +575,13 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                         hi_val = np.float64(cols[np.uint64(o)]) + 65536.0
                     else:
                         hi_val = np.float64(cols[np.uint64(op + 1)])  # same line (lines overlap)
-                if split:
-                    row_bb[u] = bb
-                    row_lo[u] = lo_val
-                    row_hi[u] = hi_val
-                    continue
-                emitted = _interp(bb, hq, lo_val, hi_val, n)
-                phase = emitted
-                pd_slope = 1.0
-                if pd_e is not None:
-                    # Predistortion.decode of the emitted phase, bit for bit: np.interp on the
-                    # extended samples (same bracketing and slope formula), np.mod, float32; and
-                    # for the denoise weights decode_slope, the slope of the bracketing segment.
-                    # Written out here, not in a helper: a helper taking arrays costs reference
-                    # counting.
-                    x = _mod(np.float64(emitted) - pd_e0, two_pi) + pd_e0
-                    if x > pd_e[pd_last]:
-                        y = pd_c[pd_last]
-                        pd_slope = pd_s[pd_last - 1]
-                    elif x < pd_e[0]:
-                        y = pd_c[0]
-                        pd_slope = pd_s[0]
-                    else:
-                        kb = min(max(int((x - pd_e0) * pd_scale), 0), pd_nb - 1)
-                        jp = np.int64(pd_index[kb])
-                        while jp > 0 and pd_e[jp] > x:
-                            jp -= 1
-                        while jp < pd_last and pd_e[jp + 1] <= x:
-                            jp += 1
-                        pd_slope = pd_s[jp if jp < pd_last else pd_last - 1]
-                        if jp == pd_last or pd_e[jp] == x:
-                            y = pd_c[jp]
-                        else:
-                            sl = pd_s[jp]
-                            y = sl * (x - pd_e[jp]) + pd_c[jp]
-                            if y != y:
-                                y = sl * (x - pd_e[jp + 1]) + pd_c[jp + 1]
-                                if y != y and pd_c[jp] == pd_c[jp + 1]:
-                                    y = pd_c[jp]
-                    phase = np.float32(_mod(y, two_pi))
-                d = np.float64(phase) - np.float64(phi_ref[v, u])
-                dphi = np.float32(pi - _mod(pi - d, two_pi))  # phase.wrap
-                if out_phase is not None:
-                    out_phase[v, u] = phase
-                if out_sigma is not None:
-                    # pipeline.phase_sigma with HueTable.hue_slope: the slope of the bracketing
-                    # band, times |Predistortion.decode_slope|
-                    slope = (hi_val - lo_val) * n / 65536.0
-                    sig = noise[v, u] / max(slope, floor_slope)
-                    if pd_e is not None:
-                        sig = sig * abs(pd_slope)
-                    out_sigma[v, u] = sig
-                    out_dphi[v, u] = dphi
-                    out_valid[v, u] = True
-                    n_valid += 1
-                    continue
-                hh = dphi / (a[v, u] + b[v, u] * dphi)
-                if hh - hh == 0:  # finite
-                    out_h[v, u] = hh
-                    out_valid[v, u] = True
-                    n_valid += 1
-                else:
-                    out_h[v, u] = nan32
-                    out_valid[v, u] = False
-                    if out_phase is not None:
-                        out_phase[v, u] = nan32
-            if split:
-                if out_phase is not None:
-                    n_valid += _finish_row(row_bb[u0:u1], row_hq[u0:u1], row_lo[u0:u1], row_hi[u0:u1], row_g[u0:u1],
-                                           phi_ref[v, u0:u1], a[v, u0:u1], b[v, u0:u1], n, out_h[v, u0:u1],
-                                           out_valid[v, u0:u1], out_phase[v, u0:u1])
-                else:
-                    n_valid += _finish_row(row_bb[u0:u1], row_hq[u0:u1], row_lo[u0:u1], row_hi[u0:u1], row_g[u0:u1],
-                                           phi_ref[v, u0:u1], a[v, u0:u1], b[v, u0:u1], n, out_h[v, u0:u1],
-                                           out_valid[v, u0:u1], None)
+                row_bb[u] = bb
+                row_lo[u] = lo_val
+                row_hi[u] = hi_val
+            # ---------------------------------------------------------------- pass 3: arithmetic
+            n_valid += _finish_row(v, row_bb, row_hq, row_lo, row_hi, row_g, phi_ref, a, b, noise, n, floor_slope, pd_e,
+                                   pd_c, pd_s, pd_index, row_em, row_ph, row_pds, out_h, out_valid, out_phase, out_dphi,
+                                   out_sigma)
     return n_clip, n_undef, n_valid, n_miss
 
 
@@ -757,53 +663,126 @@ def _colour_row(rgb, v, u0, u1, scale, top32, top64, gains, ok, atan, min_sat, u
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _finish_row(bb, hq, lo, hi, g, phi_ref, a, b, n, out_h, out_valid, out_phase):  # pragma: no cover - numba
-    """Looked-up bands to heights for a run of pixels: ``_interp``, the phase difference
-    (``phase.wrap``) and ``h = dphi / (a + b dphi)``, operation by operation as the fused loop,
-    but branch-free so that LLVM vectorises it. ``g < 0`` marks invalid pixels. Returns the
-    number of valid pixels.
+def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e, pd_c, pd_s, pd_index, em, ph, pds,
+                out_h, out_valid, out_phase, out_dphi, out_sigma):  # pragma: no cover - numba
+    """Looked-up bands of row ``v`` (``bb``, ``hq``, ``lo``, ``hi``; ``g < 0`` marks invalid
+    pixels) to heights, or to the phase difference and its uncertainty (``out_sigma``).
 
-    The wrap uses ``_mod``'s exact fast path, valid while ``pi - dphi`` lies in [-2 pi, 4 pi)
-    (``phi_ref`` in [0, 2 pi)); pixels outside it are redone with ``_mod`` afterwards.
+    Operation by operation as the reference (see the comments), in three loops: (A) the band
+    interpolation (``_interp``) and (C) the phase difference (``phase.wrap``), height or
+    uncertainty, both branch-free so that LLVM vectorises them, and between them (B) the
+    pre-distortion's decoding, scalar. The wrap uses ``_mod``'s exact fast path, valid while
+    ``pi - dphi`` lies in [-2 pi, 4 pi) (``phi_ref`` in [0, 2 pi)); pixels outside it are redone
+    with ``_mod``. ``em``, ``ph``, ``pds`` are scratch rows. Returns the number of valid pixels.
     """
+    w = bb.size
     two_pi = 2.0 * np.pi
     pi = np.pi
     step = two_pi / n
     two_pi_f32 = np.float32(two_pi)
     zero32 = np.float32(0.0)
     nan32 = np.float32(np.nan)
-    n_valid = 0
-    n_out = 0
-    for u in range(bb.size):
+    # (A) calibration._to_phase_kernel's interpolation: the emitted (or code) phase
+    for u in range(w):
         c = (bb[u] + (hq[u] - lo[u]) / (hi[u] - lo[u])) * step
         c = c - two_pi if c >= two_pi else c
         r = np.float32(c)
-        r = zero32 if r >= two_pi_f32 else r
-        x = pi - (np.float64(r) - np.float64(phi_ref[u]))
+        em[u] = zero32 if r >= two_pi_f32 else r
+    # (B) Predistortion.decode, bit for bit: np.interp on the extended samples (same
+    # bracketing and slope formula), np.mod, float32; and decode_slope, the slope of the
+    # bracketing segment
+    if pd_e is not None:
+        pd_last = pd_e.size - 1
+        pd_e0 = pd_e[pd_e.size // 3]
+        pd_nb = pd_index.size
+        pd_scale = pd_nb / two_pi
+        for u in range(w):
+            if g[u] < 0:
+                ph[u] = zero32
+                pds[u] = 1.0
+                continue
+            x = _mod(np.float64(em[u]) - pd_e0, two_pi) + pd_e0
+            if x > pd_e[pd_last]:
+                y = pd_c[pd_last]
+                pds[u] = pd_s[pd_last - 1]
+            elif x < pd_e[0]:
+                y = pd_c[0]
+                pds[u] = pd_s[0]
+            else:
+                kb = min(max(int((x - pd_e0) * pd_scale), 0), pd_nb - 1)
+                jp = np.int64(pd_index[kb])
+                while jp > 0 and pd_e[jp] > x:
+                    jp -= 1
+                while jp < pd_last and pd_e[jp + 1] <= x:
+                    jp += 1
+                pds[u] = pd_s[jp if jp < pd_last else pd_last - 1]
+                if jp == pd_last or pd_e[jp] == x:
+                    y = pd_c[jp]
+                else:
+                    sl = pd_s[jp]
+                    y = sl * (x - pd_e[jp]) + pd_c[jp]
+                    if y != y:
+                        y = sl * (x - pd_e[jp + 1]) + pd_c[jp + 1]
+                        if y != y and pd_c[jp] == pd_c[jp + 1]:
+                            y = pd_c[jp]
+            ph[u] = np.float32(_mod(y, two_pi))
+    else:
+        ph = em
+    # (C) phase difference (phase.wrap), then h = dphi / (a + b dphi), or, for the denoise
+    # filter, dphi and its uncertainty (pipeline.phase_sigma with HueTable.hue_slope, times
+    # |Predistortion.decode_slope|)
+    ref = phi_ref[v]
+    av = a[v]
+    bv = b[v]
+    nz = noise[v]
+    hv = out_h[v]
+    vv = out_valid[v]
+    if out_phase is not None:
+        pv = out_phase[v]
+    if out_sigma is not None:
+        dv = out_dphi[v]
+        sv = out_sigma[v]
+    n_valid = 0
+    n_out = 0
+    for u in range(w):
+        r = ph[u]
+        x = pi - (np.float64(r) - np.float64(ref[u]))
         n_out += (x < -two_pi) | (x >= two_pi + two_pi)
         m = x + two_pi if x < 0 else (x if x < two_pi else x - two_pi)
         dphi = np.float32(pi - m)
-        hh = dphi / (a[u] + b[u] * dphi)
-        ok = (g[u] >= 0) & (hh - hh == 0)
-        out_h[u] = hh if ok else nan32
-        out_valid[u] = ok
+        if out_sigma is not None:
+            slope = (hi[u] - lo[u]) * n / 65536.0
+            sig = nz[u] / max(slope, floor_slope)
+            if pd_e is not None:
+                sig = sig * abs(pds[u])
+            ok = g[u] >= 0
+            dv[u] = dphi if ok else nan32
+            sv[u] = sig if ok else 1.0
+            hv[u] = nan32  # _height_kernel writes the valid ones
+        else:
+            hh = dphi / (av[u] + bv[u] * dphi)
+            ok = (g[u] >= 0) & (hh - hh == 0)
+            hv[u] = hh if ok else nan32
+        vv[u] = ok
         if out_phase is not None:
-            out_phase[u] = r if ok else nan32
+            pv[u] = r if ok else nan32
         n_valid += ok
-    if n_out:
-        for u in range(bb.size):
+    if n_out:  # some phi_ref outside [0, 2 pi): those pixels again, with the general _mod
+        for u in range(w):
             if g[u] < 0:
                 continue
-            r = _interp(bb[u], hq[u], lo[u], hi[u], n)
-            d = np.float64(r) - np.float64(phi_ref[u])
+            d = np.float64(ph[u]) - np.float64(ref[u])
             dphi = np.float32(pi - _mod(pi - d, two_pi))
-            hh = dphi / (a[u] + b[u] * dphi)
+            if out_sigma is not None:
+                dv[u] = dphi
+                continue
+            hh = dphi / (av[u] + bv[u] * dphi)
             ok = hh - hh == 0
-            n_valid += np.int64(ok) - np.int64(out_valid[u])
-            out_h[u] = hh if ok else nan32
-            out_valid[u] = ok
+            n_valid += np.int64(ok) - np.int64(vv[u])
+            hv[u] = hh if ok else nan32
+            vv[u] = ok
             if out_phase is not None:
-                out_phase[u] = r if ok else nan32
+                pv[u] = ph[u] if ok else nan32
     return n_valid
 
 

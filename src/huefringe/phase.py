@@ -98,15 +98,11 @@ def unwrap(dphi_wrapped: NDArray[np.floating], valid: NDArray[np.bool_], mode: U
     valid = np.asarray(valid, bool) & np.isfinite(d)
     flags: dict[str, NDArray[np.bool_]] = {}
     edge = np.zeros(d.shape, bool)
-    for axis in (0, 1):
-        both = valid & np.roll(valid, -1, axis=axis)
-        jump = np.abs(np.roll(d, -1, axis=axis) - d) > np.pi
-        e = both & jump
-        if axis == 0:
-            e[-1, :] = False
-        else:
-            e[:, -1] = False
-        edge |= e | np.roll(e, 1, axis=axis)
+    for lo, hi in (((slice(None, -1), slice(None)), (slice(1, None), slice(None))),  # v, v + 1
+                   ((slice(None), slice(None, -1)), (slice(None), slice(1, None)))):  # u, u + 1
+        e = valid[lo] & valid[hi] & (np.abs(d[hi] - d[lo]) > np.pi)
+        edge[lo] |= e
+        edge[hi] |= e
     flags["wrap_edge"] = edge
     if mode == "reference":
         out = np.where(valid, d, np.nan)

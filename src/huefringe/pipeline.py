@@ -24,7 +24,7 @@ from huefringe.height import CalibrationError, PlaneCalibration, accuracy, calib
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.patterns import TWO_PI
 from huefringe.phase import denoise_phase, three_step_phase, unwrap, wrap
-from huefringe.session import Predistortion, Session, load_session, read_rgb
+from huefringe.session import Predistortion, Session, load_session, read_rgb, read_rgb_codes
 
 log = logging.getLogger("huefringe")
 
@@ -156,7 +156,7 @@ def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Ma
         "shadow_fraction": shadow_fraction,
         "flags": counts,
         "phase_ambiguity_suspected": bool(suspect),
-        "median_height_mm": float(np.nanmedian(height)) if valid.any() else None,
+        "median_height_mm": float(np.median(height[valid])) if valid.any() else None,
         "hue_model": hue_model,
         "unwrap": unwrap_mode,
     }
@@ -379,9 +379,8 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         phi_ref = cal.phi_ref.astype(np.float64)
     for i, n in enumerate(frames):
         path = s.frames[n]
-        rgb = read_rgb(path)
-        if fast:
-            m = kernel.frame_maps(prep, rgb, denoise_radius=measurement["denoise_radius"], want_maps=True)
+        if fast:  # the kernel reads the sensor codes as read_rgb scales them
+            m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"], want_maps=True)
             flags = unwrap(wrap(m.phase.astype(np.float64) - phi_ref), m.valid, "reference").flags
             px = m.valid.size
             stats = frame_stats(m.valid, m.height, flags, clipped_fraction=m.counts["clipped"] / px,
@@ -390,7 +389,7 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
                                 hue_model=hue_model, unwrap_mode="reference")
             res = FrameResult(m.height, m.phase, m.hue, m.valid, stats)
         else:
-            res = measure_frame(rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
+            res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
                                 denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion)
         _refuse_bad_frame(path, res.stats, measurement)

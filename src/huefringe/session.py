@@ -310,8 +310,9 @@ def _tiff_info(path: Path) -> ImageInfo:
     return ImageInfo(width, height, depth, channels)
 
 
-def read_rgb(path: str | Path) -> np.ndarray:
-    """Read an 8/16-bit RGB PNG or TIFF as ``float32 (H, W, 3)`` scaled to [0, 1].
+def read_rgb_codes(path: str | Path) -> np.ndarray:
+    """Read an 8/16-bit RGB PNG or TIFF as its sensor codes: C-contiguous ``uint8``/``uint16``
+    ``(H, W, 3)`` in R, G, B order (what :func:`read_rgb` scales to [0, 1]).
 
     Raises
     ------
@@ -325,20 +326,29 @@ def read_rgb(path: str | Path) -> np.ndarray:
         else:
             data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
             if data is not None and data.ndim == 3 and data.shape[2] == 3:
-                data = data[..., ::-1]
+                data = cv2.cvtColor(data, cv2.COLOR_BGR2RGB)
     except Exception as exc:
         raise SessionError.at(path, f"cannot decode image ({exc.__class__.__name__}: {exc})") from exc
     if data is None:
         raise SessionError.at(path, "cannot decode image (corrupt or truncated)")
     if data.ndim != 3 or data.shape[2] != 3:
         raise SessionError.at(path, f"not an RGB image (array shape {data.shape})")
-    if data.dtype == np.uint8:
-        scale = 255.0
-    elif data.dtype == np.uint16:
-        scale = 65535.0
-    else:
+    if data.dtype not in (np.uint8, np.uint16):
         raise SessionError.at(path, f"unsupported pixel type {data.dtype} (8- or 16-bit expected)")
-    return np.ascontiguousarray(data, dtype=np.float32) * np.float32(1.0 / scale)
+    return np.ascontiguousarray(data)
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """Read an 8/16-bit RGB PNG or TIFF as ``float32 (H, W, 3)`` scaled to [0, 1].
+
+    Raises
+    ------
+    SessionError
+        If the file cannot be decoded or is not a 3-channel 8/16-bit image.
+    """
+    data = read_rgb_codes(path)
+    scale = 255.0 if data.dtype == np.uint8 else 65535.0
+    return data.astype(np.float32) * np.float32(1.0 / scale)
 
 
 # --------------------------------------------------------------------------- layout
