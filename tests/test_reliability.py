@@ -240,6 +240,26 @@ def test_slightly_clipped_frame_is_measured_and_its_clipped_fraction_reported(se
     assert np.isnan(h[50:60, 70:80]).all() and np.isfinite(h).mean() > 0.5
 
 
+def test_maps_of_chosen_frames_only_and_the_same_heights(tiny_session: Path, tiny_run: Path, tmp_path: Path) -> None:
+    out = tmp_path / "out"
+    p = stage_paths(out, [0, 1, 2])
+    kw = {"heights": p["heights"], "qa": p["qa"]}
+    pipeline.measure_frames(str(tiny_session), [0, 1, 2], str(tiny_run / "table_object.json"),
+                            str(tiny_run / "phase_to_height.npz"), "hexcone", MEASUREMENT, CALIBRATION,
+                            phases=[p["phases"][1]], hues=[p["hues"][1]], map_frames=[1], **kw)
+    assert sorted(x.name for x in (out / "phase").iterdir()) == ["frame_0001.tiff"]
+    assert sorted(x.name for x in (out / "hue").iterdir()) == ["frame_0001.tiff"]
+    for n in (0, 1, 2):  # the maps change nothing else
+        for kind, ext in (("height", "tiff"), ("qa", "json")):
+            assert (out / kind / f"frame_{n:04d}.{ext}").read_bytes() == (tiny_run / kind / f"frame_{n:04d}.{ext}").read_bytes()
+    assert (out / "phase" / "frame_0001.tiff").read_bytes() == (tiny_run / "phase" / "frame_0001.tiff").read_bytes()
+    with pytest.raises(ValueError, match="not in the batch"):
+        pipeline.measure_frames(str(tiny_session), [0], str(tiny_run / "table_object.json"),
+                                str(tiny_run / "phase_to_height.npz"), "hexcone", MEASUREMENT, CALIBRATION,
+                                phases=[p["phases"][1]], hues=[p["hues"][1]], map_frames=[1],
+                                heights=p["heights"][:1], qa=p["qa"][:1])
+
+
 def test_lens_cap_black_frame_is_refused(session_copy: Path, tiny_run: Path, tmp_path: Path) -> None:
     frame = session_copy / "object/frames/frame_0003.png"
     edit_image(frame, np.zeros_like)

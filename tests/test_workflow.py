@@ -69,6 +69,11 @@ def test_results_contract(e2e: Path) -> None:
         assert len(pcd.points) == int(np.isfinite(h).sum()) and pcd.has_colors()
         pts = np.asarray(pcd.points)
         assert pts[:, 0].max() == pytest.approx(199 * 0.2, abs=1e-6)  # X = u * pitch, mm
+        qa = json.loads((res / "qa" / "frames" / f"frame_{n:04d}.json").read_text())
+        assert qa["valid_fraction"] == pytest.approx(np.isfinite(h).mean())
+    # phase and hue maps of the rendered frame only (measurement.maps: rendered, render.frames: first)
+    assert sorted(p.name for p in (res / "phase").iterdir()) == ["frame_0000.tiff"]
+    assert sorted(p.name for p in (res / "hue").iterdir()) == ["frame_0000.tiff"]
     mesh = trimesh.load(res / "mesh" / "frame_0000.ply", process=False)
     assert len(mesh.faces) > 10000
     for view in ("top", "oblique1", "oblique2"):

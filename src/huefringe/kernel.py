@@ -2,10 +2,13 @@
 
 :func:`prepare` lays out, once per session, everything a frame needs (white-balance gains of the
 object white, the object's hue table, the pixel mask, the reference phase and the per-pixel
-height model); :func:`frame_to_height` then takes each frame through one compiled loop:
+height model); :func:`frame_to_height` then takes each frame, row by row, through compiled passes:
 
-    white balance -> hexcone or HSI hue -> search in the pixel's table column
-    -> dphi = wrap(phi - phi_ref) -> h = dphi / (a + b dphi)
+    white balance -> hexcone or HSI hue           (_colour_row, vectorised)
+    -> guessed table line, prefetched one row ahead
+    -> search in the pixel's table column          (scalar: one cache line per pixel)
+    -> phase (-> pre-distortion decoded) -> dphi = wrap(phi - phi_ref) -> h = dphi / (a + b dphi)
+                                                   (_finish_row, vectorised but the decoding)
 
 with no full-size temporaries, reading ``uint8``/``uint16`` frames directly (no float conversion
 pass). It is the reference-relative path of :func:`huefringe.pipeline.measure_frame`
@@ -15,7 +18,8 @@ in a pass of its own): the heights and the valid mask are bit for bit those of t
 
 ``denoise_radius > 0`` adds the uncertainty-weighted edge-preserving filter
 (:func:`huefringe.phase.denoise_phase`, called as is) on the phase difference; the per-pixel
-phase uncertainty (:func:`huefringe.pipeline.phase_sigma`) is computed inside the fused loop.
+phase uncertainty (:func:`huefringe.pipeline.phase_sigma` with the slope of the bracketing band,
+:meth:`~huefringe.calibration.HueTable.hue_slope`) is computed in the same passes.
 
 Example
 -------
@@ -34,7 +38,7 @@ ascending), cut into 64-byte cache lines of 32 entries that overlap by one entry
 holds entries ``31 j .. 31 j + 31``), so that both entries bracketing a hue are always in one
 line. Hue tables vary little from pixel to pixel, so a small table per 32 x 32 tile of the image
 tells, from the hue, which line of the column most likely brackets it (~99 % of the pixels).
-A lookup is then one line, prefetched a hundred pixels ahead, counted with two 16-wide vector
+A lookup is then one line, prefetched a row ahead, counted with two 16-wide vector
 compares; when the guess misses, the first entries of the lines (one more line) give the right
 one. A pixel thus costs one cache line of table instead of about eight.
 
@@ -44,9 +48,10 @@ table per 32 x 32 tile: 244 MB for 256 bands at 768 x 494, 843 MB at 1280 x 1024
 table is 194 and 671 MB; it is not kept, and a memory-mapped one is read once). Per frame:
 ``5 H W`` bytes of output.
 
-Speed: one core spends most of a frame fetching each pixel's table line from memory (24 MB of
-lines per frame at 768 x 494, at random offsets); splitting the arithmetic off into vectorised
-loops was measured slower, as it then no longer overlaps those fetches.
+Speed: at 768 x 494 with 256 bands, one core spends most of a frame fetching each pixel's table
+line from memory (24 MB of lines per frame at scattered offsets: 3.6 ms for the reads alone on
+the development machine); the colour and post-lookup arithmetic run as branch-free loops that
+LLVM vectorises (``benchmarks/bench_kernel.py`` gives the current figures).
 """
 
 from __future__ import annotations
@@ -479,14 +484,15 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                   out_dphi, out_sigma, out_phase, out_hue):  # pragma: no cover - numba
     """The fused per-pixel loop; returns (clipped, hue undefined, valid, guess missed) counts.
 
-    Rows go through two passes, pass 1 one row ahead of pass 2: (1) white balance, hue, masks
-    (:func:`_colour_row`, vectorised), the guessed line of each pixel's column and its
-    prefetch; (2) the count in that line, then interpolation, phase difference and height
-    (:func:`_finish_row`, vectorised, when there is neither pre-distortion nor denoising). With ``out_sigma`` (and ``out_dphi``) given, the float32 phase
-    difference and the phase uncertainty are written instead of the height (the denoise filter
-    runs between this loop and :func:`_height_kernel`). ``out_phase``, ``out_hue``, ``out_dphi``
-    and ``out_sigma`` may be None: numba compiles a version without them (``is None`` pruning);
-    so may the pre-distortion ``pd_e, pd_c, pd_s, pd_index`` (no decoding). ``cols`` and ``heads`` are
+    Rows go through three passes, pass 1 one row ahead of the others: (1) white balance, hue,
+    masks (:func:`_colour_row`, vectorised), the guessed line of each pixel's column and its
+    prefetch; (2) the count in that line; (3) interpolation, pre-distortion, phase difference
+    and height (:func:`_finish_row`). ``out_dphi`` receives the phase difference before any
+    filtering; with ``out_sigma`` given (and ``out_dphi``), the phase uncertainty is written
+    instead of the height (the denoise filter runs between this loop and
+    :func:`_height_kernel`). ``out_phase``, ``out_hue``, ``out_dphi`` and ``out_sigma`` may be
+    None: numba compiles a version without them (``is None`` pruning); so may the
+    pre-distortion ``pd_e, pd_c, pd_s, pd_index`` (no decoding). ``cols`` and ``heads`` are
     flat views.
     """
     h, w, _ = rgb.shape
@@ -739,8 +745,9 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
     vv = out_valid[v]
     if out_phase is not None:
         pv = out_phase[v]
-    if out_sigma is not None:
+    if out_dphi is not None:
         dv = out_dphi[v]
+    if out_sigma is not None:
         sv = out_sigma[v]
     n_valid = 0
     n_out = 0
@@ -756,7 +763,6 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
             if pd_e is not None:
                 sig = sig * abs(pds[u])
             ok = g[u] >= 0
-            dv[u] = dphi if ok else nan32
             sv[u] = sig if ok else 1.0
             hv[u] = nan32  # _height_kernel writes the valid ones
         else:
@@ -764,6 +770,8 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
             ok = (g[u] >= 0) & (hh - hh == 0)
             hv[u] = hh if ok else nan32
         vv[u] = ok
+        if out_dphi is not None:
+            dv[u] = dphi if g[u] >= 0 else nan32
         if out_phase is not None:
             pv[u] = r if ok else nan32
         n_valid += ok
@@ -773,8 +781,9 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
                 continue
             d = np.float64(ph[u]) - np.float64(ref[u])
             dphi = np.float32(pi - _mod(pi - d, two_pi))
-            if out_sigma is not None:
+            if out_dphi is not None:
                 dv[u] = dphi
+            if out_sigma is not None:
                 continue
             hh = dphi / (av[u] + bv[u] * dphi)
             ok = hh - hh == 0
@@ -840,6 +849,9 @@ class FrameMaps:
     counts: dict[str, int] = field(default_factory=dict)
     """Pixel counts: ``clipped``, ``hue_undefined``, ``valid``, and ``guess_missed`` (lookups
     whose guessed line did not bracket the hue: a speed statistic, not a quality one)."""
+    dphi: NDArray[np.float32] | None = None
+    """Wrapped phase difference to the reference plane before the denoise filter,
+    ``float32(wrap(phase - phi_ref))``, NaN where no phase was decoded (``want_dphi``)."""
 
 
 def _check_frame(prep: Prepared, rgb: NDArray[Any]) -> tuple[NDArray[Any], float]:
@@ -864,12 +876,14 @@ def frame_maps(
     denoise_radius: int = 0,
     denoise_k: float = 3.0,
     want_maps: bool = False,
+    want_dphi: bool = False,
     out: tuple[NDArray[np.float32], NDArray[np.bool_]] | None = None,
 ) -> FrameMaps:
     """One frame through the kernel; :func:`frame_to_height` with optional phase and hue maps.
 
     ``want_maps=True`` also returns the corrected code phase and the white-balanced hue (as
-    ``measure_frame``'s ``phase`` and ``hue``); ``counts`` hold the pixel counts of the frame
+    ``measure_frame``'s ``phase`` and ``hue``), ``want_dphi=True`` the phase difference before
+    denoising (for the unwrapping flags); ``counts`` hold the pixel counts of the frame
     statistics. ``out`` = (height, valid) buffers to reuse (float32 and bool, shape (H, W)).
     """
     a, scale = _check_frame(prep, rgb)
@@ -884,7 +898,7 @@ def frame_maps(
     denoise = int(denoise_radius) > 0
     phase = np.empty((h, w), dtype=np.float32) if want_maps else None
     hue = np.empty((h, w), dtype=np.float32) if want_maps else None
-    dphi = np.empty((h, w), dtype=np.float32) if denoise else None
+    dphi = np.empty((h, w), dtype=np.float32) if denoise or want_dphi else None
     sigma = np.empty((h, w), dtype=np.float64) if denoise else None
     top = 1.0 - 0.5 / (2**prep.bit_depth - 1)
     hsi = prep.hue_model == "hsi"
@@ -905,7 +919,7 @@ def frame_maps(
         smooth = denoise_phase(dphi, sigma, valid, radius=int(denoise_radius), k=float(denoise_k))
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss)}
-    return FrameMaps(height, valid, phase, hue, counts)
+    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None)
 
 
 def frame_to_height(

@@ -352,19 +352,36 @@ def compensation(session: str, table: str, model: str, hue_model: str, calibrati
 
 def measure_frames(session: str, frames: Sequence[int], table: str, model: str, hue_model: str,
                    measurement: Mapping[str, Any], calibration: Mapping[str, Any],
-                   heights: Sequence[str], phases: Sequence[str], hues: Sequence[str],
-                   qa: Sequence[str]) -> None:
-    """Measure a batch of frames: height TIFF, phase and hue maps, QA.
+                   heights: Sequence[str], qa: Sequence[str], phases: Sequence[str] = (),
+                   hues: Sequence[str] = (), map_frames: Sequence[int] | None = None) -> None:
+    """Measure a batch of frames: height TIFF and QA JSON per frame, phase and hue maps of some.
+
+    Parameters
+    ----------
+    heights, qa : sequence of str
+        One height TIFF and one QA JSON per frame of ``frames``.
+    phases, hues : sequence of str
+        Phase and hue map TIFFs of the frames in ``map_frames`` (in that order).
+    map_frames : sequence of int, optional
+        The frames whose maps are written (the workflow: those it renders, or all with
+        ``measurement.maps: all``); default: every frame of ``frames``.
 
     The coloured point clouds are written from the height TIFFs by :func:`cloud_frames`, a stage
     (and workflow job) of its own.
 
     With ``measurement.kernel`` (and reference-relative unwrapping) each frame goes through the
-    fused kernel (:mod:`huefringe.kernel`), prepared once per batch; it gives the same numbers as
-    :func:`measure_frame`, the reference implementation used otherwise.
+    fused kernel (:mod:`huefringe.kernel`), prepared once per batch; it gives the same heights as
+    :func:`measure_frame`, the reference implementation used otherwise (the QA flags come from
+    the kernel's float32 phase difference instead of a float64 one).
     """
     from huefringe import kernel
 
+    map_frames = list(frames) if map_frames is None else list(map_frames)
+    if len(phases) != len(map_frames) or len(hues) != len(map_frames):
+        raise ValueError(f"measure_frames: {len(map_frames)} map frames, {len(phases)} phase and {len(hues)} hue maps")
+    maps = {n: (phases[k], hues[k]) for k, n in enumerate(map_frames)}
+    if not set(maps) <= set(frames):
+        raise ValueError(f"measure_frames: map frames {sorted(set(maps) - set(frames))} are not in the batch")
     s = load_session(session)
     t = HueTable.load(table)
     cal = PlaneCalibration.load(model)
@@ -375,30 +392,34 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                               shadow=shadow, bit_depth=s.bit_depth, predistortion=s.predistortion)
         table_invalid = float(np.mean(~t.valid))
+        shadow_fraction = float(shadow.mean())
         del t  # the kernel's pixel-major copy replaces the band-major table
-        phi_ref = cal.phi_ref.astype(np.float64)
+        buffers = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))  # reused frame to frame
     for i, n in enumerate(frames):
         path = s.frames[n]
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
-            m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"], want_maps=True)
-            flags = unwrap(wrap(m.phase.astype(np.float64) - phi_ref), m.valid, "reference").flags
+            m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"],
+                                  want_maps=n in maps, want_dphi=True, out=buffers)
+            flags = unwrap(m.dphi, m.valid, "reference").flags  # type: ignore[arg-type]
             px = m.valid.size
             stats = frame_stats(m.valid, m.height, flags, clipped_fraction=m.counts["clipped"] / px,
                                 hue_undefined_fraction=m.counts["hue_undefined"] / px,
-                                table_invalid_fraction=table_invalid, shadow_fraction=float(shadow.mean()),
+                                table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
                                 hue_model=hue_model, unwrap_mode="reference")
-            res = FrameResult(m.height, m.phase, m.hue, m.valid, stats)
+            height, phase, hue = m.height, m.phase, m.hue
         else:
             res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
                                 denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion)
-        _refuse_bad_frame(path, res.stats, measurement)
-        write_tiff(heights[i], res.height)
-        write_tiff(phases[i], res.phase)
-        write_tiff(hues[i], res.hue)
-        write_json(qa[i], {"frame": n, "file": str(path), **res.stats})
-        log.info("frame %04d: %.1f %% valid, median %.3f mm", n, 100 * res.stats["valid_fraction"],
-                 res.stats["median_height_mm"] or float("nan"))
+            height, phase, hue, stats = res.height, res.phase, res.hue, res.stats
+        _refuse_bad_frame(path, stats, measurement)
+        write_tiff(heights[i], height)
+        if n in maps:
+            write_tiff(maps[n][0], phase)
+            write_tiff(maps[n][1], hue)
+        write_json(qa[i], {"frame": n, "file": str(path), **stats})
+        log.info("frame %04d: %.1f %% valid, median %.3f mm", n, 100 * stats["valid_fraction"],
+                 stats["median_height_mm"] or float("nan"))
 
 
 def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], clouds: Sequence[str]) -> None:

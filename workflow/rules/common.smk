@@ -48,6 +48,23 @@ def frame_outputs(sid, frames):
     }
 
 
+def map_frames(sid):
+    """Frames of session ``sid`` whose phase and hue maps are written (``measurement.maps``)."""
+    plan = PLANS[sid]
+    if config["measurement"].get("maps", "rendered") == "all":
+        return list(plan.frames)
+    return sorted(set(plan.frame_selection(config["render"]["frames"])))
+
+
+def measure_outputs(sid, frames):
+    """Outputs of the measurement job of a batch: height and QA of every frame, maps of some."""
+    out = {k: v for k, v in frame_outputs(sid, frames).items() if k in ("heights", "qa")}
+    maps = [n for n in frames if n in set(map_frames(sid))]
+    if maps:
+        out.update({k: frame_outputs(sid, maps)[k] for k in ("phases", "hues")})
+    return out
+
+
 def baseline_outputs(sid, frames):
     return {
         "heights": [R(sid, "baseline", "height", f"{fname(n)}.tiff") for n in frames],

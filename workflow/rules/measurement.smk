@@ -1,7 +1,8 @@
-# Height maps (with phase, hue and QA), point clouds and the three-step baseline, in batches of
-# frames per job (one rule per session and batch, so a 1000-frame session costs 20 job start-ups,
-# not 1000). The clouds are jobs of their own (cloud_*), made from the batch's height maps, so
-# that the height maps do not wait for them.
+# Height maps (with QA, and the phase and hue maps of the rendered frames, or of all with
+# measurement.maps: all), point clouds and the three-step baseline, in batches of frames per job
+# (one rule per session and batch, so a 1000-frame session costs 8 job start-ups, not 1000). The
+# clouds are jobs of their own (cloud_*), made from the batch's height maps, so that the height
+# maps do not wait for them.
 
 for _sid, _plan in PLANS.items():
     for _b, _frames in enumerate(_plan.batches):
@@ -13,10 +14,11 @@ for _sid, _plan in PLANS.items():
                 table=R(_sid, "calib", "table_object.json"),
                 model=R(_sid, "calib", "phase_to_height.npz"),
             output:
-                **{k: v for k, v in frame_outputs(_sid, _frames).items() if k != "clouds"},
+                **measure_outputs(_sid, _frames),
             params:
                 session=str(_plan.path),
                 frames=_frames,
+                map_frames=[n for n in _frames if n in set(map_frames(_sid))],
                 hue_model=config["hue_model"],
                 measurement=config["measurement"],
                 calibration=config["calibration"],
