@@ -22,8 +22,6 @@ from typing import Literal
 import numpy as np
 from numpy.typing import NDArray
 from numba import njit
-from scipy import ndimage
-from skimage.restoration import unwrap_phase
 
 from huefringe.patterns import TWO_PI, phase_shift_steps
 
@@ -110,6 +108,9 @@ def unwrap(dphi_wrapped: NDArray[np.floating], valid: NDArray[np.bool_], mode: U
         flags["isolated"] = np.zeros(d.shape, bool)
     elif mode == "spatial":
         out = np.full(d.shape, np.nan)
+        from scipy import ndimage  # here, not at the top: the per-frame jobs never need it
+        from skimage.restoration import unwrap_phase
+
         labels, n = ndimage.label(valid)
         isolated = np.zeros(d.shape, bool)
         if n:
@@ -139,6 +140,8 @@ def unwrap_rows(phi: NDArray[np.floating], valid: NDArray[np.bool_]) -> NDArray[
     Uses scikit-image's quality-guided unwrapper on the valid pixels and returns NaN elsewhere.
     The absolute 2 pi offset is arbitrary; callers compare planes through differences.
     """
+    from skimage.restoration import unwrap_phase
+
     masked = np.ma.masked_array(np.asarray(phi, np.float64), mask=~np.asarray(valid, bool))
     return np.asarray(unwrap_phase(masked, rng=0).filled(np.nan), np.float64)
 

@@ -1,6 +1,6 @@
 # Height maps (with QA, and the phase and hue maps of the rendered frames, or of all with
 # measurement.maps: all), point clouds and the three-step baseline, in batches of frames per job
-# (one rule per session and batch, so a 1000-frame session costs 8 job start-ups, not 1000). The
+# (one rule per session and batch, so a 1000-frame session costs 4 job start-ups, not 1000). The
 # clouds are jobs of their own (cloud_*), made from the batch's height maps, so that the height
 # maps do not wait for them.
 
