@@ -485,8 +485,8 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     """The fused per-pixel loop; returns (clipped, hue undefined, valid, guess missed) counts.
 
     Rows go through three passes, pass 1 one row ahead of the others: (1) white balance, hue,
-    masks (:func:`_colour_row`, vectorised), the guessed line of each pixel's column and its
-    prefetch; (2) the count in that line; (3) interpolation, pre-distortion, phase difference
+    masks (:func:`_colour_row`, vectorised), the guessed line of each pixel's column; (2) the
+    count in that line (and the prefetch of the next row's lines); (3) interpolation, pre-distortion, phase difference
     and height (:func:`_finish_row`). ``out_dphi`` receives the phase difference before any
     filtering; with ``out_sigma`` given (and ``out_dphi``), the phase uncertainty is written
     instead of the height (the denoise filter runs between this loop and
@@ -513,8 +513,8 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     n_valid = 0
     n_miss = 0
     for vi in range(h + 1):
-        # ------------------------------------------------------------ pass 1 (row vi): colour,
-        # guessed lines and their prefetch, one row ahead of pass 2, so that the lines have a
+        # ------------------------------------------------------------ pass 1 (row vi): colour and
+        # guessed lines, one row ahead of pass 2, which prefetches them, so that the lines have a
         # whole row's time to arrive (a row of lines, 48 KB at 768 px, stays in L2)
         if vi < h:
             hq1 = rows_hq[vi & 1]
@@ -531,13 +531,20 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                     continue
                 gl = np.int64(guess[tile_row + u // _TILE, np.int64(hq) >> _SHIFT])
                 g1[u] = gl
-                _prefetch(cols, (vi * w + u) * ncols + 32 * gl)
         if vi > 0:
             v = vi - 1
             row_hq = rows_hq[v & 1]
             row_g = rows_g[v & 1]
             # ---------------------------------------------------------------- pass 2: table lookup
+            # (and the prefetch of row vi's lines, spread over this loop so that the memory
+            # requests overlap its arithmetic instead of queueing in a burst)
+            g_next = rows_g[vi & 1]
+            more = vi < h
             for u in range(w):
+                if more:
+                    gx = g_next[u]
+                    if gx >= 0:
+                        _prefetch(cols, (vi * w + u) * ncols + 32 * gx)
                 gl = row_g[u]
                 if gl < 0:  # neutral values for _finish_row, which masks the pixel
                     row_hq[u] = 0.0
@@ -696,7 +703,7 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
         em[u] = zero32 if r >= two_pi_f32 else r
     # (B) Predistortion.decode, bit for bit: np.interp on the extended samples (same
     # bracketing and slope formula), np.mod, float32; and decode_slope, the slope of the
-    # bracketing segment
+    # bracketing segment. Scalar: a branch-free version with gathers was measured slower.
     if pd_e is not None:
         pd_last = pd_e.size - 1
         pd_e0 = pd_e[pd_e.size // 3]
