@@ -73,6 +73,25 @@ class Unwrapped:
     crosses the unambiguous range)."""
 
 
+@njit(cache=True, nogil=True)
+def _wrap_flags(d, valid, near_wrap, edge, near):  # pragma: no cover - compiled
+    """``edge``: both pixels of every valid 4-neighbour pair whose phases differ by more than pi;
+    ``near``: valid pixels with ``|d| > near_wrap``. Differences in float64."""
+    h, w = d.shape
+    for v in range(h):
+        for u in range(w):
+            if not valid[v, u]:
+                continue
+            x = np.float64(d[v, u])
+            near[v, u] = abs(x) > near_wrap
+            if u + 1 < w and valid[v, u + 1] and abs(np.float64(d[v, u + 1]) - x) > np.pi:
+                edge[v, u] = True
+                edge[v, u + 1] = True
+            if v + 1 < h and valid[v + 1, u] and abs(np.float64(d[v + 1, u]) - x) > np.pi:
+                edge[v, u] = True
+                edge[v + 1, u] = True
+
+
 def unwrap(dphi_wrapped: NDArray[np.floating], valid: NDArray[np.bool_], mode: UnwrapMode = "reference",
            *, near_wrap: float = 0.9 * np.pi, min_region_px: int = 1,
            anchor_percentile: float = 1.0) -> Unwrapped:
@@ -92,21 +111,21 @@ def unwrap(dphi_wrapped: NDArray[np.floating], valid: NDArray[np.bool_], mode: U
         Spatial mode: each region's 2 pi offset puts this percentile of its values inside
         (-pi, pi] (objects stand on the plate, so their lowest part is near the reference plane).
     """
-    d = np.asarray(dphi_wrapped, np.float64)
+    d = np.asarray(dphi_wrapped)
+    if d.dtype not in (np.float32, np.float64):
+        d = d.astype(np.float64)
     valid = np.asarray(valid, bool) & np.isfinite(d)
     flags: dict[str, NDArray[np.bool_]] = {}
     edge = np.zeros(d.shape, bool)
-    for lo, hi in (((slice(None, -1), slice(None)), (slice(1, None), slice(None))),  # v, v + 1
-                   ((slice(None), slice(None, -1)), (slice(None), slice(1, None)))):  # u, u + 1
-        e = valid[lo] & valid[hi] & (np.abs(d[hi] - d[lo]) > np.pi)
-        edge[lo] |= e
-        edge[hi] |= e
+    near = np.zeros(d.shape, bool)
+    _wrap_flags(d, valid, float(near_wrap), edge, near)
     flags["wrap_edge"] = edge
     if mode == "reference":
         out = np.where(valid, d, np.nan)
-        flags["near_wrap"] = valid & (np.abs(d) > near_wrap)
+        flags["near_wrap"] = near
         flags["isolated"] = np.zeros(d.shape, bool)
     elif mode == "spatial":
+        d = d.astype(np.float64)
         out = np.full(d.shape, np.nan)
         from scipy import ndimage  # here, not at the top: the per-frame jobs never need it
         from skimage.restoration import unwrap_phase
@@ -144,6 +163,23 @@ def unwrap_rows(phi: NDArray[np.floating], valid: NDArray[np.bool_]) -> NDArray[
 
     masked = np.ma.masked_array(np.asarray(phi, np.float64), mask=~np.asarray(valid, bool))
     return np.asarray(unwrap_phase(masked, rng=0).filled(np.nan), np.float64)
+
+
+@njit(cache=True, nogil=True)
+def _denoise_weights(d, sigma, valid, dz, s2, inv):  # pragma: no cover - compiled
+    """One pass: ``ok = valid & finite(d) & finite(sigma) & sigma > 0``; ``dz = ok ? d : 0``,
+    ``s2 = float32(clip(ok ? sigma : 1, 1e-9, 1e9)) ** 2``, ``inv = ok ? 1 / s2 : 0``."""
+    h, w = d.shape
+    for v in range(h):
+        for u in range(w):
+            x = d[v, u]
+            sg = sigma[v, u]
+            ok = valid[v, u] and np.isfinite(x) and np.isfinite(sg) and sg > 0
+            sc = np.float32(min(max(np.float64(sg), 1e-9), 1e9)) if ok else np.float32(1.0)
+            q = sc * sc
+            s2[v, u] = q
+            inv[v, u] = np.float32(1.0) / q if ok else np.float32(0.0)
+            dz[v, u] = np.float32(x) if ok else np.float32(0.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -215,12 +251,17 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         The filtered phase, NaN where not valid. Computed in float32 (vectorised; about 5 ms
         for 640 x 480 at radius 2 on one core).
     """
-    d = np.asarray(dphi, dtype=np.float32)
+    d = np.asarray(dphi)
     s = np.asarray(sigma)
-    ok = np.asarray(valid, bool) & np.isfinite(d) & np.isfinite(s) & (s > 0)
+    valid = np.asarray(valid, bool)
+    if not d.shape == s.shape == valid.shape or d.ndim != 2:
+        raise ValueError(f"dphi {d.shape}, sigma {s.shape} and valid {valid.shape} must be the same 2-D shape")
+    if d.dtype not in (np.float32, np.float64):
+        d = d.astype(np.float64)
+    if s.dtype not in (np.float32, np.float64):
+        s = s.astype(np.float64)
     # float32 throughout (SIMD); sigma clipped so that its square and inverse stay finite
-    s2 = np.square(np.clip(np.where(ok, s, 1.0), 1e-9, 1e9).astype(np.float32))
-    inv = np.where(ok, np.float32(1.0) / s2, np.float32(0.0))
-    out = np.empty(d.shape, np.float32)
-    _denoise_kernel(np.where(ok, d, np.float32(0.0)), s2, inv, int(radius), np.float32(float(k) ** 2), out)
+    dz, s2, inv, out = (np.empty(d.shape, np.float32) for _ in range(4))
+    _denoise_weights(d, s, valid, dz, s2, inv)
+    _denoise_kernel(dz, s2, inv, int(radius), np.float32(float(k) ** 2), out)
     return out
