@@ -22,27 +22,40 @@ The measuring modules never import this package (design.md).
 
 from __future__ import annotations
 
+import importlib
+from typing import Any
+
 from .config import (
     BenchConfigError,
     available_presets,
     bench_schema,
     load_bench_config,
     preset_path,
+    sweep_config,
     validate_bench_config,
 )
-from .geometry import (
-    Grid,
-    analytic_phase_difference,
-    cast_shadow_mask,
-    code_phase,
-    lambert_cosine,
-    projector_ray_x0,
-    triangulation_angle_deg,
-)
-from .radiometry import Pattern, Rig, camera_response, dmd_levels, emitted_rgb
-from .scenes import build_scene
-from .simulator import Bench, noise_rng, simulate_capture
-from .writer import period_sweep, rig_summary, session_document, sweep_config, write_session
+
+# The simulator's modules (NumPy/SciPy-heavy) load on first use, so that planning a workflow
+# (huefringe.plan: configurations and presets only) does not pay for them.
+_LAZY = {
+    "Grid": "geometry", "analytic_phase_difference": "geometry", "cast_shadow_mask": "geometry",
+    "code_phase": "geometry", "lambert_cosine": "geometry", "projector_ray_x0": "geometry",
+    "triangulation_angle_deg": "geometry",
+    "Pattern": "radiometry", "Rig": "radiometry", "camera_response": "radiometry", "dmd_levels": "radiometry",
+    "emitted_rgb": "radiometry",
+    "build_scene": "scenes",
+    "Bench": "simulator", "noise_rng": "simulator", "simulate_capture": "simulator",
+    "period_sweep": "writer", "rig_summary": "writer", "session_document": "writer", "write_session": "writer",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        value = getattr(importlib.import_module(f".{_LAZY[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
 
 __all__ = [
     "Bench",

@@ -218,3 +218,11 @@ def _check_semantics(cfg: dict[str, Any], source: str | Path) -> None:
             if not (x1 > x0 and y1 > y0):
                 raise BenchConfigError(source, f"scene.blocks.{i}.rect_mm must satisfy x1 > x0 and y1 > y0")
 
+
+def sweep_config(config: dict[str, Any], period_px: float) -> dict[str, Any]:
+    """A copy of a validated configuration at another fringe period, id suffixed ``-p<period>``."""
+    cfg = copy.deepcopy(config)
+    cfg["session"]["period_px"] = period_px
+    tag = f"{period_px:g}".replace(".", "-")
+    cfg["session"]["id"] = f"{config['session']['id']}-p{tag}"
+    return cfg

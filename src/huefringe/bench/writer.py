@@ -24,7 +24,7 @@ from tqdm.auto import tqdm
 
 from huefringe.io import atomic_path, write_json, write_png_rgb, write_tiff
 
-from .config import validate_bench_config
+from .config import sweep_config, validate_bench_config
 from .geometry import analytic_phase_difference, triangulation_angle_deg
 from .radiometry import Pattern
 from .scenes import base_rect, gauge_blocks
@@ -416,10 +416,3 @@ def period_sweep(
     return out
 
 
-def sweep_config(config: dict[str, Any], period_px: float) -> dict[str, Any]:
-    """A copy of a validated configuration at another fringe period, id suffixed ``-p<period>``."""
-    cfg = copy.deepcopy(config)
-    cfg["session"]["period_px"] = period_px
-    tag = f"{period_px:g}".replace(".", "-")
-    cfg["session"]["id"] = f"{config['session']['id']}-p{tag}"
-    return cfg
