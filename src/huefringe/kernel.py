@@ -71,7 +71,7 @@ from numpy.typing import NDArray
 from huefringe.calibration import HueTable
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
-from huefringe.phase import denoise_phase
+from huefringe.phase import denoise_weighted
 from huefringe.session import Predistortion
 
 __all__ = ["FrameMaps", "Prepared", "frame_maps", "frame_to_height", "prepare"]
@@ -132,7 +132,8 @@ class Prepared:
     pd_slope: NDArray[np.float64] | None = None
     """... the slopes between samples, ..."""
     pd_index: NDArray[np.int32] | None = None
-    """... and per bucket of ``[emitted[0], emitted[0] + 2 pi)`` the last sample at or below it."""
+    """... and per bucket of ``[emitted[0], emitted[0] + 2 pi)`` the last sample at or below it,
+    as ``-index - 1`` where a sample lies within the bucket (then searched)."""
     stats: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -276,8 +277,12 @@ def _predistortion_arrays(pd: Predistortion) -> tuple[NDArray[np.float64], NDArr
     e = np.concatenate([pd.emitted - two_pi, pd.emitted, pd.emitted + two_pi]).astype(np.float64)
     c = np.concatenate([pd.code - two_pi, pd.code, pd.code + two_pi]).astype(np.float64)
     e0 = float(pd.emitted[0])
-    lows = e0 + two_pi * np.arange(_PD_BUCKETS) / _PD_BUCKETS
-    index = np.maximum(np.searchsorted(e, lows, side="right") - 1, 0).astype(np.int32)
+    lows = e0 + two_pi * np.arange(_PD_BUCKETS + 1) / _PD_BUCKETS
+    index = np.maximum(np.searchsorted(e, lows[:-1], side="right") - 1, 0).astype(np.int32)
+    # buckets with no sample within 1e-9 rad of them (far beyond the rounding of the bucket
+    # number): their index is the bracketing sample itself; the others (-index - 1) are searched
+    inside = np.searchsorted(e, lows[1:] + 1e-9, side="right") - np.searchsorted(e, lows[:-1] - 1e-9, side="right")
+    index = np.where(inside == 0, index, -index - 1).astype(np.int32)
     slopes = np.append((c[1:] - c[:-1]) / (e[1:] - e[:-1]), 0.0)
     return np.ascontiguousarray(e), np.ascontiguousarray(c), slopes, index
 
@@ -481,16 +486,17 @@ def _interp(bb, hq, lo_val, hi_val, n):  # pragma: no cover - numba
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles_x, n, start, phi_ref, a, b, noise,
                   atan, min_sat, use_min_sat, floor_slope, pd_e, pd_c, pd_s, pd_index, out_h, out_valid,
-                  out_dphi, out_sigma, out_phase, out_hue):  # pragma: no cover - numba
+                  out_dphi, out_w, out_phase, out_hue):  # pragma: no cover - numba
     """The fused per-pixel loop; returns (clipped, hue undefined, valid, guess missed) counts.
 
     Rows go through three passes, pass 1 one row ahead of the others: (1) white balance, hue,
     masks (:func:`_colour_row`, vectorised), the guessed line of each pixel's column; (2) the
     count in that line (and the prefetch of the next row's lines); (3) interpolation, pre-distortion, phase difference
     and height (:func:`_finish_row`). ``out_dphi`` receives the phase difference before any
-    filtering; with ``out_sigma`` given (and ``out_dphi``), the phase uncertainty is written
-    instead of the height (the denoise filter runs between this loop and
-    :func:`_height_kernel`). ``out_phase``, ``out_hue``, ``out_dphi`` and ``out_sigma`` may be
+    filtering; with ``out_w`` given (``(3, H, W)`` float32), the weights of the denoise filter
+    (``phase.denoise_phase``'s ``dz, s2, inv`` of the phase difference and its uncertainty) are
+    written instead of the height (the filter runs between this loop and :func:`_height_kernel`).
+    ``out_phase``, ``out_hue``, ``out_dphi`` and ``out_w`` may be
     None: numba compiles a version without them (``is None`` pruning); so may the
     pre-distortion ``pd_e, pd_c, pd_s, pd_index`` (no decoding). ``cols`` and ``heads`` are
     flat views.
@@ -594,7 +600,7 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
             # ---------------------------------------------------------------- pass 3: arithmetic
             n_valid += _finish_row(v, row_bb, row_hq, row_lo, row_hi, row_g, phi_ref, a, b, noise, n, floor_slope, pd_e,
                                    pd_c, pd_s, pd_index, row_em, row_ph, row_pds, out_h, out_valid, out_phase, out_dphi,
-                                   out_sigma)
+                                   out_w)
     return n_clip, n_undef, n_valid, n_miss
 
 
@@ -677,9 +683,9 @@ def _colour_row(rgb, v, u0, u1, scale, top32, top64, gains, ok, atan, min_sat, u
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e, pd_c, pd_s, pd_index, em, ph, pds,
-                out_h, out_valid, out_phase, out_dphi, out_sigma):  # pragma: no cover - numba
+                out_h, out_valid, out_phase, out_dphi, out_w):  # pragma: no cover - numba
     """Looked-up bands of row ``v`` (``bb``, ``hq``, ``lo``, ``hi``; ``g < 0`` marks invalid
-    pixels) to heights, or to the phase difference and its uncertainty (``out_sigma``).
+    pixels) to heights, or to the denoise filter's weights of the phase difference (``out_w``).
 
     Operation by operation as the reference (see the comments), in three loops: (A) the band
     interpolation (``_interp``) and (C) the phase difference (``phase.wrap``), height or
@@ -724,10 +730,12 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
             else:
                 kb = min(max(int((x - pd_e0) * pd_scale), 0), pd_nb - 1)
                 jp = np.int64(pd_index[kb])
-                while jp > 0 and pd_e[jp] > x:
-                    jp -= 1
-                while jp < pd_last and pd_e[jp + 1] <= x:
-                    jp += 1
+                if jp < 0:  # a sample near the bucket: np.interp's search from there
+                    jp = -jp - 1
+                    while jp > 0 and pd_e[jp] > x:
+                        jp -= 1
+                    while jp < pd_last and pd_e[jp + 1] <= x:
+                        jp += 1
                 pds[u] = pd_s[jp if jp < pd_last else pd_last - 1]
                 if jp == pd_last or pd_e[jp] == x:
                     y = pd_c[jp]
@@ -754,8 +762,10 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
         pv = out_phase[v]
     if out_dphi is not None:
         dv = out_dphi[v]
-    if out_sigma is not None:
-        sv = out_sigma[v]
+    if out_w is not None:
+        wd = out_w[0, v]
+        ws = out_w[1, v]
+        wi = out_w[2, v]
     n_valid = 0
     n_out = 0
     for u in range(w):
@@ -764,13 +774,19 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
         n_out += (x < -two_pi) | (x >= two_pi + two_pi)
         m = x + two_pi if x < 0 else (x if x < two_pi else x - two_pi)
         dphi = np.float32(pi - m)
-        if out_sigma is not None:
+        if out_w is not None:
             slope = (hi[u] - lo[u]) * n / 65536.0
             sig = nz[u] / max(slope, floor_slope)
             if pd_e is not None:
                 sig = sig * abs(pds[u])
+            # phase.denoise_phase's weights (_denoise_weights) of this dphi and sigma
+            wok = (g[u] >= 0) & (dphi - dphi == 0) & (sig - sig == 0) & (sig > 0)
+            sc = np.float32(min(max(sig, 1e-9), 1e9)) if wok else np.float32(1.0)
+            q = sc * sc
+            ws[u] = q
+            wi[u] = np.float32(1.0) / q if wok else zero32
+            wd[u] = dphi if wok else zero32
             ok = g[u] >= 0
-            sv[u] = sig if ok else 1.0
             hv[u] = nan32  # _height_kernel writes the valid ones
         else:
             hh = dphi / (av[u] + bv[u] * dphi)
@@ -790,7 +806,8 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
             dphi = np.float32(pi - _mod(pi - d, two_pi))
             if out_dphi is not None:
                 dv[u] = dphi
-            if out_sigma is not None:
+            if out_w is not None:
+                wd[u] = dphi if wi[u] > 0 else zero32
                 continue
             hh = dphi / (av[u] + bv[u] * dphi)
             ok = hh - hh == 0
@@ -906,7 +923,7 @@ def frame_maps(
     phase = np.empty((h, w), dtype=np.float32) if want_maps else None
     hue = np.empty((h, w), dtype=np.float32) if want_maps else None
     dphi = np.empty((h, w), dtype=np.float32) if denoise or want_dphi else None
-    sigma = np.empty((h, w), dtype=np.float64) if denoise else None
+    weights = np.empty((3, h, w), dtype=np.float32) if denoise else None  # the filter's dz, s2, inv
     top = 1.0 - 0.5 / (2**prep.bit_depth - 1)
     hsi = prep.hue_model == "hsi"
     atan = None
@@ -919,11 +936,11 @@ def frame_maps(
         a, np.float32(scale), np.float32(top), float(top), prep.gains, prep.ok, prep.cols.reshape(-1),
         prep.heads.reshape(-1), prep.guess, prep.tiles_x, prep.n_bands, prep.start, prep.phi_ref, prep.a, prep.b,
         prep.noise, atan, np.float32(prep.min_saturation), prep.min_saturation > 0.0,
-        prep.floor_slope, prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, height, valid, dphi, sigma, phase,
+        prep.floor_slope, prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, height, valid, dphi, weights, phase,
         hue,
     )
     if denoise:
-        smooth = denoise_phase(dphi, sigma, valid, radius=int(denoise_radius), k=float(denoise_k))
+        smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k))
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss)}
     return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None)

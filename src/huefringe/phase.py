@@ -261,7 +261,21 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     if s.dtype not in (np.float32, np.float64):
         s = s.astype(np.float64)
     # float32 throughout (SIMD); sigma clipped so that its square and inverse stay finite
-    dz, s2, inv, out = (np.empty(d.shape, np.float32) for _ in range(4))
+    dz, s2, inv = (np.empty(d.shape, np.float32) for _ in range(3))
     _denoise_weights(d, s, valid, dz, s2, inv)
-    _denoise_kernel(dz, s2, inv, int(radius), np.float32(float(k) ** 2), out)
+    return denoise_weighted(dz, s2, inv, radius=radius, k=k)
+
+
+def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDArray[np.float32], *,
+                     radius: int = 2, k: float = 3.0) -> NDArray[np.float32]:
+    """:func:`denoise_phase` on its prepared float32 inputs (for callers that compute them on
+    the fly, like the fused kernel): ``ok = valid & finite(dphi) & finite(sigma) & sigma > 0``,
+    ``dz = ok ? dphi : 0``, ``s2 = float32(clip(ok ? sigma : 1, 1e-9, 1e9)) ** 2`` and
+    ``inv = ok ? 1 / s2 : 0``. Returns the filtered phase, NaN where ``inv == 0``.
+    """
+    arrays = [np.ascontiguousarray(x, dtype=np.float32) for x in (dz, s2, inv)]
+    if not arrays[0].shape == arrays[1].shape == arrays[2].shape or arrays[0].ndim != 2:
+        raise ValueError("dz, s2 and inv must be 2-D arrays of the same shape")
+    out = np.empty(arrays[0].shape, np.float32)
+    _denoise_kernel(*arrays, int(radius), np.float32(float(k) ** 2), out)
     return out
