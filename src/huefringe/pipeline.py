@@ -145,11 +145,11 @@ def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Ma
     ``-below_reference_mm`` (objects stand on the plate, so a large negative height means the
     phase difference wrapped) or sit on a wrap edge.
     """
-    counts = {k: int(v.sum()) for k, v in flags.items()}
-    counts["below_reference"] = int((valid & (height < -below_reference_mm)).sum())
+    counts = {k: int(np.count_nonzero(v)) for k, v in flags.items()}
+    counts["below_reference"] = int(np.count_nonzero(valid & (height < -below_reference_mm)))
     suspect = (counts["below_reference"] + counts["wrap_edge"]) > 0.001 * valid.size
     return {
-        "valid_fraction": float(valid.mean()),
+        "valid_fraction": np.count_nonzero(valid) / valid.size,
         "clipped_fraction": clipped_fraction,
         "hue_undefined_fraction": hue_undefined_fraction,
         "table_invalid_fraction": table_invalid_fraction,
