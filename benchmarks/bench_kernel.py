@@ -15,6 +15,9 @@ crosstalk, coloured and dark patches and noise; see ``_rig.py``), it measures
 ``numpy``       ``pipeline.measure_frame(frame_f32, ..., denoise_radius=0)``, the reference
                 implementation (NumPy, plus the compiled table lookup it already has),
 ``numpy+dn2``   the reference with ``denoise_radius=2`` (first size only: it is slow).
+``table-reads`` a floor of another kind: reading, for every pixel, the one cache line of its
+                table column that the kernel reads for this frame (no other arithmetic): what
+                the per-pixel table costs in memory traffic alone.
 
 Self-calibrating: all single-threaded (``NUMBA_NUM_THREADS=1``, ``cv2.setNumThreads(1)``), and
 measured in interleaved rounds, so that each round's ratios compare runs made under the same
@@ -44,6 +47,7 @@ from pathlib import Path  # noqa: E402
 from typing import Any, Callable  # noqa: E402
 
 import cv2  # noqa: E402
+import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
@@ -53,6 +57,31 @@ from huefringe import kernel, pipeline  # noqa: E402
 
 TARGET_FPS = 200.0
 TARGET_CV_RATIO = 10.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _table_reads(cols, lines, ncols, hq):  # pragma: no cover - numba
+    """Count, for every pixel, the entries <= its hue in the table line ``lines[i]`` (-1: none),
+    with the kernel's two 16-wide vector compares."""
+    total = 0
+    for i in range(lines.size):
+        line = lines[i]
+        if line < 0:
+            continue
+        o = i * ncols + 32 * line
+        total += kernel._count16_le(cols, o, hq[i]) + kernel._count16_le(cols, o + 16, hq[i])
+    return total
+
+
+def table_lines(prep: Any, hue: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The guessed table line of every usable pixel for this frame's hue (as the kernel's pass 1)."""
+    h, w = prep.shape
+    hq = np.nan_to_num(hue.astype(np.float64) * (65536.0 / (2 * np.pi)), nan=-1.0)
+    vv, uu = np.mgrid[0:h, 0:w]
+    tile = (vv // kernel._TILE) * prep.tiles_x + uu // kernel._TILE
+    use = (hq >= 0) & prep.ok
+    lines = np.where(use, prep.guess[tile, np.clip(hq, 0, 65535).astype(np.int64) >> kernel._SHIFT], -1)
+    return lines.astype(np.int64).ravel(), np.floor(np.maximum(hq, 0)).astype(np.uint16).ravel()
 
 
 def _time(fn: Callable[[], Any], reps: int) -> tuple[float, float]:
@@ -105,7 +134,15 @@ def bench_size(rig: Rig, *, rounds: int, min_time: float, with_dn2_reference: bo
     hk, vk = kernel.frame_to_height(prep, frame)
     checks["median_abs_error_vs_surface_mm"] = float(np.median(np.abs(hk[vk] - rig.truth[vk])))
 
-    cases: dict[str, Callable[[], Any]] = {"kernel": k0, "kernel+dn2": k2, "cvtColor": cvt, "numpy": ref(0)}
+    lines, hq16 = table_lines(prep, kernel.frame_maps(prep, frame, want_maps=True).hue)
+    cols_flat = prep.cols.reshape(-1)
+    ncols = prep.cols.shape[2]
+
+    def reads() -> Any:
+        return _table_reads(cols_flat, lines, ncols, hq16)
+
+    cases: dict[str, Callable[[], Any]] = {"kernel": k0, "kernel+dn2": k2, "cvtColor": cvt, "numpy": ref(0),
+                                           "table-reads": reads}
     if with_dn2_reference:
         cases["numpy+dn2"] = ref(2)
     reps = {k: _reps_for(f, min_time) for k, f in cases.items()}
@@ -132,6 +169,10 @@ def bench_size(rig: Rig, *, rounds: int, min_time: float, with_dn2_reference: bo
                    "cpu_median": 1e3 * statistics.median(cpu[k])} for k in cases},
         "ratio_kernel_to_cvtcolor": {"wall": ratio("kernel", "cvtColor", wall), "cpu": ratio("kernel", "cvtColor", cpu)},
         "speedup_vs_numpy": {"wall": ratio("numpy", "kernel", wall), "cpu": ratio("numpy", "kernel", cpu)},
+        "ratio_kernel_to_table_reads": {"wall": ratio("kernel", "table-reads", wall),
+                                        "cpu": ratio("kernel", "table-reads", cpu)},
+        "ratio_table_reads_to_cvtcolor": {"wall": ratio("table-reads", "cvtColor", wall),
+                                          "cpu": ratio("table-reads", "cvtColor", cpu)},
     }
     if with_dn2_reference:
         out["speedup_vs_numpy_dn2"] = {"wall": ratio("numpy+dn2", "kernel+dn2", wall),
@@ -151,6 +192,8 @@ def print_size(r: dict[str, Any]) -> None:
           f"x{r['ratio_kernel_to_cvtcolor']['wall']:.1f} the time of cvtColor RGB->HSV "
           f"(cpu x{r['ratio_kernel_to_cvtcolor']['cpu']:.1f}); "
           f"{r['speedup_vs_numpy']['wall']:.0f}x faster than the NumPy reference")
+    print(f"  the table reads alone (one line per pixel, no arithmetic) take x{r['ratio_table_reads_to_cvtcolor']['wall']:.1f} "
+          f"the time of cvtColor; the kernel takes x{r['ratio_kernel_to_table_reads']['wall']:.2f} the time of its table reads")
     if "speedup_vs_numpy_dn2" in r:
         print(f"  with denoise radius 2: {r['speedup_vs_numpy_dn2']['wall']:.1f}x faster than the reference")
     c = r["checks"]

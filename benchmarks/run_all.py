@@ -114,6 +114,10 @@ def summary(res: dict[str, Any], quick: bool, elapsed: float) -> None:
             ratio = r["ratio_kernel_to_cvtcolor"]["wall"]
             rows.append((f"  kernel / cvtColor RGB2HSV {w}x{h}", f"x{ratio:.1f}", "<= x10",
                          _status(ratio <= k["target_cv_ratio"], quick)))
+            if "ratio_table_reads_to_cvtcolor" in r:
+                rows.append((f"  table reads alone / cvtColor {w}x{h}",
+                             f"x{r['ratio_table_reads_to_cvtcolor']['wall']:.1f} (kernel = "
+                             f"x{r['ratio_kernel_to_table_reads']['wall']:.2f} its table reads)", "", "info"))
             rows.append((f"  speed-up vs NumPy reference {w}x{h}", f"{r['speedup_vs_numpy']['wall']:.0f}x", "", "info"))
             if "speedup_vs_numpy_dn2" in r:
                 rows.append((f"  kernel+denoise 2 {w}x{h}",

@@ -39,7 +39,8 @@ holds entries ``31 j .. 31 j + 31``), so that both entries bracketing a hue are 
 line. Hue tables vary little from pixel to pixel, so a small table per 32 x 32 tile of the image
 tells, from the hue, which line of the column most likely brackets it (~99 % of the pixels).
 A lookup is then one line, prefetched a row ahead, counted with two 16-wide vector
-compares; when the guess misses, the first entries of the lines (one more line) give the right
+compares; when the guess misses, the next line up or down (64 bytes away, usually fetched with
+the guessed one) is tried, then the first entries of the lines (one more line) give the right
 one. A pixel thus costs one cache line of table instead of about eight.
 
 Memory: ``64 ceil(N / 31) H W`` bytes of columns (576 per pixel for N = 256), 32 per pixel of line
@@ -487,7 +488,8 @@ def _interp(bb, hq, lo_val, hi_val, n):  # pragma: no cover - numba
 def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles_x, n, start, phi_ref, a, b, noise,
                   atan, min_sat, use_min_sat, floor_slope, pd_e, pd_c, pd_s, pd_index, out_h, out_valid,
                   out_dphi, out_w, out_phase, out_hue):  # pragma: no cover - numba
-    """The fused per-pixel loop; returns (clipped, hue undefined, valid, guess missed) counts.
+    """The fused per-pixel loop; returns (clipped, hue undefined, valid, guess missed, guess far)
+    counts.
 
     Rows go through three passes, pass 1 one row ahead of the others: (1) white balance, hue,
     masks (:func:`_colour_row`, vectorised), the guessed line of each pixel's column; (2) the
@@ -518,6 +520,7 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     n_undef = 0
     n_valid = 0
     n_miss = 0
+    n_far = 0
     for vi in range(h + 1):
         # ------------------------------------------------------------ pass 1 (row vi): colour and
         # guessed lines, one row ahead of pass 2, which prefetches them, so that the lines have a
@@ -570,14 +573,26 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                 f = _count16_le(cols, o + 32 * gl, hqi) + _count16_le(cols, o + 32 * gl + 16, hqi)
                 if not ((f > 0 or gl == 0) and (f < 32 or gl == nl - 1)):
                     n_miss += 1
-                    oh = (v * w + u) * nheads
-                    cl = 0
-                    for k in range(0, nheads, 16):
-                        cl += _count16_le(heads, oh + k, hqi)
-                    if cl > nl:  # padding counted
-                        cl = nl
-                    gl = cl - 1 if cl > 0 else 0
-                    f = 0 if cl == 0 else _count16_le(cols, o + 32 * gl, hqi) + _count16_le(cols, o + 32 * gl + 16, hqi)
+                    # mostly the next line down (f == 0) or up (f == 32): 64 bytes away, often
+                    # already cached with the guessed one
+                    g2 = gl - 1 if f == 0 else gl + 1
+                    f2 = 0
+                    if 0 <= g2 < nl:
+                        f2 = _count16_le(cols, o + 32 * g2, hqi) + _count16_le(cols, o + 32 * g2 + 16, hqi)
+                    if 0 <= g2 < nl and (f2 > 0 or g2 == 0) and (f2 < 32 or g2 == nl - 1):
+                        gl = g2
+                        f = f2
+                    else:
+                        n_far += 1
+                        oh = (v * w + u) * nheads
+                        cl = 0
+                        for k in range(0, nheads, 16):
+                            cl += _count16_le(heads, oh + k, hqi)
+                        if cl > nl:  # padding counted
+                            cl = nl
+                        gl = cl - 1 if cl > 0 else 0
+                        f = 0 if cl == 0 else (_count16_le(cols, o + 32 * gl, hqi)
+                                               + _count16_le(cols, o + 32 * gl + 16, hqi))
                 cnt = 31 * gl + f
                 p = (cnt if cnt < n else n) - 1  # padding counted: every real entry is <= hue
                 if p < 0:
@@ -601,7 +616,7 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
             n_valid += _finish_row(v, row_bb, row_hq, row_lo, row_hi, row_g, phi_ref, a, b, noise, n, floor_slope, pd_e,
                                    pd_c, pd_s, pd_index, row_em, row_ph, row_pds, out_h, out_valid, out_phase, out_dphi,
                                    out_w)
-    return n_clip, n_undef, n_valid, n_miss
+    return n_clip, n_undef, n_valid, n_miss, n_far
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -871,8 +886,10 @@ class FrameMaps:
     hue: NDArray[np.float32] | None = None
     """White-balanced hue, NaN where undefined (``want_maps``)."""
     counts: dict[str, int] = field(default_factory=dict)
-    """Pixel counts: ``clipped``, ``hue_undefined``, ``valid``, and ``guess_missed`` (lookups
-    whose guessed line did not bracket the hue: a speed statistic, not a quality one)."""
+    """Pixel counts: ``clipped``, ``hue_undefined``, ``valid``, ``guess_missed`` (lookups whose
+    guessed line did not bracket the hue) and ``guess_far`` (of those, the ones where the next
+    line up or down did not either, so the line heads were searched): speed statistics, not
+    quality ones."""
     dphi: NDArray[np.float32] | None = None
     """Wrapped phase difference to the reference plane before the denoise filter,
     ``float32(wrap(phase - phi_ref))``, NaN where no phase was decoded (``want_dphi``)."""
@@ -932,7 +949,7 @@ def frame_maps(
         y = np.empty((h, w), dtype=np.float32)
         _hsi_xy(a, np.float32(scale), prep.gains, x, y)
         atan = np.arctan2(y, x, out=y)
-    n_clip, n_undef, n_valid, n_miss = _frame_kernel(
+    n_clip, n_undef, n_valid, n_miss, n_far = _frame_kernel(
         a, np.float32(scale), np.float32(top), float(top), prep.gains, prep.ok, prep.cols.reshape(-1),
         prep.heads.reshape(-1), prep.guess, prep.tiles_x, prep.n_bands, prep.start, prep.phi_ref, prep.a, prep.b,
         prep.noise, atan, np.float32(prep.min_saturation), prep.min_saturation > 0.0,
@@ -942,7 +959,8 @@ def frame_maps(
     if denoise:
         smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k))
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
-    counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss)}
+    counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
+              "guess_far": int(n_far)}
     return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None)
 
 

@@ -22,7 +22,6 @@ from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import CalibrationError, PlaneCalibration, accuracy, calibrate_planes
 from huefringe.io import read_tiff, write_json, write_tiff
-from huefringe.patterns import TWO_PI
 from huefringe.phase import denoise_phase, three_step_phase, unwrap, wrap
 from huefringe.session import Predistortion, Session, load_session, read_rgb, read_rgb_codes
 

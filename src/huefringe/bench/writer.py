@@ -7,7 +7,6 @@ place. A killed run therefore never leaves a valid-looking half session.
 
 from __future__ import annotations
 
-import copy
 import os
 import shutil
 import tempfile
