@@ -414,6 +414,27 @@ def _prefetch(typingctx, arr, i):
     return sig, codegen
 
 
+def _count_le_codegen(lanes: int):  # pragma: no cover - compile time
+    def codegen(context, builder, signature, args):
+        aryty, offty, xty = signature.args
+        ary = context.make_array(aryty)(context, builder, args[0])
+        off = context.cast(builder, args[1], offty, types.intp)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [off], wraparound=False)
+        i16, i32 = ir.IntType(16), ir.IntType(32)
+        vty = ir.VectorType(i16, lanes)
+        vec = builder.load(builder.bitcast(ptr, vty.as_pointer()), align=2)
+        xi = builder.trunc(context.cast(builder, args[2], xty, types.int64), i16)
+        splat = builder.insert_element(ir.Constant(vty, ir.Undefined), xi, i32(0))
+        splat = builder.shuffle_vector(splat, ir.Constant(vty, ir.Undefined),
+                                       ir.Constant(ir.VectorType(i32, lanes), [0] * lanes))
+        mty = ir.IntType(lanes)
+        mask = builder.bitcast(builder.icmp_unsigned("<=", vec, splat), mty)
+        ctpop = cgutils.get_or_insert_function(builder.module, ir.FunctionType(mty, [mty]), f"llvm.ctpop.i{lanes}")
+        return builder.zext(builder.call(ctpop, [mask]), ir.IntType(64))
+
+    return codegen
+
+
 @intrinsic
 def _count16_le(typingctx, arr, offset, x):
     """Number of the 16 entries ``arr[offset:offset + 16]`` (uint16, 1-D) that are ``<= x``.
@@ -421,26 +442,17 @@ def _count16_le(typingctx, arr, offset, x):
     One vector compare, mask and popcount (``vpcmpuw``/``kmov``/``popcnt`` with AVX-512,
     ``vpcmpgtw``/``pmovmskb``/``popcnt`` with AVX2): no branches, no bisection.
     """
-    sig = types.intp(arr, offset, x)
-
-    def codegen(context, builder, signature, args):  # pragma: no cover - compile time
-        aryty, offty, xty = signature.args
-        ary = context.make_array(aryty)(context, builder, args[0])
-        off = context.cast(builder, args[1], offty, types.intp)
-        ptr = cgutils.get_item_pointer(context, builder, aryty, ary, [off], wraparound=False)
-        i16, i32 = ir.IntType(16), ir.IntType(32)
-        vty = ir.VectorType(i16, 16)
-        vec = builder.load(builder.bitcast(ptr, vty.as_pointer()), align=2)
-        xi = builder.trunc(context.cast(builder, args[2], xty, types.int64), i16)
-        splat = builder.insert_element(ir.Constant(vty, ir.Undefined), xi, i32(0))
-        splat = builder.shuffle_vector(splat, ir.Constant(vty, ir.Undefined), ir.Constant(ir.VectorType(i32, 16), [0] * 16))
-        mask = builder.bitcast(builder.icmp_unsigned("<=", vec, splat), i16)
-        ctpop = cgutils.get_or_insert_function(builder.module, ir.FunctionType(i16, [i16]), "llvm.ctpop.i16")
-        return builder.zext(builder.call(ctpop, [mask]), ir.IntType(64))
-
     if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.dtype == types.uint16):
         return None
-    return sig, codegen
+    return types.intp(arr, offset, x), _count_le_codegen(16)
+
+
+@intrinsic
+def _count32_le(typingctx, arr, offset, x):
+    """:func:`_count16_le` over the 32 entries of one 64-byte line (one compare with AVX-512BW)."""
+    if not (isinstance(arr, types.Array) and arr.ndim == 1 and arr.dtype == types.uint16):
+        return None
+    return types.intp(arr, offset, x), _count_le_codegen(32)
 
 
 # Helpers below take scalars only: a helper given an array, once inlined, costs numba two
@@ -570,7 +582,7 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                 # guessed line: exact when the line brackets the hue (its first entry <= hue or
                 # it is the first line; its last entry > hue or it is the last line); otherwise
                 # the line heads give the line.
-                f = _count16_le(cols, o + 32 * gl, hqi) + _count16_le(cols, o + 32 * gl + 16, hqi)
+                f = _count32_le(cols, o + 32 * gl, hqi)
                 if not ((f > 0 or gl == 0) and (f < 32 or gl == nl - 1)):
                     n_miss += 1
                     # mostly the next line down (f == 0) or up (f == 32): 64 bytes away, often
@@ -578,7 +590,7 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                     g2 = gl - 1 if f == 0 else gl + 1
                     f2 = 0
                     if 0 <= g2 < nl:
-                        f2 = _count16_le(cols, o + 32 * g2, hqi) + _count16_le(cols, o + 32 * g2 + 16, hqi)
+                        f2 = _count32_le(cols, o + 32 * g2, hqi)
                     if 0 <= g2 < nl and (f2 > 0 or g2 == 0) and (f2 < 32 or g2 == nl - 1):
                         gl = g2
                         f = f2
@@ -591,8 +603,7 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                         if cl > nl:  # padding counted
                             cl = nl
                         gl = cl - 1 if cl > 0 else 0
-                        f = 0 if cl == 0 else (_count16_le(cols, o + 32 * gl, hqi)
-                                               + _count16_le(cols, o + 32 * gl + 16, hqi))
+                        f = 0 if cl == 0 else _count32_le(cols, o + 32 * gl, hqi)
                 cnt = 31 * gl + f
                 p = (cnt if cnt < n else n) - 1  # padding counted: every real entry is <= hue
                 if p < 0:
