@@ -517,7 +517,8 @@ def test_unknown_config_key_is_named(dry_workdir: Path, tmp_path: Path, edit: Ca
     res = snakemake(dry_workdir, "-n", "--configfile", str(bad))
     out = res.stdout + res.stderr
     assert res.returncode != 0
-    assert "Error validating config file" in out and f"('{key}' was unexpected)" in out, out[-3000:]
+    assert "is not valid" in out and f"('{key}' was unexpected)" in out, out[-3000:]
+    assert str(bad) in out  # the message names the config file the user gave
     assert bad.read_bytes() == before
     assert not (dry_workdir / "results").exists()
 

@@ -117,4 +117,21 @@ def test_unknown_config_key_refused(tmp_path: Path) -> None:
     cfg["measurement"]["unwarp"] = "spatial"
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(cfg))
     proc = run_snakemake(tmp_path, "-n", check=False)
-    assert proc.returncode != 0 and "unwarp" in proc.stdout + proc.stderr
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0 and "measurement: Additional properties are not allowed ('unwarp' was unexpected)" in out
+    assert "the configuration (config.yaml) is not valid" in out and "Failed validating" not in out  # no schema dump
+
+
+def test_config_problems_name_each_key_path() -> None:
+    from huefringe.plan import config_problems
+
+    schema = Path(__file__).resolve().parents[1] / "workflow" / "schemas" / "config.schema.yaml"
+    assert config_problems(json.loads(json.dumps(CONFIG)), schema) == []
+    cfg = json.loads(json.dumps(CONFIG))
+    cfg["measurement"]["kernel"] = 3
+    cfg["mesh"]["frames"] = "some"
+    cfg["extra"] = 1
+    problems = config_problems(cfg, schema)
+    assert any(p.startswith("measurement.kernel: 3 is not of type 'boolean'") for p in problems), problems
+    assert any(p.startswith("mesh.frames:") for p in problems), problems
+    assert any(p.startswith("(top level): Additional properties") and "'extra'" in p for p in problems), problems

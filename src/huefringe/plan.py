@@ -19,6 +19,24 @@ class PlanError(ValueError):
     """The configuration cannot be planned (bad session, clashing ids, unknown frames)."""
 
 
+def config_problems(config: dict[str, Any], schema: str | Path) -> list[str]:
+    """The ways ``config`` breaks the workflow's JSON schema, one line each (``key.path: what``).
+
+    For a short message before Snakemake's own validation (which fills in defaults but reports
+    a problem with the whole schema attached).
+    """
+    import jsonschema
+    import yaml
+
+    doc = yaml.safe_load(Path(schema).read_text(encoding="utf-8"))
+    validator = jsonschema.validators.validator_for(doc)(doc)
+    out = []
+    for err in sorted(validator.iter_errors(config), key=lambda e: [str(p) for p in e.absolute_path]):
+        where = ".".join(str(p) for p in err.absolute_path) or "(top level)"
+        out.append(f"{where}: {err.message}")
+    return out
+
+
 @dataclass
 class SessionPlan:
     path: Path
