@@ -686,7 +686,11 @@ def test_saturated_white_image_is_refused(session_copy: Path, tmp_path: Path) ->
     img[: img.shape[0] // 4] = 255  # a quarter of the sensor saturated
     cv2.imwrite(str(white), img)
     before = snapshot(session_copy)
-    with pytest.raises(CalibrationError, match=r"white\.png: .*clipped"):
+    with pytest.raises(CalibrationError, match=r"white\.png: 25\.0 % .*clipped.*limit 1 %"):
         build_tables(session_copy, tmp_path, which=("object",))
     assert snapshot(session_copy) == before
     assert not (tmp_path / "table_object.json").exists()
+    # the limit is the config's calibration.max_white_clipped_fraction
+    pipeline.hue_table(str(session_copy), "object", "hexcone", {**CALIBRATION, "max_white_clipped_fraction": 0.3},
+                       str(tmp_path / "table_object.json"), str(tmp_path / "table_object.stats.json"))
+    assert (tmp_path / "table_object.json").exists()

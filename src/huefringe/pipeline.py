@@ -263,10 +263,12 @@ def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str
     white_path = s.reference_white if which == "reference" else s.object_white
     white = read_rgb(white_path)
     clipped = float(clipped_mask(white, s.bit_depth).mean())
-    if clipped > MAX_WHITE_CLIPPED_FRACTION:
+    limit = float(calibration.get("max_white_clipped_fraction", MAX_WHITE_CLIPPED_FRACTION))
+    if clipped > limit:
         raise CalibrationError(
             f"{white_path}: {100 * clipped:.1f} % of the pixels are clipped (sensor saturated; limit "
-            f"{100 * MAX_WHITE_CLIPPED_FRACTION:.0f} %): white balance needs the unclipped level; reduce the exposure"
+            f"{100 * limit:g} %, calibration.max_white_clipped_fraction): white balance needs the unclipped level; "
+            "reduce the exposure"
         )
     t0 = time.perf_counter()
     built = build_table(bands, white, model=hue_model, progress=False, **_calibration_opts(calibration))
