@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from huefringe.height import CalibrationError, accuracy, calibrate_planes
+from huefringe.height import CalibrationError, accuracy, calibrate_planes, coverage
 from huefringe.patterns import TWO_PI, phase_shift_intensity
 from huefringe.phase import three_step_phase, unwrap, wrap
 
@@ -114,6 +114,10 @@ def test_accuracy_figures() -> None:
     acc = accuracy(h, truth)
     assert acc["coverage"] == pytest.approx(0.99)
     assert acc["rms_mm"] == pytest.approx(0.1) and acc["median_abs_mm"] == pytest.approx(0.1)
+    assert coverage(h, truth) == acc["coverage"]
+    region = np.zeros((10, 10), bool)
+    region[:2] = True  # 20 pixels, one of them NaN
+    assert coverage(h, truth, region) == pytest.approx(0.95) == accuracy(h, truth, region)["coverage"]
 
 
 def test_nearest_plane_crossing_pi_is_unwrapped() -> None:

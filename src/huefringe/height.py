@@ -249,6 +249,14 @@ def calibrate_planes(
     return cal
 
 
+def coverage(height: NDArray[np.floating], truth: NDArray[np.floating],
+             region: NDArray[np.bool_] | None = None) -> float:
+    """Fraction of the pixels with a finite truth (inside ``region`` when given) that have a
+    finite height: :func:`accuracy`'s ``coverage`` alone."""
+    where = np.isfinite(truth) if region is None else (np.isfinite(truth) & region)
+    return float(np.count_nonzero(where & np.isfinite(height)) / max(int(np.count_nonzero(where)), 1))
+
+
 def accuracy(height: NDArray[np.floating], truth: NDArray[np.floating],
              region: NDArray[np.bool_] | None = None) -> dict[str, float]:
     """Height error statistics against ground truth.

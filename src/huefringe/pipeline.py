@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from huefringe.calibration import HueTable, build_table
 from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
-from huefringe.height import CalibrationError, PlaneCalibration, accuracy, calibrate_planes
+from huefringe.height import CalibrationError, PlaneCalibration, accuracy, calibrate_planes, coverage
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.phase import denoise_phase, three_step_phase, unwrap, wrap
 from huefringe.session import Predistortion, Session, load_session, read_rgb, read_rgb_codes
@@ -502,7 +502,7 @@ def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str
             truth = read_tiff(s.ground_truth[n])
             h = read_tiff(p)
             a = accuracy(h, truth)
-            a["coverage_lit"] = accuracy(h, truth, region=lit)["coverage"]
+            a["coverage_lit"] = coverage(h, truth, region=lit)
             a["frame"] = n
             per.append(a)
         keys = ["rms_mm", "median_abs_mm", "p95_abs_mm", "coverage", "coverage_lit"]
