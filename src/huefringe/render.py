@@ -45,7 +45,7 @@ from types import ModuleType
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-from numpy.typing import ArrayLike
+from numpy.typing import ArrayLike, NDArray
 
 from huefringe.io import write_figure_png, write_png_rgb
 
@@ -412,6 +412,14 @@ def render_views(
 # --------------------------------------------------------------------------------------------
 # 2-D figures (matplotlib)
 # --------------------------------------------------------------------------------------------
+def _as_map(x: ArrayLike, name: str) -> NDArray[np.float64]:
+    """``x`` as a float64 2-D map, or ValueError naming it."""
+    a = np.asarray(x, dtype=np.float64)
+    if a.ndim != 2:
+        raise ValueError(f"{name} must be 2-D, got {a.shape}")
+    return a
+
+
 def _new_figure(figsize: tuple[float, float]) -> Figure:
     from matplotlib.backends.backend_agg import FigureCanvasAgg  # noqa: PLC0415
     from matplotlib.figure import Figure  # noqa: PLC0415
@@ -469,9 +477,7 @@ def height_map_figure(
     """
     import matplotlib as mpl  # noqa: PLC0415
 
-    h = np.asarray(height, dtype=np.float64)
-    if h.ndim != 2:
-        raise ValueError(f"height must be 2-D, got {h.shape}")
+    h = _as_map(height, "height")
     if clim is None:
         finite = h[np.isfinite(h)]
         clim = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
@@ -521,9 +527,7 @@ def wrapped_phase_figure(
     """
     import matplotlib as mpl  # noqa: PLC0415
 
-    ph = np.asarray(phase, dtype=np.float64)
-    if ph.ndim != 2:
-        raise ValueError(f"phase must be 2-D, got {ph.shape}")
+    ph = _as_map(phase, "phase")
     two_pi = 2.0 * np.pi
     fig = _new_figure(figsize)
     ax = fig.add_subplot()
@@ -583,9 +587,7 @@ def profile_figure(
     pathlib.Path
         ``out_png``.
     """
-    h = np.asarray(height, dtype=np.float64)
-    if h.ndim != 2:
-        raise ValueError(f"height must be 2-D, got {h.shape}")
+    h = _as_map(height, "height")
     H, W = h.shape
     if not -H <= row < H:
         raise IndexError(f"row {row} outside 0..{H - 1}")
