@@ -176,7 +176,7 @@ def test_forward_and_inverse_tables_are_consistent():
     assert np.median(np.abs(circ(back[ok], c[ok]))) < 1e-3
 
 
-def test_hue_slope_is_the_slope_of_the_bracketing_band():
+def test_hue_slope_is_the_central_difference_over_one_band():
     _, _, tab = built("gamma2.2")
     rng = np.random.default_rng(4)
     c = rng.uniform(0, TWO_PI, tab.shape)
@@ -184,13 +184,13 @@ def test_hue_slope_is_the_slope_of_the_bracketing_band():
     slope = tab.hue_slope(hue)
     ok = tab.valid & np.isfinite(hue)
     assert np.isnan(slope[~tab.valid]).all()
-    # a central difference of the forward table within the band gives the same slope
-    band = TWO_PI / tab.n_bands
-    b = np.floor(tab.to_phase(hue).astype(np.float64) / band)
-    mid = (b + 0.5) * band
-    fd = circ(tab.from_phase(np.mod(mid + 0.25 * band, TWO_PI)).astype(np.float64),
-              tab.from_phase(np.mod(mid - 0.25 * band, TWO_PI))) / (0.5 * band)
-    assert np.median(np.abs(slope[ok] - fd[ok])) < 0.01
+    # [H(c + pi/N) - H(c - pi/N)] / (2 pi/N) of the forward table at the decoded code phase
+    half = np.pi / tab.n_bands
+    back = tab.to_phase(hue).astype(np.float64)
+    fd = circ(tab.from_phase(np.mod(back + half, TWO_PI)).astype(np.float64),
+              tab.from_phase(np.mod(back - half, TWO_PI))) / (2 * half)
+    err = np.abs(slope[ok] - fd[ok])
+    assert np.median(err) < 1e-4 and np.percentile(err, 99) < 1e-3  # from_phase rounds to float32; one band alone: 0.01, 0.08
     # gamma 2.2 bends the hue: slopes well away from 1 on both sides, mean about 1 (one turn)
     assert np.percentile(slope[ok], 5) < 0.7 and np.percentile(slope[ok], 95) > 1.3
     assert abs(np.mean(slope[ok]) - 1.0) < 0.1

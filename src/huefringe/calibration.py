@@ -324,11 +324,24 @@ def _finalise_kernel(table, sigma, reason, start, coef, max_noise, max_gap, orde
                 table[i, v, u] = q[i]
 
 
+@numba.njit(cache=True, inline="always")
+def _column_entry(table, s0, k, v, u):  # pragma: no cover - numba
+    """Entry ``k`` (any integer) of a pixel's rotated, sorted column continued periodically:
+    ``table[(s0 + k) mod N] + 65536 floor(k / N)`` (float64 counts)."""
+    n = table.shape[0]
+    q = k // n
+    i = s0 + k - q * n
+    if i >= n:
+        i -= n
+    return np.float64(table[i, v, u]) + 65536.0 * q
+
+
 @numba.njit(cache=True, parallel=False)
 def _to_phase_kernel(table, start, valid, hue, out, out_slope):  # pragma: no cover - numba
     """Inverse lookup: binary search of each pixel's hue in its rotated sorted table column.
 
-    ``out_slope`` (or None): the slope d(hue)/d(code phase) of the bracketing band.
+    ``out_slope`` (or None): the slope d(hue)/d(code phase) of the table averaged over one band
+    width centred on the hue (see :meth:`HueTable.hue_slope`).
     """
     n, h, w = table.shape
     two_pi = 2.0 * np.pi
@@ -376,7 +389,12 @@ def _to_phase_kernel(table, start, valid, hue, out, out_slope):  # pragma: no co
                         k -= n
                     hi_val = np.float64(table[k, v, u])
             if out_slope is not None:
-                out_slope[v, u] = (hi_val - lo_val) * n / 65536.0
+                f = (hq - lo_val) / (hi_val - lo_val)
+                if f < 0.5:
+                    sc = (0.5 - f) * (lo_val - _column_entry(table, s0, p - 1, v, u)) + (0.5 + f) * (hi_val - lo_val)
+                else:
+                    sc = (1.5 - f) * (hi_val - lo_val) + (f - 0.5) * (_column_entry(table, s0, p + 2, v, u) - hi_val)
+                out_slope[v, u] = sc * n / 65536.0
             c = (b + (hq - lo_val) / (hi_val - lo_val)) * step
             if c >= two_pi:
                 c -= two_pi
@@ -472,9 +490,11 @@ class HueTable:
     def hue_slope(self, hue: NDArray[np.floating]) -> NDArray[np.float64]:
         """Local slope d(captured hue)/d(code phase) of each pixel's table at ``hue``.
 
-        The slope of the band that brackets ``hue`` in the inverse lookup of :meth:`to_phase`
-        (its hue step over the band width ``2 pi / N``): 1 for an undistorted table, below 1
-        where projector gamma flattens the captured hue. NaN where :meth:`to_phase` is NaN.
+        The central difference of the piecewise-linear table over one band width centred on the
+        code phase :meth:`to_phase` gives (``[H(c + pi/N) - H(c - pi/N)] / (2 pi/N)``): the
+        slopes of the bracketing band and of its nearer neighbour, weighted by how much of the
+        window each covers. 1 for an undistorted table, below 1 where projector gamma flattens
+        the captured hue. NaN where :meth:`to_phase` is NaN.
         """
         hue = np.asarray(hue)
         if hue.shape != self.shape:

@@ -483,6 +483,24 @@ def _phys(i):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
+def _line_entry(cols, o, k, n):  # pragma: no cover - numba
+    """Entry ``k`` (any integer) of the sorted column at ``cols[o:]`` continued periodically
+    (``calibration._column_entry``): ``column[k mod N] + 65536 floor(k / N)``."""
+    off = 0.0
+    if k < 0:  # here k >= -2 and N >= 3: one turn down or up at most (no integer division)
+        k += n
+        off = -65536.0
+    elif k >= n:
+        k -= n
+        off = 65536.0
+    if k < 0 or k >= n:
+        q = k // n
+        k -= q * n
+        off += 65536.0 * q
+    return np.float64(cols[np.uint64(o + _phys(k))]) + off
+
+
+@numba.njit(cache=True, inline="always", error_model="numpy")
 def _interp(bb, hq, lo_val, hi_val, n):  # pragma: no cover - numba
     """Code phase between band ``bb`` (entry ``lo_val``) and the next one (``hi_val``), as
     ``calibration._to_phase_kernel``."""
@@ -528,6 +546,8 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     row_em = np.zeros(w, dtype=np.float32)
     row_ph = np.zeros(w, dtype=np.float32)
     row_pds = np.ones(w, dtype=np.float64)
+    row_pm = np.zeros(w, dtype=np.float64)  # denoise: column entries p - 1 and p + 2 (hue_slope)
+    row_pp = np.ones(w, dtype=np.float64)
     n_clip = 0
     n_undef = 0
     n_valid = 0
@@ -572,6 +592,8 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                     row_bb[u] = 0.0
                     row_lo[u] = 0.0
                     row_hi[u] = 1.0
+                    row_pm[u] = -1.0
+                    row_pp[u] = 2.0
                     continue
                 hq = row_hq[u]
                 hqi = np.int64(hq)  # entries are integers: entry <= hq  <=>  entry <= floor(hq)
@@ -623,10 +645,13 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                 row_bb[u] = bb
                 row_lo[u] = lo_val
                 row_hi[u] = hi_val
+                if out_w is not None:  # HueTable.hue_slope needs the entries either side
+                    row_pm[u] = _line_entry(cols, o, p - 1, n)
+                    row_pp[u] = _line_entry(cols, o, p + 2, n)
             # ---------------------------------------------------------------- pass 3: arithmetic
             n_valid += _finish_row(v, row_bb, row_hq, row_lo, row_hi, row_g, phi_ref, a, b, noise, n, floor_slope, pd_e,
-                                   pd_c, pd_s, pd_index, row_em, row_ph, row_pds, out_h, out_valid, out_phase, out_dphi,
-                                   out_w)
+                                   pd_c, pd_s, pd_index, row_em, row_ph, row_pds, row_pm, row_pp, out_h, out_valid,
+                                   out_phase, out_dphi, out_w)
     return n_clip, n_undef, n_valid, n_miss, n_far
 
 
@@ -709,7 +734,7 @@ def _colour_row(rgb, v, u0, u1, scale, top32, top64, gains, ok, atan, min_sat, u
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e, pd_c, pd_s, pd_index, em, ph, pds,
-                out_h, out_valid, out_phase, out_dphi, out_w):  # pragma: no cover - numba
+                pm, pp, out_h, out_valid, out_phase, out_dphi, out_w):  # pragma: no cover - numba
     """Looked-up bands of row ``v`` (``bb``, ``hq``, ``lo``, ``hi``; ``g < 0`` marks invalid
     pixels) to heights, or to the denoise filter's weights of the phase difference (``out_w``).
 
@@ -801,7 +826,11 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
         m = x + two_pi if x < 0 else (x if x < two_pi else x - two_pi)
         dphi = np.float32(pi - m)
         if out_w is not None:
-            slope = (hi[u] - lo[u]) * n / 65536.0
+            # HueTable.hue_slope (calibration._to_phase_kernel): central difference over a band
+            f = (hq[u] - lo[u]) / (hi[u] - lo[u])
+            sc_lo = (0.5 - f) * (lo[u] - pm[u]) + (0.5 + f) * (hi[u] - lo[u])
+            sc_hi = (1.5 - f) * (hi[u] - lo[u]) + (f - 0.5) * (pp[u] - hi[u])
+            slope = (sc_lo if f < 0.5 else sc_hi) * n / 65536.0
             sig = nz[u] / max(slope, floor_slope)
             if pd_e is not None:
                 sig = sig * abs(pds[u])
