@@ -163,11 +163,15 @@ def test_lookup_on_handmade_tables_with_ties_and_every_rotation():
         assert np.max(np.abs(circ(tab.from_phase(a), hue))) < 1e-3
 
 
-def test_forward_and_inverse_tables_are_consistent():
+def gamma_table_at_random_codes(seed: int) -> tuple[cal.HueTable, np.ndarray, np.ndarray]:
+    """The gamma-2.2 rig's table, random code phases and the hues the table gives them."""
     _, _, tab = built("gamma2.2")
-    rng = np.random.default_rng(2)
-    c = rng.uniform(0, TWO_PI, tab.shape)
-    h = tab.from_phase(c)
+    c = np.random.default_rng(seed).uniform(0, TWO_PI, tab.shape)
+    return tab, c, tab.from_phase(c)
+
+
+def test_forward_and_inverse_tables_are_consistent():
+    tab, c, h = gamma_table_at_random_codes(2)
     back = tab.to_phase(h)
     ok = tab.valid
     assert np.isnan(h[~ok]).all()
@@ -177,10 +181,7 @@ def test_forward_and_inverse_tables_are_consistent():
 
 
 def test_hue_slope_is_the_central_difference_over_one_band():
-    _, _, tab = built("gamma2.2")
-    rng = np.random.default_rng(4)
-    c = rng.uniform(0, TWO_PI, tab.shape)
-    hue = tab.from_phase(c)
+    tab, _, hue = gamma_table_at_random_codes(4)
     slope = tab.hue_slope(hue)
     ok = tab.valid & np.isfinite(hue)
     assert np.isnan(slope[~tab.valid]).all()
