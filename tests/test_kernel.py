@@ -157,7 +157,8 @@ def test_out_buffers_and_shadow_fraction(rig: dict) -> None:
 
 def test_prepared_layout(rig: dict) -> None:
     """Pixel-major columns: each usable pixel's column rotated to its start, sorted, in lines of
-    32 entries that overlap by one; line heads; guess tables that mostly hit."""
+    32 entries, line j holding entries 29 j - 1 .. 29 j + 30 (entry -1 stored as 0, past the end
+    65535); line heads; guess tables that mostly hit."""
     table, cal = rig["hexcone"]
     prep = kernel.prepare(table, cal, rig["white"])
     assert prep.cols.ctypes.data % 64 == 0 and prep.cols.shape[2] == 32 * prep.nlines
@@ -167,11 +168,10 @@ def test_prepared_layout(rig: dict) -> None:
         col = np.roll(np.asarray(table.table)[:, v, u], -int(table.start[v, u])).astype(np.int64)
         assert np.all(np.diff(col) >= 0)
         lines = prep.cols[v, u].reshape(prep.nlines, 32).astype(np.int64)
-        logical = np.concatenate([lines[j, :31] for j in range(prep.nlines)])
-        np.testing.assert_array_equal(logical[:n], col)
-        assert np.all(logical[n:] == 65535)
-        np.testing.assert_array_equal(lines[:-1, 31], lines[1:, 0])  # overlap
-        np.testing.assert_array_equal(prep.heads[v, u, : prep.nlines], lines[:, 0])
+        padded = np.concatenate([[0], col, np.full(29 * prep.nlines + 2 - n, 65535)])  # entries -1 .. 29 nl + 1
+        for j in range(prep.nlines):
+            np.testing.assert_array_equal(lines[j], padded[29 * j : 29 * j + 32])
+        np.testing.assert_array_equal(prep.heads[v, u, : prep.nlines], lines[:, 1])
     m = kernel.frame_maps(prep, _frame_u8(rig, 0))
     assert m.counts["guess_missed"] < 0.05 * m.counts["valid"]
     assert m.counts["guess_far"] < 0.2 * m.counts["guess_missed"]  # misses are mostly one line off

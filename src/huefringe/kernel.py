@@ -34,17 +34,19 @@ The :class:`~huefringe.calibration.HueTable` is band-major ``(N, H, W)``: a bise
 pixel's column touches ~log2(N) cache lines, each in a different band plane, and a frame ends
 up reading most of the table (194 MB for 256 bands at 768 x 494). :func:`prepare` copies it once
 into a pixel-major layout: each usable pixel's column, rotated to start at its minimum (so sorted
-ascending), cut into 64-byte cache lines of 32 entries that overlap by one entry (line ``j``
-holds entries ``31 j .. 31 j + 31``), so that both entries bracketing a hue are always in one
-line. Hue tables vary little from pixel to pixel, so a small table per 32 x 32 tile of the image
-tells, from the hue, which line of the column most likely brackets it (~99 % of the pixels).
-A lookup is then one line, prefetched a row ahead, counted with two 16-wide vector
-compares; when the guess misses, the next line up or down (64 bytes away, usually fetched with
-the guessed one) is tried, then the first entries of the lines (one more line) give the right
-one. A pixel thus costs one cache line of table instead of about eight.
+ascending), cut into 64-byte cache lines of 32 entries: line ``j`` holds entries
+``29 j - 1 .. 29 j + 30``, its own block of 29 with one entry before and two after, so that the
+entries bracketing a hue and those either side of them (the phase filter's slope) are always in
+the line of the block the bracketing entry belongs to. Hue tables vary little from pixel to
+pixel, so a small table per 32 x 32 tile of the image tells, from the hue, which line of the
+column most likely holds it (~98 % of the pixels). A lookup is then one line, prefetched a row
+ahead, counted with one 32-wide vector compare; when the guess misses, the next line up or down
+(64 bytes away, usually fetched with the guessed one) is tried, then the first entries of the
+blocks (one more line) give the right one. A pixel thus costs one cache line of table instead of
+about eight.
 
-Memory: ``64 ceil(N / 31) H W`` bytes of columns (576 per pixel for N = 256), 32 per pixel of line
-heads (N <= 496), 35 of gains, reference phase, a, b, mask, start and noise, and 1 KB of guess
+Memory: ``64 ceil(N / 29) H W`` bytes of columns (576 per pixel for N = 256), 32 per pixel of line
+heads (N <= 464), 35 of gains, reference phase, a, b, mask, start and noise, and 1 KB of guess
 table per 32 x 32 tile: 244 MB for 256 bands at 768 x 494, 843 MB at 1280 x 1024 (the band-major
 table is 194 and 671 MB; it is not kept, and a memory-mapped one is read once). Per frame:
 ``5 H W`` bytes of output.
@@ -80,8 +82,9 @@ __all__ = ["FrameMaps", "Prepared", "frame_maps", "frame_to_height", "prepare"]
 _INT_SCALE = {np.dtype(np.uint8): 1.0 / 255.0, np.dtype(np.uint16): 1.0 / 65535.0}
 _LINE = 32
 """Entries per 64-byte cache line of a pixel's column."""
-_STEP = 31
-"""New entries per line: consecutive lines share one entry (line j holds 31 j .. 31 j + 31)."""
+_STEP = 29
+"""Entries per line's own block: line j holds the column's entries ``29 j - 1 .. 29 j + 30``, its
+block ``29 j .. 29 j + 28`` with one entry before and two after (shared with the neighbours)."""
 _SHIFT = 6
 """Hue buckets of the guess tables: ``65536 >> _SHIFT`` = 1024 buckets of 64 counts."""
 _TILE = 32
@@ -105,13 +108,15 @@ class Prepared:
     min_saturation: float
     floor_slope: float
     nlines: int
-    """Lines per column, ``ceil(N / 31)``."""
+    """Lines per column, ``ceil(N / 29)``."""
     cols: NDArray[np.uint16]
     """``(H, W, 32 nlines)``: each usable pixel's column rotated to start at its minimum (band
-    ``start``), so sorted ascending, in overlapping lines; padded with 65535; 64-byte aligned.
-    Zero for pixels that are never valid."""
+    ``start``), so sorted ascending, in overlapping lines (line j: entries 29 j - 1 .. 29 j + 30;
+    entry -1 stored as 0, those past the column as 65535); 64-byte aligned. Zero for pixels that
+    are never valid."""
     heads: NDArray[np.uint16]
-    """``(H, W, P)``: the first entry of every line, padded with 65535 to ``P``, a multiple of 16."""
+    """``(H, W, P)``: the first entry of every line's block (``29 j``), padded with 65535 to ``P``,
+    a multiple of 16."""
     guess: NDArray[np.integer]
     """``(tiles, 1024)``: per 32 x 32 tile and hue bucket, the line that most often brackets it."""
     tiles_x: int
@@ -293,41 +298,42 @@ def _predistortion_arrays(pd: Predistortion) -> tuple[NDArray[np.float64], NDArr
 # =============================================================================================
 @numba.njit(cache=True, nogil=True)
 def _pixel_major(table, start, ok, cols, heads):  # pragma: no cover - numba
-    """Rotated, sorted columns in overlapping lines (see the module docstring), and line heads."""
+    """Rotated, sorted columns in overlapping lines (see the module docstring), and line heads.
+
+    Line ``j`` position ``i`` holds entry ``k = 29 j - 1 + i`` of the sorted column; entry -1
+    (line 0, position 0) is stored as 0 and entries past the column as 65535, so that counting
+    entries <= a hue stays right; the arithmetic reads those two through :func:`_line_entry`.
+    """
     n, h, w = table.shape
-    ncols = cols.shape[2]
-    nl = ncols // 32
+    nl = cols.shape[2] // 32
     for v in range(h):
         for u in range(w):
             if not ok[v, u]:
                 cols[v, u, :] = 0
                 heads[v, u, :] = 65535
+            else:
+                cols[v, u, :] = 65535
+                cols[v, u, 0] = 0
         for i in range(n):  # one contiguous row of the band-major table at a time
             for u in range(w):
                 if ok[v, u]:
-                    j = i - np.int64(start[v, u])
-                    if j < 0:
-                        j += n
-                    line = j // 31
-                    pos = j - 31 * line
-                    cols[v, u, 32 * line + pos] = table[i, v, u]
-                    if pos == 0 and line > 0:
-                        cols[v, u, 32 * line - 1] = table[i, v, u]  # shared with the line before
+                    k = i - np.int64(start[v, u])
+                    if k < 0:
+                        k += n
+                    for j in range(max(0, (k - 2) // 29), min(nl - 1, (k + 1) // 29) + 1):
+                        cols[v, u, 32 * j + k - 29 * j + 1] = table[i, v, u]
         for u in range(w):
             if ok[v, u]:
-                for j in range(n, 31 * nl + 1):  # padding (the last line's tail)
-                    line = min(j // 31, nl - 1)
-                    pos = j - 31 * line
-                    cols[v, u, 32 * line + pos] = 65535
                 for line in range(heads.shape[2]):
-                    heads[v, u, line] = cols[v, u, 32 * line] if line < nl else 65535
+                    heads[v, u, line] = cols[v, u, 32 * line + 1] if line < nl else 65535
 
 
 @numba.njit(cache=True, nogil=True)
 def _guess_lines(cols, ok, nl, guess, tiles_x):  # pragma: no cover - numba
     """Per tile and hue bucket, the line that brackets the bucket's centre in most pixels.
 
-    Line ``j`` brackets the hues ``[cols[32 j], cols[32 j + 31])`` (the first line also those
+    Line ``j`` brackets the hues ``[cols[32 j + 1], cols[32 j + 30])``, those whose bracketing
+    entry is in its block (the first line also those
     below the column's minimum, the last one those above its maximum); every usable pixel of the
     tile votes, per line, for the buckets whose centre falls in that range.
     """
@@ -347,8 +353,8 @@ def _guess_lines(cols, ok, nl, guess, tiles_x):  # pragma: no cover - numba
                 if not ok[v, u]:
                     continue
                 for j in range(nl):
-                    lo = 0 if j == 0 else np.int64(cols[v, u, 32 * j])
-                    hi = 65536 if j == nl - 1 else np.int64(cols[v, u, 32 * j + 31])
+                    lo = 0 if j == 0 else np.int64(cols[v, u, 32 * j + 1])
+                    hi = 65536 if j == nl - 1 else np.int64(cols[v, u, 32 * j + 30])
                     k0 = min(nb, (lo - size // 2 + size - 1) >> shift)  # first bucket centre >= lo
                     k1 = min(nb, (hi - size // 2 + size - 1) >> shift)
                     if k1 > k0:
@@ -478,8 +484,8 @@ def _mod(x, m):  # pragma: no cover - numba
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def _phys(i):  # pragma: no cover - numba
     """Offset in the column lines of entry ``i`` of the sorted column."""
-    line = i // 31
-    return 32 * line + (i - 31 * line)
+    line = i // 29
+    return 32 * line + (i - 29 * line) + 1
 
 
 @numba.njit(cache=True, inline="always", error_model="numpy")
@@ -600,23 +606,25 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                 s0 = np.int64(start[v, u])
                 o = (v * w + u) * ncols
                 # -- table lookup (calibration._to_phase_kernel). Its bisection finds p + 1, the
-                # number of entries <= hue in the rotated, sorted column. Counted here in the
-                # guessed line: exact when the line brackets the hue (its first entry <= hue or
-                # it is the first line; its last entry > hue or it is the last line); otherwise
-                # the line heads give the line.
+                # number of entries <= hue in the rotated, sorted column; p is the bracketing
+                # entry. Counted here in the guessed line: f entries of line gl (column entries
+                # 29 gl - 1 .. 29 gl + 30) are <= hue; when 2 <= f <= 30, p = 29 gl - 2 + f lies
+                # in the line's own block and the entries p - 1 .. p + 2 are all in the line (the
+                # first line also takes f = 1, p = -1; the last one f > 30: the column's end).
+                # Otherwise the next line down or up, then the line heads, give the line.
                 f = _count32_le(cols, o + 32 * gl, hqi)
-                if not ((f > 0 or gl == 0) and (f < 32 or gl == nl - 1)):
+                if not ((f >= 2 or gl == 0) and (f <= 30 or gl == nl - 1)):
                     n_miss += 1
-                    # mostly the next line down (f == 0) or up (f == 32): 64 bytes away, often
+                    # mostly the next line down (f <= 1) or up (f >= 31): 64 bytes away, often
                     # already cached with the guessed one
-                    g2 = gl - 1 if f == 0 else gl + 1
+                    g2 = gl - 1 if f <= 1 else gl + 1
                     f2 = 0
                     if 0 <= g2 < nl:
                         f2 = _count32_le(cols, o + 32 * g2, hqi)
-                    if 0 <= g2 < nl and (f2 > 0 or g2 == 0) and (f2 < 32 or g2 == nl - 1):
+                    if 0 <= g2 < nl and (f2 >= 2 or g2 == 0) and (f2 <= 30 or g2 == nl - 1):
                         gl = g2
                         f = f2
-                    else:
+                    else:  # heads: E(29 j), the first entry of each block
                         n_far += 1
                         oh = (v * w + u) * nheads
                         cl = 0
@@ -625,29 +633,35 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                         if cl > nl:  # padding counted
                             cl = nl
                         gl = cl - 1 if cl > 0 else 0
-                        f = 0 if cl == 0 else _count32_le(cols, o + 32 * gl, hqi)
-                cnt = 31 * gl + f
+                        f = _count32_le(cols, o + 32 * gl, hqi)
+                cnt = 29 * gl - 1 + f
                 p = (cnt if cnt < n else n) - 1  # padding counted: every real entry is <= hue
                 if p < 0:
                     bb = s0 - 1 if s0 > 0 else n - 1
                     lo_val = np.float64(cols[np.uint64(o + _phys(n - 1))]) - 65536.0
-                    hi_val = np.float64(cols[np.uint64(o)])
+                    hi_val = np.float64(cols[np.uint64(o + 1)])
                 else:
                     bb = s0 + p
                     if bb >= n:
                         bb -= n
-                    op = o + _phys(p)
+                    op = o + 32 * gl + p - 29 * gl + 1  # p's place in line gl (its home line)
                     lo_val = np.float64(cols[np.uint64(op)])
                     if p == n - 1:
-                        hi_val = np.float64(cols[np.uint64(o)]) + 65536.0
+                        hi_val = np.float64(cols[np.uint64(o + 1)]) + 65536.0
                     else:
-                        hi_val = np.float64(cols[np.uint64(op + 1)])  # same line (lines overlap)
+                        hi_val = np.float64(cols[np.uint64(op + 1)])
                 row_bb[u] = bb
                 row_lo[u] = lo_val
                 row_hi[u] = hi_val
-                if out_w is not None:  # HueTable.hue_slope needs the entries either side
-                    row_pm[u] = _line_entry(cols, o, p - 1, n)
-                    row_pp[u] = _line_entry(cols, o, p + 2, n)
+                if out_w is not None:  # HueTable.hue_slope needs the entries either side, in line
+                    if p >= 1:
+                        row_pm[u] = np.float64(cols[np.uint64(op - 1)])
+                    else:
+                        row_pm[u] = _line_entry(cols, o, p - 1, n)
+                    if 0 <= p and p + 2 <= n - 1:
+                        row_pp[u] = np.float64(cols[np.uint64(op + 2)])
+                    else:
+                        row_pp[u] = _line_entry(cols, o, p + 2, n)
             # ---------------------------------------------------------------- pass 3: arithmetic
             n_valid += _finish_row(v, row_bb, row_hq, row_lo, row_hi, row_g, phi_ref, a, b, noise, n, floor_slope, pd_e,
                                    pd_c, pd_s, pd_index, row_em, row_ph, row_pds, row_pm, row_pp, out_h, out_valid,
