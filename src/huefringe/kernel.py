@@ -18,7 +18,7 @@ in a pass of its own): the heights and the valid mask are bit for bit those of t
 
 ``denoise_radius > 0`` adds the uncertainty-weighted edge-preserving filter
 (:func:`huefringe.phase.denoise_phase`, called as is) on the phase difference; the per-pixel
-phase uncertainty (:func:`huefringe.pipeline.phase_sigma` with the slope of the bracketing band,
+phase uncertainty (:func:`huefringe.pipeline.phase_sigma` with the table slope of
 :meth:`~huefringe.calibration.HueTable.hue_slope`) is computed in the same passes.
 
 Example
@@ -52,8 +52,8 @@ table is 194 and 671 MB; it is not kept, and a memory-mapped one is read once). 
 ``5 H W`` bytes of output.
 
 Speed: at 768 x 494 with 256 bands, one core spends most of a frame fetching each pixel's table
-line from memory (24 MB of lines per frame at scattered offsets: 3.6 ms for the reads alone on
-the development machine); the colour and post-lookup arithmetic run as branch-free loops that
+line from memory (24 MB of lines per frame at scattered offsets: 3.2-3.9 ms for the reads alone
+on the development machine); the colour and post-lookup arithmetic run as branch-free loops that
 LLVM vectorises (``benchmarks/bench_kernel.py`` gives the current figures).
 """
 
@@ -528,14 +528,14 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     counts.
 
     Rows go through three passes, pass 1 one row ahead of the others: (1) white balance, hue,
-    masks (:func:`_colour_row`, vectorised), the guessed line of each pixel's column; (2) the
-    count in that line (and the prefetch of the next row's lines); (3) interpolation, pre-distortion, phase difference
-    and height (:func:`_finish_row`). ``out_dphi`` receives the phase difference before any
-    filtering; with ``out_w`` given (``(3, H, W)`` float32), the weights of the denoise filter
-    (``phase.denoise_phase``'s ``dz, s2, inv`` of the phase difference and its uncertainty) are
-    written instead of the height (the filter runs between this loop and :func:`_height_kernel`).
-    ``out_phase``, ``out_hue``, ``out_dphi`` and ``out_w`` may be
-    None: numba compiles a version without them (``is None`` pruning); so may the
+    masks (:func:`_colour_row`, vectorised) and the guessed line of each pixel's column; (2) the
+    count in that line (and the prefetch of the next row's lines); (3) interpolation,
+    pre-distortion, phase difference and height (:func:`_finish_row`). ``out_dphi`` receives the
+    phase difference before any filtering; with ``out_w`` given (``(3, H, W)`` float32), the
+    weights of the denoise filter (``phase.denoise_phase``'s ``dz, s2, inv`` of the phase
+    difference and its uncertainty) are written instead of the height (the filter runs between
+    this loop and :func:`_height_kernel`). ``out_phase``, ``out_hue``, ``out_dphi`` and ``out_w``
+    may be None: numba compiles a version without them (``is None`` pruning); so may the
     pre-distortion ``pd_e, pd_c, pd_s, pd_index`` (no decoding). ``cols`` and ``heads`` are
     flat views.
     """
@@ -757,7 +757,9 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
     uncertainty, both branch-free so that LLVM vectorises them, and between them (B) the
     pre-distortion's decoding, scalar. The wrap uses ``_mod``'s exact fast path, valid while
     ``pi - dphi`` lies in [-2 pi, 4 pi) (``phi_ref`` in [0, 2 pi)); pixels outside it are redone
-    with ``_mod``. ``em``, ``ph``, ``pds`` are scratch rows. Returns the number of valid pixels.
+    with ``_mod``. ``pm``, ``pp``: the column entries before and after the bracketing pair (the
+    uncertainty's slope, ``HueTable.hue_slope``); ``em``, ``ph``, ``pds`` are scratch rows.
+    Returns the number of valid pixels.
     """
     w = bb.size
     two_pi = 2.0 * np.pi
@@ -1006,9 +1008,8 @@ def frame_maps(
     n_clip, n_undef, n_valid, n_miss, n_far = _frame_kernel(
         a, np.float32(scale), np.float32(top), float(top), prep.gains, prep.ok, prep.cols.reshape(-1),
         prep.heads.reshape(-1), prep.guess, prep.tiles_x, prep.n_bands, prep.start, prep.phi_ref, prep.a, prep.b,
-        prep.noise, atan, np.float32(prep.min_saturation), prep.min_saturation > 0.0,
-        prep.floor_slope, prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, height, valid, dphi, weights, phase,
-        hue,
+        prep.noise, atan, np.float32(prep.min_saturation), prep.min_saturation > 0.0, prep.floor_slope,
+        prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, height, valid, dphi, weights, phase, hue,
     )
     if denoise:
         smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k))
