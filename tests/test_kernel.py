@@ -200,6 +200,13 @@ def test_lookup_matches_table_to_phase(n_bands: int) -> None:
         m = kernel.frame_maps(prep, frame, want_maps=True)
         np.testing.assert_array_equal(m.phase[m.valid], table.to_phase(m.hue)[m.valid])
         assert m.valid.sum() > 0.8 * valid.sum()
+        # with the phase filter: its slope reads the entries either side of the bracketing pair,
+        # here at every place in the lines and across the column's ends (frame scaled as read_rgb does)
+        hk, vk = kernel.frame_to_height(prep, frame, denoise_radius=1)
+        ref = pipeline.measure_frame(frame.astype(np.float32) * np.float32(1 / 255), np.ones((h, w, 3), np.float32),
+                                     table, cal, min_saturation=0.0, denoise_radius=1)
+        np.testing.assert_array_equal(vk, ref.valid)
+        np.testing.assert_array_equal(hk[vk], ref.height[vk])
     if prep.nlines >= 3:  # random columns: both fallbacks (next line, line heads) are exercised
         assert m.counts["guess_missed"] > m.counts["guess_far"] > 0
 
