@@ -496,13 +496,17 @@ class HueTable:
         window each covers. 1 for an undistorted table, below 1 where projector gamma flattens
         the captured hue. NaN where :meth:`to_phase` is NaN.
         """
+        return self.to_phase_and_slope(hue)[1]
+
+    def to_phase_and_slope(self, hue: NDArray[np.floating]) -> tuple[NDArray[np.float32], NDArray[np.float64]]:
+        """:meth:`to_phase` and :meth:`hue_slope` from one search of each pixel's column."""
         hue = np.asarray(hue)
         if hue.shape != self.shape:
             raise ValueError(f"hue has shape {hue.shape}, table expects {self.shape}")
         phase = np.empty(self.shape, dtype=np.float32)
         slope = np.empty(self.shape, dtype=np.float64)
         _to_phase_kernel(np.asarray(self.table), self.start, self.valid, np.ascontiguousarray(hue), phase, slope)
-        return slope
+        return phase, slope
 
     def from_phase(self, phase: NDArray[np.floating]) -> NDArray[np.float32]:
         """Forward table: expected captured hue at each pixel for a projected code ``phase``.

@@ -107,7 +107,10 @@ def measure_frame(
     """
     balanced = white_balance(rgb, white)
     hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
-    emitted = table.to_phase(hue)
+    if denoise_radius > 0:  # the filter's uncertainty needs the table slope: one search for both
+        emitted, slope = table.to_phase_and_slope(hue)
+    else:
+        emitted = table.to_phase(hue)
     phase = emitted if predistortion is None else predistortion.decode(emitted)
     clipped = clipped_mask(rgb, bit_depth)
     valid = np.isfinite(phase) & ~clipped
@@ -116,7 +119,7 @@ def measure_frame(
     dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
     un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
     if denoise_radius > 0:
-        sigma = phase_sigma(table, table.hue_slope(hue))
+        sigma = phase_sigma(table, slope)
         if predistortion is not None:
             sigma = sigma * np.abs(predistortion.decode_slope(emitted))
         un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius)
