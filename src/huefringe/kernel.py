@@ -74,7 +74,7 @@ from numpy.typing import NDArray
 from huefringe.calibration import HueTable
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
-from huefringe.phase import denoise_weighted
+from huefringe.phase import denoise_weight, denoise_weighted
 from huefringe.session import Predistortion
 
 __all__ = ["FrameMaps", "Prepared", "frame_maps", "frame_to_height", "prepare"]
@@ -850,14 +850,8 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
             sig = nz[u] / max(slope, floor_slope)
             if pd_e is not None:
                 sig = sig * abs(pds[u])
-            # phase.denoise_phase's weights (_denoise_weights) of this dphi and sigma
-            wok = (g[u] >= 0) & (dphi - dphi == 0) & (sig - sig == 0) & (sig > 0)
-            sc = np.float32(min(max(sig, 1e-9), 1e9)) if wok else np.float32(1.0)
-            q = sc * sc
-            ws[u] = q
-            wi[u] = np.float32(1.0) / q if wok else zero32
-            wd[u] = dphi if wok else zero32
             ok = g[u] >= 0
+            wd[u], ws[u], wi[u] = denoise_weight(dphi, sig, ok)  # phase.denoise_phase's weights
             hv[u] = nan32  # _height_kernel writes the valid ones
         else:
             hh = dphi / (av[u] + bv[u] * dphi)

@@ -165,21 +165,25 @@ def unwrap_rows(phi: NDArray[np.floating], valid: NDArray[np.bool_]) -> NDArray[
     return np.asarray(unwrap_phase(masked, rng=0).filled(np.nan), np.float64)
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def denoise_weight(d, sg, valid):  # pragma: no cover - compiled
+    """One pixel's filter inputs ``(dz, s2, inv)`` from its phase ``d``, sigma ``sg`` and validity
+    (compiled, for :func:`_denoise_weights` and the fused kernel alike):
+    ``ok = valid & finite(d) & finite(sg) & sg > 0``; ``dz = ok ? d : 0``,
+    ``s2 = float32(clip(ok ? sg : 1, 1e-9, 1e9)) ** 2``, ``inv = ok ? 1 / s2 : 0``."""
+    ok = valid & (d - d == 0) & (sg - sg == 0) & (sg > 0)
+    sc = np.float32(min(max(np.float64(sg), 1e-9), 1e9)) if ok else np.float32(1.0)
+    q = sc * sc
+    return (np.float32(d) if ok else np.float32(0.0)), q, (np.float32(1.0) / q if ok else np.float32(0.0))
+
+
 @njit(cache=True, nogil=True)
 def _denoise_weights(d, sigma, valid, dz, s2, inv):  # pragma: no cover - compiled
-    """One pass: ``ok = valid & finite(d) & finite(sigma) & sigma > 0``; ``dz = ok ? d : 0``,
-    ``s2 = float32(clip(ok ? sigma : 1, 1e-9, 1e9)) ** 2``, ``inv = ok ? 1 / s2 : 0``."""
+    """:func:`denoise_weight` of every pixel."""
     h, w = d.shape
     for v in range(h):
         for u in range(w):
-            x = d[v, u]
-            sg = sigma[v, u]
-            ok = valid[v, u] and np.isfinite(x) and np.isfinite(sg) and sg > 0
-            sc = np.float32(min(max(np.float64(sg), 1e-9), 1e9)) if ok else np.float32(1.0)
-            q = sc * sc
-            s2[v, u] = q
-            inv[v, u] = np.float32(1.0) / q if ok else np.float32(0.0)
-            dz[v, u] = np.float32(x) if ok else np.float32(0.0)
+            dz[v, u], s2[v, u], inv[v, u] = denoise_weight(d[v, u], sigma[v, u], valid[v, u])
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
