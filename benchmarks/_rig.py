@@ -4,7 +4,7 @@ A projector-camera forward model (per-channel projector gamma, camera crosstalk,
 coloured and dark reflectance patches, sensor noise, 8-bit quantisation) renders the ``N`` hue
 bands x ``R`` repeats, the white image and trapezoidal frames of a known height map, so that
 
-* the hue table is built by :func:`huefringe.calibration.build_table` from captured bands (its
+* the hue table is built by :func:`huefringe.huetable.build_table` from captured bands (its
   columns are as bent and as noisy as real ones, with masked dark pixels), and
 * the kernel's heights can be checked against the height map the frame was rendered from.
 
@@ -20,7 +20,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe.calibration import HueTable, build_table
+from huefringe.huetable import HueTable, build_table
 from huefringe.height import PlaneCalibration
 from huefringe.patterns import TWO_PI, band_rgb, trapezoid_rgb
 

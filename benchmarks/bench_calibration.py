@@ -10,7 +10,7 @@ with gamma, crosstalk and coloured patches) to a temporary folder, then measures
 subprocess so that peak memory is that of the measured step alone:
 
 ``read``   reading every PNG with ``huefringe.session.read_rgb`` (the I/O floor),
-``build``  ``huefringe.calibration.build_table`` on the same files,
+``build``  ``huefringe.huetable.build_table`` on the same files,
 ``lookup`` ``HueTable.to_phase`` on one frame (numba and NumPy reference).
 
 It prints wall times, peak RSS (``ru_maxrss``) and the tracemalloc peak, and the ratios
@@ -73,7 +73,7 @@ def _peak_rss_mb() -> float:
 
 def step(kind: str, d: Path, n: int, reps: int, prefetch: int = 0) -> dict:
     """One measured step, run in its own process; returns a JSON-able dict."""
-    from huefringe import calibration as cal
+    from huefringe import huetable as cal
     from huefringe import colour
     from huefringe.session import read_rgb
 

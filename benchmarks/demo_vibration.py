@@ -17,7 +17,7 @@ import numpy as np
 import tifffile
 import yaml
 
-from huefringe import bench, metrology, pipeline
+from huefringe import bench, metrology, stages
 from huefringe.height import accuracy
 
 REPO = Path(__file__).resolve().parents[1]
@@ -36,7 +36,7 @@ def main() -> None:
             b["vibration"]["amplitude_mm"] = amp
             root = Path(tmp) / f"a{amp:g}"
             session = bench.write_session(b, root / "session")
-            p = pipeline.measure_session(session, root / "out", cfg, baseline=True)
+            p = stages.measure_session(session, root / "out", cfg, baseline=True)
             s = p["session"]
             n = s.frame_ids
             print(f"\nvibration amplitude {amp:g} mm at {b['vibration']['frequency_hz']:g} Hz, {len(n)} frames")

@@ -19,14 +19,14 @@ import numpy as np
 import tifffile
 import yaml
 
-from huefringe import bench, pipeline
+from huefringe import bench, stages
 from huefringe.height import accuracy
 
 REPO = Path(__file__).resolve().parents[1]
 
 
 def run(model: str, session: Path, out: Path, cfg: dict) -> dict:
-    p = pipeline.measure_session(session, out, {**cfg, "hue_model": model})
+    p = stages.measure_session(session, out, {**cfg, "hue_model": model})
     s = p["session"]
     accs = [accuracy(tifffile.imread(h), tifffile.imread(s.ground_truth[i]))
             for i, h in zip(s.frame_ids, p["heights"], strict=True)]

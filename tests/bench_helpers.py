@@ -8,7 +8,7 @@ from typing import Any
 
 import yaml
 
-from huefringe import bench, pipeline
+from huefringe import bench, stages
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = yaml.safe_load((REPO / "config.yaml").read_text())
@@ -27,5 +27,5 @@ def write(cfg: dict[str, Any], root: Path) -> Path:
 
 def process(session: Path, out: Path, *, config: dict[str, Any] | None = None, frames: list[int] | None = None,
             baseline: bool = False) -> dict[str, Any]:
-    """Run tables, plane calibration and frame measurement (:func:`pipeline.measure_session`)."""
-    return pipeline.measure_session(session, out, config or CONFIG, frames=frames, baseline=baseline)
+    """Run tables, plane calibration and frame measurement (:func:`stages.measure_session`)."""
+    return stages.measure_session(session, out, config or CONFIG, frames=frames, baseline=baseline)

@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 
 from _rig import BandReader, Rig, surface_rows
-from huefringe import calibration as cal
+from huefringe import compensation
+from huefringe import huetable as cal
 from huefringe import colour
 from huefringe.io import write_png_rgb
 from huefringe.patterns import TWO_PI, band_rgb, trapezoid_rgb
@@ -434,7 +435,7 @@ def test_compensation_loop_converges_and_linearises_the_captured_hue():
     rd = BandReader(rig, N_BANDS)
     tab = cal.build_table(rd.paths(REPEATS), white, read=rd)
     threshold = 0.004
-    pattern, hist = cal.compensate_pattern(tab, period_px_projector=PERIOD, projector_size=(W, 6),
+    pattern, hist = compensation.compensate_pattern(tab, period_px_projector=PERIOD, projector_size=(W, 6),
                                            threshold_rad=threshold, max_iter=40, gain=0.8)
     assert pattern.dtype == np.uint8 and pattern.shape == (6, W, 3)
     assert (pattern == pattern[:1]).all()  # constant along rows
@@ -456,12 +457,12 @@ def test_compensation_loop_converges_and_linearises_the_captured_hue():
 def test_predistortion_inverts_a_known_transfer():
     code = TWO_PI * np.arange(64) / 64
     dist = 0.25 * np.sin(code) + 0.1 * np.sin(3 * code + 1) + 0.3  # offset included
-    c, p, hist = cal.predistortion(code, dist, threshold_rad=1e-5, max_iter=60, gain=1.0)
+    c, p, hist = compensation.predistortion(code, dist, threshold_rad=1e-5, max_iter=60, gain=1.0)
     assert hist[-1]["std_rad"] < 1e-5 and hist[-1]["max_rad"] < 1e-4
     f = p + np.interp(np.mod(p, TWO_PI), np.r_[code, TWO_PI], np.r_[dist, dist[0]])
     assert np.max(np.abs(circ(f, c))) < 1e-4
     with pytest.raises(ValueError):
-        cal.predistortion(code, dist, gain=0.0)
+        compensation.predistortion(code, dist, gain=0.0)
 
 
 # ============================================================================================
@@ -473,7 +474,7 @@ def test_qa_stats_and_figures(tmp_path):
     img, true = rig.fringe(PERIOD, noise=0.0)
     raw, ph = decode(tab, white, img)
     bal = colour.white_balance(img, white, floor=tab.stats["params"]["floor"])
-    q = cal.qa_stats(raw, ph, true_phase=true, table=tab, raw_rgb=bal)
+    q = compensation.qa_stats(raw, ph, true_phase=true, table=tab, raw_rgb=bal)
     assert q["reference"] == "true_phase"
     assert q["before"]["rms_rad"] > 5 * q["after"]["rms_rad"]
     assert q["improvement"] > 5
@@ -482,12 +483,12 @@ def test_qa_stats_and_figures(tmp_path):
     assert q["linearity"]["hexcone"]["rms_rad"] < 1e-6 < q["linearity"]["hsi"]["rms_rad"]
     assert set(q["data_linearity"]) == {"hexcone", "hsi"} and q["better_model"] in ("hexcone", "hsi")
     # without the true phase: ripples relative to a per-row straight line
-    q2 = cal.qa_stats(raw, ph, table=tab)
+    q2 = compensation.qa_stats(raw, ph, table=tab)
     assert q2["reference"] == "row_linear_fit"
     assert q2["before"]["rms_rad"] > 5 * q2["after"]["rms_rad"]
-    f1 = cal.hue_cross_section_figure(raw[1], ph[1], true[1], tmp_path / "qa" / "cross.png")
-    f2 = cal.residual_map_figure(circ(ph, true), tmp_path / "qa" / "residual.png")
-    f3 = cal.hue_cross_section_figure(raw[1], ph[1], None, tmp_path / "qa" / "cross_fit.png")
+    f1 = compensation.hue_cross_section_figure(raw[1], ph[1], true[1], tmp_path / "qa" / "cross.png")
+    f2 = compensation.residual_map_figure(circ(ph, true), tmp_path / "qa" / "residual.png")
+    f3 = compensation.hue_cross_section_figure(raw[1], ph[1], None, tmp_path / "qa" / "cross_fit.png")
     for f in (f1, f2, f3):
         data = f.read_bytes()
         assert data[:8] == b"\x89PNG\r\n\x1a\n" and len(data) > 5000
@@ -498,6 +499,6 @@ def test_plate_transfer_of_an_ideal_rig_is_the_identity():
     rig = Rig(surface_rows(4, 8, [(4, WHITE)]), gamma=(1.0, 1.0, 1.0), bits=16, noise=0.0)
     rd = BandReader(rig, 64)
     tab = cal.build_table(rd.paths(1), rig.white(), read=rd)
-    code, dist = cal.plate_transfer(tab)
+    code, dist = compensation.plate_transfer(tab)
     assert np.allclose(code, TWO_PI * np.arange(64) / 64)
     assert np.max(np.abs(dist)) < 0.01  # only 8-bit projector rounding

@@ -10,7 +10,7 @@ import pytest
 from bench_helpers import bench_config, write
 
 from huefringe.bench import code_phase
-from huefringe.calibration import build_table
+from huefringe.huetable import build_table
 from huefringe.colour import hue, white_balance
 from huefringe.phase import wrap
 from huefringe.session import load_session, read_rgb

@@ -73,11 +73,11 @@ def test_empty_cloud_is_a_valid_ply(tmp_path):
 
 
 def test_cloud_frames_stage_writes_the_clouds_of_a_batch_from_its_height_maps(tmp_path):
-    """pipeline.cloud_frames (the workflow's cloud_* jobs): the same PLY bytes as building the cloud
+    """stages.cloud_frames (the workflow's cloud_* jobs): the same PLY bytes as building the cloud
     from the in-memory height map with the session's white image, one file per frame."""
     from session_factory import make_session
 
-    from huefringe import pipeline
+    from huefringe import stages
     from huefringe.io import write_tiff
     from huefringe.session import load_session, read_rgb
 
@@ -93,7 +93,7 @@ def test_cloud_frames_stage_writes_the_clouds_of_a_batch_from_its_height_maps(tm
         clouds.append(str(tmp_path / "cloud" / f"frame_{n:04d}.ply"))
         write_tiff(heights[-1], h)
         maps.append(h)
-    pipeline.cloud_frames(str(root), frames, heights, clouds)
+    stages.cloud_frames(str(root), frames, heights, clouds)
     white = read_rgb(s.object_white)
     for h, path in zip(maps, clouds, strict=True):
         direct = cloud.write_cloud(tmp_path / "direct.ply", cloud.height_to_cloud(h, s.pixel_pitch_mm, colours=white))
@@ -102,4 +102,4 @@ def test_cloud_frames_stage_writes_the_clouds_of_a_batch_from_its_height_maps(tm
         assert len(o3d.io.read_point_cloud(path).points) == np.isfinite(h).sum()
     assert sorted(p.name for p in (tmp_path / "cloud").iterdir()) == ["frame_0000.ply", "frame_0002.ply"]
     with pytest.raises(ValueError):
-        pipeline.cloud_frames(str(root), frames, heights[:1], clouds)
+        stages.cloud_frames(str(root), frames, heights[:1], clouds)

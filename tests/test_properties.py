@@ -28,7 +28,7 @@ from hypothesis.extra.numpy import arrays
 from session_factory import make_session
 
 from huefringe import colour
-from huefringe.calibration import HueTable, build_table
+from huefringe.huetable import HueTable, build_table
 from huefringe.session import IMAGE_SUFFIXES, SessionError, load_session, read_rgb
 
 TWO_PI_F32 = np.float32(2 * np.pi)

@@ -1,7 +1,7 @@
 """Reliability: bad inputs are refused with a message naming the file (and never modified),
 interrupted runs resume to the same outputs, and repeated runs are deterministic.
 
-Library-level cases call the stage functions of :mod:`huefringe.pipeline` (what each Snakemake
+Library-level cases call the stage functions of :mod:`huefringe.stages` (what each Snakemake
 job runs) on a small virtual-bench session (160 x 120 px, 24 bands x 2 repeats, 4 frames).
 Workflow-level cases run Snakemake as a subprocess on a temporary copy of the workflow, never
 on the repository's own ``results/``.
@@ -34,7 +34,7 @@ import tifffile
 import yaml
 from session_factory import make_session, write_image
 
-from huefringe import pipeline
+from huefringe import stages
 from huefringe.archive import is_partial_file, verify_archive
 from huefringe.height import CalibrationError
 from huefringe.io import read_tiff, write_tiff
@@ -100,17 +100,17 @@ def stage_paths(out: Path, frames: list[int]) -> dict[str, list[str]]:
 
 def build_tables(session: Path, out: Path, which: tuple[str, ...] = ("reference", "object")) -> None:
     for w in which:
-        pipeline.hue_table(str(session), w, "hexcone", CALIBRATION, str(out / f"table_{w}.json"),
+        stages.hue_table(str(session), w, "hexcone", CALIBRATION, str(out / f"table_{w}.json"),
                            str(out / f"table_{w}.stats.json"))
 
 
 def calibrate(session: Path, out: Path) -> None:
-    pipeline.plane_calibration(str(session), str(out / "table_reference.json"), "hexcone", CALIBRATION,
+    stages.plane_calibration(str(session), str(out / "table_reference.json"), "hexcone", CALIBRATION,
                                str(out / "phase_to_height.npz"), str(out / "planes.json"))
 
 
 def measure(session: Path, calib: Path, out: Path, frames: list[int]) -> None:
-    pipeline.measure_frames(str(session), frames, str(calib / "table_object.json"), str(calib / "phase_to_height.npz"),
+    stages.measure_frames(str(session), frames, str(calib / "table_object.json"), str(calib / "phase_to_height.npz"),
                             "hexcone", MEASUREMENT, CALIBRATION, **stage_paths(out, frames))
 
 
@@ -193,7 +193,7 @@ def test_corrupt_images_are_refused_by_the_check_stage(tmp_path: Path, name: str
     before = snapshot(root)
     summary = tmp_path / "out" / "session_check.json"
     with pytest.raises(SessionError) as info:
-        pipeline.check_session(str(root), str(summary))  # the workflow's first stage (deep check)
+        stages.check_session(str(root), str(summary))  # the workflow's first stage (deep check)
     line = next((ln for ln in str(info.value).splitlines() if file_part in ln), None)
     assert line is not None, f"message does not name {file_part}: {info.value}"
     assert words in line, line
@@ -211,7 +211,7 @@ def test_saturated_frame_is_refused_with_its_clipped_fraction(session_copy: Path
     edit_image(frame, lambda im: np.clip(im.astype(np.int32) * 4, 0, 255).astype(np.uint8))  # 4x over-exposed
     before = snapshot(session_copy)
     out = tmp_path / "out"
-    with pytest.raises(pipeline.FrameError) as info:
+    with pytest.raises(stages.FrameError) as info:
         measure(session_copy, tiny_run, out, [2])
     msg = str(info.value)
     assert msg.startswith(str(frame)), msg
@@ -244,7 +244,7 @@ def test_maps_of_chosen_frames_only_and_the_same_heights(tiny_session: Path, tin
     out = tmp_path / "out"
     p = stage_paths(out, [0, 1, 2])
     kw = {"heights": p["heights"], "qa": p["qa"]}
-    pipeline.measure_frames(str(tiny_session), [0, 1, 2], str(tiny_run / "table_object.json"),
+    stages.measure_frames(str(tiny_session), [0, 1, 2], str(tiny_run / "table_object.json"),
                             str(tiny_run / "phase_to_height.npz"), "hexcone", MEASUREMENT, CALIBRATION,
                             phases=[p["phases"][1]], hues=[p["hues"][1]], map_frames=[1], **kw)
     assert sorted(x.name for x in (out / "phase").iterdir()) == ["frame_0001.tiff"]
@@ -254,7 +254,7 @@ def test_maps_of_chosen_frames_only_and_the_same_heights(tiny_session: Path, tin
             assert (out / kind / f"frame_{n:04d}.{ext}").read_bytes() == (tiny_run / kind / f"frame_{n:04d}.{ext}").read_bytes()
     assert (out / "phase" / "frame_0001.tiff").read_bytes() == (tiny_run / "phase" / "frame_0001.tiff").read_bytes()
     with pytest.raises(ValueError, match="not in the batch"):
-        pipeline.measure_frames(str(tiny_session), [0], str(tiny_run / "table_object.json"),
+        stages.measure_frames(str(tiny_session), [0], str(tiny_run / "table_object.json"),
                                 str(tiny_run / "phase_to_height.npz"), "hexcone", MEASUREMENT, CALIBRATION,
                                 phases=[p["phases"][1]], hues=[p["hues"][1]], map_frames=[1],
                                 heights=p["heights"][:1], qa=p["qa"][:1])
@@ -264,7 +264,7 @@ def test_lens_cap_black_frame_is_refused(session_copy: Path, tiny_run: Path, tmp
     frame = session_copy / "object/frames/frame_0003.png"
     edit_image(frame, np.zeros_like)
     before = snapshot(session_copy)
-    with pytest.raises(pipeline.FrameError) as info:
+    with pytest.raises(stages.FrameError) as info:
         measure(session_copy, tiny_run, tmp_path / "out", [3])
     msg = str(info.value)
     assert msg.startswith(str(frame)) and "only 0.0 % of the pixels carry a usable fringe" in msg and "lens cap" in msg
@@ -300,7 +300,7 @@ def test_unordered_object_bands_never_reach_a_height_map(session_copy: Path, tin
     assert stats["valid_fraction"] < 0.05
     assert stats["masked_by_reason"]["order"] + stats["masked_by_reason"]["coverage"] > 0.9 * stats["n_pixels"]
     shutil.copy(tiny_run / "phase_to_height.npz", out / "phase_to_height.npz")
-    with pytest.raises(pipeline.FrameError, match="usable fringe"):
+    with pytest.raises(stages.FrameError, match="usable fringe"):
         measure(session_copy, out, out / "m", [0])
     assert not (out / "m" / "height" / "frame_0000.tiff").exists()
 
@@ -319,7 +319,7 @@ def test_unordered_hue_bands_are_refused_naming_the_band_folder(session_copy: Pa
     else:
         stats = json.loads((out / f"table_{which}.stats.json").read_text())
         known_defect(False, f"a {which} hue table valid for {100 * stats['valid_fraction']:.1f} % of the pixels "
-                            f"(masked: {stats['masked_by_reason']}) is accepted by pipeline.hue_table; the error comes "
+                            f"(masked: {stats['masked_by_reason']}) is accepted by stages.hue_table; the error comes "
                             "later, naming a frame ('lens cap?') or no file at all ('plane z = 0.000 mm has only 0.0 % "
                             "valid pixels')")  # fmt: skip
     assert snapshot(session_copy) == before
@@ -391,7 +391,7 @@ def test_bad_calibration_planes_are_refused(session_copy: Path, tiny_run: Path, 
 def _metrology(session: Path, tiny_run: Path, heights: list[Path], out: Path) -> None:
     png = out / "figure.png"
     write_image(png, np.zeros((8, 8, 3), np.uint8))
-    pipeline.metrology_report(
+    stages.metrology_report(
         session=str(session), heights=[str(h) for h in heights],
         qa=[str(tiny_run / "qa" / f"frame_{n:04d}.json") for n in range(len(heights))], baseline=[],
         planes=str(tiny_run / "planes.json"), tables=str(tiny_run / "table_object.stats.json"),
@@ -446,7 +446,7 @@ def test_nan_only_height_map_gives_an_empty_mesh(tiny_session: Path, tmp_path: P
     height = tmp_path / "frame_0000.tiff"
     write_tiff(height, np.full((BENCH["height"], BENCH["width"]), np.nan, np.float32))
     out = tmp_path / "mesh"
-    pipeline.mesh_frame(str(tiny_session), str(height), CONFIG["mesh"], str(out / "frame_0000.ply"),
+    stages.mesh_frame(str(tiny_session), str(height), CONFIG["mesh"], str(out / "frame_0000.ply"),
                         str(out / "frame_0000.stl"), str(out / "frame_0000.stats.json"))
     stats = json.loads((out / "frame_0000.stats.json").read_text())
     assert stats["faces"] == 0 and stats["vertices"] == 0
@@ -691,6 +691,6 @@ def test_saturated_white_image_is_refused(session_copy: Path, tmp_path: Path) ->
     assert snapshot(session_copy) == before
     assert not (tmp_path / "table_object.json").exists()
     # the limit is the config's calibration.max_white_clipped_fraction
-    pipeline.hue_table(str(session_copy), "object", "hexcone", {**CALIBRATION, "max_white_clipped_fraction": 0.3},
+    stages.hue_table(str(session_copy), "object", "hexcone", {**CALIBRATION, "max_white_clipped_fraction": 0.3},
                        str(tmp_path / "table_object.json"), str(tmp_path / "table_object.stats.json"))
     assert (tmp_path / "table_object.json").exists()

@@ -11,15 +11,15 @@ height model); :func:`frame_to_height` then takes each frame, row by row, throug
                                                    (_finish_row, vectorised but the decoding)
 
 with no full-size temporaries, reading ``uint8``/``uint16`` frames directly (no float conversion
-pass). It is the reference-relative path of :func:`huefringe.pipeline.measure_frame`
+pass). It is the reference-relative path of :func:`huefringe.stages.measure_frame`
 (``unwrap_mode="reference"``) and repeats its arithmetic operation by operation (float32 where
 the NumPy reference is float32, float64 where it is float64; the HSI ``arctan2`` is NumPy's own,
 in a pass of its own): the heights and the valid mask are bit for bit those of the reference.
 
 ``denoise_radius > 0`` adds the uncertainty-weighted edge-preserving filter
 (:func:`huefringe.phase.denoise_phase`, called as is) on the phase difference; the per-pixel
-phase uncertainty (:func:`huefringe.pipeline.phase_sigma` with the table slope of
-:meth:`~huefringe.calibration.HueTable.hue_slope`) is computed in the same passes.
+phase uncertainty (:func:`huefringe.stages.phase_sigma` with the table slope of
+:meth:`~huefringe.huetable.HueTable.hue_slope`) is computed in the same passes.
 
 Example
 -------
@@ -30,7 +30,7 @@ Example
 
 Table layout
 ------------
-The :class:`~huefringe.calibration.HueTable` is band-major ``(N, H, W)``: a bisection in one
+The :class:`~huefringe.huetable.HueTable` is band-major ``(N, H, W)``: a bisection in one
 pixel's column touches ~log2(N) cache lines, each in a different band plane, and a frame ends
 up reading most of the table (194 MB for 256 bands at 768 x 494). :func:`prepare` copies it once
 into a pixel-major layout: each usable pixel's column, rotated to start at its minimum (so sorted
@@ -71,7 +71,7 @@ from numba.core import cgutils
 from numba.extending import intrinsic, overload
 from numpy.typing import NDArray
 
-from huefringe.calibration import HueTable
+from huefringe.huetable import HueTable
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.phase import denoise_weight, denoise_weighted
@@ -201,7 +201,7 @@ def prepare(
         White-balance floor (as :func:`huefringe.colour.white_balance`).
     floor_slope : float
         Denoise only: lower bound of the table slope in the phase uncertainty (as
-        :func:`huefringe.pipeline.phase_sigma`).
+        :func:`huefringe.stages.phase_sigma`).
     predistortion : Predistortion, optional
         The session's pre-distortion (``Session.predistortion``): the table then gives the
         emitted phase, decoded back to the code phase (as ``measure_frame(predistortion=...)``).
@@ -219,7 +219,7 @@ def prepare(
     if shadow is None:
         shadow_arr = np.zeros((h, w), dtype=bool)
     elif np.ndim(shadow) == 0:
-        from huefringe.pipeline import shadow_mask  # lazy: pipeline may import this module
+        from huefringe.stages import shadow_mask  # lazy: pipeline may import this module
 
         shadow_arr = shadow_mask(wf, float(shadow))  # type: ignore[arg-type]
     else:
@@ -491,7 +491,7 @@ def _phys(i):  # pragma: no cover - numba
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def _line_entry(cols, o, k, n):  # pragma: no cover - numba
     """Entry ``k`` (any integer) of the sorted column at ``cols[o:]`` continued periodically
-    (``calibration._column_entry``): ``column[k mod N] + 65536 floor(k / N)``."""
+    (``huetable._column_entry``): ``column[k mod N] + 65536 floor(k / N)``."""
     off = 0.0
     if k < 0:  # here k >= -2 and N >= 3: one turn down or up at most (no integer division)
         k += n
@@ -509,7 +509,7 @@ def _line_entry(cols, o, k, n):  # pragma: no cover - numba
 @numba.njit(cache=True, inline="always", error_model="numpy")
 def _interp(bb, hq, lo_val, hi_val, n):  # pragma: no cover - numba
     """Code phase between band ``bb`` (entry ``lo_val``) and the next one (``hi_val``), as
-    ``calibration._to_phase_kernel``."""
+    ``huetable._to_phase_kernel``."""
     two_pi = 2.0 * np.pi
     c = (bb + (hq - lo_val) / (hi_val - lo_val)) * (two_pi / n)
     if c >= two_pi:
@@ -605,7 +605,7 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                 hqi = np.int64(hq)  # entries are integers: entry <= hq  <=>  entry <= floor(hq)
                 s0 = np.int64(start[v, u])
                 o = (v * w + u) * ncols
-                # -- table lookup (calibration._to_phase_kernel). Its bisection finds p + 1, the
+                # -- table lookup (huetable._to_phase_kernel). Its bisection finds p + 1, the
                 # number of entries <= hue in the rotated, sorted column; p is the bracketing
                 # entry. Counted here in the guessed line: f entries of line gl (column entries
                 # 29 gl - 1 .. 29 gl + 30) are <= hue; when 2 <= f <= 30, p = 29 gl - 2 + f lies
@@ -768,7 +768,7 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
     two_pi_f32 = np.float32(two_pi)
     zero32 = np.float32(0.0)
     nan32 = np.float32(np.nan)
-    # (A) calibration._to_phase_kernel's interpolation: the emitted (or code) phase
+    # (A) huetable._to_phase_kernel's interpolation: the emitted (or code) phase
     for u in range(w):
         c = (bb[u] + (hq[u] - lo[u]) / (hi[u] - lo[u])) * step
         c = c - two_pi if c >= two_pi else c
@@ -842,7 +842,7 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
         m = x + two_pi if x < 0 else (x if x < two_pi else x - two_pi)
         dphi = np.float32(pi - m)
         if out_w is not None:
-            # HueTable.hue_slope (calibration._to_phase_kernel): central difference over a band
+            # HueTable.hue_slope (huetable._to_phase_kernel): central difference over a band
             f = (hq[u] - lo[u]) / (hi[u] - lo[u])
             sc_lo = (0.5 - f) * (lo[u] - pm[u]) + (0.5 + f) * (hi[u] - lo[u])
             sc_hi = (1.5 - f) * (hi[u] - lo[u]) + (f - 0.5) * (pp[u] - hi[u])

@@ -200,7 +200,7 @@ def plate_predistortion(cfg: dict[str, Any], bench: Bench) -> tuple[NDArray[np.f
     The plate's median transfer function (captured hue of each uniform band, white-balanced,
     against its code phase) comes from noiseless captures of the bands: the median over every
     pixel of the plate removes the noise of real captures just as well. The loop itself is the
-    measuring side's :func:`huefringe.calibration.predistortion`.
+    measuring side's :func:`huefringe.compensation.predistortion`.
 
     Returns
     -------
@@ -210,7 +210,7 @@ def plate_predistortion(cfg: dict[str, Any], bench: Bench) -> tuple[NDArray[np.f
         The loop's residual per iteration.
     """
     from huefringe import colour
-    from huefringe.calibration import predistortion
+    from huefringe.compensation import predistortion
 
     comp = cfg["projector"]["compensation"]
     n = int(cfg["session"]["hue_bands"])

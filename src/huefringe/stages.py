@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe.calibration import HueTable, build_table
+from huefringe.huetable import HueTable, build_table
 from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import CalibrationError, PlaneCalibration, accuracy, calibrate_planes, coverage
@@ -320,7 +320,7 @@ def plane_calibration(session: str, table: str, hue_model: str, calibration: Map
 def compensation(session: str, table: str, model: str, hue_model: str, calibration: Mapping[str, Any],
                  pattern: str, history: str, cross_section: str, residual_map: str) -> None:
     """Pre-distorted projector pattern (paper Fig. 6) and the calibration QA figures (Fig. 7)."""
-    from huefringe import calibration as calib
+    from huefringe import compensation as calib
     from huefringe.io import write_png_rgb
 
     s = load_session(session)
