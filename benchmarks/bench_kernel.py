@@ -12,7 +12,7 @@ crosstalk, coloured and dark patches and noise; see ``_rig.py``), it measures
 ``kernel``      ``kernel.frame_to_height(prep, frame_u8)`` (denoise off),
 ``kernel+dn2``  the same with ``denoise_radius=2`` (the workflow's setting),
 ``cvtColor``    ``cv2.cvtColor(frame, COLOR_RGB2HSV)``, the floor: one colour conversion pass,
-``numpy``       ``stages.measure_frame(frame_f32, ..., denoise_radius=0)``, the reference
+``numpy``       ``perframe.measure_frame(frame_f32, ..., denoise_radius=0)``, the reference
                 implementation (NumPy, plus the compiled table lookup it already has),
 ``numpy+dn2``   the reference with ``denoise_radius=2`` (first size only: it is slow).
 ``table-reads`` a floor of another kind: reading, for every pixel, the one cache line of its
@@ -53,7 +53,7 @@ import numpy as np  # noqa: E402
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _rig import Rig, make_rig, tile_rig  # noqa: E402
 
-from huefringe import kernel, stages  # noqa: E402
+from huefringe import kernel, perframe  # noqa: E402
 
 TARGET_FPS = 200.0
 TARGET_CV_RATIO = 10.0
@@ -106,7 +106,7 @@ def bench_size(rig: Rig, *, rounds: int, min_time: float, with_dn2_reference: bo
     prep_s = time.perf_counter() - t0
     frame = rig.frame
     frame_f32 = frame.astype(np.float32) * np.float32(1 / 255)  # what session.read_rgb returns
-    shadow = stages.shadow_mask(rig.white, 0.12)
+    shadow = perframe.shadow_mask(rig.white, 0.12)
     buf = (np.empty((h, w), np.float32), np.empty((h, w), bool))
 
     def k0() -> Any:
@@ -119,7 +119,7 @@ def bench_size(rig: Rig, *, rounds: int, min_time: float, with_dn2_reference: bo
         return cv2.cvtColor(frame, cv2.COLOR_RGB2HSV)
 
     def ref(radius: int) -> Callable[[], Any]:
-        return lambda: stages.measure_frame(frame_f32, rig.white, rig.table, rig.cal, hue_model="hexcone",
+        return lambda: perframe.measure_frame(frame_f32, rig.white, rig.table, rig.cal, hue_model="hexcone",
                                               min_saturation=0.08, shadow=shadow, bit_depth=8,
                                               denoise_radius=radius)
 

@@ -1,4 +1,4 @@
-"""The fused per-frame kernel against the NumPy reference (stages.measure_frame) on bench data."""
+"""The fused per-frame kernel against the NumPy reference (perframe.measure_frame) on bench data."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 import yaml
 
-from huefringe import bench, kernel, stages
+from huefringe import bench, kernel, perframe, stages
 from huefringe.huetable import HueTable
 from huefringe.height import PlaneCalibration
 from huefringe.session import load_session, read_rgb
@@ -52,10 +52,10 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 def _reference(rig: dict, model: str, rgb: np.ndarray, shadow: np.ndarray, denoise: int,
-               pd: bool = True) -> stages.FrameResult:
+               pd: bool = True) -> perframe.FrameResult:
     table, cal = rig[model]
     m = CONFIG["measurement"]
-    return stages.measure_frame(rgb, rig["white"], table, cal, hue_model=model, min_saturation=m["min_saturation"],
+    return perframe.measure_frame(rgb, rig["white"], table, cal, hue_model=model, min_saturation=m["min_saturation"],
                                   shadow=shadow, unwrap_mode="reference", bit_depth=8, denoise_radius=denoise,
                                   predistortion=rig["session"].predistortion if pd else None)
 
@@ -71,7 +71,7 @@ def _frame_u8(rig: dict, n: int) -> np.ndarray:
     return np.ascontiguousarray(cv2.imread(str(rig["session"].frames[n]), cv2.IMREAD_UNCHANGED)[..., ::-1])
 
 
-def _assert_same(h: np.ndarray, valid: np.ndarray, ref: stages.FrameResult) -> None:
+def _assert_same(h: np.ndarray, valid: np.ndarray, ref: perframe.FrameResult) -> None:
     assert h.dtype == np.float32 and valid.dtype == bool
     np.testing.assert_array_equal(valid, ref.valid)
     np.testing.assert_array_equal(np.isnan(h), ~valid)  # NaN exactly where invalid, in both
@@ -87,7 +87,7 @@ def test_kernel_matches_reference(rig: dict, model: str, pd: bool, denoise: int)
     """Same heights (to 1e-4 mm; bit for bit with hexcone) and valid mask as measure_frame, with
     and without the session's pre-distortion (the demo bench projects through one)."""
     assert rig["session"].predistortion is not None
-    shadow = stages.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
+    shadow = perframe.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
     prep = _prepare(rig, model, shadow, pd)
     for n in rig["session"].frame_ids:
         ref = _reference(rig, model, read_rgb(rig["session"].frames[n]), shadow, denoise, pd)
@@ -97,7 +97,7 @@ def test_kernel_matches_reference(rig: dict, model: str, pd: bool, denoise: int)
 
 
 def test_uint8_and_float_input_agree(rig: dict) -> None:
-    prep = _prepare(rig, "hexcone", stages.shadow_mask(rig["white"], 0.12))
+    prep = _prepare(rig, "hexcone", perframe.shadow_mask(rig["white"], 0.12))
     u8 = _frame_u8(rig, 0)
     f32 = read_rgb(rig["session"].frames[0])
     h8, v8 = kernel.frame_to_height(prep, u8)
@@ -115,7 +115,7 @@ def test_uint8_and_float_input_agree(rig: dict) -> None:
 def test_invalid_pixels_are_nan_in_both(rig: dict) -> None:
     """Clipped, grey, shadowed and table-masked pixels: NaN and invalid, as the reference."""
     white = rig["white"]
-    shadow = stages.shadow_mask(white, 0.12)
+    shadow = perframe.shadow_mask(white, 0.12)
     shadow[:10, :10] = True
     prep = _prepare(rig, "hexcone", shadow)
     u8 = _frame_u8(rig, 1).copy()
@@ -138,7 +138,7 @@ def test_invalid_pixels_are_nan_in_both(rig: dict) -> None:
 
 def test_out_buffers_and_shadow_fraction(rig: dict) -> None:
     table, cal = rig["hexcone"]
-    p1 = _prepare(rig, "hexcone", stages.shadow_mask(rig["white"], 0.12))
+    p1 = _prepare(rig, "hexcone", perframe.shadow_mask(rig["white"], 0.12))
     p2 = kernel.prepare(table, cal, rig["white"], min_saturation=0.08, shadow=0.12,  # fraction form
                         predistortion=rig["session"].predistortion)
     np.testing.assert_array_equal(p1.ok, p2.ok)
@@ -203,7 +203,7 @@ def test_lookup_matches_table_to_phase(n_bands: int) -> None:
         # with the phase filter: its slope reads the entries either side of the bracketing pair,
         # here at every place in the lines and across the column's ends (frame scaled as read_rgb does)
         hk, vk = kernel.frame_to_height(prep, frame, denoise_radius=1)
-        ref = stages.measure_frame(frame.astype(np.float32) * np.float32(1 / 255), np.ones((h, w, 3), np.float32),
+        ref = perframe.measure_frame(frame.astype(np.float32) * np.float32(1 / 255), np.ones((h, w, 3), np.float32),
                                      table, cal, min_saturation=0.0, denoise_radius=1)
         np.testing.assert_array_equal(vk, ref.valid)
         np.testing.assert_array_equal(hk[vk], ref.height[vk])

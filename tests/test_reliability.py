@@ -34,7 +34,7 @@ import tifffile
 import yaml
 from session_factory import make_session, write_image
 
-from huefringe import stages
+from huefringe import perframe, stages
 from huefringe.archive import is_partial_file, verify_archive
 from huefringe.height import CalibrationError
 from huefringe.io import read_tiff, write_tiff
@@ -211,7 +211,7 @@ def test_saturated_frame_is_refused_with_its_clipped_fraction(session_copy: Path
     edit_image(frame, lambda im: np.clip(im.astype(np.int32) * 4, 0, 255).astype(np.uint8))  # 4x over-exposed
     before = snapshot(session_copy)
     out = tmp_path / "out"
-    with pytest.raises(stages.FrameError) as info:
+    with pytest.raises(perframe.FrameError) as info:
         measure(session_copy, tiny_run, out, [2])
     msg = str(info.value)
     assert msg.startswith(str(frame)), msg
@@ -264,7 +264,7 @@ def test_lens_cap_black_frame_is_refused(session_copy: Path, tiny_run: Path, tmp
     frame = session_copy / "object/frames/frame_0003.png"
     edit_image(frame, np.zeros_like)
     before = snapshot(session_copy)
-    with pytest.raises(stages.FrameError) as info:
+    with pytest.raises(perframe.FrameError) as info:
         measure(session_copy, tiny_run, tmp_path / "out", [3])
     msg = str(info.value)
     assert msg.startswith(str(frame)) and "only 0.0 % of the pixels carry a usable fringe" in msg and "lens cap" in msg
@@ -300,7 +300,7 @@ def test_unordered_object_bands_never_reach_a_height_map(session_copy: Path, tin
     assert stats["valid_fraction"] < 0.05
     assert stats["masked_by_reason"]["order"] + stats["masked_by_reason"]["coverage"] > 0.9 * stats["n_pixels"]
     shutil.copy(tiny_run / "phase_to_height.npz", out / "phase_to_height.npz")
-    with pytest.raises(stages.FrameError, match="usable fringe"):
+    with pytest.raises(perframe.FrameError, match="usable fringe"):
         measure(session_copy, out, out / "m", [0])
     assert not (out / "m" / "height" / "frame_0000.tiff").exists()
 

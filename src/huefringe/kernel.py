@@ -11,14 +11,14 @@ height model); :func:`frame_to_height` then takes each frame, row by row, throug
                                                    (_finish_row, vectorised but the decoding)
 
 with no full-size temporaries, reading ``uint8``/``uint16`` frames directly (no float conversion
-pass). It is the reference-relative path of :func:`huefringe.stages.measure_frame`
+pass). It is the reference-relative path of :func:`huefringe.perframe.measure_frame`
 (``unwrap_mode="reference"``) and repeats its arithmetic operation by operation (float32 where
 the NumPy reference is float32, float64 where it is float64; the HSI ``arctan2`` is NumPy's own,
 in a pass of its own): the heights and the valid mask are bit for bit those of the reference.
 
 ``denoise_radius > 0`` adds the uncertainty-weighted edge-preserving filter
 (:func:`huefringe.phase.denoise_phase`, called as is) on the phase difference; the per-pixel
-phase uncertainty (:func:`huefringe.stages.phase_sigma` with the table slope of
+phase uncertainty (:func:`huefringe.perframe.phase_sigma` with the table slope of
 :meth:`~huefringe.huetable.HueTable.hue_slope`) is computed in the same passes.
 
 Example
@@ -71,9 +71,10 @@ from numba.core import cgutils
 from numba.extending import intrinsic, overload
 from numpy.typing import NDArray
 
-from huefringe.huetable import HueTable
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
+from huefringe.huetable import HueTable
+from huefringe.perframe import capture_noise, shadow_mask, sigma_from_slope
 from huefringe.phase import denoise_weight, denoise_weighted
 from huefringe.session import Predistortion
 
@@ -194,14 +195,14 @@ def prepare(
         Frame pixels whose white-balanced saturation is ``<= min_saturation`` are invalid.
     shadow : bool ndarray (H, W) or float, optional
         Pixels to reject in every frame (True = shadow), e.g.
-        ``pipeline.shadow_mask(white, fraction)``; a float is taken as that ``fraction``.
+        ``perframe.shadow_mask(white, fraction)``; a float is taken as that ``fraction``.
     bit_depth : int
         Sensor bit depth: pixels with a channel at the top code are clipped (invalid).
     floor : float
         White-balance floor (as :func:`huefringe.colour.white_balance`).
     floor_slope : float
         Denoise only: lower bound of the table slope in the phase uncertainty (as
-        :func:`huefringe.stages.phase_sigma`).
+        :func:`huefringe.perframe.phase_sigma`).
     predistortion : Predistortion, optional
         The session's pre-distortion (``Session.predistortion``): the table then gives the
         emitted phase, decoded back to the code phase (as ``measure_frame(predistortion=...)``).
@@ -219,19 +220,13 @@ def prepare(
     if shadow is None:
         shadow_arr = np.zeros((h, w), dtype=bool)
     elif np.ndim(shadow) == 0:
-        from huefringe.stages import shadow_mask  # lazy: pipeline may import this module
-
         shadow_arr = shadow_mask(wf, float(shadow))  # type: ignore[arg-type]
     else:
         shadow_arr = np.asarray(shadow, dtype=bool)
         if shadow_arr.shape != (h, w):
             raise ValueError(f"shadow has shape {shadow_arr.shape}, expected {(h, w)}")
     ok = np.ascontiguousarray(np.asarray(table.valid, bool) & ~shadow_arr)
-    # per-pixel hue noise of one capture, exactly as pipeline.phase_sigma
-    repeats = int(table.stats.get("repeats", 1) or 1)
-    noise = np.asarray(table.noise_rad, np.float64) * np.sqrt(repeats)
-    fallback = float(np.nanmedian(noise)) if np.isfinite(noise).any() else 0.01
-    noise = np.ascontiguousarray(np.where(np.isfinite(noise) & (noise > 0), noise, fallback))
+    noise = capture_noise(table)  # per-pixel hue noise of one capture, as perframe.phase_sigma
 
     n = int(table.n_bands)
     nlines = -(-n // _STEP)
@@ -393,7 +388,7 @@ def _clipped(x, xf, top32, top64):  # pragma: no cover - replaced by the overloa
 
 @overload(_clipped, inline="always")
 def _clipped_ov(x, xf, top32, top64):
-    """``pipeline.clipped_mask``: float32 frames compare in float32 (NEP 50), float64 in float64."""
+    """``perframe.clipped_mask``: float32 frames compare in float32 (NEP 50), float64 in float64."""
     if x == types.float64:
         return lambda x, xf, top32, top64: x >= top64
     return lambda x, xf, top32, top64: xf >= top32
@@ -817,7 +812,7 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
     else:
         ph = em
     # (C) phase difference (phase.wrap), then h = dphi / (a + b dphi), or, for the denoise
-    # filter, dphi and its uncertainty (pipeline.phase_sigma with HueTable.hue_slope, times
+    # filter, dphi and its uncertainty (perframe.phase_sigma with HueTable.hue_slope, times
     # |Predistortion.decode_slope|)
     ref = phi_ref[v]
     av = a[v]
@@ -847,7 +842,7 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
             sc_lo = (0.5 - f) * (lo[u] - pm[u]) + (0.5 + f) * (hi[u] - lo[u])
             sc_hi = (1.5 - f) * (hi[u] - lo[u]) + (f - 0.5) * (pp[u] - hi[u])
             slope = (sc_lo if f < 0.5 else sc_hi) * n / 65536.0
-            sig = nz[u] / max(slope, floor_slope)
+            sig = sigma_from_slope(nz[u], slope, floor_slope)  # perframe.phase_sigma's, per pixel
             if pd_e is not None:
                 sig = sig * abs(pds[u])
             ok = g[u] >= 0
@@ -1038,7 +1033,7 @@ def frame_to_height(
     out : (ndarray, ndarray), optional
         Preallocated ``(height, valid)`` buffers, written in place and returned.
 
-    Equals ``pipeline.measure_frame(rgb, white, table, cal, unwrap_mode="reference", ...)`` with
+    Equals ``perframe.measure_frame(rgb, white, table, cal, unwrap_mode="reference", ...)`` with
     the same parameters (see the module docstring for how exactly).
     """
     m = frame_maps(prep, rgb, denoise_radius=denoise_radius, denoise_k=denoise_k, out=out)

@@ -1,0 +1,215 @@
+"""The per-frame algorithm: one trapezoidal frame to a height map, with its masks and QA.
+
+:func:`measure_frame` is the NumPy reference chain (hue -> hue table -> code phase -> phase
+difference -> height); the fused kernel (:mod:`huefringe.kernel`) reproduces it bit for bit and
+shares its compiled pieces (:func:`sigma_from_slope`, :func:`capture_noise`,
+:func:`shadow_mask`). The workflow's stages (:mod:`huefringe.stages`) call one or the other.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe.colour import hue as hue_of
+from huefringe.colour import intensity, white_balance
+from huefringe.height import PlaneCalibration
+from huefringe.huetable import HueTable
+from huefringe.phase import denoise_phase, unwrap, wrap
+from huefringe.session import Predistortion
+
+__all__ = [
+    "FrameError",
+    "FrameResult",
+    "capture_noise",
+    "clipped_mask",
+    "frame_stats",
+    "measure_frame",
+    "phase_sigma",
+    "shadow_mask",
+    "sigma_from_slope",
+]
+
+
+class FrameError(ValueError):
+    """A frame cannot be measured (lens cap, saturated sensor, no fringe); names the file."""
+
+
+# --------------------------------------------------------------------------- masks
+
+
+def shadow_mask(white: NDArray[np.floating], fraction: float) -> NDArray[np.bool_]:
+    """Pixels whose white-image intensity is below ``fraction`` of the image's 99th percentile.
+
+    Shadowed pixels receive only ambient light when the projector shows white, so they carry no
+    fringe; they are invalid in every frame of the session.
+    """
+    level = intensity(white)
+    return level < fraction * float(np.percentile(level, 99))
+
+
+def clipped_mask(rgb: NDArray[np.floating], bit_depth: int) -> NDArray[np.bool_]:
+    """Pixels with any channel at the sensor's maximum code."""
+    top = 1.0 - 0.5 / (2**bit_depth - 1)
+    return np.any(rgb >= top, axis=-1)
+
+
+# --------------------------------------------------------------------------- per frame
+
+
+@dataclass
+class FrameResult:
+    height: NDArray[np.float32]
+    phase: NDArray[np.float32]
+    """Corrected code phase of the object, wrapped, [0, 2 pi) (NaN invalid)."""
+    hue: NDArray[np.float32]
+    """Raw captured hue after white balance (NaN where undefined)."""
+    valid: NDArray[np.bool_]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+def measure_frame(
+    rgb: NDArray[np.floating],
+    white: NDArray[np.floating],
+    table: HueTable,
+    cal: PlaneCalibration,
+    *,
+    hue_model: str = "hexcone",
+    min_saturation: float = 0.08,
+    shadow: NDArray[np.bool_] | None = None,
+    unwrap_mode: str = "reference",
+    bit_depth: int = 8,
+    below_reference_mm: float = 0.25,
+    denoise_radius: int = 2,
+    predistortion: Predistortion | None = None,
+) -> FrameResult:
+    """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
+
+    Parameters
+    ----------
+    rgb, white : ndarray
+        The frame and the object's white image, float (H, W, 3) in [0, 1].
+    table : HueTable
+        The object's per-pixel hue table (captured hue -> projected code phase).
+    cal : PlaneCalibration
+        Reference phase and the per-pixel phase-to-height model.
+    below_reference_mm : float
+        Heights below ``-below_reference_mm`` are flagged: objects stand on the plate, so a
+        large negative height means the phase difference wrapped (a step too tall for the
+        fringe period).
+    denoise_radius : int
+        Radius of the uncertainty-weighted, edge-preserving phase filter
+        (:func:`huefringe.phase.denoise_phase`); 0 switches it off. Each pixel's phase
+        uncertainty is its hue noise (from the repeats of the hue bands) divided by the local
+        slope of its table, so pixels where projector gamma flattens the hue lean on their
+        neighbours while steps stay sharp.
+    predistortion : Predistortion, optional
+        When the frames were projected through a pre-distortion (paper Fig. 6; the session's
+        ``predistortion.csv``), the table gives the *emitted* phase, which is decoded back to
+        the code phase.
+    """
+    balanced = white_balance(rgb, white)
+    hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
+    if denoise_radius > 0:  # the filter's uncertainty needs the table slope: one search for both
+        emitted, slope = table.to_phase_and_slope(hue)
+    else:
+        emitted = table.to_phase(hue)
+    phase = emitted if predistortion is None else predistortion.decode(emitted)
+    clipped = clipped_mask(rgb, bit_depth)
+    valid = np.isfinite(phase) & ~clipped
+    if shadow is not None:
+        valid &= ~shadow
+    dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
+    un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
+    if denoise_radius > 0:
+        sigma = phase_sigma(table, slope)
+        if predistortion is not None:
+            sigma = sigma * np.abs(predistortion.decode_slope(emitted))
+        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius)
+    height = cal.height(un.dphi)
+    valid &= np.isfinite(height)
+    height = np.where(valid, height, np.nan).astype(np.float32)
+    stats = frame_stats(
+        valid, height, un.flags,
+        clipped_fraction=float(clipped.mean()),
+        hue_undefined_fraction=float(np.mean(~np.isfinite(hue))),
+        table_invalid_fraction=float(np.mean(~table.valid)),
+        shadow_fraction=float(shadow.mean()) if shadow is not None else 0.0,
+        hue_model=hue_model, unwrap_mode=unwrap_mode, below_reference_mm=below_reference_mm,
+    )
+    return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats)
+
+
+def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Mapping[str, NDArray[np.bool_]], *,
+                clipped_fraction: float, hue_undefined_fraction: float, table_invalid_fraction: float,
+                shadow_fraction: float, hue_model: str, unwrap_mode: str,
+                below_reference_mm: float = 0.25) -> dict[str, Any]:
+    """The QA figures of one frame (``qa/frames/frame_NNNN.json``).
+
+    ``phase_ambiguity_suspected`` is set when more than 0.1 % of the pixels lie below
+    ``-below_reference_mm`` (objects stand on the plate, so a large negative height means the
+    phase difference wrapped) or sit on a wrap edge.
+    """
+    counts = {k: int(np.count_nonzero(v)) for k, v in flags.items()}
+    counts["below_reference"] = int(np.count_nonzero(valid & (height < -below_reference_mm)))
+    suspect = (counts["below_reference"] + counts["wrap_edge"]) > 0.001 * valid.size
+    return {
+        "valid_fraction": np.count_nonzero(valid) / valid.size,
+        "clipped_fraction": clipped_fraction,
+        "hue_undefined_fraction": hue_undefined_fraction,
+        "table_invalid_fraction": table_invalid_fraction,
+        "shadow_fraction": shadow_fraction,
+        "flags": counts,
+        "phase_ambiguity_suspected": bool(suspect),
+        "median_height_mm": float(np.median(height[valid])) if valid.any() else None,
+        "hue_model": hue_model,
+        "unwrap": unwrap_mode,
+    }
+
+
+def phase_sigma(table: HueTable, slope: NDArray[np.floating], floor_slope: float = 0.05) -> NDArray[np.float64]:
+    """Per-pixel standard deviation (rad) of the code phase decoded from one capture.
+
+    ``sigma_hue / slope``: the hue noise of one capture (the standard error of the bands' mean
+    times sqrt(repeats)) over the local slope d(captured hue)/d(code phase) of the pixel's table
+    (:meth:`HueTable.hue_slope` at the captured hue), floored at ``floor_slope``.
+    """
+    noise = capture_noise(table)
+    out = np.empty(noise.shape, np.float64)
+    _phase_sigma_map(noise, np.ascontiguousarray(slope, dtype=np.float64), float(floor_slope), out)
+    return out
+
+
+def capture_noise(table: HueTable) -> NDArray[np.float64]:
+    """Per-pixel hue noise (rad) of one capture, from the table's band statistics.
+
+    The standard error of the bands' mean hue times ``sqrt(repeats)``; pixels without a finite,
+    positive figure get the median of the others (0.01 rad if there is none). Used by
+    :func:`phase_sigma` and by the fused kernel (:func:`huefringe.kernel.prepare`).
+    """
+    repeats = int(table.stats.get("repeats", 1) or 1)
+    noise = np.asarray(table.noise_rad, np.float64) * np.sqrt(repeats)
+    fallback = float(np.nanmedian(noise)) if np.isfinite(noise).any() else 0.01
+    return np.ascontiguousarray(np.where(np.isfinite(noise) & (noise > 0), noise, fallback))
+
+
+@numba.njit(cache=True, nogil=True)
+def sigma_from_slope(noise, slope, floor_slope):  # pragma: no cover - compiled
+    """One pixel's code-phase standard deviation: ``noise / max(slope, floor_slope)``, with a
+    non-finite ``slope`` taken as 1 (compiled, for :func:`phase_sigma` and the fused kernel alike)."""
+    s = slope if slope - slope == 0 else 1.0
+    return noise / max(s, floor_slope)
+
+
+@numba.njit(cache=True, nogil=True)
+def _phase_sigma_map(noise, slope, floor_slope, out):  # pragma: no cover - compiled
+    """:func:`sigma_from_slope` of every pixel."""
+    h, w = noise.shape
+    for v in range(h):
+        for u in range(w):
+            out[v, u] = sigma_from_slope(noise[v, u], slope[v, u], floor_slope)

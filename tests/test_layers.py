@@ -1,0 +1,93 @@
+"""The import graph of ``huefringe.*`` runs in strict layers: no circle, and measuring modules never
+import the simulator (``huefringe.bench``)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "huefringe"
+
+
+def _module_name(path: Path, src: Path = SRC) -> str:
+    parts = path.relative_to(src.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def import_graph(src: Path = SRC) -> dict[str, set[str]]:
+    """``module -> huefringe modules it imports`` (module level and inside functions alike)."""
+    modules = {_module_name(p, src): p for p in src.rglob("*.py")}
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for name, path in modules.items():
+        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            targets: list[str] = []
+            if isinstance(node, ast.Import):
+                targets = [a.name for a in node.names]
+            elif isinstance(node, ast.ImportFrom):
+                base = node.module or ""
+                if node.level:
+                    up = package.split(".")[: len(package.split(".")) - (node.level - 1)]
+                    base = ".".join(up + ([base] if base else []))
+                targets = [base] + [f"{base}.{a.name}" for a in node.names]
+            for t in targets:
+                # the deepest huefringe module the import names (``from huefringe import io`` -> huefringe.io)
+                while t and t not in modules:
+                    t = t.rpartition(".")[0]
+                if t and t != name and t != "huefringe":
+                    graph[name].add(t)
+    return graph
+
+
+def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
+    """One import circle of ``graph`` as a list of modules, or None."""
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(m: str) -> list[str] | None:
+        state[m] = 1
+        stack.append(m)
+        for n in sorted(graph[m]):
+            if state.get(n) == 1:
+                return stack[stack.index(n):] + [n]
+            if n not in state and (c := visit(n)):
+                return c
+        stack.pop()
+        state[m] = 2
+        return None
+
+    for m in sorted(graph):
+        if m not in state and (c := visit(m)):
+            return c
+    return None
+
+
+def test_graph_sees_known_edges() -> None:
+    g = import_graph()
+    assert "huefringe.perframe" in g["huefringe.kernel"]
+    assert "huefringe.kernel" in g["huefringe.stages"]
+    assert "huefringe.huetable" in g["huefringe.compensation"]
+
+
+def test_find_cycle_finds_a_circle() -> None:
+    assert find_cycle({"a": {"b"}, "b": {"c"}, "c": {"a"}}) == ["a", "b", "c", "a"]
+    assert find_cycle({"a": {"b"}, "b": set()}) is None
+
+
+def test_no_import_circle() -> None:
+    assert find_cycle(import_graph()) is None
+
+
+@pytest.mark.parametrize("module", ["colour", "phase", "height", "huetable", "compensation", "perframe", "kernel",
+                                    "mesh", "cloud", "metrology", "render", "session", "io", "patterns"])
+def test_measuring_modules_do_not_reach_the_bench(module: str) -> None:
+    g = import_graph()
+    seen, todo = set(), [f"huefringe.{module}"]
+    while todo:
+        m = todo.pop()
+        if m not in seen:
+            seen.add(m)
+            todo += g[m]
+    assert not {m for m in seen if m.startswith("huefringe.bench")}, seen
