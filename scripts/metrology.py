@@ -1,4 +1,4 @@
-"""Snakemake adapter: one call to huefringe.stages.metrology_report."""
-from huefringe.stages import metrology_report, run_from_snakemake
+"""Snakemake adapter: one call to huefringe.stages.metrology."""
+from huefringe.stages import metrology, run_from_snakemake
 
-run_from_snakemake(snakemake, metrology_report)  # noqa: F821 (snakemake is injected by Snakemake)
+run_from_snakemake(snakemake, metrology)  # noqa: F821 (snakemake is injected by Snakemake)

@@ -1,4 +1,4 @@
-"""Snakemake adapter: one call to huefringe.stages.render_frame."""
-from huefringe.stages import render_frame, run_from_snakemake
+"""Snakemake adapter: one call to huefringe.stages.render."""
+from huefringe.stages import render, run_from_snakemake
 
-run_from_snakemake(snakemake, render_frame)  # noqa: F821 (snakemake is injected by Snakemake)
+run_from_snakemake(snakemake, render)  # noqa: F821 (snakemake is injected by Snakemake)

@@ -391,7 +391,7 @@ def test_bad_calibration_planes_are_refused(session_copy: Path, tiny_run: Path, 
 def _metrology(session: Path, tiny_run: Path, heights: list[Path], out: Path) -> None:
     png = out / "figure.png"
     write_image(png, np.zeros((8, 8, 3), np.uint8))
-    stages.metrology_report(
+    stages.metrology(
         session=str(session), heights=[str(h) for h in heights],
         qa=[str(tiny_run / "qa" / f"frame_{n:04d}.json") for n in range(len(heights))], baseline=[],
         planes=str(tiny_run / "planes.json"), tables=str(tiny_run / "table_object.stats.json"),
@@ -446,7 +446,7 @@ def test_nan_only_height_map_gives_an_empty_mesh(tiny_session: Path, tmp_path: P
     height = tmp_path / "frame_0000.tiff"
     write_tiff(height, np.full((BENCH["height"], BENCH["width"]), np.nan, np.float32))
     out = tmp_path / "mesh"
-    stages.mesh_frame(str(tiny_session), str(height), CONFIG["mesh"], str(out / "frame_0000.ply"),
+    stages.mesh(str(tiny_session), str(height), CONFIG["mesh"], str(out / "frame_0000.ply"),
                         str(out / "frame_0000.stl"), str(out / "frame_0000.stats.json"))
     stats = json.loads((out / "frame_0000.stats.json").read_text())
     assert stats["faces"] == 0 and stats["vertices"] == 0

@@ -38,22 +38,6 @@ def bench_session(config: str, out: str, period_px: float | None = None) -> None
     bench.write_session(bench_config_for(config, period_px=period_px), Path(out), progress=False)
 
 
-def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_mm: float,
-           markdown: str, csv: str, figure: str) -> None:
-    """The paper's Table 1 from the metrology reports of a period sweep, beside the published values."""
-    import json as jsonlib
-
-    from huefringe import table1 as t1
-
-    results = {}
-    for period, path in zip(periods, reports, strict=True):
-        doc = jsonlib.loads(Path(path).read_text())
-        results[int(period)] = {"method": {"steps": doc["steps"]}}
-        if doc.get("baseline"):
-            results[int(period)]["baseline"] = doc["baseline"]
-    rows = t1.table1_rows(results, step_name=step, nominal=nominal_mm)
-    t1.write_table1(rows, markdown, csv, figure)
-
 
 def _calibration_opts(calibration: Mapping[str, Any]) -> dict[str, Any]:
     return {"min_saturation": calibration["min_saturation"], "min_intensity": calibration["min_intensity"]}
@@ -366,41 +350,6 @@ def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str
     write_json(report, out)
 
 
-def measure_session(session: str | Path, out: str | Path, config: Mapping[str, Any], *,
-                    frames: Sequence[int] | None = None, baseline: bool = False) -> dict[str, Any]:
-    """Tables, plane calibration and height maps of a session into ``out``, without Snakemake.
-
-    The same stages, in the same order, as the workflow's ``hue_table``, ``plane_calibration``,
-    ``measure_*``, ``cloud_*`` (and ``baseline_*``) jobs; for scripts, benchmarks and tests. Returns the
-    output paths by kind (``heights``, ``clouds``, ``phases``, ``hues``, ``qa``, optionally
-    ``baseline``) and the loaded ``session``.
-    """
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
-    s = load_session(session)
-    frames = s.frame_ids if frames is None else list(frames)
-    model, cal = config["hue_model"], config["calibration"]
-    for which in ("reference", "object"):
-        hue_table(str(session), which, model, cal, table=str(out / f"table_{which}.json"),
-                  stats=str(out / f"table_{which}.stats.json"))
-    plane_calibration(str(session), str(out / "table_reference.json"), model, cal,
-                      model=str(out / "model.npz"), stats=str(out / "planes.json"))
-    paths: dict[str, Any] = {
-        k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
-        for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"))
-    }
-    measure_frames(str(session), frames, str(out / "table_object.json"), str(out / "model.npz"), model,
-                   config["measurement"], cal, heights=paths["heights"], phases=paths["phases"], hues=paths["hues"],
-                   qa=paths["qa"])
-    cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"])
-    if baseline:
-        paths["baseline"] = [str(out / "baseline" / f"frame_{n:04d}.tiff") for n in frames]
-        baseline_frames(str(session), frames, str(out / "model.npz"), str(out / "table_object.json"),
-                        config["measurement"], heights=paths["baseline"],
-                        qa=[str(out / "baseline" / f"frame_{n:04d}.json") for n in frames])
-    paths["session"] = s
-    return paths
-
 
 # --------------------------------------------------------------------------- surfaces and reports
 
@@ -410,7 +359,7 @@ def _height_limits(s: Session) -> tuple[float, float]:
     return (min(0.0, min(s.planes_mm)), max(s.planes_mm))
 
 
-def mesh_frame(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str, stats: str) -> None:
+def mesh(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str, stats: str) -> None:
     """Triangle mesh of one height map (no bridging of jumps), cleaned, exported as PLY + STL."""
     from huefringe import mesh as meshing
 
@@ -425,7 +374,7 @@ def mesh_frame(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl
         raise RuntimeError(f"mesh statistics went to {meshing.stats_path(ply)}, the workflow expects {stats}")
 
 
-def render_frame(session: str, mesh: str, height: str, phase: str, render: Mapping[str, Any], frame: str,
+def render(session: str, mesh: str, height: str, phase: str, render: Mapping[str, Any], frame: str,
                  top: str, oblique1: str, oblique2: str, height_map: str, phase_map: str) -> None:
     """Off-screen renders (top and two oblique views) and the height and phase figures of one frame."""
     import trimesh
@@ -449,7 +398,7 @@ def render_frame(session: str, mesh: str, height: str, phase: str, render: Mappi
                                    title=f"{s.id} frame {frame}: corrected code phase")
 
 
-def metrology_report(session: str, heights: Sequence[str], qa: Sequence[str], baseline: Sequence[str], planes: str, tables: str,
+def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline: Sequence[str], planes: str, tables: str,
                      cross_section: str, render: str, height_map: str, accuracy: Sequence[str],
                      config: Mapping[str, Any], json: str, html: str, profile: str, per_frame: str) -> None:
     """Step-height metrology of every frame: report.json (results contract) and report.html."""
@@ -510,6 +459,23 @@ def metrology_report(session: str, heights: Sequence[str], qa: Sequence[str], ba
     write_json(json, doc)
     report.write_report_html(html, doc, figures, provenance)
 
+def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_mm: float,
+           markdown: str, csv: str, figure: str) -> None:
+    """The paper's Table 1 from the metrology reports of a period sweep, beside the published values."""
+    import json as jsonlib
+
+    from huefringe import table1 as t1
+
+    results = {}
+    for period, path in zip(periods, reports, strict=True):
+        doc = jsonlib.loads(Path(path).read_text())
+        results[int(period)] = {"method": {"steps": doc["steps"]}}
+        if doc.get("baseline"):
+            results[int(period)]["baseline"] = doc["baseline"]
+    rows = t1.table1_rows(results, step_name=step, nominal=nominal_mm)
+    t1.write_table1(rows, markdown, csv, figure)
+
+
 
 def archive_session(session: str, results: str, config: Mapping[str, Any], archive: str) -> None:
     """Pack a session and its results with RO-Crate metadata, then read the archive back once."""
@@ -522,7 +488,72 @@ def archive_session(session: str, results: str, config: Mapping[str, Any], archi
     log.info("%s", check.summary())
 
 
+# --------------------------------------------------------------------------- without Snakemake
+
+def measure_session(session: str | Path, out: str | Path, config: Mapping[str, Any], *,
+                    frames: Sequence[int] | None = None, baseline: bool = False) -> dict[str, Any]:
+    """Tables, plane calibration and height maps of a session into ``out``, without Snakemake.
+
+    The same stages, in the same order, as the workflow's ``hue_table``, ``plane_calibration``,
+    ``measure_frames``, ``cloud_frames`` (and ``baseline_frames``) jobs; for scripts, benchmarks and tests. Returns the
+    output paths by kind (``heights``, ``clouds``, ``phases``, ``hues``, ``qa``, optionally
+    ``baseline``) and the loaded ``session``.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    s = load_session(session)
+    frames = s.frame_ids if frames is None else list(frames)
+    model, cal = config["hue_model"], config["calibration"]
+    for which in ("reference", "object"):
+        hue_table(str(session), which, model, cal, table=str(out / f"table_{which}.json"),
+                  stats=str(out / f"table_{which}.stats.json"))
+    plane_calibration(str(session), str(out / "table_reference.json"), model, cal,
+                      model=str(out / "model.npz"), stats=str(out / "planes.json"))
+    paths: dict[str, Any] = {
+        k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
+        for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"))
+    }
+    measure_frames(str(session), frames, str(out / "table_object.json"), str(out / "model.npz"), model,
+                   config["measurement"], cal, heights=paths["heights"], phases=paths["phases"], hues=paths["hues"],
+                   qa=paths["qa"])
+    cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"])
+    if baseline:
+        paths["baseline"] = [str(out / "baseline" / f"frame_{n:04d}.tiff") for n in frames]
+        baseline_frames(str(session), frames, str(out / "model.npz"), str(out / "table_object.json"),
+                        config["measurement"], heights=paths["baseline"],
+                        qa=[str(out / "baseline" / f"frame_{n:04d}.json") for n in frames])
+    paths["session"] = s
+    return paths
+
+
 # --------------------------------------------------------------------------- Snakemake adapter
+
+
+def stage_kwargs(func: Callable[..., None], smk: Any, **extra: Any) -> dict[str, Any]:
+    """The keyword arguments of stage ``func`` from a Snakemake job's named inputs, params and outputs.
+
+    Wildcards are passed when the stage takes them (``sid``, ``batch`` are structural); every
+    named input, param and output (and ``extra``) must be a parameter of the stage.
+
+    Raises
+    ------
+    TypeError
+        Naming the keys the stage does not accept (a misspelt key with a default would otherwise
+        be dropped silently) and the stage's parameters.
+    """
+    import inspect
+
+    accepted = inspect.signature(func).parameters
+    kwargs: dict[str, Any] = {k: v for k, v in smk.wildcards.items() if k in accepted}
+    for source in (smk.input, smk.params, smk.output):
+        for key, value in source.items():
+            kwargs[key] = value
+    kwargs.update(extra)
+    unknown = sorted(set(kwargs) - set(accepted))
+    if unknown:
+        raise TypeError(f"stage {func.__name__} does not accept {', '.join(map(repr, unknown))} "
+                        f"(rule inputs, params and outputs must be among its parameters: {', '.join(accepted)})")
+    return kwargs
 
 
 def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> None:
@@ -542,20 +573,12 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
         Path(logfile).parent.mkdir(parents=True, exist_ok=True)
         handlers.append(logging.FileHandler(logfile, mode="w"))
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", handlers=handlers, force=True)
-    import inspect
-
     from huefringe.io import remove_stale_parts
 
+    kwargs = stage_kwargs(func, smk, **extra)  # before anything is touched: a rule naming an unknown key fails here
     for out in smk.output:
         for stale in remove_stale_parts(out):
             log.info("removed %s, left by an interrupted run", stale)
-    kwargs: dict[str, Any] = {}
-    for source in (smk.wildcards, smk.input, smk.params, smk.output):
-        for key, value in source.items():
-            kwargs[key] = value
-    kwargs.update(extra)
-    accepted = inspect.signature(func).parameters
-    kwargs = {k: v for k, v in kwargs.items() if k in accepted}
     t0 = time.perf_counter()
     try:
         func(**kwargs)

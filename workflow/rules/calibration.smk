@@ -22,11 +22,11 @@ rule check_session:
 
 rule hue_table:
     input:
-        check=R("{sid}", "qa", "session_check.json"),
+        R("{sid}", "qa", "session_check.json"),  # order only: the session passed its deep check
     output:
+        R("{sid}", "calib", "table_{which}.npy"),  # written by HueTable.save beside the table
+        R("{sid}", "calib", "table_{which}.maps.npz"),
         table=R("{sid}", "calib", "table_{which}.json"),
-        array=R("{sid}", "calib", "table_{which}.npy"),
-        maps=R("{sid}", "calib", "table_{which}.maps.npz"),
         stats=R("{sid}", "calib", "table_{which}.stats.json"),
     params:
         session=session_dir,

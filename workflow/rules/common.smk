@@ -1,4 +1,5 @@
 # Shared planning: sessions, ids, frame batches and the paths of every output.
+import re
 import sys
 from pathlib import Path
 
@@ -12,12 +13,20 @@ except PlanError as exc:
     sys.exit(1)
 
 RESULTS = config["results_dir"]
+#: session folders the virtual bench writes (rule bench_session), by folder
+BENCH_PLANS = {str(p.path): p for p in PLANS.values() if p.bench is not None}
 
 
 wildcard_constraints:
     sid="|".join(PLANS) or "^$",
+    bench_dir="|".join(re.escape(d) for d in BENCH_PLANS) or "^$",
     frame=r"\d{4}",
     which="reference|object",
+
+
+def rule_resources(rule, **defaults):
+    """Resources of a generated rule: ``defaults`` updated by config ``resources: {rule: {...}}``."""
+    return {**defaults, **config.get("resources", {}).get(rule, {})}
 
 
 def R(sid, *parts):

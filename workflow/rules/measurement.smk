@@ -1,15 +1,19 @@
 # Height maps (with QA, and the phase and hue maps of the rendered frames, or of all with
 # measurement.maps: all), point clouds and the three-step baseline, in batches of frames per job
-# (one rule per session and batch, so a 1000-frame session costs 4 job start-ups, not 1000). The
-# clouds are jobs of their own (cloud_*), made from the batch's height maps, so that the height
-# maps do not wait for them.
+# (so a 1000-frame session costs 4 job start-ups, not 1000). The clouds are jobs of their own
+# (cloud_frames_*), made from the batch's height maps, so that the height maps do not wait for them.
+# Resources: config `resources: {measure_frames: {mem_mb: ..., runtime: ...}}` (also cloud_frames,
+# baseline_frames), or --set-resources on the generated rule names.
 
+# Why a loop: one batch job writes one file per frame, and a rule's outputs must be patterns of its
+# wildcards, so a {batch} wildcard cannot name them; `directory()` would hide the per-frame files
+# from mesh/render/metrology, and `group:` would still make one rule instance per frame.
 for _sid, _plan in PLANS.items():
     for _b, _frames in enumerate(_plan.batches):
 
         rule:
             name:
-                f"measure_{_sid.replace('-', '_')}_{_b:03d}"
+                f"measure_frames_{_sid.replace('-', '_')}_{_b:03d}"
             input:
                 table=R(_sid, "calib", "table_object.json"),
                 model=R(_sid, "calib", "phase_to_height.npz"),
@@ -26,8 +30,7 @@ for _sid, _plan in PLANS.items():
                 f"logs/{_sid}/measure_{_b:03d}.log",
             threads: 1
             resources:
-                mem_mb=3000,
-                runtime=max(10, len(_frames) // 10),
+                **rule_resources("measure_frames", mem_mb=3000, runtime=max(10, len(_frames) // 10)),
             conda:
                 "../envs/huefringe.yaml"
             script:
@@ -35,7 +38,7 @@ for _sid, _plan in PLANS.items():
 
         rule:
             name:
-                f"cloud_{_sid.replace('-', '_')}_{_b:03d}"
+                f"cloud_frames_{_sid.replace('-', '_')}_{_b:03d}"
             input:
                 heights=frame_outputs(_sid, _frames)["heights"],
             output:
@@ -47,8 +50,7 @@ for _sid, _plan in PLANS.items():
                 f"logs/{_sid}/cloud_{_b:03d}.log",
             threads: 1
             resources:
-                mem_mb=2000,
-                runtime=max(10, len(_frames) // 10),
+                **rule_resources("cloud_frames", mem_mb=2000, runtime=max(10, len(_frames) // 10)),
             conda:
                 "../envs/huefringe.yaml"
             script:
@@ -60,7 +62,7 @@ for _sid, _plan in PLANS.items():
 
         rule:
             name:
-                f"baseline_{_sid.replace('-', '_')}_{_b:03d}"
+                f"baseline_frames_{_sid.replace('-', '_')}_{_b:03d}"
             input:
                 model=R(_sid, "calib", "phase_to_height.npz"),
                 object_table=R(_sid, "calib", "table_object.json"),
@@ -74,15 +76,14 @@ for _sid, _plan in PLANS.items():
                 f"logs/{_sid}/baseline_{_b:03d}.log",
             threads: 1
             resources:
-                mem_mb=2000,
-                runtime=max(10, len(_frames) // 10),
+                **rule_resources("baseline_frames", mem_mb=2000, runtime=max(10, len(_frames) // 10)),
             conda:
                 "../envs/huefringe.yaml"
             script:
                 "../../scripts/baseline_frames.py"
 
 
-rule accuracy:
+rule accuracy_report:
     input:
         heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
         baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
@@ -100,4 +101,4 @@ rule accuracy:
     conda:
         "../envs/huefringe.yaml"
     script:
-        "../../scripts/accuracy.py"
+        "../../scripts/accuracy_report.py"
