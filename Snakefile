@@ -6,14 +6,20 @@ from snakemake.utils import min_version, validate
 
 min_version("9.0")
 
+
 configfile: "config.yaml"
 
 
 from huefringe.plan import config_problems
 
-if _problems := config_problems(config, f"{workflow.basedir}/workflow/schemas/config.schema.yaml"):
-    sys.exit("\nhuefringe: the configuration ({}) is not valid:\n  {}\nSee workflow/schemas/config.schema.yaml.\n"
-             .format(", ".join(map(str, workflow.configfiles)), "\n  ".join(_problems)))
+if _problems := config_problems(
+    config, f"{workflow.basedir}/workflow/schemas/config.schema.yaml"
+):
+    sys.exit(
+        "\nhuefringe: the configuration ({}) is not valid:\n  {}\nSee workflow/schemas/config.schema.yaml.\n".format(
+            ", ".join(map(str, workflow.configfiles)), "\n  ".join(_problems)
+        )
+    )
 validate(config, "workflow/schemas/config.schema.yaml")
 
 

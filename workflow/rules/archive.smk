@@ -11,18 +11,18 @@ rule archive_session:
         results=lambda w: session_results(w.sid),
     output:
         archive=f"{RESULTS}/{{sid}}.archive.zip",
-    params:
-        session=session_dir,
-        results=lambda w: R(w.sid),
-        config=config,
     log:
         "logs/{sid}/archive.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=30,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        session=session_dir,
+        results=lambda w: R(w.sid),
+        config=config,
     script:
         "../../scripts/archive_session.py"
 

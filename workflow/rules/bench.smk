@@ -5,17 +5,17 @@
 rule bench_session:
     output:
         "{bench_dir}/session.yaml",
-    params:
-        config=lambda w: BENCH_PLANS[w.bench_dir].bench,
-        out=lambda w: w.bench_dir,
-        period_px=lambda w: BENCH_PLANS[w.bench_dir].period_px,
     log:
         "logs/bench/{bench_dir}.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=30,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        config=lambda w: BENCH_PLANS[w.bench_dir].bench,
+        out=lambda w: w.bench_dir,
+        period_px=lambda w: BENCH_PLANS[w.bench_dir].period_px,
     script:
         "../../scripts/bench_session.py"

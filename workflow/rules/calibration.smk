@@ -6,16 +6,16 @@ rule check_session:
         session_yaml,
     output:
         summary=R("{sid}", "qa", "session_check.json"),
-    params:
-        session=session_dir,
     log:
         "logs/{sid}/check_session.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=10,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        session=session_dir,
     script:
         "../../scripts/check_session.py"
 
@@ -28,18 +28,18 @@ rule hue_table:
         R("{sid}", "calib", "table_{which}.maps.npz"),
         table=R("{sid}", "calib", "table_{which}.json"),
         stats=R("{sid}", "calib", "table_{which}.stats.json"),
-    params:
-        session=session_dir,
-        hue_model=config["hue_model"],
-        calibration=config["calibration"],
     log:
         "logs/{sid}/hue_table_{which}.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=3000,
         runtime=30,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        session=session_dir,
+        hue_model=config["hue_model"],
+        calibration=config["calibration"],
     script:
         "../../scripts/hue_table.py"
 
@@ -50,18 +50,18 @@ rule plane_calibration:
     output:
         model=R("{sid}", "calib", "phase_to_height.npz"),
         stats=R("{sid}", "calib", "planes.json"),
-    params:
-        session=session_dir,
-        hue_model=config["hue_model"],
-        calibration=config["calibration"],
     log:
         "logs/{sid}/plane_calibration.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=20,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        session=session_dir,
+        hue_model=config["hue_model"],
+        calibration=config["calibration"],
     script:
         "../../scripts/plane_calibration.py"
 
@@ -83,17 +83,17 @@ rule compensation:
             caption="../report/residual_map.rst",
             category="Calibration",
         ),
-    params:
-        session=session_dir,
-        hue_model=config["hue_model"],
-        calibration=config["calibration"],
     log:
         "logs/{sid}/compensation.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=20,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        session=session_dir,
+        hue_model=config["hue_model"],
+        calibration=config["calibration"],
     script:
         "../../scripts/compensation.py"

@@ -39,7 +39,9 @@ def fname(n):
 
 
 def session_dir(wildcards_or_sid):
-    sid = wildcards_or_sid if isinstance(wildcards_or_sid, str) else wildcards_or_sid.sid
+    sid = (
+        wildcards_or_sid if isinstance(wildcards_or_sid, str) else wildcards_or_sid.sid
+    )
     return str(PLANS[sid].path)
 
 
@@ -67,7 +69,9 @@ def map_frames(sid):
 
 def measure_outputs(sid, frames):
     """Outputs of the measurement job of a batch: height and QA of every frame, maps of some."""
-    out = {k: v for k, v in frame_outputs(sid, frames).items() if k in ("heights", "qa")}
+    out = {
+        k: v for k, v in frame_outputs(sid, frames).items() if k in ("heights", "qa")
+    }
     maps = [n for n in frames if n in set(map_frames(sid))]
     if maps:
         out.update({k: frame_outputs(sid, maps)[k] for k in ("phases", "hues")})
@@ -86,7 +90,10 @@ RENDER_VIEWS = ["top", "oblique1", "oblique2"]
 
 def render_outputs(sid, n):
     views = [R(sid, "renders", f"{fname(n)}_{v}.png") for v in RENDER_VIEWS]
-    return views + [R(sid, "renders", f"{fname(n)}_height.png"), R(sid, "renders", f"{fname(n)}_phase.png")]
+    return views + [
+        R(sid, "renders", f"{fname(n)}_height.png"),
+        R(sid, "renders", f"{fname(n)}_phase.png"),
+    ]
 
 
 def all_targets():
@@ -106,7 +113,10 @@ def all_targets():
         for n in plan.frame_selection(config["render"]["frames"]):
             out += render_outputs(sid, n)
         if plan.specimen:
-            out += [R(sid, "metrology", "report.json"), R(sid, "metrology", "report.html")]
+            out += [
+                R(sid, "metrology", "report.json"),
+                R(sid, "metrology", "report.html"),
+            ]
     return out
 
 

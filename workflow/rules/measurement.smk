@@ -19,6 +19,15 @@ for _sid, _plan in PLANS.items():
                 model=R(_sid, "calib", "phase_to_height.npz"),
             output:
                 **measure_outputs(_sid, _frames),
+            log:
+                f"logs/{_sid}/measure_{_b:03d}.log",
+            conda:
+                "../envs/huefringe.yaml"
+            threads: 1
+            resources:
+                **rule_resources(
+                    "measure_frames", mem_mb=3000, runtime=max(10, len(_frames) // 10)
+                ),
             params:
                 session=str(_plan.path),
                 frames=_frames,
@@ -26,13 +35,6 @@ for _sid, _plan in PLANS.items():
                 hue_model=config["hue_model"],
                 measurement=config["measurement"],
                 calibration=config["calibration"],
-            log:
-                f"logs/{_sid}/measure_{_b:03d}.log",
-            threads: 1
-            resources:
-                **rule_resources("measure_frames", mem_mb=3000, runtime=max(10, len(_frames) // 10)),
-            conda:
-                "../envs/huefringe.yaml"
             script:
                 "../../scripts/measure_frames.py"
 
@@ -43,22 +45,26 @@ for _sid, _plan in PLANS.items():
                 heights=frame_outputs(_sid, _frames)["heights"],
             output:
                 clouds=frame_outputs(_sid, _frames)["clouds"],
+            log:
+                f"logs/{_sid}/cloud_{_b:03d}.log",
+            conda:
+                "../envs/huefringe.yaml"
+            threads: 1
+            resources:
+                **rule_resources(
+                    "cloud_frames", mem_mb=2000, runtime=max(10, len(_frames) // 10)
+                ),
             params:
                 session=str(_plan.path),
                 frames=_frames,
-            log:
-                f"logs/{_sid}/cloud_{_b:03d}.log",
-            threads: 1
-            resources:
-                **rule_resources("cloud_frames", mem_mb=2000, runtime=max(10, len(_frames) // 10)),
-            conda:
-                "../envs/huefringe.yaml"
             script:
                 "../../scripts/cloud_frames.py"
 
     _ps = _plan.phase_shift
     _per = config["measurement"]["frames_per_job"]
-    for _b, _frames in enumerate([_ps[i : i + _per] for i in range(0, len(_ps), _per)]):
+    for _b, _frames in enumerate(
+        [_ps[i : i + _per] for i in range(0, len(_ps), _per)]
+    ):
 
         rule:
             name:
@@ -68,17 +74,19 @@ for _sid, _plan in PLANS.items():
                 object_table=R(_sid, "calib", "table_object.json"),
             output:
                 **baseline_outputs(_sid, _frames),
+            log:
+                f"logs/{_sid}/baseline_{_b:03d}.log",
+            conda:
+                "../envs/huefringe.yaml"
+            threads: 1
+            resources:
+                **rule_resources(
+                    "baseline_frames", mem_mb=2000, runtime=max(10, len(_frames) // 10)
+                ),
             params:
                 session=str(_plan.path),
                 frames=_frames,
                 measurement=config["measurement"],
-            log:
-                f"logs/{_sid}/baseline_{_b:03d}.log",
-            threads: 1
-            resources:
-                **rule_resources("baseline_frames", mem_mb=2000, runtime=max(10, len(_frames) // 10)),
-            conda:
-                "../envs/huefringe.yaml"
             script:
                 "../../scripts/baseline_frames.py"
 
@@ -89,16 +97,16 @@ rule accuracy_report:
         baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
     output:
         report=R("{sid}", "accuracy.json"),
-    params:
-        session=session_dir,
-        measurement=config["measurement"],
     log:
         "logs/{sid}/accuracy.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        session=session_dir,
+        measurement=config["measurement"],
     script:
         "../../scripts/accuracy_report.py"

@@ -11,23 +11,37 @@ rule metrology:
         cross_section=R("{sid}", "calib", "qa_hue_cross_section.png"),
         render=lambda w: render_outputs(w.sid, PLANS[w.sid].frames[0])[0],
         height_map=lambda w: render_outputs(w.sid, PLANS[w.sid].frames[0])[3],
-        accuracy=lambda w: [R(w.sid, "accuracy.json")] if PLANS[w.sid].ground_truth else [],
+        accuracy=lambda w: (
+            [R(w.sid, "accuracy.json")] if PLANS[w.sid].ground_truth else []
+        ),
     output:
-        json=report(R("{sid}", "metrology", "report.json"), caption="../report/metrology.rst", category="Metrology"),
+        json=report(
+            R("{sid}", "metrology", "report.json"),
+            caption="../report/metrology.rst",
+            category="Metrology",
+        ),
         html=R("{sid}", "metrology", "report.html"),
-        profile=report(R("{sid}", "metrology", "profile.png"), caption="../report/profile.rst", category="Metrology"),
-        per_frame=report(R("{sid}", "metrology", "per_frame.png"), caption="../report/per_frame.rst", category="Metrology"),
-    params:
-        session=session_dir,
-        config=config,
+        profile=report(
+            R("{sid}", "metrology", "profile.png"),
+            caption="../report/profile.rst",
+            category="Metrology",
+        ),
+        per_frame=report(
+            R("{sid}", "metrology", "per_frame.png"),
+            caption="../report/per_frame.rst",
+            category="Metrology",
+        ),
     log:
         "logs/{sid}/metrology.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=2000,
         runtime=10,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        session=session_dir,
+        config=config,
     script:
         "../../scripts/metrology.py"
 
@@ -36,20 +50,28 @@ rule table1:
     input:
         reports=[R(sid, "metrology", "report.json") for sid in TABLE1_IDS],
     output:
-        markdown=report(R("table1", "table1.md"), caption="../report/table1.rst", category="Table 1"),
+        markdown=report(
+            R("table1", "table1.md"),
+            caption="../report/table1.rst",
+            category="Table 1",
+        ),
         csv=R("table1", "table1.csv"),
-        figure=report(R("table1", "table1.png"), caption="../report/table1.rst", category="Table 1"),
-    params:
-        periods=config.get("table1", {}).get("periods", []),
-        step=config.get("table1", {}).get("step", "blue"),
-        nominal_mm=config.get("table1", {}).get("nominal_mm", 1.0),
+        figure=report(
+            R("table1", "table1.png"),
+            caption="../report/table1.rst",
+            category="Table 1",
+        ),
     log:
         "logs/table1.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=1000,
         runtime=5,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        periods=config.get("table1", {}).get("periods", []),
+        step=config.get("table1", {}).get("step", "blue"),
+        nominal_mm=config.get("table1", {}).get("nominal_mm", 1.0),
     script:
         "../../scripts/table1.py"

@@ -8,17 +8,17 @@ rule mesh:
         ply=R("{sid}", "mesh", "frame_{frame}.ply"),
         stl=R("{sid}", "mesh", "frame_{frame}.stl"),
         stats=R("{sid}", "mesh", "frame_{frame}.stats.json"),
-    params:
-        session=session_dir,
-        mesh=config["mesh"],
     log:
         "logs/{sid}/mesh_{frame}.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=3000,
         runtime=10,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        session=session_dir,
+        mesh=config["mesh"],
     script:
         "../../scripts/mesh.py"
 
@@ -29,23 +29,29 @@ rule render:
         height=R("{sid}", "height", "frame_{frame}.tiff"),
         phase=R("{sid}", "phase", "frame_{frame}.tiff"),
     output:
-        top=report(R("{sid}", "renders", "frame_{frame}_top.png"), caption="../report/render.rst", category="Renders"),
+        top=report(
+            R("{sid}", "renders", "frame_{frame}_top.png"),
+            caption="../report/render.rst",
+            category="Renders",
+        ),
         oblique1=R("{sid}", "renders", "frame_{frame}_oblique1.png"),
         oblique2=R("{sid}", "renders", "frame_{frame}_oblique2.png"),
         height_map=report(
-            R("{sid}", "renders", "frame_{frame}_height.png"), caption="../report/height_map.rst", category="Height maps"
+            R("{sid}", "renders", "frame_{frame}_height.png"),
+            caption="../report/height_map.rst",
+            category="Height maps",
         ),
         phase_map=R("{sid}", "renders", "frame_{frame}_phase.png"),
-    params:
-        session=session_dir,
-        render=config["render"],
     log:
         "logs/{sid}/render_{frame}.log",
+    conda:
+        "../envs/huefringe.yaml"
     threads: 1
     resources:
         mem_mb=3000,
         runtime=10,
-    conda:
-        "../envs/huefringe.yaml"
+    params:
+        session=session_dir,
+        render=config["render"],
     script:
         "../../scripts/render.py"
