@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from huefringe.height import CalibrationError, accuracy, calibrate_planes, coverage
+from huefringe.height import PlaneCalibrationError, accuracy, calibrate_planes, coverage
 from huefringe.patterns import TWO_PI, phase_shift_intensity
 from huefringe.phase import three_step_phase, unwrap, wrap
 
@@ -80,7 +80,7 @@ def test_single_extra_plane_gives_linear_model() -> None:
 
 
 def test_planes_too_close_refused() -> None:
-    with pytest.raises(CalibrationError, match="too close"):
+    with pytest.raises(PlaneCalibrationError, match="too close"):
         ideal_calibration(planes=(0.0, 1e-7, 2e-7))
 
 

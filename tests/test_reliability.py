@@ -36,7 +36,8 @@ from session_factory import make_session, write_image
 
 from huefringe import perframe, stages
 from huefringe.archive import is_partial_file, verify_archive
-from huefringe.height import CalibrationError
+from huefringe.height import PlaneCalibrationError
+from huefringe.huetable import HueTableError
 from huefringe.io import read_tiff, write_tiff
 from huefringe.metrology import MetrologyError
 from huefringe.session import SessionError
@@ -293,7 +294,7 @@ def test_unordered_object_bands_never_reach_a_height_map(session_copy: Path, tin
     out = tmp_path / "out"
     try:
         build_tables(session_copy, out, ("object",))
-    except CalibrationError as exc:
+    except HueTableError as exc:
         assert str(session_copy / "object/hue") in str(exc)
         return
     stats = json.loads((out / "table_object.stats.json").read_text())
@@ -313,7 +314,7 @@ def test_unordered_hue_bands_are_refused_naming_the_band_folder(session_copy: Pa
     out = tmp_path / "out"
     try:
         build_tables(session_copy, out, (which,))
-    except (CalibrationError, SessionError) as exc:
+    except (HueTableError, SessionError) as exc:
         assert str(folder) in str(exc) and ("order" in str(exc) or "monoton" in str(exc)), str(exc)
         assert not (out / f"table_{which}.json").exists()
     else:
@@ -368,13 +369,13 @@ def test_bad_calibration_planes_are_refused(session_copy: Path, tiny_run: Path, 
         shutil.copy(tiny_run / f"table_reference{suffix}", out)
     try:
         calibrate(session_copy, out)
-    except CalibrationError as exc:
+    except PlaneCalibrationError as exc:
         msg = str(exc)
         assert words in msg, msg
         assert not (out / "phase_to_height.npz").exists()
         assert snapshot(session_copy) == before
         known_defect("reference/planes" in msg or "session.yaml" in msg,
-                     f"CalibrationError does not name the plane files or session.yaml: {msg!r}")
+                     f"PlaneCalibrationError does not name the plane files or session.yaml: {msg!r}")
     else:
         stats = json.loads((out / "planes.json").read_text())
         assert snapshot(session_copy) == before
@@ -686,7 +687,7 @@ def test_saturated_white_image_is_refused(session_copy: Path, tmp_path: Path) ->
     img[: img.shape[0] // 4] = 255  # a quarter of the sensor saturated
     cv2.imwrite(str(white), img)
     before = snapshot(session_copy)
-    with pytest.raises(CalibrationError, match=r"white\.png: 25\.0 % .*clipped.*limit 1 %"):
+    with pytest.raises(HueTableError, match=r"white\.png: 25\.0 % .*clipped.*limit 1 %"):
         build_tables(session_copy, tmp_path, which=("object",))
     assert snapshot(session_copy) == before
     assert not (tmp_path / "table_object.json").exists()

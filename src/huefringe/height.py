@@ -32,8 +32,11 @@ from numpy.typing import NDArray
 from huefringe.phase import unwrap_rows, wrap
 
 
-class CalibrationError(ValueError):
-    """The calibration planes cannot give a phase-to-height model."""
+class PlaneCalibrationError(ValueError):
+    """Plane calibration failed: the calibration planes cannot give a phase-to-height model.
+
+    (Hue-table calibration has its own: :class:`huefringe.huetable.HueTableError`.)
+    """
 
 
 @dataclass
@@ -92,7 +95,7 @@ def fit_poly2d(values: NDArray[np.floating], valid: NDArray[np.bool_], degree: i
     keep = valid[::step, ::step] & np.isfinite(sub_vals)
     n_terms = (degree + 1) * (degree + 2) // 2
     if keep.sum() < 4 * n_terms:
-        raise CalibrationError(f"only {int(keep.sum())} valid samples for a degree-{degree} fit")
+        raise PlaneCalibrationError(f"only {int(keep.sum())} valid samples for a degree-{degree} fit")
     A = _design(shape, degree, uu[keep].astype(np.float64), vv[keep].astype(np.float64))
     y = sub_vals[keep].astype(np.float64)
     use = np.ones(y.shape, bool)
@@ -133,20 +136,20 @@ def calibrate_planes(
 
     Raises
     ------
-    CalibrationError
+    PlaneCalibrationError
         Missing reference plane, too few valid pixels, planes too close to tell apart.
     """
     zs = sorted(plane_phases)
     if 0.0 not in plane_phases:
-        raise CalibrationError("the reference plane z = 0 is missing")
+        raise PlaneCalibrationError("the reference plane z = 0 is missing")
     others = sorted((z for z in zs if z != 0.0), key=abs)
     if not others:
-        raise CalibrationError("at least one plane besides z = 0 is needed")
+        raise PlaneCalibrationError("at least one plane besides z = 0 is needed")
     shape = plane_phases[0.0].shape
     for z in zs:
         frac = float(np.mean(plane_valid[z]))
         if frac < min_valid_fraction:
-            raise CalibrationError(f"plane z = {z:.3f} mm has only {100 * frac:.1f} % valid pixels")
+            raise PlaneCalibrationError(f"plane z = {z:.3f} mm has only {100 * frac:.1f} % valid pixels")
 
     v0 = plane_valid[0.0]
     phi0 = np.asarray(plane_phases[0.0], np.float64)
@@ -181,16 +184,16 @@ def calibrate_planes(
     med = {z: float(np.nanmedian(raw[z])) if np.isfinite(raw[z]).any() else float("nan") for z in others}
     for z in others:
         if not np.isfinite(med[z]) or abs(med[z]) < min_shift_rad:
-            raise CalibrationError(
+            raise PlaneCalibrationError(
                 f"plane z = {z:.3f} mm shifts the phase by only {med[z]:.4f} rad relative to z = 0 "
                 f"(less than {min_shift_rad} rad): the same image as the reference plane, or a plane too close to it"
             )
     if len({np.sign(med[z] / z) for z in others}) > 1:
-        raise CalibrationError(f"the planes shift the phase in opposite directions ({med} rad): planes_mm mislabelled?")
+        raise PlaneCalibrationError(f"the planes shift the phase in opposite directions ({med} rad): planes_mm mislabelled?")
     ordered = sorted(others)
     for z1, z2 in zip(ordered, ordered[1:], strict=False):
         if np.sign(med[z2] - med[z1]) == -np.sign(med[z1] / z1):  # equal shifts: "too close" below
-            raise CalibrationError(
+            raise PlaneCalibrationError(
                 f"planes out of order: plane z = {z2:.3f} mm shifts the phase by {med[z2]:.3f} rad, no more than "
                 f"plane z = {z1:.3f} mm ({med[z1]:.3f} rad): plane images swapped or planes_mm mislabelled?"
             )
@@ -210,7 +213,7 @@ def calibrate_planes(
         det = s_zz * s_zzdd - s_zzd**2
         spread = float(np.nanmedian(np.abs(det)) / max(float(np.nanmedian(s_zz * s_zzdd)), 1e-30))
         if spread < 1e-8:
-            raise CalibrationError(
+            raise PlaneCalibrationError(
                 "the calibration planes are too close together to fit the rational model; "
                 f"planes_mm = {zs}"
             )

@@ -79,6 +79,7 @@ from .session import read_rgb
 
 __all__ = [
     "COUNTS",
+    "HueTableError",
     "RAD_PER_COUNT",
     "REASONS",
     "HueTable",
@@ -87,6 +88,12 @@ __all__ = [
     "hue_band_paths",
     "table_nbytes",
 ]
+
+class HueTableError(ValueError):
+    """Hue-table calibration failed: the bands or white image of a session cannot give a usable
+    table (names the folder or file). Plane calibration has its own:
+    :class:`huefringe.height.PlaneCalibrationError`."""
+
 
 COUNTS = 65536
 """Table counts per 2 pi (uint16 full range)."""

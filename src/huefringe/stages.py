@@ -17,8 +17,8 @@ import numpy as np
 
 from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
-from huefringe.height import CalibrationError, PlaneCalibration, accuracy, calibrate_planes, coverage
-from huefringe.huetable import HueTable, build_table
+from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, calibrate_planes, coverage
+from huefringe.huetable import HueTable, HueTableError, build_table
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, frame_stats, measure_frame, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
@@ -83,7 +83,7 @@ def _refuse_bad_table(folder: Path, stats: Mapping[str, Any], min_valid: float =
         return
     masked = stats["masked_by_reason"]
     worst = max(masked, key=masked.get)
-    raise CalibrationError(
+    raise HueTableError(
         f"{folder}: the hue table is usable for only {100 * stats['valid_fraction']:.1f} % of the pixels "
         f"(limit {100 * min_valid:.0f} %); {100 * masked[worst] / stats['n_pixels']:.1f} % are masked as "
         f"'{worst}': {_TABLE_HINTS.get(worst, '')}"
@@ -100,7 +100,7 @@ def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str
     clipped = float(clipped_mask(white, s.bit_depth).mean())
     limit = float(calibration.get("max_white_clipped_fraction", MAX_WHITE_CLIPPED_FRACTION))
     if clipped > limit:
-        raise CalibrationError(
+        raise HueTableError(
             f"{white_path}: {100 * clipped:.1f} % of the pixels are clipped (sensor saturated; limit "
             f"{100 * limit:g} %, calibration.max_white_clipped_fraction): white balance needs the unclipped level; "
             "reduce the exposure"
@@ -137,9 +137,9 @@ def plane_calibration(session: str, table: str, hue_model: str, calibration: Map
     phases, valid = _plane_phases(s, t, hue_model, calibration)
     try:
         cal = calibrate_planes(phases, valid, smooth_degree=calibration["plane_smooth_degree"])
-    except CalibrationError as exc:
+    except PlaneCalibrationError as exc:
         files = ", ".join(f"z = {z:g} mm: {p.name}" for z, p in s.planes.items())
-        raise CalibrationError(
+        raise PlaneCalibrationError(
             f"{s.root / 'reference' / 'planes'}: {exc} (plane images {files}; heights from planes_mm in "
             f"{s.root / 'session.yaml'})"
         ) from exc
@@ -582,7 +582,7 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
     t0 = time.perf_counter()
     try:
         func(**kwargs)
-    except (SessionError, FrameError, CalibrationError, MetrologyError, ArchiveError) as exc:
+    except (SessionError, FrameError, HueTableError, PlaneCalibrationError, MetrologyError, ArchiveError) as exc:
         log.error("%s", exc)
         sys.stderr.write(f"\nhuefringe: {exc}\n")
         sys.exit(1)
