@@ -1,23 +1,28 @@
 # huefringe: one-shot trapezoidal HSI fringe projection, from capture sessions to metrology.
 # Usage: snakemake --cores 2 [--configfile my.yaml]. Rules live in workflow/rules/.
 import sys
+from pathlib import Path
 
 from snakemake.utils import min_version, validate
 
 min_version("9.0")
 
+from huefringe.plan import config_problems
+from huefringe.settings import DEFAULTS_PATH
 
+
+# the library's defaults, then this repository's sessions (and any --configfile) over them
+configfile: str(DEFAULTS_PATH)
 configfile: "config.yaml"
 
-
-from huefringe.plan import config_problems
 
 if _problems := config_problems(
     config, f"{workflow.basedir}/workflow/schemas/config.schema.yaml"
 ):
     sys.exit(
         "\nhuefringe: the configuration ({}) is not valid:\n  {}\nSee workflow/schemas/config.schema.yaml.\n".format(
-            ", ".join(map(str, workflow.configfiles)), "\n  ".join(_problems)
+            ", ".join(str(f) for f in workflow.configfiles if Path(f) != DEFAULTS_PATH),
+            "\n  ".join(_problems),
         )
     )
 validate(config, "workflow/schemas/config.schema.yaml")

@@ -44,6 +44,8 @@ from typing import Any
 import psutil
 import yaml
 
+from huefringe.settings import load_config
+
 REPO = Path(__file__).resolve().parents[1]
 HERE = Path(__file__).resolve().parent
 TARGET_FPS = 50.0
@@ -165,7 +167,7 @@ def main(argv: list[str] | None = None) -> int:
     session, t_session, reused = write_session(bcfg, a.work / "session")
     print(f"session: {'reused' if reused else f'written in {t_session:.1f} s'} ({a.bands} bands x {a.repeats})")
 
-    wcfg = yaml.safe_load((REPO / "config.yaml").read_text())
+    wcfg = load_config(REPO / "config.yaml")
     wcfg["sessions"] = [str(session)]
     wcfg.pop("bench_sessions", None)
     wcfg["results_dir"] = "results"

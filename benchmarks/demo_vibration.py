@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 import tifffile
-import yaml
 
 from huefringe import bench, metrology, stages
 from huefringe.height import accuracy
+from huefringe.settings import load_config
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -28,7 +28,7 @@ def main() -> None:
     ap.add_argument("--frames", type=int, default=10)
     ap.add_argument("--amplitudes", type=float, nargs="+", default=[0.0, 0.03, 0.1])
     args = ap.parse_args()
-    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
+    cfg = load_config(REPO / "config.yaml")
     with tempfile.TemporaryDirectory() as tmp:
         for amp in args.amplitudes:
             b = copy.deepcopy(bench.load_bench_config(bench.preset_path("demo")))

@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 import tifffile
-import yaml
 
 from huefringe import bench, stages
 from huefringe.height import accuracy
+from huefringe.settings import load_config
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -37,7 +37,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=3)
     args = ap.parse_args()
-    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
+    cfg = load_config(REPO / "config.yaml")
     print(f"{'preset':8} {'hue model':9} {'median |e| mm':>13} {'p95 |e| mm':>10} {'rms mm':>8} {'coverage':>8}")
     with tempfile.TemporaryDirectory() as tmp:
         for preset in ("demo", "flat"):

@@ -6,12 +6,12 @@ import copy
 from pathlib import Path
 from typing import Any
 
-import yaml
 
 from huefringe import bench, stages
+from huefringe.settings import load_config
 
 REPO = Path(__file__).resolve().parents[1]
-CONFIG = yaml.safe_load((REPO / "config.yaml").read_text())
+CONFIG = load_config(REPO / "config.yaml")  # the library defaults, overridden by the repository's
 
 
 def bench_config(preset: str, **session: Any) -> dict[str, Any]:

@@ -11,15 +11,15 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import yaml
 
 from huefringe import bench, kernel, perframe, stages
 from huefringe.huetable import HueTable
 from huefringe.height import PlaneCalibration
 from huefringe.session import load_session, read_rgb
+from huefringe.settings import load_config
 
 REPO = Path(__file__).resolve().parents[1]
-CONFIG = yaml.safe_load((REPO / "config.yaml").read_text())
+CONFIG = load_config(REPO / "config.yaml")
 TOL_MM = 1e-4
 
 

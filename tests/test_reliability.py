@@ -41,13 +41,14 @@ from huefringe.huetable import HueTableError
 from huefringe.io import read_tiff, write_tiff
 from huefringe.metrology import MetrologyError
 from huefringe.session import SessionError
+from huefringe.settings import load_config
 
 REPO = Path(__file__).resolve().parents[1]
 SID = "tiny-bench"
 BENCH = {"id": SID, "width": 160, "height": 120, "hue_bands": 24, "repeats": 2, "frames": 4,
          "pixel_pitch_mm": 0.5, "period_px": 24}  # the demo scene at a quarter of the pixels, 4 frames
-# the repository's config.yaml, scaled down for the tiny session (new keys reach these tests too)
-_BASE: dict[str, Any] = yaml.safe_load((REPO / "config.yaml").read_text())
+# the library defaults and the repository's config.yaml, scaled down for the tiny session (new keys reach these tests too)
+_BASE: dict[str, Any] = load_config(REPO / "config.yaml")
 CALIBRATION: dict[str, Any] = {
     **_BASE["calibration"],
     "compensation": {"projector_width": 64, "projector_height": 48, "period_px": 16,

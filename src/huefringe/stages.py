@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from huefringe import kernel
 from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, calibrate_planes, coverage
@@ -94,6 +95,23 @@ def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str
               table: str, stats: str) -> None:
     """Build the per-pixel hue table of the reference plate or of the object (streamed)."""
     s = load_session(session)
+    t0 = time.perf_counter()
+    built = session_hue_table(s, which, hue_model, calibration)
+    built.save(table)
+    info = dict(built.stats)
+    info.update({"which": which, "hue_model": hue_model})
+    write_json(stats, info)
+    log.info("%s table built in %.2f s", which, time.perf_counter() - t0)
+
+
+def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mapping[str, Any]) -> HueTable:
+    """The hue table of a session's reference plate or object, in memory (:func:`hue_table` writes it).
+
+    Raises
+    ------
+    HueTableError
+        Naming the white image (too many clipped pixels) or the band folder (too few usable pixels).
+    """
     bands = s.reference_bands if which == "reference" else s.object_bands
     white_path = s.reference_white if which == "reference" else s.object_white
     white = read_rgb(white_path)
@@ -105,14 +123,9 @@ def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str
             f"{100 * limit:g} %, calibration.max_white_clipped_fraction): white balance needs the unclipped level; "
             "reduce the exposure"
         )
-    t0 = time.perf_counter()
     built = build_table(bands, white, model=hue_model, progress=False, **_calibration_opts(calibration))
     _refuse_bad_table(s.root / which / "hue", built.stats)
-    built.save(table)
-    info = dict(built.stats)
-    info.update({"which": which, "hue_model": hue_model})
-    write_json(stats, info)
-    log.info("%s table built in %.2f s", which, time.perf_counter() - t0)
+    return built
 
 
 def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapping[str, Any]):
@@ -132,8 +145,22 @@ def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapp
 def plane_calibration(session: str, table: str, hue_model: str, calibration: Mapping[str, Any],
                       model: str, stats: str) -> None:
     """Fit the per-pixel phase-to-height model on the calibration planes."""
-    s = load_session(session)
-    t = HueTable.load(table)
+    cal = session_plane_calibration(load_session(session), HueTable.load(table), hue_model, calibration)
+    cal.save(model)
+    info = dict(cal.stats)
+    info["hue_model"] = hue_model
+    write_json(stats, info)
+
+
+def session_plane_calibration(s: Session, t: HueTable, hue_model: str,
+                              calibration: Mapping[str, Any]) -> PlaneCalibration:
+    """The plane calibration of a session from its reference table, in memory (:func:`plane_calibration` writes it).
+
+    Raises
+    ------
+    PlaneCalibrationError
+        Naming the plane folder, the plane images and ``session.yaml``.
+    """
     phases, valid = _plane_phases(s, t, hue_model, calibration)
     try:
         cal = calibrate_planes(phases, valid, smooth_degree=calibration["plane_smooth_degree"])
@@ -143,10 +170,7 @@ def plane_calibration(session: str, table: str, hue_model: str, calibration: Map
             f"{s.root / 'reference' / 'planes'}: {exc} (plane images {files}; heights from planes_mm in "
             f"{s.root / 'session.yaml'})"
         ) from exc
-    cal.save(model)
-    info = dict(cal.stats)
-    info["hue_model"] = hue_model
-    write_json(stats, info)
+    return cal
 
 
 def compensation(session: str, table: str, model: str, hue_model: str, calibration: Mapping[str, Any],
@@ -210,8 +234,6 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
     :func:`measure_frame`, the reference implementation used otherwise (the QA flags come from
     the kernel's float32 phase difference instead of a float64 one).
     """
-    from huefringe import kernel
-
     map_frames = list(frames) if map_frames is None else list(map_frames)
     if len(phases) != len(map_frames) or len(hues) != len(map_frames):
         raise ValueError(f"measure_frames: {len(map_frames)} map frames, {len(phases)} phase and {len(hues)} hue maps")
@@ -219,8 +241,30 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
     if not set(maps) <= set(frames):
         raise ValueError(f"measure_frames: map frames {sorted(set(maps) - set(frames))} are not in the batch")
     s = load_session(session)
-    t = HueTable.load(table)
-    cal = PlaneCalibration.load(model)
+    for i, (n, height, phase, hue, stats) in enumerate(frame_results(s, HueTable.load(table), PlaneCalibration.load(model),
+                                                                     frames, hue_model, measurement, set(maps))):
+        path = s.frames[n]
+        write_tiff(heights[i], height)
+        if n in maps:
+            write_tiff(maps[n][0], phase)
+            write_tiff(maps[n][1], hue)
+        write_json(qa[i], {"frame": n, "file": str(path), **stats})
+        log.info("frame %04d: %.1f %% valid, median %.3f mm", n, 100 * stats["valid_fraction"],
+                 stats["median_height_mm"] or float("nan"))
+
+
+def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequence[int], hue_model: str,
+                  measurement: Mapping[str, Any], map_frames: set[int] | None = None):
+    """Measure frames of a session one by one: yields ``(frame, height, phase, hue, stats)``.
+
+    The loop of :func:`measure_frames` (which writes what it yields) and of :func:`huefringe.measure`
+    (which keeps it): the fused kernel with ``measurement.kernel`` and reference-relative
+    unwrapping, :func:`~huefringe.perframe.measure_frame` otherwise. ``phase`` and ``hue`` are
+    those of the frames in ``map_frames`` (default: all; None from the kernel for the others).
+    Each frame is refused (:class:`~huefringe.perframe.FrameError`, naming it) before it is yielded.
+    The kernel's arrays are reused from frame to frame: copy what you keep.
+    """
+    maps = set(frames) if map_frames is None else set(map_frames)
     white = read_rgb(s.object_white)
     shadow = shadow_mask(white, measurement["shadow_fraction"])
     fast = bool(measurement["kernel"]) and measurement["unwrap"] == "reference"
@@ -231,7 +275,7 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         shadow_fraction = float(shadow.mean())
         del t  # the kernel's pixel-major copy replaces the band-major table
         buffers = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))  # reused frame to frame
-    for i, n in enumerate(frames):
+    for n in frames:
         path = s.frames[n]
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
             m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"],
@@ -249,13 +293,7 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
                                 denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion)
             height, phase, hue, stats = res.height, res.phase, res.hue, res.stats
         _refuse_bad_frame(path, stats, measurement)
-        write_tiff(heights[i], height)
-        if n in maps:
-            write_tiff(maps[n][0], phase)
-            write_tiff(maps[n][1], hue)
-        write_json(qa[i], {"frame": n, "file": str(path), **stats})
-        log.info("frame %04d: %.1f %% valid, median %.3f mm", n, 100 * stats["valid_fraction"],
-                 stats["median_height_mm"] or float("nan"))
+        yield n, height, phase, hue, stats
 
 
 def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], clouds: Sequence[str]) -> None:

@@ -1,0 +1,56 @@
+"""The configuration: the library's packaged defaults (``defaults.yaml``), overridden key by key.
+
+The workflow reads :data:`DEFAULTS_PATH` first, then the repository's ``config.yaml`` and any
+``--configfile``; :func:`huefringe.measure` and scripts call :func:`load_config`.
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+__all__ = ["DEFAULTS_PATH", "defaults", "load_config", "merge"]
+
+DEFAULTS_PATH = Path(__file__).with_name("defaults.yaml")
+"""The packaged defaults: every configuration key but ``sessions``, ``bench_sessions`` and ``table1``."""
+
+
+def defaults() -> dict[str, Any]:
+    """A fresh copy of the packaged defaults."""
+    return yaml.safe_load(DEFAULTS_PATH.read_text(encoding="utf-8"))
+
+
+def merge(base: Mapping[str, Any], override: Mapping[str, Any]) -> dict[str, Any]:
+    """``base`` updated by ``override``, mappings merged key by key (as Snakemake merges config files)."""
+    out = copy.deepcopy(dict(base))
+    for key, value in override.items():
+        if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def load_config(*overrides: Mapping[str, Any] | str | os.PathLike[str] | None) -> dict[str, Any]:
+    """The packaged defaults overridden by each of ``overrides`` in turn (mappings or YAML files).
+
+    Examples
+    --------
+    >>> load_config({"measurement": {"denoise_radius": 0}})["measurement"]["denoise_radius"]
+    0
+    >>> load_config()["hue_model"]
+    'hexcone'
+    """
+    cfg = defaults()
+    for o in overrides:
+        if o is None:
+            continue
+        if not isinstance(o, Mapping):
+            o = yaml.safe_load(Path(o).read_text(encoding="utf-8")) or {}
+        cfg = merge(cfg, o)
+    return cfg
