@@ -6,8 +6,8 @@ Usage::
                                             [--quick]
 
 For each sensor size, on the same uint8 frame of a realistic rig (a hue table built with
-``calibration.build_table`` from 256 captured bands through a projector-camera model with gamma,
-crosstalk, coloured and dark patches and noise; see ``_rig.py``), it measures
+``huetable.build_table`` from 256 captured bands through a projector-camera model with gamma,
+crosstalk, coloured and dark patches and noise: the toy rig; see ``_kernel_case.py``), it measures
 
 ``kernel``      ``kernel.frame_to_height(prep, frame_u8)`` (denoise off),
 ``kernel+dn2``  the same with ``denoise_radius=2`` (the workflow's setting),
@@ -51,7 +51,7 @@ import numba  # noqa: E402
 import numpy as np  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _rig import Rig, make_rig, tile_rig  # noqa: E402
+from _kernel_case import KernelCase, make_case, tile_case  # noqa: E402
 
 from huefringe import kernel, perframe  # noqa: E402
 
@@ -97,7 +97,7 @@ def _reps_for(fn: Callable[[], Any], min_time: float) -> int:
     return max(1, int(min_time / max(w, 1e-6)))
 
 
-def bench_size(rig: Rig, *, rounds: int, min_time: float, with_dn2_reference: bool) -> dict[str, Any]:
+def bench_size(rig: KernelCase, *, rounds: int, min_time: float, with_dn2_reference: bool) -> dict[str, Any]:
     h, w = rig.table.shape
     cv2.setNumThreads(1)
     t0 = time.perf_counter()
@@ -220,12 +220,12 @@ def main(argv: list[str] | None = None) -> int:
           f"(NUMBA_NUM_THREADS={os.environ['NUMBA_NUM_THREADS']}); load average {os.getloadavg()[0]:.2f}")
     t = time.perf_counter()
     w0, h0 = sizes[0]
-    base = make_rig(w0, h0, n_bands=a.bands, repeats=a.repeats)
+    base = make_case(w0, h0, n_bands=a.bands, repeats=a.repeats)
     print(f"rig {w0} x {h0}: table of {a.bands} bands x {a.repeats} repeats built in {base.build_seconds:.1f} s "
           f"(in memory), valid {100 * base.table.stats['valid_fraction']:.1f} %; total {time.perf_counter() - t:.1f} s")
     results = []
     for i, (w, h) in enumerate(sizes):
-        rig = base if (w, h) == (w0, h0) else tile_rig(base, w, h)
+        rig = base if (w, h) == (w0, h0) else tile_case(base, w, h)
         r = bench_size(rig, rounds=a.rounds, min_time=a.min_time, with_dn2_reference=(i == 0))
         print_size(r)
         results.append(r)

@@ -1,6 +1,6 @@
 """Per-pixel hue tables: streamed build, masking, inverse lookup, persistence, Fig. 6 loop, QA.
 
-All scenes come from the small forward model in tests/_rig.py (eqs. 6-8 plus crosstalk):
+All scenes come from the toy rig (huefringe.bench.toy.ToyRig) (eqs. 6-8 plus crosstalk):
 camera column = projector column, fringes along columns, surfaces in horizontal stripes.
 """
 
@@ -14,10 +14,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from _rig import BandReader, Rig, surface_rows
-from huefringe import compensation
+from huefringe import colour, compensation
 from huefringe import huetable as cal
-from huefringe import colour
+from huefringe.bench.toy import BandReader, ToyRig, surface_rows
 from huefringe.io import write_png_rgb
 from huefringe.patterns import TWO_PI, band_rgb, trapezoid_rgb
 
@@ -52,8 +51,8 @@ def stripes() -> np.ndarray:
     return surface_rows(H, W, [(4, WHITE), (4, RED), (4, DARK), (2, BLACK)])
 
 
-def make_rig(name: str, *, bits: int = 12, noise: float = 0.001, seed: int = 1, refl=None) -> Rig:
-    return Rig(stripes() if refl is None else refl, bits=bits, noise=noise, seed=seed, **SCENARIOS[name])
+def make_rig(name: str, *, bits: int = 12, noise: float = 0.001, seed: int = 1, refl=None) -> ToyRig:
+    return ToyRig(stripes() if refl is None else refl, bits=bits, noise=noise, seed=seed, **SCENARIOS[name])
 
 
 @functools.cache
@@ -239,7 +238,7 @@ class TamperedReader(BandReader):
 
 
 def test_masked_pixels_are_counted_by_reason():
-    rig = Rig(surface_rows(4, 16, [(2, WHITE), (2, BLACK)]), gamma=(2.2, 2.2, 2.2), bits=12, noise=0.001)
+    rig = ToyRig(surface_rows(4, 16, [(2, WHITE), (2, BLACK)]), gamma=(2.2, 2.2, 2.2), bits=12, noise=0.001)
     white = rig.white()
     white[0, 4:8] = 1.0
     rd = TamperedReader(rig, N_BANDS)
@@ -280,8 +279,8 @@ def test_smoothing_does_not_bleed_across_a_sharp_colour_edge():
     refl[:, edge:] = RED
     kw = SCENARIOS["gamma1.8/2.2/2.6+crosstalk+ambient"]
     # the same noise realisation (same seed, same shape) in both sessions
-    edge_rig = Rig(refl, bits=12, noise=0.001, seed=9, **kw)
-    flat_rig = Rig(np.broadcast_to(np.array(WHITE), refl.shape).copy(), bits=12, noise=0.001, seed=9, **kw)
+    edge_rig = ToyRig(refl, bits=12, noise=0.001, seed=9, **kw)
+    flat_rig = ToyRig(np.broadcast_to(np.array(WHITE), refl.shape).copy(), bits=12, noise=0.001, seed=9, **kw)
     tabs = []
     for rig in (edge_rig, flat_rig):
         white = rig.white()
@@ -331,7 +330,7 @@ def test_table_size_formula():
 
 def test_build_streams_images_one_band_at_a_time():
     h, w = 32, 48
-    rig = Rig(surface_rows(h, w, [(h, WHITE)]), gamma=(2.2, 2.2, 2.2), noise=0.002)
+    rig = ToyRig(surface_rows(h, w, [(h, WHITE)]), gamma=(2.2, 2.2, 2.2), noise=0.002)
     white = rig.white()
     gen = np.random.default_rng(0)
     alive: list[weakref.ref] = []
@@ -382,7 +381,7 @@ def test_prefetching_reader_gives_the_same_table():
 
 def test_build_from_png_files_and_preallocated_memmap(tmp_path):
     n, reps, h, w = 32, 2, 6, 20
-    rig = Rig(surface_rows(h, w, [(3, WHITE), (3, RED)]), gamma=(2.2, 2.2, 2.2), bits=16, noise=0.001)
+    rig = ToyRig(surface_rows(h, w, [(3, WHITE), (3, RED)]), gamma=(2.2, 2.2, 2.2), bits=16, noise=0.001)
     white = rig.white()
     hue_dir = tmp_path / "hue"
     for i in range(n):
@@ -496,7 +495,7 @@ def test_qa_stats_and_figures(tmp_path):
 
 
 def test_plate_transfer_of_an_ideal_rig_is_the_identity():
-    rig = Rig(surface_rows(4, 8, [(4, WHITE)]), gamma=(1.0, 1.0, 1.0), bits=16, noise=0.0)
+    rig = ToyRig(surface_rows(4, 8, [(4, WHITE)]), gamma=(1.0, 1.0, 1.0), bits=16, noise=0.0)
     rd = BandReader(rig, 64)
     tab = cal.build_table(rd.paths(1), rig.white(), read=rd)
     code, dist = compensation.plate_transfer(tab)

@@ -21,13 +21,13 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from _rig import BandReader, Rig
 from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 from session_factory import make_session
 
 from huefringe import colour
+from huefringe.bench.toy import BandReader, ToyRig
 from huefringe.huetable import HueTable, build_table
 from huefringe.session import IMAGE_SUFFIXES, SessionError, load_session, read_rgb
 
@@ -177,7 +177,7 @@ def table() -> HueTable:
     refl = np.empty((3, 4, 3))
     refl[:] = (0.8, 0.6, 0.5)
     refl[1] = (0.4, 0.7, 0.9)
-    rig = Rig(reflectance=refl, crosstalk=np.array([[0.9, 0.08, 0.02], [0.07, 0.86, 0.07], [0.02, 0.1, 0.88]]), seed=5)
+    rig = ToyRig(reflectance=refl, crosstalk=np.array([[0.9, 0.08, 0.02], [0.07, 0.86, 0.07], [0.02, 0.1, 0.88]]), seed=5)
     reader = BandReader(rig, 16)
     t = build_table(reader.paths(2), rig.white(), read=reader, smooth_window=5)
     assert t.valid.all()

@@ -1,6 +1,8 @@
-"""A tiny self-contained forward model of a projector-camera rig, for the calibration tests.
+"""The toy rig: a tiny per-pixel forward model of a projector-camera rig, for tests and benchmarks.
 
-Paper eqs. 6-8 per pixel and channel, with camera crosstalk::
+Where the virtual bench (:mod:`huefringe.bench`, :class:`huefringe.bench.Rig`) simulates a whole
+rig with geometry, optics and a scene, :class:`ToyRig` is paper eqs. 6-8 per pixel and channel
+on a reflectance map, with camera crosstalk, the projector column equal to the camera column::
 
     emitted   e_k  = round(255 I_k) / 255                     (8-bit projector)
     projector p_k  = e_k ** gamma_k                            (eq. 6)
@@ -8,7 +10,8 @@ Paper eqs. 6-8 per pixel and channel, with camera crosstalk::
     camera    c    = alpha * (M @ o + b) + noise               (eq. 8, M = 3x3 crosstalk)
     stored         = clip(round(c * (2^bits - 1)) / (2^bits - 1), 0, 1)
 
-It does not import huefringe.bench (the measuring code must never depend on the simulator).
+It imports nothing of the bench's simulator: the calibration tests check the measuring code on a
+model independent of the bench, and the kernel benchmark renders its bands and frames with it.
 """
 
 from __future__ import annotations
@@ -19,9 +22,13 @@ import numpy as np
 
 from huefringe.patterns import TWO_PI, band_rgb, trapezoid_rgb
 
+__all__ = ["BandReader", "ToyRig", "surface_rows"]
+
 
 @dataclass
-class Rig:
+class ToyRig:
+    """The toy rig on ``reflectance`` ``(H, W, 3)``; ``capture`` returns float32 in [0, 1] at ``bits``."""
+
     reflectance: np.ndarray  # (H, W, 3)
     gamma: tuple[float, float, float] = (2.2, 2.2, 2.2)
     crosstalk: np.ndarray = field(default_factory=lambda: np.eye(3))
@@ -71,7 +78,7 @@ class Rig:
 class BandReader:
     """``read`` callable for build_table: paths are (band, repeat) tuples; records call order."""
 
-    def __init__(self, rig: Rig, n_bands: int):
+    def __init__(self, rig: ToyRig, n_bands: int):
         self.rig, self.n_bands = rig, n_bands
         self.calls: list[tuple[int, int]] = []
 

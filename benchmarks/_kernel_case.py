@@ -1,8 +1,8 @@
-"""A synthetic rig for the kernel benchmark: realistic hue tables and frames, in memory.
+"""The kernel benchmark's case: a realistic hue table, calibration and frame, in memory.
 
-A projector-camera forward model (per-channel projector gamma, camera crosstalk, ambient light,
-coloured and dark reflectance patches, sensor noise, 8-bit quantisation) renders the ``N`` hue
-bands x ``R`` repeats, the white image and trapezoidal frames of a known height map, so that
+The toy rig (:class:`huefringe.bench.toy.ToyRig`, the forward model of the calibration tests:
+per-channel projector gamma, camera crosstalk, ambient light, sensor noise, 8-bit quantisation)
+on coloured and dark reflectance patches renders the ``N`` hue bands x ``R`` repeats, the white image and trapezoidal frames of a known height map, so that
 
 * the hue table is built by :func:`huefringe.huetable.build_table` from captured bands (its
   columns are as bent and as noisy as real ones, with masked dark pixels), and
@@ -20,8 +20,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe.huetable import HueTable, build_table
+from huefringe.bench.toy import ToyRig
 from huefringe.height import PlaneCalibration
+from huefringe.huetable import HueTable, build_table
 from huefringe.patterns import TWO_PI, band_rgb, trapezoid_rgb
 
 GAMMA = np.array([2.2, 2.0, 2.4])
@@ -38,22 +39,15 @@ def reflectance(h: int, w: int) -> NDArray[np.float32]:
     return refl
 
 
-class Camera:
-    """``capture(emitted) -> uint8 (H, W, 3)``; ``emitted`` is ``(3,)`` or ``(H, W, 3)`` in [0, 1]."""
+def camera(h: int, w: int, seed: int = 0, noise: float = 0.002) -> ToyRig:
+    """The toy rig of the benchmark: :func:`reflectance` seen through gamma, crosstalk and ambient light."""
+    return ToyRig(reflectance(h, w), gamma=tuple(GAMMA), crosstalk=MIX, ambient_proj=(0.02, 0.02, 0.02),
+                  ambient_cam=(0.01, 0.01, 0.01), alpha=(0.9, 0.9, 0.9), noise=noise, bits=8, seed=seed)
 
-    def __init__(self, h: int, w: int, seed: int = 0, noise: float = 0.002) -> None:
-        self.h, self.w = h, w
-        self.refl = reflectance(h, w)
-        self.rng = np.random.default_rng(seed)
-        self.noise = noise
 
-    def capture(self, emitted: NDArray[np.floating]) -> NDArray[np.uint8]:
-        e = np.round(np.asarray(emitted, dtype=np.float32) * 255) / 255  # 8-bit DMD levels
-        light = (e ** GAMMA.astype(np.float32) + np.float32(0.02)).astype(np.float32)
-        o = self.refl * light
-        c = 0.9 * (o @ MIX.T.astype(np.float32) + np.float32(0.01))
-        c += self.rng.standard_normal(c.shape, dtype=np.float32) * np.float32(self.noise)
-        return np.clip(np.round(c * 255), 0, 255).astype(np.uint8)
+def capture_codes(cam: ToyRig, emitted: NDArray[np.floating]) -> NDArray[np.uint8]:
+    """The toy rig's capture as the 8-bit sensor codes a frame file would hold."""
+    return np.round(cam.capture(emitted) * np.float32(255)).astype(np.uint8)
 
 
 def analytic_calibration(h: int, w: int, period_px: float = 37.3, pitch_mm: float = 0.1,
@@ -78,16 +72,19 @@ def height_map(h: int, w: int) -> NDArray[np.float64]:
     return z
 
 
-def frame_of(cam: Camera, cal: PlaneCalibration, z: NDArray[np.float64]) -> NDArray[np.uint8]:
+def frame_of(cam: ToyRig, cal: PlaneCalibration, z: NDArray[np.float64]) -> NDArray[np.uint8]:
     """Capture of the trapezoidal fringe on the surface ``z``: code phase ``phi_ref + dphi(z)``."""
     a = cal.a.astype(np.float64)
     b = cal.b.astype(np.float64)
     dphi = a * z / (1.0 - b * z)  # inverse of h = dphi / (a + b dphi)
-    return cam.capture(trapezoid_rgb(cal.phi_ref.astype(np.float64) + dphi).astype(np.float32))
+    return capture_codes(cam, trapezoid_rgb(cal.phi_ref.astype(np.float64) + dphi).astype(np.float32))
 
 
 @dataclass
-class Rig:
+class KernelCase:
+    """What the kernel benchmark measures on: a table, a calibration, a white image and one frame of
+    the known surface ``truth``."""
+
     table: HueTable
     cal: PlaneCalibration
     white: NDArray[np.float32]
@@ -96,27 +93,27 @@ class Rig:
     build_seconds: float
 
 
-def make_rig(w: int, h: int, n_bands: int = 256, repeats: int = 2, seed: int = 0) -> Rig:
+def make_case(w: int, h: int, n_bands: int = 256, repeats: int = 2, seed: int = 0) -> KernelCase:
     """Build a table from captured bands (in memory) and render one frame of a known surface."""
     import time
 
-    cam = Camera(h, w, seed)
-    white = cam.capture(np.ones(3)).astype(np.float32) / np.float32(255)
+    cam = camera(h, w, seed)
+    white = capture_codes(cam, np.ones(3)).astype(np.float32) / np.float32(255)
     keys: Any = [[(i, r) for r in range(repeats)] for i in range(n_bands)]
 
     def read(key: tuple[int, int]) -> NDArray[np.float32]:
-        return cam.capture(band_rgb(key[0], n_bands)).astype(np.float32) * np.float32(1 / 255)
+        return capture_codes(cam, band_rgb(key[0], n_bands)).astype(np.float32) * np.float32(1 / 255)
 
     t = time.perf_counter()
     table = build_table(keys, white, read=read)
     dt = time.perf_counter() - t
     cal = analytic_calibration(h, w)
     z = height_map(h, w)
-    return Rig(table, cal, white, frame_of(cam, cal, z), z, dt)
+    return KernelCase(table, cal, white, frame_of(cam, cal, z), z, dt)
 
 
-def tile_rig(rig: Rig, w: int, h: int) -> Rig:
-    """The same rig on a larger sensor by tiling the table and frame (cheap; timing only)."""
+def tile_case(rig: KernelCase, w: int, h: int) -> KernelCase:
+    """The same case on a larger sensor by tiling the table and frame (cheap; timing only)."""
     h0, w0 = rig.table.shape
     ry, rx = -(-h // h0), -(-w // w0)
 
@@ -129,4 +126,4 @@ def tile_rig(rig: Rig, w: int, h: int) -> Rig:
     table = HueTable(t.model, t.n_bands, tab, tile(t.valid), tile(t.start), tile(t.reason), tile(t.noise_rad),
                      dict(t.stats))
     cal = PlaneCalibration(tile(rig.cal.phi_ref), tile(rig.cal.a), tile(rig.cal.b), list(rig.cal.planes_mm))
-    return Rig(table, cal, tile(rig.white), tile(rig.frame), tile(rig.truth), float("nan"))
+    return KernelCase(table, cal, tile(rig.white), tile(rig.frame), tile(rig.truth), float("nan"))
