@@ -1,7 +1,12 @@
-"""Workflow stages: each function is what one Snakemake script calls, once.
+"""Workflow stages: each function is what one Snakemake script calls, once, and has its rule's name.
 
-Every stage reads its inputs, calls the library, and writes its outputs atomically. Nothing here
-is Snakemake-specific except :func:`run_from_snakemake`, the adapter the scripts use.
+Rule ``NAME`` (in ``workflow/rules/<file>.smk``) runs ``scripts/NAME.py``, which calls
+:func:`NAME` here (tests/test_stages.py checks it); the stages are in the order of the rule files,
+one section per file (``bench``, ``calibration``, ``measurement``, ``surfaces``, ``metrology``,
+``archive``). Every stage reads its inputs, calls the library, and writes its outputs atomically.
+The ``session_*`` and :func:`frame_results` helpers are the in-memory halves that
+:func:`huefringe.measure` shares. Nothing here is Snakemake-specific except
+:func:`run_from_snakemake`, the adapter the scripts use.
 """
 
 from __future__ import annotations
@@ -28,7 +33,7 @@ from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
 log = logging.getLogger("huefringe")
 
 
-# --------------------------------------------------------------------------- stages
+# --------------------------------------------------- workflow/rules/bench.smk
 
 
 def bench_session(config: str, out: str, period_px: float | None = None) -> None:
@@ -38,6 +43,8 @@ def bench_session(config: str, out: str, period_px: float | None = None) -> None
 
     bench.write_session(bench_config_for(config, period_px=period_px), Path(out), progress=False)
 
+
+# --------------------------------------------- workflow/rules/calibration.smk
 
 
 def _calibration_opts(calibration: Mapping[str, Any]) -> dict[str, Any]:
@@ -208,6 +215,9 @@ def compensation(session: str, table: str, model: str, hue_model: str, calibrati
                              "predistorted_session": s.predistortion is not None,
                              "pattern_size": [comp["projector_width"], comp["projector_height"]],
                              "period_px_projector": comp["period_px"]})
+
+
+# --------------------------------------------- workflow/rules/measurement.smk
 
 
 def measure_frames(session: str, frames: Sequence[int], table: str, model: str, hue_model: str,
@@ -388,8 +398,7 @@ def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str
     write_json(report, out)
 
 
-
-# --------------------------------------------------------------------------- surfaces and reports
+# ------------------------------------------------ workflow/rules/surfaces.smk
 
 
 def _height_limits(s: Session) -> tuple[float, float]:
@@ -434,6 +443,9 @@ def render(session: str, mesh: str, height: str, phase: str, render: Mapping[str
                                 title=f"{s.id} frame {frame}: height (mm)")
     rendering.wrapped_phase_figure(read_tiff(phase), phase_map, pitch_mm=s.pixel_pitch_mm,
                                    title=f"{s.id} frame {frame}: corrected code phase")
+
+
+# ----------------------------------------------- workflow/rules/metrology.smk
 
 
 def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline: Sequence[str], planes: str, tables: str,
@@ -513,6 +525,8 @@ def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_
     rows = t1.table1_rows(results, step_name=step, nominal=nominal_mm)
     t1.write_table1(rows, markdown, csv, figure)
 
+
+# ------------------------------------------------- workflow/rules/archive.smk
 
 
 def archive_session(session: str, results: str, config: Mapping[str, Any], archive: str) -> None:

@@ -3,6 +3,7 @@
 # file with its sha256. Check one with: huefringe verify results/<id>.archive.zip
 #   snakemake --cores 2 archive                          every planned session
 #   snakemake --cores 2 results/<id>.archive.zip         one session
+# Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/archive.smk).
 
 
 rule archive_session:

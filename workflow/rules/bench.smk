@@ -1,5 +1,6 @@
 # The virtual bench writes the sessions listed under bench_sessions (and the Table 1 sweep) when
 # they are absent; {bench_dir} is one of their folders (constrained in common.smk).
+# Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/bench.smk).
 
 
 rule bench_session:

@@ -1,4 +1,5 @@
 # Session check, per-pixel hue tables, plane calibration and the compensated pattern (paper Fig. 6).
+# Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/calibration.smk).
 
 
 rule check_session:

@@ -4,6 +4,7 @@
 # (cloud_frames_*), made from the batch's height maps, so that the height maps do not wait for them.
 # Resources: config `resources: {measure_frames: {mem_mb: ..., runtime: ...}}` (also cloud_frames,
 # baseline_frames), or --set-resources on the generated rule names.
+# Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/measurement.smk).
 
 # Why a loop: one batch job writes one file per frame, and a rule's outputs must be patterns of its
 # wildcards, so a {batch} wildcard cannot name them; `directory()` would hide the per-frame files

@@ -1,4 +1,5 @@
 # Step-height metrology: report.json (results contract) and the self-contained report.html.
+# Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/metrology.smk).
 
 
 rule metrology:

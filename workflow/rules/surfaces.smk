@@ -1,4 +1,5 @@
 # Meshes and off-screen renders of the selected frames.
+# Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/surfaces.smk).
 
 
 rule mesh:
