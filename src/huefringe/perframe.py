@@ -179,6 +179,7 @@ def phase_sigma(table: HueTable, slope: NDArray[np.floating], floor_slope: float
     times sqrt(repeats)) over the local slope d(captured hue)/d(code phase) of the pixel's table
     (:meth:`HueTable.hue_slope` at the captured hue), floored at ``floor_slope``.
     """
+    slope = np.where(np.isfinite(slope), slope, 1.0)  # (invalid pixels only: the kernel leaves them out)
     noise = capture_noise(table)
     out = np.empty(noise.shape, np.float64)
     _phase_sigma_map(noise, np.ascontiguousarray(slope, dtype=np.float64), float(floor_slope), out)
@@ -200,10 +201,10 @@ def capture_noise(table: HueTable) -> NDArray[np.float64]:
 
 @numba.njit(cache=True, nogil=True)
 def sigma_from_slope(noise, slope, floor_slope):  # pragma: no cover - compiled
-    """One pixel's code-phase standard deviation: ``noise / max(slope, floor_slope)``, with a
-    non-finite ``slope`` taken as 1 (compiled, for :func:`phase_sigma` and the fused kernel alike)."""
-    s = slope if slope - slope == 0 else 1.0
-    return noise / max(s, floor_slope)
+    """One pixel's code-phase standard deviation ``noise / max(slope, floor_slope)`` (compiled, for
+    :func:`phase_sigma` and the fused kernel alike; a branch-free expression, so that it stays
+    vectorised in the kernel's row loop)."""
+    return noise / max(slope, floor_slope)
 
 
 @numba.njit(cache=True, nogil=True)
