@@ -261,11 +261,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--cores", type=int, default=2)
     ap.add_argument("--work", type=Path, default=None, help="keep (and reuse) the sessions here")
-    ap.add_argument("--quick", action="store_true", help="smoke mode: 4 and 8 frames at 160 x 120, 32 bands")
+    ap.add_argument("--quick", action="store_true", help="smoke mode: 4 and 8 pre-distorted frames at 160 x 120, 32 bands")
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
     if a.quick:
-        a.sizes, a.width, a.height, a.bands = "4,8", 160, 120, 32
+        a.sizes, a.kinds, a.width, a.height, a.bands = "4,8", "predistorted", 160, 120, 32
     sizes = sorted(int(x) for x in a.sizes.split(","))
     kinds = [k.strip() for k in a.kinds.split(",")]
     tmp = None
