@@ -1,28 +1,35 @@
-"""Benchmark: whole-workflow throughput, a long bench session through height maps with Snakemake.
+"""Benchmark: whole-workflow throughput against the I/O floor, for sessions of several lengths.
 
 Usage::
 
-    ./run python benchmarks/bench_workflow.py [--frames 1000 --width 640 --height 480] [--cores 2]
+    ./run python benchmarks/bench_workflow.py [--sizes 20,200,1000] [--kinds plain,predistorted]
+                                              [--width 640 --height 480] [--cores 2]
                                               [--work DIR] [--json OUT] [--quick]
 
-Steps (each timed):
+For each kind of session (``plain`` fringe, or ``predistorted`` through the pre-distortion of
+paper Fig. 6) the virtual bench writes one session of the largest size (the ``demo`` rig: gauge
+blocks, 80 x 60 mm field; no phase-shift captures or ground truth, single-sample rendering);
+the smaller sessions are views of its first frames (symbolic links, their own ``id``). Reused
+when ``--work`` already holds the same sessions. Then, per session, in a workflow folder of its
+own (``--directory``) with a config listing only that session:
 
-1. ``session``  the virtual bench writes a session of ``--frames`` frames (the ``demo`` rig: gauge
-   blocks, pre-distorted fringe; field of view kept at 80 x 60 mm; no phase-shift captures or
-   ground truth, single-sample rendering, so that writing 1000 frames stays short). Reused when
-   ``--work`` already holds the same session.
-2. ``calibration``  ``snakemake --cores N`` on the calibration targets only (session check, hue
-   tables, plane calibration) in a workflow folder of its own (``--directory``) with a config file
-   listing the session.
-3. ``heights``  ``snakemake --cores N`` with the height maps of every frame as explicit targets
-   (the measurement rule also writes phase and hue maps and a QA file per frame: that is the
-   workflow as it stands; the point clouds are ``cloud_*`` jobs of their own, made from the
-   height maps, so they are not part of this step). frames/s = frames / wall time of this step.
-   The measurement jobs use the fused kernel (``measurement.kernel: true``, the default).
+1. ``calibration``  session check, hue tables, plane calibration (not counted below);
+2. ``heights``      the height maps of every frame as targets (measurement jobs: height, QA);
+3. ``rest``         the rest of the default target set (``snakemake --cores N`` with no
+   target: point clouds, the compensated pattern, mesh, renders, metrology report).
 
-Peak memory: the largest sum of the resident set sizes of the process tree (sampled every 0.1 s
-with psutil) and the largest single process (``ru_maxrss`` of the children). Every job runs with
-``NUMBA_NUM_THREADS=1`` (one core per job).
+Marginal frames/s between two sizes N1 < N2 = (N2 - N1) / (t(N2) - t(N1)), so that Snakemake's
+start-up, the jobs' start-up and the first frame's mesh and renders cancel: ``heights`` for
+the height maps, ``heights + rest`` for the default target set. Each is printed beside the
+**I/O floor** measured in the same run (between the workflow runs): PNG decode
+(``cv2.imread``) plus an uncompressed float32 TIFF write (``huefringe.io.write_tiff``) of the
+same frames on one core, times the cores. A per-stage breakdown of a measurement job's frame
+(in process, one core) says where the time goes.
+
+Peak memory: the largest resident set of a single job (any process below Snakemake's, sampled
+every 0.1 s with psutil) and of the whole tree. Every job runs with ``NUMBA_NUM_THREADS=1``
+(one core per job). The machine may be shared: the floor is measured repeatedly and ratios
+use the floor measured next to each run.
 """
 
 from __future__ import annotations
@@ -31,7 +38,7 @@ import argparse
 import copy
 import json
 import os
-import resource
+import statistics
 import shutil
 import subprocess
 import sys
@@ -48,8 +55,9 @@ from huefringe.settings import load_config
 
 REPO = Path(__file__).resolve().parents[1]
 HERE = Path(__file__).resolve().parent
-TARGET_FPS = 50.0
-TARGET_MB = 4096.0
+TARGET_HEIGHTS_VS_FLOOR = 0.4
+TARGET_DEFAULT_VS_FLOOR = 0.2
+TARGET_JOB_MB = 2000.0
 
 
 def _env() -> dict[str, str]:
@@ -66,6 +74,7 @@ class TreeMemory:
     def __init__(self, period: float = 0.1) -> None:
         self.period = period
         self.peak = 0
+        self.peak_job = 0
         self._stop = threading.Event()
         self._pids: list[int] = []
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -83,9 +92,12 @@ class TreeMemory:
                 continue
             for q in procs:
                 try:
-                    total += q.memory_info().rss
+                    rss = q.memory_info().rss
                 except psutil.Error:
-                    pass
+                    continue
+                total += rss
+                if q.pid != pid:
+                    self.peak_job = max(self.peak_job, rss)
         return total
 
     def _run(self) -> None:
@@ -102,7 +114,8 @@ class TreeMemory:
         self._thread.join()
 
 
-def bench_config(width: int, height: int, frames: int, bands: int, repeats: int) -> dict[str, Any]:
+def bench_config(width: int, height: int, frames: int, bands: int, repeats: int,
+                 predistorted: bool = True) -> dict[str, Any]:
     from huefringe import bench
 
     cfg = copy.deepcopy(bench.load_bench_config(bench.preset_path("demo")))
@@ -111,6 +124,9 @@ def bench_config(width: int, height: int, frames: int, bands: int, repeats: int)
                           repeats=repeats, frames=frames, ground_truth=False, id=f"wf-bench-{width}x{height}")
     cfg["phase_shift"]["enabled"] = False
     cfg["camera"].update(supersample=1, motion_blur_subframes=1)
+    cfg["projector"]["compensation"]["enabled"] = bool(predistorted)
+    if not predistorted:
+        cfg["session"]["id"] += "-plain"
     return cfg
 
 
@@ -138,65 +154,189 @@ def run_snakemake(workdir: Path, config: Path, targets: list[str], cores: int, l
     if rc != 0:
         sys.stdout.write(log.read_text()[-4000:])
         raise RuntimeError(f"snakemake failed ({rc}); log: {log}")
-    return {"seconds": dt, "peak_tree_mb": mem.peak / 1e6}
+    return {"seconds": dt, "peak_tree_mb": mem.peak / 1e6, "peak_job_mb": mem.peak_job / 1e6}
+
+
+def sub_session(full: Path, n: int, where: Path) -> Path:
+    """A session of the first ``n`` frames of ``full``: links to its files, its own id."""
+    if where.exists():
+        shutil.rmtree(where)
+    where.mkdir(parents=True)
+    for item in full.iterdir():
+        if item.name not in ("session.yaml", "object"):
+            (where / item.name).symlink_to(item.resolve())
+    (where / "object").mkdir()
+    for item in (full / "object").iterdir():
+        if item.name != "frames":
+            (where / "object" / item.name).symlink_to(item.resolve())
+    (where / "object" / "frames").mkdir()
+    for f in sorted((full / "object" / "frames").iterdir())[:n]:
+        (where / "object" / "frames" / f.name).symlink_to(f.resolve())
+    doc = yaml.safe_load((full / "session.yaml").read_text())
+    doc["id"] = f"{doc['id']}-n{n}"
+    (where / "session.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
+    return where
+
+
+def io_floor(frames: list[Path], out: Path, cores: int, rounds: int = 2) -> dict[str, Any]:
+    """PNG decode + uncompressed float32 TIFF write per frame, one core (best of ``rounds``)."""
+    import cv2
+    import numpy as np
+
+    from huefringe.io import write_tiff
+
+    cv2.setNumThreads(1)
+    out.mkdir(parents=True, exist_ok=True)
+    best = float("inf")
+    for r in range(rounds):
+        t = time.perf_counter()
+        for k, f in enumerate(frames):
+            img = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+            write_tiff(out / f"r{r}_{k:04d}.tiff", img[..., 0].astype(np.float32))
+        best = min(best, (time.perf_counter() - t) / len(frames))
+    shutil.rmtree(out, ignore_errors=True)
+    return {"ms_per_frame": 1e3 * best, "fps": cores / best, "cores": cores}
+
+
+def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str, float]:
+    """Per-frame milliseconds of each stage of a measurement job and of a cloud job (one core)."""
+    import cv2
+    import numpy as np
+
+    from huefringe import kernel, perframe
+    from huefringe.huetable import HueTable
+    from huefringe.cloud import _check_colours, colour_bytes, write_height_cloud
+    from huefringe.height import PlaneCalibration
+    from huefringe.io import read_tiff, write_json, write_tiff
+    from huefringe.phase import unwrap
+    from huefringe.session import load_session, read_rgb, read_rgb_codes
+
+    cv2.setNumThreads(1)
+    m_cfg = load_config(REPO / "config.yaml")["measurement"]
+    s = load_session(session)
+    t = HueTable.load(results / "calib" / "table_object.json")
+    cal = PlaneCalibration.load(results / "calib" / "phase_to_height.npz")
+    white = read_rgb(s.object_white)
+    shadow = perframe.shadow_mask(white, m_cfg["shadow_fraction"])
+    prep = kernel.prepare(t, cal, white, hue_model="hexcone", min_saturation=m_cfg["min_saturation"], shadow=shadow,
+                          bit_depth=s.bit_depth, predistortion=s.predistortion)
+    rgb = colour_bytes(_check_colours(white, white.shape[:2]).reshape(-1, 3))
+    buf = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))
+    out = Path(tempfile.mkdtemp(prefix="hf-stages-"))
+    names = ("decode", "kernel", "filter", "flags+stats", "height tiff", "qa json", "cloud ply")
+    times: dict[str, list[float]] = {k: [] for k in names}
+    for k, n in enumerate(sorted(s.frames)[:frames]):
+        c = [time.perf_counter()]
+        codes = read_rgb_codes(s.frames[n])
+        c.append(time.perf_counter())
+        kernel.frame_maps(prep, codes, denoise_radius=0, want_dphi=True, out=buf)
+        c.append(time.perf_counter())
+        m = kernel.frame_maps(prep, codes, denoise_radius=m_cfg["denoise_radius"], want_dphi=True, out=buf)
+        t_filter = time.perf_counter() - c[-1] - (c[-1] - c[-2])  # kernel with the filter minus without
+        c.append(time.perf_counter())
+        flags = unwrap(m.dphi, m.valid, "reference").flags
+        px = m.valid.size
+        st = perframe.frame_stats(m.valid, m.height, flags, clipped_fraction=m.counts["clipped"] / px,
+                                  hue_undefined_fraction=m.counts["hue_undefined"] / px, table_invalid_fraction=0.0,
+                                  shadow_fraction=0.0, hue_model="hexcone", unwrap_mode="reference")
+        c.append(time.perf_counter())
+        write_tiff(out / f"h{k}.tiff", m.height)
+        c.append(time.perf_counter())
+        write_json(out / f"q{k}.json", {"frame": n, **st})
+        c.append(time.perf_counter())
+        write_height_cloud(out / f"c{k}.ply", read_tiff(out / f"h{k}.tiff"), s.pixel_pitch_mm, colours=rgb)
+        c.append(time.perf_counter())
+        d = [b - a for a, b in zip(c, c[1:])]
+        for name, x in zip(names, [d[0], d[1], t_filter, d[3], d[4], d[5], d[6]]):
+            times[name].append(x)
+    shutil.rmtree(out, ignore_errors=True)
+    return {k: 1e3 * statistics.median(v) for k, v in times.items()}
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--frames", type=int, default=1000)
+    ap.add_argument("--sizes", default="20,200,1000", help="session lengths (frames), comma-separated")
+    ap.add_argument("--kinds", default="plain,predistorted")
     ap.add_argument("--width", type=int, default=640)
     ap.add_argument("--height", type=int, default=480)
     ap.add_argument("--bands", type=int, default=64, help="hue bands of the bench session")
     ap.add_argument("--repeats", type=int, default=2)
     ap.add_argument("--cores", type=int, default=2)
-    ap.add_argument("--work", type=Path, default=None, help="keep (and reuse) the session and results here")
-    ap.add_argument("--quick", action="store_true", help="smoke mode: 6 frames at 160 x 120, 32 bands")
+    ap.add_argument("--work", type=Path, default=None, help="keep (and reuse) the sessions here")
+    ap.add_argument("--quick", action="store_true", help="smoke mode: 4 and 8 pre-distorted frames at 160 x 120, 32 bands")
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
     if a.quick:
-        a.frames, a.width, a.height, a.bands = 6, 160, 120, 32
+        a.sizes, a.kinds, a.width, a.height, a.bands = "4,8", "predistorted", 160, 120, 32
+    sizes = sorted(int(x) for x in a.sizes.split(","))
+    kinds = [k.strip() for k in a.kinds.split(",")]
     tmp = None
     if a.work is None:
         tmp = tempfile.TemporaryDirectory(prefix="hf-bench-wf-")
         a.work = Path(tmp.name)
     a.work.mkdir(parents=True, exist_ok=True)
-    print(f"workflow benchmark: {a.frames} frames {a.width} x {a.height}, snakemake --cores {a.cores} "
-          f"({os.cpu_count()} cores here, load average {os.getloadavg()[0]:.2f}); work folder {a.work}")
-
-    bcfg = bench_config(a.width, a.height, a.frames, a.bands, a.repeats)
-    session, t_session, reused = write_session(bcfg, a.work / "session")
-    print(f"session: {'reused' if reused else f'written in {t_session:.1f} s'} ({a.bands} bands x {a.repeats})")
-
-    wcfg = load_config(REPO / "config.yaml")
-    wcfg["sessions"] = [str(session)]
-    wcfg.pop("bench_sessions", None)
-    wcfg["results_dir"] = "results"
-    wf = a.work / "workflow"
-    shutil.rmtree(wf / "results", ignore_errors=True)
-    wf.mkdir(parents=True, exist_ok=True)
-    (wf / "config.yaml").write_text(yaml.safe_dump(wcfg, sort_keys=False))
-    sid = bcfg["session"]["id"]
-    calib_rel = Path("results") / sid / "calib"  # targets: relative to the workflow folder
-    res: dict[str, Any] = {"frames": a.frames, "size": [a.width, a.height], "bands": a.bands, "cores": a.cores,
-                           "machine_cores": os.cpu_count(), "session_seconds": t_session, "session_reused": reused}
-
-    c = run_snakemake(wf, wf / "config.yaml", [str(calib_rel / "table_object.json"), str(calib_rel / "phase_to_height.npz")],
-                      a.cores, a.work / "snakemake_calibration.log")
-    res["calibration"] = c
-    print(f"calibration (check, 2 hue tables, planes): {c['seconds']:.1f} s, peak {c['peak_tree_mb']:.0f} MB")
-
-    targets = [f"results/{sid}/height/frame_{n:04d}.tiff" for n in range(a.frames)]
-    h = run_snakemake(wf, wf / "config.yaml", targets, a.cores, a.work / "snakemake_heights.log")
-    h["fps"] = a.frames / h["seconds"]
-    res["heights"] = h
-    res["end_to_end_fps"] = a.frames / (c["seconds"] + h["seconds"])
-    res["max_single_process_mb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
-    per_job = int(wcfg["measurement"]["frames_per_job"])
-    print(f"heights ({-(-a.frames // per_job)} jobs of {per_job} frames): {h['seconds']:.1f} s = {h['fps']:.1f} frames/s, "
-          f"peak {h['peak_tree_mb']:.0f} MB (whole tree); calibration + heights {res['end_to_end_fps']:.1f} frames/s")
-
-    res["max_single_process_mb"] = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024.0
-    res["target_fps"], res["target_mb"] = TARGET_FPS, TARGET_MB
+    print(f"workflow benchmark: sessions of {sizes} frames, {a.width} x {a.height}, {', '.join(kinds)}; "
+          f"snakemake --cores {a.cores} ({os.cpu_count()} cores here, load average {os.getloadavg()[0]:.2f}); "
+          f"work folder {a.work}")
+    res: dict[str, Any] = {"sizes": sizes, "size": [a.width, a.height], "bands": a.bands, "cores": a.cores,
+                           "machine_cores": os.cpu_count(), "kinds": {}}
+    base = load_config(REPO / "config.yaml")
+    for kind in kinds:
+        bcfg = bench_config(a.width, a.height, sizes[-1], a.bands, a.repeats, predistorted=kind == "predistorted")
+        full, t_session, reused = write_session(bcfg, a.work / f"session-{kind}")
+        print(f"\n[{kind}] session of {sizes[-1]} frames: {'reused' if reused else f'written in {t_session:.1f} s'}")
+        kres: dict[str, Any] = {"runs": {}}
+        for n in sizes:
+            session = sub_session(full, n, a.work / f"{kind}-n{n}" / "session")
+            sid = yaml.safe_load((session / "session.yaml").read_text())["id"]
+            wf = a.work / f"{kind}-n{n}" / "workflow"
+            shutil.rmtree(wf, ignore_errors=True)
+            wf.mkdir(parents=True)
+            wcfg = copy.deepcopy(base)
+            wcfg["sessions"] = [str(session)]
+            wcfg.pop("bench_sessions", None)
+            wcfg["results_dir"] = "results"
+            (wf / "config.yaml").write_text(yaml.safe_dump(wcfg, sort_keys=False))
+            calib = Path("results") / sid / "calib"
+            logs = a.work / f"{kind}-n{n}"
+            c = run_snakemake(wf, wf / "config.yaml", [str(calib / "table_object.json"), str(calib / "phase_to_height.npz")],
+                              a.cores, logs / "snakemake_calibration.log")
+            floor = io_floor(sorted((session / "object" / "frames").iterdir())[:100], a.work / "floor", a.cores)
+            h = run_snakemake(wf, wf / "config.yaml", [f"results/{sid}/height/frame_{k:04d}.tiff" for k in range(n)],
+                              a.cores, logs / "snakemake_heights.log")
+            r = run_snakemake(wf, wf / "config.yaml", [], a.cores, logs / "snakemake_rest.log")
+            jobs = len(list((wf / "logs" / sid).glob("measure_*.log")))
+            run = {"frames": n, "calibration": c, "heights": h, "rest": r, "floor": floor, "measure_jobs": jobs}
+            kres["runs"][n] = run
+            print(f"  {n:5d} frames: calibration {c['seconds']:.1f} s; heights {h['seconds']:.1f} s ({jobs} jobs), "
+                  f"rest of the default targets {r['seconds']:.1f} s; I/O floor {floor['fps']:.0f} frames/s "
+                  f"({floor['ms_per_frame']:.1f} ms/frame/core); peak per job {max(h['peak_job_mb'], r['peak_job_mb']):.0f} MB, "
+                  f"tree {max(h['peak_tree_mb'], r['peak_tree_mb']):.0f} MB")
+        for n1, n2 in zip(sizes, sizes[1:]):
+            r1, r2 = kres["runs"][n1], kres["runs"][n2]
+            floor = statistics.mean([r1["floor"]["fps"], r2["floor"]["fps"]])
+            dh = r2["heights"]["seconds"] - r1["heights"]["seconds"]
+            da = dh + r2["rest"]["seconds"] - r1["rest"]["seconds"]
+            m = {"heights_fps": (n2 - n1) / dh if dh > 0 else float("inf"),
+                 "default_fps": (n2 - n1) / da if da > 0 else float("inf"), "floor_fps": floor}
+            m["heights_vs_floor"], m["default_vs_floor"] = m["heights_fps"] / floor, m["default_fps"] / floor
+            kres[f"marginal_{n1}_{n2}"] = m
+            print(f"  marginal {n1} -> {n2} frames: heights {m['heights_fps']:.1f} frames/s = {m['heights_vs_floor']:.2f} of the "
+                  f"floor ({floor:.0f}; target >= {TARGET_HEIGHTS_VS_FLOOR}); default targets {m['default_fps']:.1f} frames/s = "
+                  f"{m['default_vs_floor']:.2f} (target >= {TARGET_DEFAULT_VS_FLOOR})")
+        mid = sizes[len(sizes) // 2]
+        kres["stages_ms"] = stage_breakdown(a.work / f"{kind}-n{mid}" / "session",
+                                            a.work / f"{kind}-n{mid}" / "workflow" / "results" /
+                                            yaml.safe_load((a.work / f"{kind}-n{mid}" / "session" / "session.yaml").read_text())["id"])
+        st = kres["stages_ms"]
+        job = sum(v for k, v in st.items() if k != "cloud ply")
+        print(f"  per frame, one core (ms): " + ", ".join(f"{k} {v:.1f}" for k, v in st.items()) +
+              f"; measurement job {job:.1f} = {st['decode'] + st['height tiff']:.1f} I/O + {job - st['decode'] - st['height tiff']:.1f} compute")
+        res["kinds"][kind] = kres
+    res["peak_job_mb"] = max(r[k]["peak_job_mb"] for kr in res["kinds"].values() for r in kr["runs"].values()
+                             for k in ("heights", "rest"))
+    print(f"\npeak memory of a job: {res['peak_job_mb']:.0f} MB (target < {TARGET_JOB_MB:.0f}); "
+          f"load average now {os.getloadavg()[0]:.2f}")
     if a.json:
         a.json.write_text(json.dumps(res, indent=2))
     if tmp is not None:

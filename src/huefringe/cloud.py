@@ -1,4 +1,4 @@
-"""Coloured point clouds from height maps (Open3D).
+"""Coloured point clouds from height maps (Open3D clouds; PLY files written by one vectorised NumPy write).
 
 A height map is a float32 ``(H, W)`` array of heights in mm, NaN where invalid, on the camera's
 pixel grid. With the telecentric geometry of the capture-session spec every valid pixel
@@ -13,6 +13,7 @@ Examples
 from __future__ import annotations
 
 import os
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -21,7 +22,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from huefringe.io import atomic_path
 
-__all__ = ["height_to_cloud", "height_to_points", "write_cloud"]
+__all__ = ["colour_bytes", "height_to_cloud", "height_to_points", "write_cloud", "write_height_cloud", "write_points"]
 
 
 def _check_height(height: ArrayLike, pitch_mm: float) -> NDArray[np.floating]:
@@ -117,6 +118,159 @@ def height_to_cloud(
     return pcd
 
 
+def colour_bytes(colours: ArrayLike) -> NDArray[np.uint8]:
+    """Float colours in [0, 1] as the 8-bit codes Open3D writes to PLY (clipped, rounded half up).
+
+    ``round(clip(c, 0, 1) * 255)`` with halves rounded away from zero, as C++ ``std::round``
+    (Open3D's conversion), not NumPy's half-to-even.
+    """
+    v = np.clip(np.asarray(colours, np.float64), 0.0, 1.0) * 255.0
+    r = np.floor(v)
+    r += v - r >= 0.5
+    return r.astype(np.uint8)
+
+
+def _ply_header(n: int, normals: bool, colours: bool, scalars: list[str]) -> bytes:
+    """The header Open3D writes for a binary point cloud, plus ``property float`` scalars."""
+    props = ["property double x", "property double y", "property double z"]
+    if normals:
+        props += ["property double nx", "property double ny", "property double nz"]
+    if colours:
+        props += ["property uchar red", "property uchar green", "property uchar blue"]
+    props += [f"property float {name}" for name in scalars]
+    lines = ["ply", "format binary_little_endian 1.0", "comment Created by Open3D", f"element vertex {n}"]
+    return ("\n".join(lines + props + ["end_header"]) + "\n").encode("ascii")
+
+
+def write_points(
+    path: str | os.PathLike[str],
+    points: ArrayLike,
+    colours: ArrayLike | None = None,
+    *,
+    normals: ArrayLike | None = None,
+    scalars: Mapping[str, ArrayLike] | None = None,
+) -> Path:
+    """Write points as a binary little-endian PLY, atomically, in one vectorised write.
+
+    The file is byte for byte the one ``open3d.io.write_point_cloud(..., write_ascii=False)``
+    writes for the same cloud (``double`` x, y, z, then nx, ny, nz, then ``uchar`` red, green,
+    blue; tested), about ten times faster; extra per-point ``float`` properties may follow.
+
+    Parameters
+    ----------
+    path : path-like
+        Target ``.ply`` file; its folder is created if needed.
+    points : array_like, shape (N, 3)
+        Coordinates (written as float64).
+    colours : array_like, shape (N, 3), optional
+        ``uint8`` codes, or floats in [0, 1] converted as Open3D does (:func:`colour_bytes`).
+    normals : array_like, shape (N, 3), optional
+        Written as float64 ``nx, ny, nz``.
+    scalars : mapping of str to array_like, shape (N,), optional
+        Extra vertex properties, written as ``property float <name>`` after the colours, in
+        the mapping's order (Open3D's tensor reader returns them as point attributes).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".ply":
+        raise ValueError(f"{path}: write_points writes PLY; use a .ply file name")
+    pts = np.asarray(points)
+    if pts.ndim != 2 or pts.shape[1] != 3:
+        raise ValueError(f"{path}: points must be (N, 3), got {pts.shape}")
+    n = pts.shape[0]
+    fields: list[tuple[str, str]] = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    cols = nrm = None
+    if normals is not None:
+        nrm = np.asarray(normals)
+        if nrm.shape != (n, 3):
+            raise ValueError(f"{path}: normals must be ({n}, 3), got {nrm.shape}")
+        fields += [("nx", "<f8"), ("ny", "<f8"), ("nz", "<f8")]
+    if colours is not None:
+        cols = np.asarray(colours)
+        if cols.shape != (n, 3):
+            raise ValueError(f"{path}: colours must be ({n}, 3), got {cols.shape}")
+        if cols.dtype != np.uint8:
+            cols = colour_bytes(cols)
+        fields += [("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    extra = {str(k): np.asarray(v) for k, v in (scalars or {}).items()}
+    for name, v in extra.items():
+        if v.shape != (n,):
+            raise ValueError(f"{path}: scalar '{name}' must be ({n},), got {v.shape}")
+        if not name.isidentifier() or name in {f for f, _ in fields}:
+            raise ValueError(f"{path}: '{name}' cannot be a PLY vertex property name")
+        fields.append((name, "<f4"))
+    rec = np.empty(n, dtype=np.dtype(fields))  # packed, as PLY stores a vertex
+    for k, name in enumerate("xyz"):
+        rec[name] = pts[:, k]
+    if nrm is not None:
+        for k, name in enumerate(("nx", "ny", "nz")):
+            rec[name] = nrm[:, k]
+    if cols is not None:
+        for k, name in enumerate(("red", "green", "blue")):
+            rec[name] = cols[:, k]
+    for name, v in extra.items():
+        rec[name] = v
+    with atomic_path(path) as tmp, open(tmp, "wb") as fh:
+        fh.write(_ply_header(n, nrm is not None, cols is not None, list(extra)))
+        fh.write(memoryview(rec).cast("B"))
+    return path
+
+
+def write_height_cloud(
+    path: str | os.PathLike[str],
+    height: ArrayLike,
+    pitch_mm: float,
+    colours: ArrayLike | None = None,
+    *,
+    scalars: Mapping[str, ArrayLike] | None = None,
+) -> int:
+    """Write the point cloud of a height map (:func:`height_to_cloud`) as PLY, without Open3D.
+
+    The same bytes as ``write_cloud(path, height_to_cloud(height, pitch_mm, colours))``.
+
+    Parameters
+    ----------
+    path : path-like
+        Target ``.ply`` file.
+    height : array_like, shape (H, W), float
+        Height in mm, NaN where invalid.
+    pitch_mm : float
+        Pixel pitch in mm.
+    colours : array_like, optional
+        Per-pixel colours: an ``(H, W, 3)`` image as :func:`height_to_cloud` takes it, or the
+        per-pixel codes ``(H * W, 3)`` uint8 of :func:`colour_bytes` (computed once for a batch
+        of frames that share the white image).
+    scalars : mapping of str to array_like, shape (H, W), optional
+        Per-pixel float maps written as extra vertex properties (valid pixels only).
+
+    Returns
+    -------
+    int
+        The number of points written.
+    """
+    points, pixel = height_to_points(height, pitch_mm)
+    rgb = None
+    if colours is not None:
+        c = np.asarray(colours)
+        shape = np.shape(height)
+        if c.dtype == np.uint8 and c.ndim == 2 and c.shape == (shape[0] * shape[1], 3):
+            rgb = c[pixel]
+        else:
+            rgb = colour_bytes(_check_colours(c, (shape[0], shape[1])).reshape(-1, 3)[pixel])
+    extra = {}
+    for name, v in (scalars or {}).items():
+        v = np.asarray(v)
+        if v.shape != np.shape(height):
+            raise ValueError(f"{path}: scalar '{name}' must be a map of the height map's shape {np.shape(height)}, got {v.shape}")
+        extra[name] = v.reshape(-1)[pixel]
+    write_points(path, points, rgb, scalars=extra)
+    return int(points.shape[0])
+
+
 def write_cloud(path: str | os.PathLike[str], pcd: o3d.geometry.PointCloud) -> Path:
     """Write a point cloud as binary PLY, atomically.
 
@@ -125,37 +279,20 @@ def write_cloud(path: str | os.PathLike[str], pcd: o3d.geometry.PointCloud) -> P
     path : path-like
         Target ``.ply`` file; its folder is created if needed.
     pcd : open3d.geometry.PointCloud
-        The cloud (points in mm; colours and normals are written when present).
+        The cloud (points in mm; colours and normals are written when present), written by
+        :func:`write_points`: the bytes Open3D's own writer gives, faster.
 
     Returns
     -------
     pathlib.Path
         ``path``.
-
-    Raises
-    ------
-    OSError
-        If Open3D reports a failed write (nothing is left at ``path`` then).
     """
     path = Path(path)
     if path.suffix.lower() != ".ply":
         raise ValueError(f"{path}: write_cloud writes PLY; use a .ply file name")
-    with atomic_path(path) as tmp:
-        if len(pcd.points) == 0:  # Open3D refuses empty clouds; an all-invalid frame is legal
-            tmp.write_bytes(_empty_ply_header(pcd.has_colors(), pcd.has_normals()))
-        else:
-            ok = o3d.io.write_point_cloud(str(tmp), pcd, format="ply", write_ascii=False, compressed=False)
-            if not ok:
-                raise OSError(f"{path}: Open3D could not write the point cloud")
-    return path
-
-
-def _empty_ply_header(colours: bool, normals: bool) -> bytes:
-    """A valid binary PLY with zero vertices and the properties Open3D would write."""
-    props = ["property double x", "property double y", "property double z"]
-    if normals:
-        props += ["property double nx", "property double ny", "property double nz"]
-    if colours:
-        props += ["property uchar red", "property uchar green", "property uchar blue"]
-    lines = ["ply", "format binary_little_endian 1.0", "comment Created by huefringe", "element vertex 0"]
-    return ("\n".join(lines + props + ["end_header"]) + "\n").encode("ascii")
+    return write_points(
+        path,
+        np.asarray(pcd.points),
+        np.asarray(pcd.colors) if pcd.has_colors() else None,
+        normals=np.asarray(pcd.normals) if pcd.has_normals() else None,
+    )

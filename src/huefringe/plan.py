@@ -50,6 +50,9 @@ class SessionPlan:
     period_px: float | None = None
     """Fringe period overriding the bench YAML's (a period sweep, paper Table 1)."""
     batches: list[list[int]] = field(default_factory=list)
+    """The measurement jobs' frames (:func:`batch_frames`)."""
+    phase_shift_batches: list[list[int]] = field(default_factory=list)
+    """The three-step baseline jobs' frames (:func:`batch_frames` of ``phase_shift``)."""
 
     def frame_selection(self, sel: Any) -> list[int]:
         if sel == "first":
@@ -101,8 +104,60 @@ def _from_bench(path: Path, cfg: dict[str, Any], cfg_path: Path, period_px: floa
     )
 
 
-def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, SessionPlan]:
+def batch_frames(frames: list[int], cores: int, cap: int) -> list[list[int]]:
+    """Split a session's frames into measurement batches that keep ``cores`` cores busy.
+
+    The number of batches is the smallest multiple of ``cores`` that holds every frame with at
+    most ``cap`` frames per batch (a multiple, so the last round of jobs leaves no core idle),
+    but never more than one batch per frame; the frames are dealt out in order in batches
+    whose sizes differ by at most one. A session with at least two frames per core so runs on
+    every core, and ``cap`` (``measurement.frames_per_job``) only bounds a job's length.
+
+    Parameters
+    ----------
+    frames : list of int
+        The session's frame numbers, in order.
+    cores : int
+        Cores the run was given (``snakemake --cores N``); values below 1 count as 1.
+    cap : int
+        Most frames per batch (>= 1).
+
+    Returns
+    -------
+    list of list of int
+        Consecutive runs of ``frames``; empty when ``frames`` is.
+
+    Examples
+    --------
+    >>> [len(b) for b in batch_frames(list(range(200)), cores=2, cap=250)]
+    [100, 100]
+    >>> [len(b) for b in batch_frames(list(range(600)), cores=2, cap=250)]
+    [150, 150, 150, 150]
+    >>> batch_frames([0, 1, 2], cores=4, cap=250)
+    [[0], [1], [2]]
+    """
+    if cap < 1:
+        raise ValueError(f"frames per job must be at least 1, got {cap}")
+    n = len(frames)
+    if n == 0:
+        return []
+    cores = max(1, int(cores))
+    jobs = -(-n // cap)
+    jobs = min(n, -(-jobs // cores) * cores)
+    size, extra = divmod(n, jobs)
+    out, start = [], 0
+    for j in range(jobs):
+        stop = start + size + (1 if j < extra else 0)
+        out.append(list(frames[start:stop]))
+        start = stop
+    return out
+
+
+def plan_sessions(config: dict[str, Any], base: str | Path = ".", cores: int = 1) -> dict[str, SessionPlan]:
     """Plan every session of the configuration, keyed by session id.
+
+    ``cores`` is the number of cores the run was given: the frames are measured in batches of
+    :func:`batch_frames` (at least one per core, at most ``measurement.frames_per_job`` frames).
 
     Raises
     ------
@@ -127,18 +182,20 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, S
             raise PlanError(f"session {entry} is refused:\n{exc}") from exc
         except bench.BenchConfigError as exc:
             raise PlanError(f"session {entry} cannot be written by the bench:\n{exc}") from exc
-        _add(plans, plan, per_job)
+        _add(plans, plan, per_job, cores)
     return plans
 
 
-def _add(plans: dict[str, SessionPlan], plan: SessionPlan, per_job: int) -> None:
+def _add(plans: dict[str, SessionPlan], plan: SessionPlan, per_job: int, cores: int = 1) -> None:
     if plan.id in plans:
         raise PlanError(f"sessions {plans[plan.id].path} and {plan.path} share the id '{plan.id}'")
-    plan.batches = [plan.frames[i : i + per_job] for i in range(0, len(plan.frames), per_job)]
+    plan.batches = batch_frames(plan.frames, cores, per_job)
+    plan.phase_shift_batches = batch_frames(plan.phase_shift, cores, per_job)
     plans[plan.id] = plan
 
 
-def plan_table1(config: dict[str, Any], plans: dict[str, SessionPlan], base: str | Path = ".") -> list[str]:
+def plan_table1(config: dict[str, Any], plans: dict[str, SessionPlan], base: str | Path = ".",
+                cores: int = 1) -> list[str]:
     """Add the sessions of the paper's Table 1 experiment (a period sweep) to ``plans``.
 
     Returns their ids, in the configured period order. The sessions are written by the bench
@@ -162,6 +219,6 @@ def plan_table1(config: dict[str, Any], plans: dict[str, SessionPlan], base: str
             plan.path = path
         else:
             plan = _from_bench(path, cfg, bench_yaml(t1["bench"], base), float(period))
-        _add(plans, plan, int(config["measurement"]["frames_per_job"]))
+        _add(plans, plan, int(config["measurement"]["frames_per_job"]), cores)
         ids.append(plan.id)
     return ids

@@ -320,7 +320,7 @@ def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], cl
         Height TIFFs written by :func:`measure_frames`, one per frame, in the order of ``frames``.
     clouds : sequence of str
         Target ``.ply`` files, one per frame, written atomically by
-        :func:`huefringe.cloud.write_cloud`.
+        :func:`huefringe.cloud.write_height_cloud` (the bytes Open3D would write).
 
     Raises
     ------
@@ -328,16 +328,19 @@ def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], cl
         If ``frames``, ``heights`` and ``clouds`` differ in length, or a height map does not
         match the white image's size.
     """
-    from huefringe.cloud import height_to_cloud, write_cloud
+    from huefringe.cloud import _check_colours, colour_bytes, write_height_cloud
 
     if not len(frames) == len(heights) == len(clouds):
         raise ValueError(f"cloud_frames: {len(frames)} frames, {len(heights)} height maps, {len(clouds)} clouds")
     s = load_session(session)
     white = read_rgb(s.object_white)
+    rgb = colour_bytes(_check_colours(white, white.shape[:2]).reshape(-1, 3))  # once per batch
     for n, height, cloud in zip(frames, heights, clouds, strict=True):
-        pcd = height_to_cloud(read_tiff(height), s.pixel_pitch_mm, colours=white)
-        write_cloud(cloud, pcd)
-        log.info("frame %04d: %d points", n, len(pcd.points))
+        h = read_tiff(height)
+        if h.shape != white.shape[:2]:
+            raise ValueError(f"{height}: height map {h.shape} does not match the white image {white.shape[:2]}")
+        points = write_height_cloud(cloud, h, s.pixel_pitch_mm, colours=rgb)
+        log.info("frame %04d: %d points", n, points)
 
 
 def _refuse_bad_frame(path: Path, stats: Mapping[str, Any], measurement: Mapping[str, Any]) -> None:

@@ -5,9 +5,20 @@ from pathlib import Path
 
 from huefringe.plan import PlanError, plan_sessions, plan_table1
 
+
+def _run_cores():
+    """Cores of this run (--cores N), to size the measurement batches; 1 when not given (a cluster)."""
+    try:
+        return max(1, int(workflow.cores))
+    except Exception:
+        return 1
+
+
+CORES = _run_cores()
+
 try:
-    PLANS = plan_sessions(config, base=Path.cwd())
-    TABLE1_IDS = plan_table1(config, PLANS, base=Path.cwd())
+    PLANS = plan_sessions(config, base=Path.cwd(), cores=CORES)
+    TABLE1_IDS = plan_table1(config, PLANS, base=Path.cwd(), cores=CORES)
 except PlanError as exc:
     sys.stderr.write(f"\nhuefringe: cannot start.\n{exc}\n\n")
     sys.exit(1)

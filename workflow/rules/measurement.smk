@@ -1,7 +1,9 @@
 # Height maps (with QA, and the phase and hue maps of the rendered frames, or of all with
 # measurement.maps: all), point clouds and the three-step baseline, in batches of frames per job
-# (so a 1000-frame session costs 4 job start-ups, not 1000). The clouds are jobs of their own
-# (cloud_frames_*), made from the batch's height maps, so that the height maps do not wait for them.
+# (one rule per session and batch, at least one batch per core, at most frames_per_job frames:
+# plan.batch_frames; a 1000-frame session on 2 cores costs 4 job start-ups, not 1000). The
+# clouds are jobs of their own (cloud_frames_*), made from the batch's height maps, so that the
+# height maps do not wait for them.
 # Resources: config `resources: {measure_frames: {mem_mb: ..., runtime: ...}}` (also cloud_frames,
 # baseline_frames), or --set-resources on the generated rule names.
 # Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/measurement.smk).
@@ -61,11 +63,7 @@ for _sid, _plan in PLANS.items():
             script:
                 "../../scripts/cloud_frames.py"
 
-    _ps = _plan.phase_shift
-    _per = config["measurement"]["frames_per_job"]
-    for _b, _frames in enumerate(
-        [_ps[i : i + _per] for i in range(0, len(_ps), _per)]
-    ):
+    for _b, _frames in enumerate(_plan.phase_shift_batches):
 
         rule:
             name:
