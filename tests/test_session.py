@@ -256,3 +256,39 @@ def test_empty_or_non_mapping_session_yaml(tmp_path: Path, text: str, expected: 
     assert main(["check", str(root)]) == 1
     err = capsys.readouterr()
     assert expected in err.out + err.err and "Traceback" not in err.out + err.err
+
+
+def test_cli_version_and_top_level_help(capsys) -> None:
+    from huefringe import __version__
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"huefringe {__version__}"
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    for sub in ("check", "bench", "archive", "verify"):
+        assert f"\n    {sub} " in out, out
+    assert "snakemake --cores 2" in out and "``" not in out
+
+
+def test_workflow_plan_names_every_refused_session_at_once(tmp_path: Path) -> None:
+    import json as jsonlib
+
+    from bench_helpers import CONFIG
+
+    from huefringe.plan import PlanError, plan_sessions
+
+    good = make_session(tmp_path / "good")
+    bad1 = make_session(tmp_path / "bad1")
+    (bad1 / "session.yaml").write_text("")
+    bad2 = make_session(tmp_path / "bad2")
+    _edit_yaml(bad2, lambda m: m.update(id="Bad!"))
+    cfg = jsonlib.loads(jsonlib.dumps(CONFIG))
+    cfg["sessions"], cfg["bench_sessions"] = [str(bad1), str(good), str(bad2)], {}
+    with pytest.raises(PlanError) as exc:
+        plan_sessions(cfg)
+    msg = str(exc.value)
+    assert msg.startswith("2 of 3 sessions refused:")
+    assert f"{bad1 / 'session.yaml'}: is empty" in msg and f"{bad2 / 'session.yaml'}: at id" in msg
+    assert str(good) not in msg
