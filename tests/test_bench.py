@@ -292,7 +292,12 @@ def test_ground_truth_is_nominal_plus_base_plus_vibration(tmp_path: Path) -> Non
     out = hb.write_session(cfg, tmp_path / "s")
     doc = yaml.safe_load((out / "session.yaml").read_text())
     assert doc["format"] == "capture-session/1"
-    assert list(doc) == ["format", "id", "camera", "pattern", "planes_mm", "specimen"]
+    assert list(doc) == ["format", "id", "camera", "pattern", "planes_mm", "specimen", "provenance"]
+    assert doc["provenance"]["simulated"] is True and "captured_at" not in doc["provenance"]
+    assert doc["provenance"]["instrument"].startswith("huefringe virtual bench")
+    from huefringe.session import load_session
+
+    assert load_session(out).provenance == doc["provenance"]  # the reader accepts what the bench writes
     spec = doc["specimen"]
     assert [(s["name"], s["nominal_mm"]) for s in spec["steps"]] == [("green", 3.0), ("blue", 1.0), ("red", 4.0)]
     base = 0.5
@@ -444,3 +449,13 @@ def test_demo_preset_matches_the_brief() -> None:
     t1 = hb.load_bench_config("table1")
     assert t1["session"]["frames"] == 30 and t1["phase_shift"]["enabled"] and t1["vibration"]["amplitude_mm"] > 0
     assert [(st["name"], st["nominal_mm"]) for st in hb.session_document(t1)["specimen"]["steps"]] == [("blue", 1.0)]
+
+
+def test_bench_writes_capture_date_and_operator_when_configured() -> None:
+    cfg = hb.validate_bench_config(gauge_session(session={"captured_at": "2026-11-30T14:05:00Z", "operator": "J. Doe"}))
+    prov = hb.session_document(cfg)["provenance"]
+    assert prov["captured_at"] == "2026-11-30T14:05:00Z" and prov["operator"] == "J. Doe" and prov["simulated"] is True
+    from huefringe.bench.writer import dump_session_yaml
+
+    text = dump_session_yaml(hb.session_document(cfg))
+    assert yaml.safe_load(text)["provenance"]["simulated"] is True

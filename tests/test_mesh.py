@@ -328,3 +328,113 @@ def test_island_backends_agree():
     assert n == o_labels.max() + 1
     # same partition: the label pairs are in one-to-one correspondence
     assert len(set(zip(labels.tolist(), o_labels.tolist(), strict=True))) == n
+
+
+# ------------------------------------------------------------------------------------------
+# two-manifold: pinch (bow-tie) vertices split
+# ------------------------------------------------------------------------------------------
+def _open3d_topology(m: trimesh.Trimesh) -> tuple[int, bool, bool]:
+    o = hm.to_open3d(m)
+    return len(o.get_non_manifold_vertices()), bool(o.is_vertex_manifold()), bool(o.is_edge_manifold())
+
+
+def _trimesh_euler_ok(m: trimesh.Trimesh) -> bool:
+    """Euler-Poincare for genus-0 surfaces with boundary: V - E + F == 2 C - B, counted by trimesh.
+
+    trimesh's ``outline`` follows boundary edges; at a pinch vertex two loops share a vertex and
+    V is one short, so the identity fails there."""
+    m = trimesh.Trimesh(vertices=m.vertices, faces=m.faces, process=False, validate=False)
+    n_comp = len(m.split(only_watertight=False))
+    loops = len(m.outline().entities)
+    return m.euler_number == 2 * n_comp - loops
+
+
+def test_diagonal_gap_makes_a_bow_tie_that_clean_mesh_splits():
+    # fixed diagonal a-c: invalid pixels at (v-1, u-1) and (v+1, u+1) leave two pairs of faces
+    # that meet only at pixel (v, u)
+    h = np.full((12, 12), 1.0, np.float32)
+    h[4, 4] = h[6, 6] = np.nan
+    raw = hm.height_to_mesh(h, PITCH)
+    pinch = hm.non_manifold_vertices(raw)
+    v, u = hm.vertex_pixels(raw)
+    assert [(int(v[i]), int(u[i])) for i in pinch] == [(5, 5)]
+    assert _open3d_topology(raw) == (1, False, True)  # Open3D agrees: one bow-tie, edges fine
+    assert not _trimesh_euler_ok(raw)
+    c = hm.clean_mesh(raw, min_island_faces=0)
+    assert _open3d_topology(c) == (0, True, True)
+    assert _trimesh_euler_ok(c)
+    assert len(c.vertices) == len(raw.vertices) + 1 and c.metadata["split_pinch_vertices"] == 1
+    # same faces, same places: every face's corners are the same points as before
+    assert len(c.faces) == len(raw.faces)
+    assert np.array_equal(np.asarray(c.vertices)[c.faces], np.asarray(raw.vertices)[raw.faces])
+    assert c.area == pytest.approx(raw.area, rel=1e-12)
+    cv, cu = hm.vertex_pixels(c)
+    assert np.all(np.diff(cv * 12 + cu) >= 0)  # still row-major, the copy right after its pixel
+    assert hm.mesh_stats(c)["non_manifold_vertices"] == 0 and hm.mesh_stats(raw)["non_manifold_vertices"] == 1
+    # opting out keeps the bow-tie
+    assert _open3d_topology(hm.clean_mesh(raw, min_island_faces=0, split_pinches=False))[0] == 1
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_random_dropouts_and_steps_become_two_manifold(seed):
+    h, _ = step_scene(seed)
+    rng = np.random.default_rng(seed)
+    h[rng.random(h.shape) < 0.15] = np.nan  # scattered dropouts make many pinches
+    raw = hm.height_to_mesh(h, PITCH)
+    n_pinch = hm.non_manifold_vertices(raw).size
+    o3d_before = _open3d_topology(raw)
+    assert o3d_before[0] == n_pinch > 50  # our count is Open3D's
+    c = hm.split_pinch_vertices(raw)
+    assert _open3d_topology(c) == (0, True, True)
+    assert len(c.vertices) >= len(raw.vertices) + n_pinch  # a pinch has >= 2 fans
+    assert _trimesh_euler_ok(c)
+    assert np.array_equal(np.asarray(c.vertices)[c.faces], np.asarray(raw.vertices)[raw.faces])
+    assert trimesh.Trimesh(c.vertices, c.faces, process=False).is_winding_consistent
+    # splitting changes neither the islands nor the outline count (loops at a pinch were apart)
+    assert hm.mesh_stats(c)["components"] == hm.mesh_stats(raw)["components"]
+    assert hm.boundary_loops(c) == hm.boundary_loops(raw)
+    # idempotent, and a two-manifold mesh is returned as it is
+    assert hm.split_pinch_vertices(c) is c
+
+
+def test_split_keeps_colours_and_survives_ply_round_trip(tmp_path):
+    h = np.full((12, 12), 1.0, np.float32)
+    h[4, 4] = h[6, 6] = np.nan
+    rgb = np.random.default_rng(3).random((12, 12, 3)).astype(np.float32)
+    c = hm.clean_mesh(hm.height_to_mesh(h, PITCH, colours=rgb), min_island_faces=0)
+    v, u = hm.vertex_pixels(c)
+    assert np.array_equal(np.asarray(c.visual.vertex_colors)[:, :3], np.rint(rgb[v, u] * 255).astype(np.uint8))
+    hm.export_mesh(c, tmp_path / "m.ply")
+    import open3d as o3d
+
+    back = o3d.io.read_triangle_mesh(str(tmp_path / "m.ply"))
+    assert len(back.vertices) == len(c.vertices) and back.is_vertex_manifold() and back.is_edge_manifold()
+    assert json.loads((tmp_path / "m.stats.json").read_text())["non_manifold_vertices"] == 0
+
+
+def test_decimated_mesh_is_two_manifold():
+    h, _ = step_scene(4)
+    h[np.random.default_rng(4).random(h.shape) < 0.05] = np.nan
+    d = hm.decimate(hm.clean_mesh(hm.height_to_mesh(h, PITCH), min_island_faces=0), 5000)
+    assert _open3d_topology(d)[:2] == (0, True)
+
+
+def test_meshlab_topological_measures_agree():
+    pymeshlab = pytest.importorskip("pymeshlab")
+    h, _ = step_scene(5)
+    h[np.random.default_rng(5).random(h.shape) < 0.1] = np.nan
+    raw = hm.height_to_mesh(h, PITCH)
+    c = hm.clean_mesh(raw, min_island_faces=0)
+
+    def measures(m: trimesh.Trimesh) -> dict:
+        ms = pymeshlab.MeshSet()
+        ms.add_mesh(pymeshlab.Mesh(vertex_matrix=np.asarray(m.vertices), face_matrix=np.asarray(m.faces, np.int32)))
+        return ms.get_topological_measures()
+
+    before, after = measures(raw), measures(c)
+    assert before["non_two_manifold_vertices"] == hm.non_manifold_vertices(raw).size > 0
+    assert after["non_two_manifold_vertices"] == 0 and after["non_two_manifold_edges"] == 0
+    assert after["is_mesh_two_manifold"]
+    assert after["connected_components_number"] == hm.mesh_stats(c)["components"]
+    assert after["boundary_edges"] == before["boundary_edges"]
+    assert after["number_holes"] == hm.boundary_loops(c)

@@ -187,6 +187,7 @@ def html_file(report, tmp_path_factory):
     }
     inputs = [figs["height"], figs["calibration_qa"]]
     prov = collect_provenance("gauge-blocks-p60", {"period_px": 60, "note": "<script>alert(1)</script>"}, inputs, root=d)
+    prov["capture"] = {"captured_at": "2026-11-30T14:05:00Z", "instrument": "bench-2 <DLP>", "simulated": True}
     path = write_report_html(d / "metrology" / "report.html", report, figs, prov)
     return path, figs, prov
 
@@ -213,6 +214,16 @@ def test_html_is_self_contained(html_file):
     assert ">PASS<" in text and "three-step-phase-shift" in text
     for s in ("±3σ", "Error / nominal (%)", "Error / range (%)", "green", "blue", "red"):
         assert s in text
+    # capture provenance in the header, before the verdict; operator absent -> said so
+    header = text[text.index("<header>"):text.index("</header>")]
+    assert "<dt>Captured</dt><dd>2026-11-30T14:05:00Z</dd>" in header and "bench-2 &lt;DLP&gt;" in header
+    assert "<dt>Operator</dt><dd><span class=\"note\">not recorded in session.yaml</span>" in header
+    assert "<strong>Simulated data.</strong>" in header
+
+
+def test_no_simulated_notice_for_a_real_capture(report):
+    text = render_report_html(report, {}, {"capture": {"simulated": False, "operator": "J. Doe"}})
+    assert "Simulated data" not in text and "<dt>Operator</dt><dd>J. Doe</dd>" in text
 
 
 def test_html_fail_verdict_and_escaping(method_result, tmp_path):
@@ -278,3 +289,4 @@ def test_html_renders_in_headless_chromium(html_file, tmp_path):
     )  # fmt: skip
     assert 'class="verdict-word">PASS</div>' in dom.stdout, dom.stderr[-2000:]
     assert dom.stdout.count("data:image/png;base64,") == 3
+    assert "<strong>Simulated data.</strong>" in dom.stdout

@@ -191,3 +191,104 @@ def test_bad_predistortion_refused(tmp_path: Path, rows, header, words) -> None:
     with pytest.raises(SessionError, match=words) as info:
         load_session(root)
     assert "predistortion.csv" in str(info.value)
+
+
+# --------------------------------------------------------------------------- provenance block
+PROVENANCE_YAML = """provenance:
+  captured_at: 2026-11-30T14:05:00Z
+  operator: J. Doe
+  instrument: bench-2 (DLP 1024x768, 8-bit colour camera)
+  simulated: false
+  notes: free text
+"""
+
+
+def test_provenance_block_is_read_with_an_iso_date(tmp_path: Path) -> None:
+    root = make_session(tmp_path / "s")
+    assert load_session(root).provenance == {}
+    with open(root / "session.yaml", "a") as f:
+        f.write(PROVENANCE_YAML)  # unquoted, as in the spec: YAML reads a timestamp
+    s = load_session(root)
+    assert s.provenance == {"captured_at": "2026-11-30T14:05:00Z", "operator": "J. Doe",
+                            "instrument": "bench-2 (DLP 1024x768, 8-bit colour camera)", "simulated": False,
+                            "notes": "free text"}
+    for written, read in [("2026-11-30", "2026-11-30"), ("'2026-11-30T15:05:00+01:00'", "2026-11-30T15:05:00+01:00"),
+                          ("2026-11-30T14:05:00", "2026-11-30T14:05:00")]:
+        text = (root / "session.yaml").read_text().replace("2026-11-30T14:05:00Z", written)
+        (tmp_path / "t").mkdir(exist_ok=True)
+        shutil.copytree(root, tmp_path / "t" / "s", dirs_exist_ok=True)
+        (tmp_path / "t" / "s" / "session.yaml").write_text(text)
+        assert load_session(tmp_path / "t" / "s").provenance["captured_at"] == read
+
+
+@pytest.mark.parametrize(
+    ("provenance", "expected"),
+    [
+        ({"simulated": "yes"}, "at provenance/simulated: 'yes' is not of type 'boolean'"),
+        ({"captured_at": "last tuesday"}, "at provenance/captured_at: 'last tuesday' is not an ISO 8601 date"),
+        ({"captured_at": "2026-13-40"}, "at provenance/captured_at: '2026-13-40' is not an ISO 8601 date"),
+        ({"operator": 7}, "at provenance/operator: 7 is not of type 'string'"),
+        ({"opertor": "J. Doe"}, "at provenance: unknown key(s): 'opertor' was unexpected"),
+        ("J. Doe", "at provenance: 'J. Doe' is not of type 'object'"),
+    ],
+)
+def test_bad_provenance_is_refused_naming_session_yaml(tmp_path: Path, provenance, expected: str) -> None:
+    root = make_session(tmp_path / "s")
+    _edit_yaml(root, lambda m: m.update(provenance=provenance))
+    with pytest.raises(SessionError) as exc:
+        load_session(root)
+    msg = str(exc.value)
+    assert f"{root / 'session.yaml'}: {expected}" in msg, msg
+
+
+@pytest.mark.parametrize(("text", "expected"), [
+    ("", "is empty; expected a mapping with the keys format, id, camera"),
+    ("# nothing but a comment\n", "is empty"),
+    ("- format: capture-session/1\n", "must be a mapping of keys (format, id, camera, pattern, planes_mm, ...), got a list"),
+    ("just text\n", "must be a mapping of keys"),
+])
+def test_empty_or_non_mapping_session_yaml(tmp_path: Path, text: str, expected: str, capsys) -> None:
+    root = make_session(tmp_path / "s")
+    (root / "session.yaml").write_text(text)
+    with pytest.raises(SessionError) as exc:
+        load_session(root)
+    assert f"{root / 'session.yaml'}: {expected}" in str(exc.value) and "None is not" not in str(exc.value)
+    assert main(["check", str(root)]) == 1
+    err = capsys.readouterr()
+    assert expected in err.out + err.err and "Traceback" not in err.out + err.err
+
+
+def test_cli_version_and_top_level_help(capsys) -> None:
+    from huefringe import __version__
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0 and capsys.readouterr().out.strip() == f"huefringe {__version__}"
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    for sub in ("check", "bench", "archive", "verify"):
+        assert f"\n    {sub} " in out, out
+    assert "snakemake --cores 2" in out and "``" not in out
+
+
+def test_workflow_plan_names_every_refused_session_at_once(tmp_path: Path) -> None:
+    import json as jsonlib
+
+    from bench_helpers import CONFIG
+
+    from huefringe.plan import PlanError, plan_sessions
+
+    good = make_session(tmp_path / "good")
+    bad1 = make_session(tmp_path / "bad1")
+    (bad1 / "session.yaml").write_text("")
+    bad2 = make_session(tmp_path / "bad2")
+    _edit_yaml(bad2, lambda m: m.update(id="Bad!"))
+    cfg = jsonlib.loads(jsonlib.dumps(CONFIG))
+    cfg["sessions"], cfg["bench_sessions"] = [str(bad1), str(good), str(bad2)], {}
+    with pytest.raises(PlanError) as exc:
+        plan_sessions(cfg)
+    msg = str(exc.value)
+    assert msg.startswith("2 of 3 sessions refused:")
+    assert f"{bad1 / 'session.yaml'}: is empty" in msg and f"{bad2 / 'session.yaml'}: at id" in msg
+    assert str(good) not in msg

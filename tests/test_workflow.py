@@ -76,6 +76,9 @@ def test_results_contract(e2e: Path) -> None:
     assert sorted(p.name for p in (res / "hue").iterdir()) == ["frame_0000.tiff"]
     mesh = trimesh.load(res / "mesh" / "frame_0000.ply", process=False)
     assert len(mesh.faces) > 10000
+    o3 = o3d.io.read_triangle_mesh(str(res / "mesh" / "frame_0000.ply"))  # two-manifold for slicers and CAD
+    assert o3.is_vertex_manifold() and o3.is_edge_manifold() and len(o3.get_non_manifold_vertices()) == 0
+    assert json.loads((res / "mesh" / "frame_0000.stats.json").read_text())["non_manifold_vertices"] == 0
     for view in ("top", "oblique1", "oblique2"):
         img = (res / "renders" / f"frame_0000_{view}.png")
         assert img.stat().st_size > 5000

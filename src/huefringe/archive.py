@@ -7,22 +7,31 @@ Layout of ``results/<id>.archive.zip`` (an attached RO-Crate 1.1 package, zipped
     session/...               every file of the capture-session folder (the inputs)
     results/...               every file of results/<id>/ (the outputs)
 
-``ro-crate-metadata.json`` holds the metadata descriptor (``conformsTo``
-``https://w3id.org/ro/crate/1.1``), the root dataset ``./`` (``name``, ``description``,
-``identifier`` = the session id, ``datePublished``, ``license``, ``hasPart``), the datasets
-``session/`` and ``results/`` with ``hasPart`` listing their files, one ``File`` entity per file
-(``sha256``, ``contentSize`` in bytes, ``encodingFormat``), one ``SoftwareApplication`` per
-distribution (huefringe, Python and huefringe's runtime requirements, each with ``version``),
-and one ``CreateAction`` whose ``object`` is the inputs (``session/`` and ``config.yaml``), whose
-``result`` is the outputs (``results/``) and whose ``instrument`` is the software. ``sha256`` is
-the Workflow Run Crate term ``https://w3id.org/ro/terms/workflow-run#sha256``, added to the
-context.
+The crate is built with ``rocrate`` (ro-crate-py) and conforms to RO-Crate 1.1 and the Process
+Run Crate profile 0.5 (``https://w3id.org/ro/wfrun/process/0.5``: one action, the workflow run,
+with the software that ran it, its inputs and its outputs; the Snakefile itself is not packed,
+so Workflow Run Crate does not fit). ``ro-crate-metadata.json`` holds the metadata descriptor,
+the root dataset ``./`` (``name``, ``description``, ``identifier`` = the session id,
+``datePublished``, ``license``, ``author``, ``publisher``, ``conformsTo`` the profile,
+``mentions`` the run, ``hasPart``), the datasets ``session/`` (``dateCreated``, ``creator`` and
+the description from the session's ``provenance`` block) and ``results/`` with ``hasPart``
+listing their files, one ``File`` entity per file (``sha256``, ``contentSize`` in bytes,
+``encodingFormat``), the licence, author, affiliation and publisher (an ``Organization``) as
+contextual entities from the configuration's ``archive`` keys, one ``SoftwareApplication`` per
+distribution (huefringe, Python and huefringe's runtime requirements, with ``version`` and
+``url``), and the ``CreateAction`` ``#run-<id>`` whose ``object`` is the inputs (``session/``
+and ``config.yaml``), whose ``result`` is ``results/`` (one value), whose ``instrument`` is
+huefringe and whose ``agent`` is the author. ``sha256`` is the Workflow Run Crate term
+``https://w3id.org/ro/terms/workflow-run#sha256``, added to the context.
 
 Deterministic: the same files (same bytes, same relative paths), configuration and software
 give the same archive bytes. Members are sorted, every timestamp is 1980-01-01 00:00:00 (the
-ZIP epoch), permissions are fixed (0644) and ``datePublished`` is taken from
-``SOURCE_DATE_EPOCH`` when set (the reproducible-builds convention) and is otherwise the ZIP
-epoch: file modification times never enter the archive. The archive is written atomically
+ZIP epoch), permissions are fixed (0644), the JSON is written by this module from the
+``rocrate`` document (entities in insertion order, fixed indentation), and ``datePublished``
+is the session's ``provenance.captured_at`` when given, else ``SOURCE_DATE_EPOCH`` (the
+reproducible-builds convention), else the ZIP epoch with the root's description saying it is a
+placeholder: the clock and file modification times never enter the archive (so the run has no
+``endTime``, the one Process Run Crate SHOULD not met). The archive is written atomically
 (:func:`huefringe.io.atomic_path`). Leftover temporary files of interrupted atomic writes
 (``.<stem>.<random>.part<suffix>``) are not packed.
 
@@ -69,9 +78,13 @@ __all__ = [
 ]
 
 METADATA_NAME = "ro-crate-metadata.json"
-CONFORMS_TO = "https://w3id.org/ro/crate/1.1"
+#: Process Run Crate 0.5 is a profile of RO-Crate 1.1 (the validator checks conformsTo 1.1)
+RO_CRATE_VERSION = "1.1"
+CONFORMS_TO = f"https://w3id.org/ro/crate/{RO_CRATE_VERSION}"
+PROCESS_RUN_PROFILE = "https://w3id.org/ro/wfrun/process/0.5"
 SHA256_TERM = "https://w3id.org/ro/terms/workflow-run#sha256"
-CONTEXT: list[Any] = [f"{CONFORMS_TO}/context", {"sha256": SHA256_TERM}]
+EXTRA_TERMS: dict[str, str] = {"sha256": SHA256_TERM}
+CONTEXT: list[Any] = [f"{CONFORMS_TO}/context", EXTRA_TERMS]
 CONFIG_NAME = "config.yaml"
 SESSION_DIR = "session/"
 RESULTS_DIR = "results/"
@@ -161,16 +174,28 @@ def _bytes_member(name: str, data: bytes) -> _Member:
     return _Member(name, None, data, len(data), hashlib.sha256(data).hexdigest())
 
 
-def _date_published() -> str:
+def _date_published(provenance: Mapping[str, Any] | None = None) -> tuple[str, str]:
+    """``datePublished`` of the crate and a note saying where it comes from.
+
+    In order: the session's ``provenance.captured_at`` (the data are as old as their capture);
+    ``SOURCE_DATE_EPOCH`` (the reproducible-builds convention); otherwise the ZIP epoch
+    1980-01-01, which the note (written into the root's description) calls a placeholder.
+    Never the clock or a file's modification time, so the same inputs give the same bytes.
+    """
+    when = (provenance or {}).get("captured_at")
+    if when:
+        return str(when), "the capture date (provenance.captured_at of session.yaml)"
     epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
     if epoch:
         try:
             t = _dt.datetime.fromtimestamp(int(epoch), tz=_dt.UTC)
         except (ValueError, OverflowError, OSError) as exc:
             raise ArchiveError(f"SOURCE_DATE_EPOCH={epoch!r} is not a Unix time in seconds") from exc
-    else:
-        t = _dt.datetime(*ZIP_EPOCH, tzinfo=_dt.UTC)
-    return t.strftime("%Y-%m-%dT%H:%M:%SZ")
+        return t.strftime("%Y-%m-%dT%H:%M:%SZ"), "SOURCE_DATE_EPOCH given when the archive was written"
+    t = _dt.datetime(*ZIP_EPOCH, tzinfo=_dt.UTC)
+    return t.strftime("%Y-%m-%dT%H:%M:%SZ"), (
+        "a placeholder (the ZIP epoch): the session has no provenance.captured_at and SOURCE_DATE_EPOCH "
+        "was not set, and the clock is not used so that the same inputs give the same archive")
 
 
 def _runtime_requirements() -> list[str]:
@@ -203,6 +228,10 @@ def _config_bytes(config: Mapping[str, Any]) -> bytes:
     return yaml.safe_dump(plain, sort_keys=True, default_flow_style=False, allow_unicode=True).encode("utf-8")
 
 
+def _contextual_id(given: str | None, local: str) -> str:
+    return given if given else local
+
+
 def build_crate(
     session_id: str,
     inputs: list[_Member],
@@ -211,98 +240,167 @@ def build_crate(
     software: Mapping[str, str],
     *,
     date_published: str,
-    license: str = DEFAULT_LICENSE,
+    date_note: str = "",
+    license: Mapping[str, str] | str | None = None,
+    author: Mapping[str, str] | None = None,
+    publisher: Mapping[str, str] | None = None,
+    provenance: Mapping[str, Any] | None = None,
+    software_url: str | None = None,
 ) -> dict[str, Any]:
-    """The RO-Crate JSON-LD document of an archive (see the module docstring)."""
+    """The RO-Crate JSON-LD document of an archive (see the module docstring), built with ``rocrate``.
 
-    def file_entity(m: _Member, description: str | None = None) -> dict[str, Any]:
-        e: dict[str, Any] = {
-            "@id": quote(m.name, safe="/"),
-            "@type": "File",
+    ``license`` is ``{"id": URI, "name": ...}`` (a plain string becomes the description of a
+    local ``#license`` entity); ``author`` ``{"name", "id"?, "type"?}`` (Person by default);
+    ``publisher`` ``{"name", "id"?, "url"?}`` (always an Organization); ``provenance`` the
+    session's provenance block, recorded on the root dataset and the run.
+    """
+    from rocrate.model import ContextEntity
+    from rocrate.rocrate import ROCrate
+
+    crate = ROCrate(version=RO_CRATE_VERSION, gen_preview=False)
+    crate.metadata.extra_terms.update(EXTRA_TERMS)
+    crate.metadata["conformsTo"] = [{"@id": CONFORMS_TO}, {"@id": PROCESS_RUN_PROFILE}]
+    prov = dict(provenance or {})
+
+    def entity(eid: str, etype: str, props: dict[str, Any]) -> dict[str, str]:
+        crate.add(ContextEntity(crate, eid, properties={"@type": etype, **props}))
+        return {"@id": eid}
+
+    # contextual entities: profile, licence, author, publisher
+    profile_ref = entity(PROCESS_RUN_PROFILE, "CreativeWork", {"name": "Process Run Crate", "version": "0.5"})
+    if isinstance(license, Mapping):
+        license_ref = entity(str(license["id"]), "CreativeWork", {"name": str(license["name"])})
+    else:
+        license_ref = entity("#license", "CreativeWork", {
+            "name": "licence not specified", "description": str(license or DEFAULT_LICENSE)})
+    def organization(org: Mapping[str, Any], local: str) -> dict[str, str]:
+        props = {"name": str(org["name"])}
+        if org.get("url"):
+            props["url"] = str(org["url"])
+        return entity(_contextual_id(org.get("id"), local), "Organization", props)
+
+    author_ref = None
+    if author:
+        props = {"name": str(author["name"])}
+        if author.get("affiliation"):
+            props["affiliation"] = organization(author["affiliation"], "#affiliation")
+        author_ref = entity(_contextual_id(author.get("id"), "#author"), str(author.get("type", "Person")), props)
+    pub = dict(publisher or {"name": "not specified (set archive.publisher in the configuration)"})
+    publisher_ref = organization(pub, "#publisher")
+
+    # software: SoftwareApplication per distribution, huefringe first
+    def software_id(name: str) -> tuple[str, str | None]:
+        version = quote(software[name], safe="")
+        if name == "huefringe":
+            return (software_url, software_url) if software_url else ("#software/huefringe", None)
+        if name == "python":
+            return f"https://www.python.org/downloads/release/python-{version.replace('.', '')}/", "https://www.python.org/"
+        return f"https://pypi.org/project/{quote(name, safe='')}/{version}/", f"https://pypi.org/project/{quote(name, safe='')}/"
+
+    platform_name = software.get("platform")
+    sw_ids = {}
+    for name in sorted(n for n in software if n != "platform"):
+        sid, url = software_id(name)
+        sw_ids[name] = sid
+        props: dict[str, Any] = {"name": "Python" if name == "python" else name, "version": software[name]}
+        if url:
+            props["url"] = url
+        if name == "huefringe" and platform_name:
+            props["operatingSystem"] = platform_name
+        entity(sid, "SoftwareApplication", props)
+    instrument = {"@id": sw_ids["huefringe"]} if "huefringe" in sw_ids else None
+    if instrument:  # the other distributions are what huefringe ran on
+        crate.dereference(sw_ids["huefringe"])["softwareRequirements"] = [
+            {"@id": sid} for name, sid in sw_ids.items() if name != "huefringe"]
+
+    # data entities
+    def add_file(m: _Member, description: str | None = None) -> dict[str, str]:
+        props: dict[str, Any] = {
             "name": PurePosixPath(m.name).name,
             "contentSize": str(m.size),
             "encodingFormat": encoding_format(m.name),
             "sha256": m.sha256,
         }
         if description:
-            e["description"] = description
-        return e
+            props["description"] = description
+        crate.add_file(dest_path=m.name, properties=props)
+        return _ref(m.name)
 
-    sw_ids = {name: f"#software/{quote(name, safe='')}" for name in software if name != "platform"}
-    platform_name = software.get("platform")
-    software_entities = []
-    for name, sid in sorted(sw_ids.items(), key=lambda kv: kv[1]):
-        e: dict[str, Any] = {"@id": sid, "@type": "SoftwareApplication", "name": name, "version": software[name]}
-        if name == "huefringe" and platform_name:
-            e["operatingSystem"] = platform_name
-        if name == "python":
-            e["name"] = "Python"
-        software_entities.append(e)
-    instrument = [{"@id": sw_ids["huefringe"]}] if "huefringe" in sw_ids else []
-    instrument += [{"@id": sid} for name, sid in sorted(sw_ids.items(), key=lambda kv: kv[1]) if name != "huefringe"]
+    config_ref = add_file(config, "Workflow configuration used for the run (keys of config.yaml).") if config else None
+    input_refs = [add_file(m) for m in inputs]
+    output_refs = [add_file(m) for m in outputs]
+    session_props: dict[str, Any] = {
+        "name": f"capture session {session_id} (inputs)",
+        "description": "The capture-session folder the workflow read (capture-session/1).",
+        "hasPart": input_refs,
+    }
+    if prov.get("captured_at"):
+        session_props["dateCreated"] = str(prov["captured_at"])
+    if prov.get("operator"):
+        session_props["creator"] = entity("#operator", "Person", {"name": str(prov["operator"])})
+    told = []
+    if prov.get("instrument"):
+        told.append(f"Instrument: {prov['instrument']}.")
+    if "simulated" in prov:
+        told.append("SIMULATED: written by a virtual bench, not captured by a physical rig." if prov["simulated"]
+                    else "Captured by a physical rig (not simulated).")
+    if prov.get("notes"):
+        told.append(f"Notes: {prov['notes']}")
+    if told:
+        session_props["description"] += " " + " ".join(told)
+    crate.add_dataset(dest_path=SESSION_DIR, properties=session_props)
+    crate.add_dataset(dest_path=RESULTS_DIR, properties={
+        "name": f"results of session {session_id} (outputs)",
+        "description": f"Everything the workflow wrote under results/{session_id}/ (results contract 1).",
+        "hasPart": output_refs,
+    })
 
-    root_parts = ([_ref(config.name)] if config else []) + [_ref(SESSION_DIR), _ref(RESULTS_DIR)]
-    action_objects = [_ref(SESSION_DIR)] + ([_ref(config.name)] if config else [])
-    graph: list[dict[str, Any]] = [
-        {
-            "@id": METADATA_NAME,
-            "@type": "CreativeWork",
-            "conformsTo": {"@id": CONFORMS_TO},
-            "about": {"@id": "./"},
-        },
-        {
-            "@id": "./",
-            "@type": "Dataset",
-            "name": f"huefringe session {session_id}: capture session and results",
-            "description": (
-                f"Capture session '{session_id}' (format capture-session/1, folder session/) and what the "
-                "huefringe workflow computed from it (results contract 1, folder results/), with the "
-                "configuration used (config.yaml). Every file is listed with its SHA-256 checksum; "
-                "check with: huefringe verify <archive>."
-            ),
-            "identifier": session_id,
-            "datePublished": date_published,
-            "license": license,
-            "hasPart": root_parts,
-        },
-        {
-            "@id": SESSION_DIR,
-            "@type": "Dataset",
-            "name": f"capture session {session_id} (inputs)",
-            "description": "The capture-session folder the workflow read (capture-session/1).",
-            "hasPart": [_ref(m.name) for m in inputs],
-        },
-        {
-            "@id": RESULTS_DIR,
-            "@type": "Dataset",
-            "name": f"results of session {session_id} (outputs)",
-            "description": f"Everything the workflow wrote under results/{session_id}/ (results contract 1).",
-            "hasPart": [_ref(m.name) for m in outputs],
-        },
-        {
-            "@id": f"#run-{session_id}",
-            "@type": "CreateAction",
-            "name": f"huefringe workflow run on session {session_id}",
-            "description": "Inputs are the object (session/ and config.yaml); outputs are the result (results/).",
-            "actionStatus": {"@id": "http://schema.org/CompletedActionStatus"},
-            "instrument": instrument,
-            "object": action_objects,
-            "result": [_ref(RESULTS_DIR)],
-        },
-    ]
-    if config:
-        graph.append(file_entity(config, "Workflow configuration used for the run (keys of config.yaml)."))
-    graph += [file_entity(m) for m in inputs]
-    graph += [file_entity(m) for m in outputs]
-    graph += software_entities
-    return {"@context": CONTEXT, "@graph": graph}
+    run_id = f"#run-{session_id}"
+    run: dict[str, Any] = {
+        "name": f"huefringe workflow run on session {session_id}",
+        "description": "Inputs are the object (session/ and config.yaml); outputs are the result (results/).",
+        "actionStatus": "http://schema.org/CompletedActionStatus",  # a string, as Process Run Crate writes it
+        "object": [_ref(SESSION_DIR)] + ([config_ref] if config_ref else []),
+        "result": _ref(RESULTS_DIR),
+    }
+    if instrument:
+        run["instrument"] = instrument
+    if author_ref:
+        run["agent"] = author_ref
+    entity(run_id, "CreateAction", run)
+
+    description = (
+        f"Capture session '{session_id}' (format capture-session/1, folder session/) and what the "
+        "huefringe workflow computed from it (results contract 1, folder results/), with the "
+        "configuration used (config.yaml). Every file is listed with its SHA-256 checksum; "
+        "check with: huefringe verify <archive>."
+    )
+    if prov.get("simulated"):
+        description += " The capture session was written by a virtual bench: SIMULATED data, not a measurement."
+    if date_note:
+        description += f" datePublished: {date_note}."
+    root = crate.root_dataset
+    root["name"] = f"huefringe session {session_id}: capture session and results"
+    root["description"] = description
+    root["identifier"] = session_id
+    root["datePublished"] = date_published
+    root["license"] = license_ref
+    root["publisher"] = publisher_ref
+    if author_ref:
+        root["author"] = author_ref
+    root["conformsTo"] = profile_ref
+    root["mentions"] = {"@id": run_id}
+    root["hasPart"] = ([config_ref] if config_ref else []) + [_ref(SESSION_DIR), _ref(RESULTS_DIR)]
+    if prov.get("simulated"):
+        root["keywords"] = ["simulated data", "fringe projection", "metrology"]
+    return crate.metadata.generate()
 
 
-def _session_id(session: Path) -> str:
+def _session_meta(session: Path) -> dict[str, Any]:
     from huefringe.session import SessionError, read_meta
 
     try:
-        return str(read_meta(session)["id"])
+        return read_meta(session)
     except SessionError as exc:
         raise ArchiveError(f"cannot archive {session}: not a valid capture session:\n{exc}") from exc
 
@@ -322,7 +420,9 @@ def write_archive(
     out: str | os.PathLike[str],
     *,
     config: Mapping[str, Any] | None = None,
-    license: str = DEFAULT_LICENSE,
+    license: Mapping[str, str] | str | None = None,
+    author: Mapping[str, str] | None = None,
+    publisher: Mapping[str, str] | None = None,
 ) -> Path:
     """Pack a session folder and its results folder into one ZIP with RO-Crate metadata.
 
@@ -338,8 +438,11 @@ def write_archive(
         inside ``session`` or ``results``.
     config : mapping, optional
         The workflow configuration used, stored as ``config.yaml``.
-    license : str
-        ``license`` of the root dataset (free text or a URI).
+    license, author, publisher : mapping, optional
+        Contextual entities of the crate (see :func:`build_crate`); by default the
+        configuration's ``archive`` keys (``workflow/schemas/config.schema.yaml``). Without
+        either, the licence is a local entity saying it is not specified and the publisher an
+        Organization saying the same.
 
     Returns
     -------
@@ -353,7 +456,14 @@ def write_archive(
         a file that cannot be read or that changes while it is packed.
     """
     session, results, out = Path(session), Path(results), Path(out)
-    sid = _session_id(session)
+    meta = _session_meta(session)
+    sid = str(meta["id"])
+    provenance = dict(meta.get("provenance") or {})
+    archive_cfg = dict((config or {}).get("archive") or {})
+    license = license if license is not None else archive_cfg.get("license")
+    author = author if author is not None else archive_cfg.get("author")
+    publisher = publisher if publisher is not None else archive_cfg.get("publisher")
+    software_url = archive_cfg.get("software_url")
     if not results.is_dir():
         raise ArchiveError(f"{results}: results folder does not exist (run the workflow first)")
     if results.resolve().name != sid:
@@ -364,7 +474,10 @@ def write_archive(
     inputs = [_file_member(SESSION_DIR + rel, p) for rel, p in _files_under(session)]
     outputs = [_file_member(RESULTS_DIR + rel, p) for rel, p in _files_under(results)]
     cfg = _bytes_member(CONFIG_NAME, _config_bytes(config)) if config is not None else None
-    crate = build_crate(sid, inputs, outputs, cfg, _software(), date_published=_date_published(), license=license)
+    date, note = _date_published(provenance)
+    crate = build_crate(sid, inputs, outputs, cfg, _software(), date_published=date, date_note=note,
+                        license=license, author=author, publisher=publisher, provenance=provenance,
+                        software_url=software_url)
     meta = _bytes_member(METADATA_NAME, (json.dumps(crate, indent=2, ensure_ascii=False) + "\n").encode("utf-8"))
     members = [meta] + sorted(([cfg] if cfg else []) + inputs + outputs, key=lambda m: m.name)
     with atomic_path(out) as tmp:

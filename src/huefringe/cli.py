@@ -1,4 +1,4 @@
-"""Command-line entry point: ``huefringe check|bench|verify ...``."""
+"""Command-line entry point: ``huefringe check|bench|archive|verify ...`` and ``--version``."""
 
 from __future__ import annotations
 
@@ -82,9 +82,26 @@ def _cmd_archive(args: argparse.Namespace) -> int:
     return 0
 
 
+DESCRIPTION = """\
+huefringe: one-shot trapezoidal HSI fringe-projection profilometry.
+
+Measuring runs through Snakemake, not through this command:
+  snakemake --cores 2                                  the sessions listed in config.yaml
+  snakemake --cores 2 --configfile my-sessions.yaml    your own sessions
+  snakemake --cores 2 archive                          results/<id>.archive.zip per session
+
+This command checks sessions, writes bench sessions and packs or verifies archives
+(subcommands below; huefringe SUBCOMMAND --help for each).
+"""
+
+
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="huefringe", description=__doc__)
-    sub = parser.add_subparsers(dest="command", required=True)
+    from huefringe import __version__
+
+    parser = argparse.ArgumentParser(prog="huefringe", description=DESCRIPTION,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--version", action="version", version=f"huefringe {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,archive,verify}")
 
     p = sub.add_parser("check", help="validate a capture session; exit 1 if it is refused")
     p.add_argument("session", help="the session folder (holding session.yaml)")

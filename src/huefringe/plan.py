@@ -162,12 +162,14 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".", cores: int = 1
     Raises
     ------
     PlanError
-        With a message naming the session folder or file and the problem.
+        With a message naming every refused session folder or file and its problems (all of
+        them at once, so a long list of sessions is fixed in one pass).
     """
     base = Path(base)
     bench_sessions = {str(Path(k)): v for k, v in (config.get("bench_sessions") or {}).items()}
     per_job = int(config["measurement"]["frames_per_job"])
     plans: dict[str, SessionPlan] = {}
+    refused: list[str] = []
     for entry in config["sessions"]:
         path = Path(entry)
         full = path if path.is_absolute() else base / path
@@ -179,10 +181,15 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".", cores: int = 1
                 ref = bench_sessions[str(path)]
                 plan = _from_bench(path, bench_config_for(ref, base), bench_yaml(ref, base))
         except SessionError as exc:
-            raise PlanError(f"session {entry} is refused:\n{exc}") from exc
+            refused.append(f"session {entry} is refused:\n{exc}")
+            continue
         except bench.BenchConfigError as exc:
-            raise PlanError(f"session {entry} cannot be written by the bench:\n{exc}") from exc
+            refused.append(f"session {entry} cannot be written by the bench:\n{exc}")
+            continue
         _add(plans, plan, per_job, cores)
+    if refused:
+        head = f"{len(refused)} of {len(config['sessions'])} sessions refused:\n" if len(refused) > 1 else ""
+        raise PlanError(head + "\n".join(refused))
     return plans
 
 

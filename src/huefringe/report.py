@@ -422,6 +422,9 @@ body { font-family: "DejaVu Sans", system-ui, -apple-system, "Segoe UI", Arial, 
        margin: 0 auto; max-width: 1280px; padding: 1.2rem 1.5rem 3rem; color: #1b1b1b;
        background: #ffffff; line-height: 1.45; }
 h1 { font-size: 1.6rem; margin: .2rem 0 .6rem; }
+dl.capture { display: grid; grid-template-columns: max-content 1fr; gap: .1rem .8rem; margin: .4rem 0; }
+dl.capture dt { font-weight: 600; } dl.capture dd { margin: 0; }
+.simulated { background: #fff4d6; border-left: 5px solid #b26b00; padding: .5rem .8rem; margin: .5rem 0; }
 h2 { font-size: 1.25rem; margin: 2rem 0 .6rem; border-bottom: 2px solid #e3e3e3; padding-bottom: .2rem; }
 .sub { color: #555; margin: 0; }
 .verdict { display: flex; flex-wrap: wrap; align-items: center; gap: .6rem 2rem; color: #ffffff;
@@ -671,7 +674,7 @@ def _prov_value(value: Any) -> str:
 
 def _provenance(report: Mapping[str, Any], provenance: Mapping[str, Any]) -> str:
     rows = [f"<tr><th>session</th><td>{_prov_value(report.get('session', ''))}</td></tr>"]
-    rows += [f"<tr><th>{_e(k)}</th><td>{_prov_value(v)}</td></tr>" for k, v in provenance.items() if k != "session"]
+    rows += [f"<tr><th>{_e(k)}</th><td>{_prov_value(v)}</td></tr>" for k, v in provenance.items() if k not in ("session", "capture")]
     return (
         '<details id="provenance"><summary>Provenance: session, configuration, software versions, input checksums</summary>'
         f'<table class="kv">{"".join(rows)}</table></details>'
@@ -721,7 +724,9 @@ def render_report_html(
         f"<style>{_CSS}</style></head><body>",
         f"<header><h1>Metrology report: session {_e(session)}</h1>",
         '<p class="sub">Step heights after ISO 5436-1 (type A, areal form): least-squares base plane, '
-        "central part of each top evaluated.</p></header>",
+        "central part of each top evaluated.</p>",
+        _capture_block((provenance or {}).get("capture") or {}),
+        "</header>",
         _verdict_block(report),
         "<h2>Step heights</h2>",
         _steps_table(report),
@@ -735,6 +740,24 @@ def render_report_html(
         "</body></html>",
     ]
     return "\n".join(p for p in parts if p) + "\n"
+
+
+def _capture_block(capture: Mapping[str, Any]) -> str:
+    """Capture date, operator and instrument (session.yaml ``provenance``), and a notice for simulated data."""
+    def field(label: str, key: str) -> str:
+        value = capture.get(key)
+        shown = _e(value) if value not in (None, "") else '<span class="note">not recorded in session.yaml</span>'
+        return f"<dt>{label}</dt><dd>{shown}</dd>"
+
+    out = ['<dl class="capture">', field("Captured", "captured_at"), field("Operator", "operator"),
+           field("Instrument", "instrument"), "</dl>"]
+    if capture.get("simulated"):
+        out.append('<p class="simulated" role="alert"><strong>Simulated data.</strong> This session was written by a '
+                   "virtual bench (session.yaml provenance.simulated: true): the figures below measure a simulation, "
+                   "not a physical specimen.</p>")
+    if capture.get("notes"):
+        out.append(f'<p class="note">Notes: {_e(capture["notes"])}</p>')
+    return "".join(out)
 
 
 def write_report_html(
@@ -756,7 +779,9 @@ def write_report_html(
         each appears only if given.
     provenance : mapping or None
         Session id, configuration, software versions, input checksums (free-form; shown in a
-        collapsed ``<details>``).
+        collapsed ``<details>``). Its ``capture`` entry (the session's ``provenance`` block)
+        is shown in the header: capture date, operator, instrument, and a "simulated data"
+        notice when ``simulated`` is true.
 
     Returns
     -------

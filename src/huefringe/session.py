@@ -9,6 +9,7 @@ left to :func:`read_rgb` (which raises the same error type) or to ``deep=True``.
 
 from __future__ import annotations
 
+import datetime as dt
 import json
 import re
 import struct
@@ -116,6 +117,11 @@ class Session:
         return self.meta.get("specimen")
 
     @property
+    def provenance(self) -> dict[str, Any]:
+        """The optional ``provenance`` block (``captured_at`` as an ISO 8601 string); ``{}`` if absent."""
+        return dict(self.meta.get("provenance") or {})
+
+    @property
     def frame_ids(self) -> list[int]:
         return sorted(self.frames)
 
@@ -216,8 +222,48 @@ def _schema_problems(meta: Any, yaml_path: Path) -> list[Problem]:
     return problems
 
 
+def _normalise_dates(meta: Any) -> Any:
+    """YAML reads an unquoted ``captured_at: 2026-11-30T14:05:00Z`` as a datetime: make it ISO text.
+
+    Returns a copy of ``meta`` with ``provenance.captured_at`` as a string (UTC written ``Z``);
+    anything else is left for the schema to judge.
+    """
+    if not isinstance(meta, dict) or not isinstance(meta.get("provenance"), dict):
+        return meta
+    when = meta["provenance"].get("captured_at")
+    if isinstance(when, (dt.datetime, dt.date)):
+        text = when.isoformat()
+        if isinstance(when, dt.datetime) and when.utcoffset() == dt.timedelta(0):
+            text = when.replace(tzinfo=None).isoformat() + "Z"
+        meta = {**meta, "provenance": {**meta["provenance"], "captured_at": text}}
+    return meta
+
+
+def parse_captured_at(text: str) -> dt.datetime | dt.date:
+    """Parse ``provenance.captured_at``: an ISO 8601 date (``2026-11-30``) or date-time
+    (``2026-11-30T14:05:00Z``, ``2026-11-30T15:05:00+01:00``, seconds optional).
+
+    Raises
+    ------
+    ValueError
+        When the text is neither.
+    """
+    if re.fullmatch(r"\d{4}-\d{2}-\d{2}", text):
+        return dt.date.fromisoformat(text)
+    if not re.fullmatch(r"\d{4}-\d{2}-\d{2}T\d{2}:\d{2}(:\d{2}(\.\d+)?)?(Z|[+-]\d{2}:\d{2})?", text):
+        raise ValueError(text)
+    return dt.datetime.fromisoformat(text)
+
+
 def _semantic_problems(meta: dict[str, Any], yaml_path: Path) -> list[Problem]:
     problems = []
+    when = (meta.get("provenance") or {}).get("captured_at")
+    if when is not None:
+        try:
+            parse_captured_at(when)
+        except ValueError:
+            problems.append(Problem(yaml_path, f"at provenance/captured_at: {when!r} is not an ISO 8601 date or "
+                                               "date-time (e.g. 2026-11-30 or 2026-11-30T14:05:00Z)"))
     w, h = meta["camera"]["width"], meta["camera"]["height"]
     planes = [float(z) for z in meta["planes_mm"]]
     keys = [f"{z:.3f}" for z in planes]
@@ -555,6 +601,13 @@ def read_meta(root: str | Path) -> dict[str, Any]:
         meta = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
     except (yaml.YAMLError, UnicodeDecodeError) as exc:
         raise SessionError.at(yaml_path, f"not valid YAML ({exc})") from exc
+    if meta is None:
+        raise SessionError.at(yaml_path, "is empty; expected a mapping with the keys format, id, camera, pattern "
+                                         "and planes_mm (capture-session/1)")
+    if not isinstance(meta, dict):
+        raise SessionError.at(yaml_path, f"must be a mapping of keys (format, id, camera, pattern, planes_mm, ...), "
+                                         f"got a {type(meta).__name__}: {str(meta)[:60]!r}")
+    meta = _normalise_dates(meta)
     problems = _schema_problems(meta, yaml_path)
     if problems:
         raise SessionError(problems)

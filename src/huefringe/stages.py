@@ -481,6 +481,7 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
     plane_stats = jsonlib.loads(Path(planes).read_text())
     table_stats = jsonlib.loads(Path(tables).read_text())
     provenance = report.collect_provenance(s.id, dict(config), s.input_files(), root=s.root)
+    provenance["capture"] = s.provenance  # session.yaml provenance: report header, simulated notice
     extras: dict[str, Any] = {
         "hue_model": config["hue_model"],
         "unwrap": config["measurement"]["unwrap"],

@@ -128,7 +128,31 @@ def session_document(cfg: dict[str, Any], bench: Bench | None = None) -> dict[st
     spec = specimen_document(cfg, bench)
     if spec is not None:
         doc["specimen"] = spec
+    doc["provenance"] = provenance_document(cfg)
     return doc
+
+
+def provenance_document(cfg: dict[str, Any]) -> dict[str, Any]:
+    """The ``provenance`` entry of session.yaml: always ``simulated: true``.
+
+    ``captured_at`` and ``operator`` are written only when the bench configuration's ``session``
+    gives them; by default there is no capture date, so one configuration always writes the
+    same bytes (the virtual bench has no moment of capture worth recording).
+    """
+    from huefringe import __version__
+
+    s = cfg["session"]
+    out: dict[str, Any] = {}
+    if s.get("captured_at"):
+        out["captured_at"] = str(s["captured_at"])
+    if s.get("operator"):
+        out["operator"] = str(s["operator"])
+    proj, cam = cfg.get("projector", {}), cfg.get("camera", {})
+    out["instrument"] = (f"huefringe virtual bench {__version__} (simulated {proj.get('dmd_bits', 8)}-bit projector, "
+                         f"{int(s['width'])}x{int(s['height'])} {int(s['bit_depth'])}-bit colour camera)")
+    out["simulated"] = True
+    out["notes"] = "written by huefringe.bench from a bench configuration (virtual rig, no physical capture)"
+    return out
 
 
 class _FlowListDumper(yaml.SafeDumper):
