@@ -22,6 +22,7 @@ from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import CalibrationError, PlaneCalibration, accuracy, calibrate_planes, coverage
 from huefringe.io import read_tiff, write_json, write_tiff
+from huefringe import phase_error
 from huefringe.phase import denoise_phase, three_step_phase, unwrap, wrap
 from huefringe.session import Predistortion, Session, load_session, read_rgb, read_rgb_codes
 
@@ -112,6 +113,7 @@ def measure_frame(
     else:
         emitted = table.to_phase(hue)
     phase = emitted if predistortion is None else predistortion.decode(emitted)
+    phase = phase_error.correct(phase, cal.phase_error)  # the planes' phase-error table (or none)
     clipped = clipped_mask(rgb, bit_depth)
     valid = np.isfinite(phase) & ~clipped
     if shadow is not None:
@@ -298,11 +300,16 @@ def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapp
 
 
 def plane_calibration(session: str, table: str, hue_model: str, calibration: Mapping[str, Any],
-                      model: str, stats: str) -> None:
-    """Fit the per-pixel phase-to-height model on the calibration planes."""
+                      model: str, stats: str, phase_error_table: str | None = None,
+                      phase_error_figure: str | None = None, phase_error_summary: str | None = None) -> None:
+    """Fit the per-pixel phase-to-height model on the calibration planes (after the phase-error
+    table, :mod:`huefringe.phase_error`, when ``calibration.phase_error.enabled``)."""
     s = load_session(session)
     t = HueTable.load(table)
     phases, valid = _plane_phases(s, t, hue_model, calibration)
+    lut = phase_error.from_calibration(phases, valid, calibration, phase_error=phase_error_table,
+                                       figure=phase_error_figure, summary=phase_error_summary)
+    phases = {z: phase_error.correct(p, None if lut is None else lut.error) for z, p in phases.items()}
     try:
         cal = calibrate_planes(phases, valid, smooth_degree=calibration["plane_smooth_degree"])
     except CalibrationError as exc:
@@ -311,9 +318,11 @@ def plane_calibration(session: str, table: str, hue_model: str, calibration: Map
             f"{s.root / 'reference' / 'planes'}: {exc} (plane images {files}; heights from planes_mm in "
             f"{s.root / 'session.yaml'})"
         ) from exc
+    cal.phase_error = None if lut is None else lut.error
     cal.save(model)
     info = dict(cal.stats)
     info["hue_model"] = hue_model
+    info["phase_error"] = None if lut is None else lut.stats
     write_json(stats, info)
 
 
@@ -536,7 +545,8 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
         hue_table(str(session), which, model, cal, table=str(out / f"table_{which}.json"),
                   stats=str(out / f"table_{which}.stats.json"))
     plane_calibration(str(session), str(out / "table_reference.json"), model, cal,
-                      model=str(out / "model.npz"), stats=str(out / "planes.json"))
+                      model=str(out / "model.npz"), stats=str(out / "planes.json"),
+                      phase_error_table=str(out / "phase_error.npz"), phase_error_summary=str(out / "phase_error.json"))
     paths: dict[str, Any] = {
         k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
         for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"))
