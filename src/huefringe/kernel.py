@@ -74,7 +74,7 @@ from numpy.typing import NDArray
 from huefringe.calibration import HueTable
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
-from huefringe.phase import denoise_weight, denoise_weighted
+from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
 
@@ -978,6 +978,7 @@ def frame_maps(
     want_maps: bool = False,
     want_dphi: bool = False,
     out: tuple[NDArray[np.float32], NDArray[np.bool_]] | None = None,
+    denoise_adaptive: dict[str, Any] | None = None,
 ) -> FrameMaps:
     """One frame through the kernel; :func:`frame_to_height` with optional phase and hue maps.
 
@@ -985,6 +986,8 @@ def frame_maps(
     ``measure_frame``'s ``phase`` and ``hue``), ``want_dphi=True`` the phase difference before
     denoising (for the unwrapping flags); ``counts`` hold the pixel counts of the frame
     statistics. ``out`` = (height, valid) buffers to reuse (float32 and bool, shape (H, W)).
+    ``denoise_adaptive``: the filter's sigma-adaptive support (``measurement.denoise_adaptive``,
+    :func:`huefringe.phase.adaptive_kwargs`), as ``measure_frame``'s.
     """
     a, scale = _check_frame(prep, rgb)
     h, w = prep.shape
@@ -1016,7 +1019,8 @@ def frame_maps(
         phase, hue,
     )
     if denoise:
-        smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k))
+        smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k),
+                                  **adaptive_kwargs(denoise_adaptive))
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
               "guess_far": int(n_far)}

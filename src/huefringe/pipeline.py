@@ -23,7 +23,7 @@ from huefringe.colour import intensity, white_balance
 from huefringe.height import CalibrationError, PlaneCalibration, accuracy, calibrate_planes, coverage
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe import phase_error
-from huefringe.phase import denoise_phase, three_step_phase, unwrap, wrap
+from huefringe.phase import adaptive_kwargs, denoise_phase, three_step_phase, unwrap, wrap
 from huefringe.session import Predistortion, Session, load_session, read_rgb, read_rgb_codes
 
 log = logging.getLogger("huefringe")
@@ -80,6 +80,7 @@ def measure_frame(
     below_reference_mm: float = 0.25,
     denoise_radius: int = 2,
     predistortion: Predistortion | None = None,
+    denoise_adaptive: Mapping[str, Any] | None = None,
 ) -> FrameResult:
     """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
 
@@ -105,6 +106,9 @@ def measure_frame(
         When the frames were projected through a pre-distortion (paper Fig. 6; the session's
         ``predistortion.csv``), the table gives the *emitted* phase, which is decoded back to
         the code phase.
+    denoise_adaptive : mapping, optional
+        ``measurement.denoise_adaptive`` (:func:`huefringe.phase.adaptive_kwargs`): the filter's
+        sigma-adaptive support and the rejection of pixels no filter can save.
     """
     balanced = white_balance(rgb, white)
     hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
@@ -124,7 +128,7 @@ def measure_frame(
         sigma = phase_sigma(table, slope)
         if predistortion is not None:
             sigma = sigma * np.abs(predistortion.decode_slope(emitted))
-        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius)
+        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius, **adaptive_kwargs(denoise_adaptive))
     height = cal.height(un.dphi)
     valid &= np.isfinite(height)
     height = np.where(valid, height, np.nan).astype(np.float32)
@@ -412,6 +416,7 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         path = s.frames[n]
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
             m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"],
+                                  denoise_adaptive=measurement.get("denoise_adaptive"),
                                   want_maps=n in maps, want_dphi=True, out=buffers)
             flags = unwrap(m.dphi, m.valid, "reference").flags  # type: ignore[arg-type]
             px = m.valid.size
@@ -423,7 +428,8 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         else:
             res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
-                                denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion)
+                                denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
+                                denoise_adaptive=measurement.get("denoise_adaptive"))
             height, phase, hue, stats = res.height, res.phase, res.hue, res.stats
         _refuse_bad_frame(path, stats, measurement)
         write_tiff(heights[i], height)
