@@ -64,7 +64,7 @@ CASES = {
 VARIANTS = {
     "all on": {},
     "phase-error table off": {"calibration": {"phase_error": {"enabled": False}}},
-    "adaptive filter off": {"measurement": {"denoise_adaptive": False}},
+    "adaptive filter off": {"measurement": {"denoise_adaptive": {"enabled": False}}},
 }
 
 

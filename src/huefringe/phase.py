@@ -369,9 +369,9 @@ def adaptive_kwargs(opts: dict | None) -> dict:
     """:func:`denoise_phase` / :func:`denoise_weighted` keywords of a ``measurement.denoise_adaptive``
     block (``enabled``, ``max_radius``, ``target_sigma_rad``, ``reject_sigma_rad``); ``{}`` when
     absent or disabled (the fixed window)."""
-    if opts is None:
+    if opts is None or opts is False:
         return {}
-    o = {**ADAPTIVE_DEFAULTS, **dict(opts)}
+    o = {**ADAPTIVE_DEFAULTS, **(dict(opts) if opts is not True else {})}
     if not o["enabled"]:
         return {}
     return {"max_radius": int(o["max_radius"]), "target_sigma": float(o["target_sigma_rad"]),
