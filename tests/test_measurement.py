@@ -80,12 +80,21 @@ def test_step_too_tall_for_the_period_is_flagged(tmp_path: Path) -> None:
 
 def test_predistorted_projection_beats_plain_trapezoid(tmp_path: Path) -> None:
     """Paper Fig. 6: projecting the pre-distorted pattern removes the flat stretches that
-    projector gamma leaves in the hue, so the same flat board is measured with less error."""
+    projector gamma leaves in the hue, so the same flat board is measured with less error
+    (with the software corrections of issue 14 off: the phase-error table and the adaptive
+    filter close most of that gap for the plain pattern: p95 0.051 against 0.039 mm here)."""
+    import copy
+
+    from bench_helpers import CONFIG
+
+    mcfg = copy.deepcopy(CONFIG)
+    mcfg["calibration"]["phase_error"] = {"enabled": False}
+    mcfg["measurement"]["denoise_adaptive"] = {"enabled": False}
     errors = {}
     for comp in (False, True):
         cfg = bench_config("flat", width=200, height=150, hue_bands=48, frames=1, id=f"flat-{int(comp)}")
         cfg["projector"]["compensation"]["enabled"] = comp
-        out = process(write(cfg, tmp_path), tmp_path / f"out{int(comp)}")
+        out = process(write(cfg, tmp_path), tmp_path / f"out{int(comp)}", config=mcfg)
         assert (out["session"].predistortion is not None) == comp
         h = tifffile.imread(out["heights"][0])
         errors[comp] = float(np.nanpercentile(np.abs(h - cfg["scene"]["height_mm"]), 95))

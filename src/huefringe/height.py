@@ -49,6 +49,9 @@ class PlaneCalibration:
     b: NDArray[np.float32]
     planes_mm: list[float]
     stats: dict[str, Any] = field(default_factory=dict)
+    phase_error: NDArray[np.float64] | None = None
+    """The phase-error table ``e(phi)`` the planes and frames are corrected with
+    (:mod:`huefringe.phase_error`), or None (no correction)."""
 
     def height(self, dphi: NDArray[np.floating]) -> NDArray[np.float32]:
         """Height in mm from an unwrapped phase difference (NaN stays NaN)."""
@@ -67,12 +70,14 @@ class PlaneCalibration:
 
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
-                np.savez(f, phi_ref=self.phi_ref, a=self.a, b=self.b, planes_mm=np.asarray(self.planes_mm))
+                extra = {} if self.phase_error is None else {"phase_error": np.asarray(self.phase_error, np.float64)}
+                np.savez(f, phi_ref=self.phi_ref, a=self.a, b=self.b, planes_mm=np.asarray(self.planes_mm), **extra)
 
     @classmethod
     def load(cls, path: str) -> PlaneCalibration:
         with np.load(path) as z:
-            return cls(z["phi_ref"], z["a"], z["b"], [float(v) for v in z["planes_mm"]])
+            pe = z["phase_error"] if "phase_error" in z.files else None
+            return cls(z["phi_ref"], z["a"], z["b"], [float(v) for v in z["planes_mm"]], phase_error=pe)
 
 
 def _design(shape: tuple[int, int], degree: int, uu: NDArray, vv: NDArray) -> NDArray[np.float64]:

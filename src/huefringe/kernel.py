@@ -75,7 +75,8 @@ from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
 from huefringe.perframe import capture_noise, shadow_mask, sigma_from_slope
-from huefringe.phase import denoise_weight, denoise_weighted
+from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
+from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
 
 __all__ = ["FrameMaps", "Prepared", "frame_maps", "frame_to_height", "prepare"]
@@ -141,13 +142,15 @@ class Prepared:
     pd_index: NDArray[np.int32] | None = None
     """... and per bucket of ``[emitted[0], emitted[0] + 2 pi)`` the last sample at or below it,
     as ``-index - 1`` where a sample lies within the bucket (then searched)."""
+    phase_error: NDArray[np.float64] | None = None
+    """The plane calibration's phase-error table (``PlaneCalibration.phase_error``), or None."""
     stats: dict[str, Any] = field(default_factory=dict)
 
     @property
     def nbytes(self) -> int:
         """Bytes of the prepared data."""
         arrays = (self.cols, self.heads, self.guess, self.start, self.ok, self.gains, self.phi_ref, self.a, self.b,
-                  self.noise, self.pd_emitted, self.pd_code, self.pd_slope, self.pd_index)
+                  self.noise, self.pd_emitted, self.pd_code, self.pd_slope, self.pd_index, self.phase_error)
         return int(sum(x.nbytes for x in arrays if x is not None))
 
 
@@ -259,6 +262,8 @@ def prepare(
     )
     if predistortion is not None:
         prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index = _predistortion_arrays(predistortion)
+    if getattr(cal, "phase_error", None) is not None:
+        prep.phase_error = np.ascontiguousarray(cal.phase_error, dtype=np.float64)
     prep.stats = {
         "table_invalid_fraction": float(np.mean(~np.asarray(table.valid, bool))),
         "shadow_fraction": float(shadow_arr.mean()),
@@ -517,7 +522,7 @@ def _interp(bb, hq, lo_val, hi_val, n):  # pragma: no cover - numba
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles_x, n, start, phi_ref, a, b, noise,
-                  atan, min_sat, use_min_sat, floor_slope, pd_e, pd_c, pd_s, pd_index, out_h, out_valid,
+                  atan, min_sat, use_min_sat, floor_slope, pd_e, pd_c, pd_s, pd_index, pe, out_h, out_valid,
                   out_dphi, out_w, out_phase, out_hue):  # pragma: no cover - numba
     """The fused per-pixel loop; returns (clipped, hue undefined, valid, guess missed, guess far)
     counts.
@@ -659,7 +664,7 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                         row_pp[u] = _line_entry(cols, o, p + 2, n)
             # ---------------------------------------------------------------- pass 3: arithmetic
             n_valid += _finish_row(v, row_bb, row_hq, row_lo, row_hi, row_g, phi_ref, a, b, noise, n, floor_slope, pd_e,
-                                   pd_c, pd_s, pd_index, row_em, row_ph, row_pds, row_pm, row_pp, out_h, out_valid,
+                                   pd_c, pd_s, pd_index, pe, row_em, row_ph, row_pds, row_pm, row_pp, out_h, out_valid,
                                    out_phase, out_dphi, out_w)
     return n_clip, n_undef, n_valid, n_miss, n_far
 
@@ -742,7 +747,7 @@ def _colour_row(rgb, v, u0, u1, scale, top32, top64, gains, ok, atan, min_sat, u
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
-def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e, pd_c, pd_s, pd_index, em, ph, pds,
+def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e, pd_c, pd_s, pd_index, pe, em, ph, pds,
                 pm, pp, out_h, out_valid, out_phase, out_dphi, out_w):  # pragma: no cover - numba
     """Looked-up bands of row ``v`` (``bb``, ``hq``, ``lo``, ``hi``; ``g < 0`` marks invalid
     pixels) to heights, or to the denoise filter's weights of the phase difference (``out_w``).
@@ -811,6 +816,10 @@ def _finish_row(v, bb, hq, lo, hi, g, phi_ref, a, b, noise, n, floor_slope, pd_e
             ph[u] = np.float32(_mod(y, two_pi))
     else:
         ph = em
+    # (B2) the phase-error table (phase_error.correct, the same compiled correct_one)
+    if pe is not None:
+        for u in range(w):
+            ph[u] = correct_one(ph[u], pe)
     # (C) phase difference (phase.wrap), then h = dphi / (a + b dphi), or, for the denoise
     # filter, dphi and its uncertainty (perframe.phase_sigma with HueTable.hue_slope, times
     # |Predistortion.decode_slope|)
@@ -964,6 +973,7 @@ def frame_maps(
     want_maps: bool = False,
     want_dphi: bool = False,
     out: tuple[NDArray[np.float32], NDArray[np.bool_]] | None = None,
+    denoise_adaptive: dict[str, Any] | None = None,
 ) -> FrameMaps:
     """One frame through the kernel; :func:`frame_to_height` with optional phase and hue maps.
 
@@ -971,6 +981,8 @@ def frame_maps(
     ``measure_frame``'s ``phase`` and ``hue``), ``want_dphi=True`` the phase difference before
     denoising (for the unwrapping flags); ``counts`` hold the pixel counts of the frame
     statistics. ``out`` = (height, valid) buffers to reuse (float32 and bool, shape (H, W)).
+    ``denoise_adaptive``: the filter's sigma-adaptive support (``measurement.denoise_adaptive``,
+    :func:`huefringe.phase.adaptive_kwargs`), as ``measure_frame``'s.
     """
     a, scale = _check_frame(prep, rgb)
     h, w = prep.shape
@@ -998,10 +1010,12 @@ def frame_maps(
         a, np.float32(scale), np.float32(top), float(top), prep.gains, prep.ok, prep.cols.reshape(-1),
         prep.heads.reshape(-1), prep.guess, prep.tiles_x, prep.n_bands, prep.start, prep.phi_ref, prep.a, prep.b,
         prep.noise, atan, np.float32(prep.min_saturation), prep.min_saturation > 0.0, prep.floor_slope,
-        prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, height, valid, dphi, weights, phase, hue,
+        prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, prep.phase_error, height, valid, dphi, weights,
+        phase, hue,
     )
     if denoise:
-        smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k))
+        smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k),
+                                  **adaptive_kwargs(denoise_adaptive))
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
               "guess_far": int(n_far)}

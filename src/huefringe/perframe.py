@@ -20,7 +20,8 @@ from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
-from huefringe.phase import denoise_phase, unwrap, wrap
+from huefringe import phase_error
+from huefringe.phase import adaptive_kwargs, denoise_phase, unwrap, wrap
 from huefringe.session import Predistortion
 
 __all__ = [
@@ -87,6 +88,7 @@ def measure_frame(
     below_reference_mm: float = 0.25,
     denoise_radius: int = 2,
     predistortion: Predistortion | None = None,
+    denoise_adaptive: Mapping[str, Any] | None = None,
 ) -> FrameResult:
     """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
 
@@ -112,6 +114,9 @@ def measure_frame(
         When the frames were projected through a pre-distortion (paper Fig. 6; the session's
         ``predistortion.csv``), the table gives the *emitted* phase, which is decoded back to
         the code phase.
+    denoise_adaptive : mapping, optional
+        ``measurement.denoise_adaptive`` (:func:`huefringe.phase.adaptive_kwargs`): the filter's
+        sigma-adaptive support and the rejection of pixels no filter can save.
     """
     balanced = white_balance(rgb, white)
     hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
@@ -120,6 +125,7 @@ def measure_frame(
     else:
         emitted = table.to_phase(hue)
     phase = emitted if predistortion is None else predistortion.decode(emitted)
+    phase = phase_error.correct(phase, cal.phase_error)  # the planes' phase-error table (or none)
     clipped = clipped_mask(rgb, bit_depth)
     valid = np.isfinite(phase) & ~clipped
     if shadow is not None:
@@ -130,7 +136,7 @@ def measure_frame(
         sigma = phase_sigma(table, slope)
         if predistortion is not None:
             sigma = sigma * np.abs(predistortion.decode_slope(emitted))
-        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius)
+        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius, **adaptive_kwargs(denoise_adaptive))
     height = cal.height(un.dphi)
     valid &= np.isfinite(height)
     height = np.where(valid, height, np.nan).astype(np.float32)

@@ -206,9 +206,10 @@ def _denoise_row(dj, di, sj2, si2, inv, k2, acc, wsum):  # pragma: no cover - co
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _denoise_kernel(d, s2, inv, radius, k2, out):  # pragma: no cover - compiled
+def _denoise_kernel(d, s2, inv, radius, k2, out, wout):  # pragma: no cover - compiled
     """Row by row, window offset by window offset (``dv`` then ``du``, the same order for every
-    pixel); ``inv = 0`` marks invalid pixels, which then add nothing."""
+    pixel); ``inv = 0`` marks invalid pixels, which then add nothing. ``wout``: each pixel's sum
+    of accepted weights (its filtered variance is ``1 / wout``)."""
     h, w = d.shape
     acc = np.empty(w, np.float32)
     wsum = np.empty(w, np.float32)
@@ -226,10 +227,68 @@ def _denoise_kernel(d, s2, inv, radius, k2, out):  # pragma: no cover - compiled
                              inv[vv, u0 + du : u1 + du], k2, acc[u0:u1], wsum[u0:u1])
         for u in range(w):
             out[v, u] = d[v, u] + acc[u] / wsum[u] if inv[v, u] > 0 else np.float32(np.nan)
+            wout[v, u] = wsum[u]
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out):  # pragma: no cover
+    """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
+    ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
+    ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
+    accepted when they agree with the pixel's first-pass estimate within ``k`` combined sigma
+    (``diff^2 <= k2 (s_j^2 + 1 / wfirst)``): a noisy pixel is judged by its better estimate, so
+    a step stays a step. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
+    save them). Float32, fixed visiting order: the result depends only on the inputs."""
+    h, w = d.shape
+    two_pi = np.float32(2.0 * np.pi)
+    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
+    pi = np.float32(np.pi)
+    nan = np.float32(np.nan)
+    for v in range(h):
+        for u in range(w):
+            out[v, u] = first[v, u]
+            if inv[v, u] <= 0:
+                continue
+            ws = wfirst[v, u]
+            if ws >= target_w or max_radius <= radius:
+                out[v, u] = first[v, u] if ws >= reject_w else nan
+                continue
+            m = first[v, u]
+            sf2 = np.float32(1.0) / ws
+            acc = np.float32(0.0)
+            wsum = np.float32(0.0)
+            for r in range(0, max_radius + 1):
+                for dv in range(-r, r + 1):
+                    vv = v + dv
+                    if vv < 0 or vv >= h:
+                        continue
+                    edge_row = dv == -r or dv == r
+                    step = 1 if edge_row else 2 * r
+                    du = -r
+                    while du <= r:
+                        uu = u + du
+                        if 0 <= uu < w and inv[vv, uu] > 0:
+                            dm = d[vv, uu] - m
+                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                            if dm * dm <= k2 * (s2[vv, uu] + sf2):
+                                diff = d[vv, uu] - d[v, u]
+                                diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                                acc += inv[vv, uu] * diff
+                                wsum += inv[vv, uu]
+                        du += step if step > 0 else 1
+                if r >= radius and wsum >= target_w:
+                    break
+            if wsum < ws:  # the grown window found less support than the first pass: keep it
+                wsum = ws
+                val = m
+            else:
+                val = d[v, u] + acc / wsum
+            out[v, u] = val if wsum >= reject_w else nan
 
 
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
-                  *, radius: int = 2, k: float = 3.0) -> NDArray[np.float32]:
+                  *, radius: int = 2, k: float = 3.0, max_radius: int = 0, target_sigma: float = 0.0,
+                  reject_sigma: float = 0.0) -> NDArray[np.float32]:
     """Edge-preserving, uncertainty-weighted local mean of a phase map.
 
     Each valid pixel becomes the inverse-variance weighted mean of the valid pixels in its
@@ -248,6 +307,13 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     sigma : ndarray
         Per-pixel standard deviation of ``dphi`` in radians (finite, > 0 where valid).
     valid : ndarray of bool
+    max_radius, target_sigma : int, float
+        Sigma-adaptive support: a pixel whose filtered sigma (``1 / sqrt`` of its accepted
+        inverse variances) is above ``target_sigma`` gets a window grown ring by ring up to
+        ``max_radius``, its neighbours tested against its first-pass estimate (so a step is
+        never crossed); 0 = fixed window.
+    reject_sigma : float
+        Pixels whose filtered sigma stays above this become NaN (invalid); 0 = never.
 
     Returns
     -------
@@ -267,11 +333,13 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     # float32 throughout (SIMD); sigma clipped so that its square and inverse stay finite
     dz, s2, inv = (np.empty(d.shape, np.float32) for _ in range(3))
     _denoise_weights(d, s, valid, dz, s2, inv)
-    return denoise_weighted(dz, s2, inv, radius=radius, k=k)
+    return denoise_weighted(dz, s2, inv, radius=radius, k=k, max_radius=max_radius, target_sigma=target_sigma,
+                            reject_sigma=reject_sigma)
 
 
 def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDArray[np.float32], *,
-                     radius: int = 2, k: float = 3.0) -> NDArray[np.float32]:
+                     radius: int = 2, k: float = 3.0, max_radius: int = 0, target_sigma: float = 0.0,
+                     reject_sigma: float = 0.0) -> NDArray[np.float32]:
     """:func:`denoise_phase` on its prepared float32 inputs (for callers that compute them on
     the fly, like the fused kernel): ``ok = valid & finite(dphi) & finite(sigma) & sigma > 0``,
     ``dz = ok ? dphi : 0``, ``s2 = float32(clip(ok ? sigma : 1, 1e-9, 1e9)) ** 2`` and
@@ -281,5 +349,30 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
     if not arrays[0].shape == arrays[1].shape == arrays[2].shape or arrays[0].ndim != 2:
         raise ValueError("dz, s2 and inv must be 2-D arrays of the same shape")
     out = np.empty(arrays[0].shape, np.float32)
-    _denoise_kernel(*arrays, int(radius), np.float32(float(k) ** 2), out)
+    wsum = np.empty(arrays[0].shape, np.float32)
+    _denoise_kernel(*arrays, int(radius), np.float32(float(k) ** 2), out, wsum)
+    if (max_radius > radius and target_sigma > 0) or reject_sigma > 0:
+        final = np.empty_like(out)
+        target_w = np.float32(1.0 / target_sigma**2) if target_sigma > 0 else np.float32(0.0)
+        reject_w = np.float32(1.0 / reject_sigma**2) if reject_sigma > 0 else np.float32(0.0)
+        _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), np.float32(float(k) ** 2),
+                       target_w, reject_w, final)
+        return final
     return out
+
+
+#: ``measurement.denoise_adaptive`` defaults (sigmas in rad of phase)
+ADAPTIVE_DEFAULTS = {"enabled": True, "max_radius": 6, "target_sigma_rad": 0.006, "reject_sigma_rad": 0.03}
+
+
+def adaptive_kwargs(opts: dict | None) -> dict:
+    """:func:`denoise_phase` / :func:`denoise_weighted` keywords of a ``measurement.denoise_adaptive``
+    block (``enabled``, ``max_radius``, ``target_sigma_rad``, ``reject_sigma_rad``); ``{}`` when
+    absent or disabled (the fixed window)."""
+    if opts is None or opts is False:
+        return {}
+    o = {**ADAPTIVE_DEFAULTS, **(dict(opts) if opts is not True else {})}
+    if not o["enabled"]:
+        return {}
+    return {"max_radius": int(o["max_radius"]), "target_sigma": float(o["target_sigma_rad"]),
+            "reject_sigma": float(o["reject_sigma_rad"])}

@@ -25,6 +25,7 @@ from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, calibrate_planes, coverage
 from huefringe.huetable import HueTable, HueTableError, build_table
+from huefringe import phase_error
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, frame_stats, measure_frame, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
@@ -150,18 +151,28 @@ def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapp
 
 
 def plane_calibration(session: str, table: str, hue_model: str, calibration: Mapping[str, Any],
-                      model: str, stats: str) -> None:
-    """Fit the per-pixel phase-to-height model on the calibration planes."""
-    cal = session_plane_calibration(load_session(session), HueTable.load(table), hue_model, calibration)
+                      model: str, stats: str, phase_error_table: str | None = None,
+                      phase_error_figure: str | None = None, phase_error_summary: str | None = None) -> None:
+    """Fit the per-pixel phase-to-height model on the calibration planes (after the phase-error
+    table, :mod:`huefringe.phase_error`, when ``calibration.phase_error.enabled``)."""
+    cal = session_plane_calibration(load_session(session), HueTable.load(table), hue_model, calibration,
+                                    phase_error_table=phase_error_table, phase_error_figure=phase_error_figure,
+                                    phase_error_summary=phase_error_summary)
     cal.save(model)
     info = dict(cal.stats)
     info["hue_model"] = hue_model
     write_json(stats, info)
 
 
-def session_plane_calibration(s: Session, t: HueTable, hue_model: str,
-                              calibration: Mapping[str, Any]) -> PlaneCalibration:
+def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibration: Mapping[str, Any], *,
+                              phase_error_table: str | None = None, phase_error_figure: str | None = None,
+                              phase_error_summary: str | None = None) -> PlaneCalibration:
     """The plane calibration of a session from its reference table, in memory (:func:`plane_calibration` writes it).
+
+    The planes' phases are first corrected with the phase-error table learned from them
+    (:mod:`huefringe.phase_error`, when ``calibration.phase_error.enabled``); the table is kept
+    in ``cal.phase_error`` (applied to every frame) and its figures in ``cal.stats["phase_error"]``.
+    The table, its summary and QA figure are written to the paths given.
 
     Raises
     ------
@@ -169,6 +180,9 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str,
         Naming the plane folder, the plane images and ``session.yaml``.
     """
     phases, valid = _plane_phases(s, t, hue_model, calibration)
+    lut = phase_error.from_calibration(phases, valid, calibration, phase_error=phase_error_table,
+                                       figure=phase_error_figure, summary=phase_error_summary)
+    phases = {z: phase_error.correct(p, None if lut is None else lut.error) for z, p in phases.items()}
     try:
         cal = calibrate_planes(phases, valid, smooth_degree=calibration["plane_smooth_degree"])
     except PlaneCalibrationError as exc:
@@ -177,6 +191,8 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str,
             f"{s.root / 'reference' / 'planes'}: {exc} (plane images {files}; heights from planes_mm in "
             f"{s.root / 'session.yaml'})"
         ) from exc
+    cal.phase_error = None if lut is None else lut.error
+    cal.stats["phase_error"] = None if lut is None else lut.stats
     return cal
 
 
@@ -289,6 +305,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         path = s.frames[n]
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
             m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"],
+                                  denoise_adaptive=measurement.get("denoise_adaptive"),
                                   want_maps=n in maps, want_dphi=True, out=buffers)
             flags = unwrap(m.dphi, m.valid, "reference").flags  # type: ignore[arg-type]
             px = m.valid.size
@@ -300,7 +317,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         else:
             res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
-                                denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion)
+                                denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
+                                denoise_adaptive=measurement.get("denoise_adaptive"))
             height, phase, hue, stats = res.height, res.phase, res.hue, res.stats
         _refuse_bad_frame(path, stats, measurement)
         yield n, height, phase, hue, stats
@@ -564,7 +582,8 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
         hue_table(str(session), which, model, cal, table=str(out / f"table_{which}.json"),
                   stats=str(out / f"table_{which}.stats.json"))
     plane_calibration(str(session), str(out / "table_reference.json"), model, cal,
-                      model=str(out / "model.npz"), stats=str(out / "planes.json"))
+                      model=str(out / "model.npz"), stats=str(out / "planes.json"),
+                      phase_error_table=str(out / "phase_error.npz"), phase_error_summary=str(out / "phase_error.json"))
     paths: dict[str, Any] = {
         k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
         for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"))

@@ -51,6 +51,13 @@ rule plane_calibration:
     output:
         model=R("{sid}", "calib", "phase_to_height.npz"),
         stats=R("{sid}", "calib", "planes.json"),
+        phase_error_table=R("{sid}", "calib", "phase_error.npz"),
+        phase_error_summary=R("{sid}", "calib", "phase_error.json"),
+        phase_error_figure=report(
+            R("{sid}", "calib", "phase_error.png"),
+            caption="../report/phase_error.rst",
+            category="Calibration",
+        ),
     log:
         "logs/{sid}/plane_calibration.log",
     conda:

@@ -8,7 +8,8 @@ the mask; the plate never moves.
 
 Kinds (``scene.kind`` in the bench YAML): ``flat`` (paper Fig. 7), ``gauge_blocks`` (Fig. 9;
 ``blocks: table1`` for the Table 1 experiment), ``dental`` (Fig. 10), ``heightmap`` (a TIFF in mm)
-and ``mesh`` (STL/PLY/OBJ ray cast straight down with Open3D).
+``mesh`` (STL/PLY/OBJ ray cast straight down with Open3D) and ``photo_relief`` (a smooth relief
+whose reflectance is a real photograph from ``skimage.data``, dark parts included).
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ __all__ = [
     "GaugeBlocksScene",
     "HeightmapScene",
     "MeshScene",
+    "PhotoReliefScene",
     "Scene",
     "SceneSample",
     "build_scene",
@@ -393,6 +395,52 @@ class MeshScene:
 
 
 # --------------------------------------------------------------------------------------------
+@dataclass
+class PhotoReliefScene:
+    """A smooth relief printed with a real photograph (``skimage.data``, shipped offline).
+
+    Height: ``base_mm + amplitude_mm * (1 + tanh(f / 1.5)) / 2`` with ``f`` a :func:`smooth_field`
+    of wavelength ``wavelength_mm``, over ``rect_mm``; reflectance: the photograph stretched over
+    the rectangle, times ``reflectance_scale``, floored at ``min_reflectance`` (its dark parts
+    stay dark). Analytic in ``(X, Y)``, so the relief can move; the photograph moves with it.
+    """
+
+    image: F64
+    rect_mm: tuple[float, float, float, float]
+    base_mm: float = 0.3
+    amplitude_mm: float = 2.5
+    wavelength_mm: float = 30.0
+    reflectance_scale: float = 0.9
+    min_reflectance: float = 0.01
+    seed: int = 0
+
+    def sample(self, x: F64, y: F64) -> SceneSample:
+        """See :class:`Scene`."""
+        mask = _in_rect(x, y, self.rect_mm)
+        f = smooth_field(x, y, self.seed, self.wavelength_mm)
+        h = np.where(mask, self.base_mm + self.amplitude_mm * 0.5 * (1.0 + np.tanh(f / 1.5)), 0.0)
+        gx, gy = _grid_gradient(h, x, y)
+        gx, gy = np.where(mask, gx, 0.0), np.where(mask, gy, 0.0)
+        x0, y0, x1, y1 = self.rect_mm
+        img = self.image
+        cols = (x - x0) / (x1 - x0) * (img.shape[1] - 1)
+        rows = (y - y0) / (y1 - y0) * (img.shape[0] - 1)
+        refl = np.stack([_bilinear(img[..., k], rows, cols, 0.0) for k in range(3)], axis=-1)
+        refl = np.clip(refl * self.reflectance_scale, self.min_reflectance, 1.0)
+        return SceneSample(h, gx, gy, refl, mask)
+
+
+def photo_image(name: str) -> F64:
+    """A colour photograph of ``skimage.data`` (e.g. ``astronaut``, ``coffee``, ``chelsea``) in [0, 1]."""
+    import skimage.data
+
+    img = np.asarray(getattr(skimage.data, name)(), dtype=np.float64) / 255.0
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=2)
+    return img[..., :3]
+
+
+# --------------------------------------------------------------------------------------------
 def build_scene(cfg: dict[str, Any]) -> Scene:
     """The scene of a validated bench configuration."""
     sc = cfg["scene"]
@@ -438,6 +486,20 @@ def build_scene(cfg: dict[str, Any]) -> Scene:
             offset_mm=(float(sc["offset_mm"][0]), float(sc["offset_mm"][1])),
             reflectance=rgb3(sc["reflectance"]),
             reflectance_image=refl_img,
+        )
+    if kind == "photo_relief":
+        m = float(sc["margin_mm"])
+        rect = tuple(float(_snap(v, pitch)) for v in (-0.5 * pitch + m, -0.5 * pitch + m,
+                                                       w_mm - 0.5 * pitch - m, h_mm - 0.5 * pitch - m))
+        return PhotoReliefScene(
+            image=photo_image(sc["image"]),
+            rect_mm=rect,  # type: ignore[arg-type]
+            base_mm=float(sc["base_mm"]),
+            amplitude_mm=float(sc["amplitude_mm"]),
+            wavelength_mm=float(sc["wavelength_mm"]),
+            reflectance_scale=float(sc["reflectance_scale"]),
+            min_reflectance=float(sc["min_reflectance"]),
+            seed=int(s["seed"]),
         )
     if kind == "mesh":
         refl_img = _read_reflectance_image(sc["reflectance_path"]) if sc["reflectance_path"] else None

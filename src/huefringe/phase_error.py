@@ -1,0 +1,315 @@
+"""Phase-error lookup table: the decoded phase's systematic error as a function of the phase.
+
+Why
+---
+The per-pixel hue tables are built from *uniform* hue bands, so they see projector gamma,
+surface colour, crosstalk and ambient light, but not what projector defocus and camera lens
+blur do to the trapezoid's ramps (paper eq. 3) once gamma has curved them: blurring a curved
+ramp shifts it, differently on either side of each corner of the trapezoid. The decoded code
+phase then carries an error ``e(phi)`` with period about 2 pi / 3 (it jumps where the brightest
+channel changes). White balance removes each channel's reflectivity (a per-pixel scale), and
+blur and gamma act per channel, so after white balance and the per-pixel table that error is, to
+first order, a function of the decoded phase alone, the same for every surface colour
+(crosstalk and ambient light break this mildly).
+
+How (the classic relative: Zhang and Yau's phase-error lookup table)
+--------------------------------------------------------------------
+The calibration planes at known heights show every pixel the trapezoid at several phases, and
+a plane's true phase is smooth (linear in X under the pinhole model, plus smooth lens
+distortion). Each plane's decoded phase is unwrapped and fitted with a low-order 2-D polynomial
+(:func:`huefringe.height.fit_poly2d`); the residuals of all planes, binned by the decoded phase
+(median per bin, periodic smoothing), give ``e(phi)``. The fit absorbs a little of the error,
+so the planes are corrected with the table and fitted again (``iterations``), the table
+accumulating the binned residuals. Nothing but the session's planes is used (never ground
+truth). Frames and planes alike are then corrected as ``phi_c = phi - e(phi)``, by linear
+interpolation between bin centres (:func:`correct`; the fused kernel calls the same compiled
+:func:`correct_one`, so both give the same bits).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numba import njit
+from numpy.typing import NDArray
+
+TWO_PI = 2.0 * np.pi
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def correct_one(phi, error):  # pragma: no cover - compiled
+    """``phi - e(phi)`` for one float32 phase in [0, 2 pi), wrapped to [0, 2 pi), float32.
+
+    ``e`` is linear between the bin centres ``(i + 1/2) 2 pi / n`` of ``error`` (periodic).
+    A non-finite ``phi`` is returned unchanged."""
+    if not (phi - phi == 0):
+        return phi
+    n = error.size
+    two_pi = 2.0 * np.pi
+    x = np.float64(phi) * (n / two_pi) - 0.5
+    i0 = int(np.floor(x))
+    f = x - i0
+    j0 = i0 % n
+    j1 = (i0 + 1) % n
+    c = np.float64(phi) - ((1.0 - f) * error[j0] + f * error[j1])
+    c = c + two_pi if c < 0.0 else (c - two_pi if c >= two_pi else c)
+    r = np.float32(c)
+    return np.float32(0.0) if r >= np.float32(two_pi) else r
+
+
+@njit(cache=True, nogil=True)
+def _correct(phi, error, out):  # pragma: no cover - compiled
+    flat_in = phi.ravel()
+    flat_out = out.ravel()
+    for i in range(flat_in.size):
+        flat_out[i] = correct_one(flat_in[i], error)
+
+
+def correct(phase: NDArray[np.floating], error: NDArray[np.float64] | None) -> NDArray[np.float32]:
+    """Corrected code phase ``phi - e(phi)`` (float32, [0, 2 pi), NaN stays NaN).
+
+    Parameters
+    ----------
+    phase : ndarray
+        Decoded code phase in [0, 2 pi), NaN where undefined; cast to float32 first (the
+        chain's phases are float32).
+    error : ndarray of float64, (n,), or None
+        The table ``e`` at the bin centres (:attr:`PhaseErrorLUT.error`); None returns the
+        phase unchanged (as float32).
+    """
+    p = np.ascontiguousarray(phase, dtype=np.float32)
+    if error is None:
+        return p
+    e = np.ascontiguousarray(error, dtype=np.float64)
+    if e.ndim != 1 or e.size < 3:
+        raise ValueError(f"the phase-error table must be 1-D with at least 3 bins, got shape {e.shape}")
+    out = np.empty_like(p)
+    _correct(p, e, out)
+    return out
+
+
+@dataclass
+class PhaseErrorLUT:
+    """The phase-error table and what was measured while estimating it."""
+
+    error: NDArray[np.float64]
+    """``e(phi)`` (rad) at the bin centres ``(i + 1/2) 2 pi / n``."""
+    before: NDArray[np.float64]
+    """Binned median residual of the planes against their smooth fits, before correction."""
+    after: NDArray[np.float64]
+    """The same after correction (what the table leaves)."""
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def centres(self) -> NDArray[np.float64]:
+        n = self.error.size
+        return (np.arange(n) + 0.5) * TWO_PI / n
+
+    def save(self, npz: str) -> None:
+        """``error``, ``before``, ``after`` and ``centres`` to an ``.npz`` (atomically)."""
+        from huefringe.io import atomic_path
+
+        with atomic_path(npz) as tmp:
+            with open(tmp, "wb") as f:
+                np.savez(f, error=self.error, before=self.before, after=self.after, centres=self.centres)
+
+
+def _circular_smooth(values: NDArray[np.float64], sigma_bins: float) -> NDArray[np.float64]:
+    if sigma_bins <= 0:
+        return values
+    from scipy.ndimage import gaussian_filter1d
+
+    return gaussian_filter1d(values, sigma_bins, mode="wrap")
+
+
+def _fill_periodic(values: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Empty (NaN) bins linearly interpolated from their neighbours, periodically."""
+    ok = np.isfinite(values)
+    if ok.all() or not ok.any():
+        return np.where(ok, values, 0.0)
+    n = values.size
+    idx = np.arange(n)
+    xs = idx[ok]
+    return np.interp(idx, np.concatenate([xs - n, xs, xs + n]), np.tile(values[ok], 3))
+
+
+def binned_median(phase: NDArray[np.floating], residual: NDArray[np.floating], bins: int,
+                  min_count: int = 10) -> tuple[NDArray[np.float64], NDArray[np.int64]]:
+    """Median of ``residual`` in ``bins`` equal bins of ``phase`` over [0, 2 pi); NaN where a bin
+    holds fewer than ``min_count`` samples. Returns the medians and the counts."""
+    p = np.asarray(phase, np.float64).ravel()
+    r = np.asarray(residual, np.float64).ravel()
+    k = np.clip((np.mod(p, TWO_PI) * (bins / TWO_PI)).astype(np.int64), 0, bins - 1)
+    order = np.argsort(k, kind="stable")
+    ks, rs = k[order], r[order]
+    counts = np.bincount(ks, minlength=bins)
+    edges = np.concatenate([[0], np.cumsum(counts)])
+    med = np.full(bins, np.nan)
+    for i in range(bins):
+        if counts[i] >= min_count:
+            med[i] = np.median(rs[edges[i] : edges[i + 1]])
+    return med, counts
+
+
+def plane_residuals(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]],
+                    degree: int = 3) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Decoded phase and its residual against the plane's smooth 2-D fit, over all planes.
+
+    Each plane's phase is unwrapped (:func:`huefringe.phase.unwrap_rows`) and fitted with a
+    robust 2-D polynomial of total degree ``degree`` (:func:`huefringe.height.fit_poly2d`).
+    Returns the wrapped phases and residuals (rad) of the valid pixels, concatenated."""
+    from huefringe.height import fit_poly2d
+    from huefringe.phase import unwrap_rows
+
+    phis, res = [], []
+    for z in sorted(plane_phases):
+        phi = np.asarray(plane_phases[z], np.float64)
+        valid = np.asarray(plane_valid[z], bool) & np.isfinite(phi)
+        un = unwrap_rows(phi, valid)
+        fit = fit_poly2d(un, valid, degree)
+        r = un - fit
+        keep = valid & np.isfinite(r)
+        r = r[keep]
+        mad = 1.4826 * np.median(np.abs(r - np.median(r))) if r.size else 0.0
+        inlier = np.abs(r) < max(8.0 * mad, 1e-6)  # unwrapping slips and shadow edges are not the error
+        phis.append(phi[keep][inlier])
+        res.append(r[inlier])
+    return np.concatenate(phis), np.concatenate(res)
+
+
+def estimate(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]], *,
+             degree: int = 3, bins: int = 512, iterations: int = 3, smooth_bins: float = 1.5,
+             min_count: int = 10) -> PhaseErrorLUT:
+    """Estimate the phase-error table ``e(phi)`` from the calibration planes (no ground truth).
+
+    Parameters
+    ----------
+    plane_phases, plane_valid : dict
+        Decoded code phase [0, 2 pi) and valid mask of each calibration plane, keyed by height
+        (as :func:`huefringe.height.calibrate_planes` takes them).
+    degree : int
+        Degree of each plane's smooth 2-D fit (the plane calibration's ``plane_smooth_degree``).
+    bins : int
+        Bins over [0, 2 pi) (512: 0.012 rad each).
+    iterations : int
+        Fit, bin, correct rounds; each adds the binned residual left by the previous one.
+    smooth_bins : float
+        Standard deviation (bins) of the periodic Gaussian applied to each round's binned medians.
+
+    Returns
+    -------
+    PhaseErrorLUT
+        With ``stats``: rms of the binned error before/after, peak-to-peak of ``e``, the rms of
+        the plane residuals before/after, the number of samples.
+    """
+    if bins < 8:
+        raise ValueError(f"bins must be >= 8, got {bins}")
+    error = np.zeros(bins)
+    phases = {z: np.asarray(p, np.float32) for z, p in plane_phases.items()}
+    before = None
+    history = []
+    for _ in range(max(int(iterations), 1)):
+        corrected = {z: correct(p, error) for z, p in phases.items()}
+        phi_c, r = plane_residuals(corrected, plane_valid, degree)
+        # bin by the *decoded* phase (the table's argument): map corrected samples back
+        phi_d = _uncorrect_lookup(phi_c, error)
+        med, counts = binned_median(phi_d, r, bins, min_count)
+        if before is None:
+            before = _fill_periodic(med)
+            rms_before = float(np.sqrt(np.mean(r**2)))
+        step = _circular_smooth(_fill_periodic(med), smooth_bins)
+        history.append(float(np.sqrt(np.mean(step**2))))
+        error = error + step
+    corrected = {z: correct(p, error) for z, p in phases.items()}
+    phi_c, r = plane_residuals(corrected, plane_valid, degree)
+    after, counts = binned_median(_uncorrect_lookup(phi_c, error), r, bins, min_count)
+    after = _fill_periodic(after)
+    assert before is not None
+    stats = {
+        "bins": bins,
+        "iterations": int(iterations),
+        "degree": degree,
+        "smooth_bins": smooth_bins,
+        "samples": int(r.size),
+        "planes": len(plane_phases),
+        "binned_rms_before_rad": float(np.sqrt(np.mean(before**2))),
+        "binned_rms_after_rad": float(np.sqrt(np.mean(after**2))),
+        "error_peak_to_peak_rad": float(np.ptp(error)),
+        "residual_rms_before_rad": rms_before,
+        "residual_rms_after_rad": float(np.sqrt(np.mean(r**2))),
+        "round_step_rms_rad": history,
+    }
+    return PhaseErrorLUT(error, before, after, stats)
+
+
+def _uncorrect_lookup(phi_c: NDArray[np.floating], error: NDArray[np.float64]) -> NDArray[np.float64]:
+    """Approximate decoded phase of corrected samples: ``phi_c + e(phi_c)`` (one fixed-point step;
+    e is small and smooth)."""
+    if not np.any(error):
+        return np.asarray(phi_c, np.float64)
+    n = error.size
+    centres = (np.arange(n) + 0.5) * TWO_PI / n
+    ext_x = np.concatenate([centres - TWO_PI, centres, centres + TWO_PI])
+    ext_e = np.tile(error, 3)
+    p = np.asarray(phi_c, np.float64)
+    for _ in range(2):
+        p = np.mod(np.asarray(phi_c, np.float64) + np.interp(p, ext_x, ext_e), TWO_PI)
+    return p
+
+
+def qa_figure(lut: PhaseErrorLUT, path: str, *, title: str = "") -> None:
+    """Error against decoded phase on the planes, before and after the correction, and the table."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from huefringe.io import atomic_path
+
+    c = lut.centres
+    fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
+    ax.plot(c, 1e3 * lut.before, lw=1.0, color="tab:red", label=f"before (rms {1e3 * lut.stats['binned_rms_before_rad']:.1f} mrad)")
+    ax.plot(c, 1e3 * lut.after, lw=1.0, color="tab:green", label=f"after (rms {1e3 * lut.stats['binned_rms_after_rad']:.1f} mrad)")
+    ax.plot(c, 1e3 * lut.error, lw=0.8, ls="--", color="k", label="table e(phi)")
+    for k in range(1, 6):
+        ax.axvline(k * np.pi / 3, color="0.85", lw=0.6, zorder=0)
+    ax.set_xlim(0, TWO_PI)
+    ax.set_xlabel("decoded code phase (rad)")
+    ax.set_ylabel("plane residual, median per bin (mrad)")
+    ax.set_title(title or "phase-dependent error on the calibration planes")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+
+
+DEFAULTS: dict[str, Any] = {"enabled": True, "bins": 512, "iterations": 3, "smooth_bins": 1.5}
+
+
+def from_calibration(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]],
+                     calibration: dict[str, Any] | Any, *, phase_error: str | None = None,
+                     figure: str | None = None, summary: str | None = None) -> PhaseErrorLUT | None:
+    """The plane calibration's phase-error table as configured (``calibration.phase_error``).
+
+    The table is always estimated and recorded (``phase_error`` .npz, ``summary`` .json,
+    ``figure`` .png, each when given), so a run with the correction off still shows the error it
+    leaves; it is returned (to be applied) only when ``enabled``.
+    """
+    from huefringe.io import write_json
+
+    opts = {**DEFAULTS, **dict(calibration.get("phase_error") or {})}
+    degree = calibration.get("plane_smooth_degree") or 3
+    lut = estimate(plane_phases, plane_valid, degree=int(degree), bins=int(opts["bins"]),
+                   iterations=int(opts["iterations"]), smooth_bins=float(opts["smooth_bins"]))
+    lut.stats["enabled"] = bool(opts["enabled"])
+    if phase_error:
+        lut.save(phase_error)
+    if summary:
+        write_json(summary, lut.stats)
+    if figure:
+        state = "applied" if opts["enabled"] else "NOT applied (calibration.phase_error.enabled: false)"
+        qa_figure(lut, figure, title=f"phase-dependent error on the calibration planes; table {state}")
+    return lut if opts["enabled"] else None
