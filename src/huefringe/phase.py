@@ -206,9 +206,10 @@ def _denoise_row(dj, di, sj2, si2, inv, k2, acc, wsum):  # pragma: no cover - co
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _denoise_kernel(d, s2, inv, radius, k2, out):  # pragma: no cover - compiled
+def _denoise_kernel(d, s2, inv, radius, k2, out, wsum_out):  # pragma: no cover - compiled
     """Row by row, window offset by window offset (``dv`` then ``du``, the same order for every
-    pixel); ``inv = 0`` marks invalid pixels, which then add nothing."""
+    pixel); ``inv = 0`` marks invalid pixels, which then add nothing. ``wsum_out`` (or None)
+    receives each pixel's sum of the weights it used."""
     h, w = d.shape
     acc = np.empty(w, np.float32)
     wsum = np.empty(w, np.float32)
@@ -226,10 +227,14 @@ def _denoise_kernel(d, s2, inv, radius, k2, out):  # pragma: no cover - compiled
                              inv[vv, u0 + du : u1 + du], k2, acc[u0:u1], wsum[u0:u1])
         for u in range(w):
             out[v, u] = d[v, u] + acc[u] / wsum[u] if inv[v, u] > 0 else np.float32(np.nan)
+        if wsum_out is not None:
+            for u in range(w):
+                wsum_out[v, u] = wsum[u] if inv[v, u] > 0 else np.float32(0.0)
 
 
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
-                  *, radius: int = 2, k: float = 3.0) -> NDArray[np.float32]:
+                  *, radius: int = 2, k: float = 3.0,
+                  weight_sum: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """Edge-preserving, uncertainty-weighted local mean of a phase map.
 
     Each valid pixel becomes the inverse-variance weighted mean of the valid pixels in its
@@ -248,6 +253,10 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     sigma : ndarray
         Per-pixel standard deviation of ``dphi`` in radians (finite, > 0 where valid).
     valid : ndarray of bool
+    weight_sum : float32 ndarray, optional
+        Receives each pixel's sum of the weights ``1 / sigma^2`` of the neighbours it averaged
+        (0 where not valid): the filtered phase's variance from independent pixel noise is
+        exactly ``1 / weight_sum`` (:mod:`huefringe.uncertainty`).
 
     Returns
     -------
@@ -267,19 +276,37 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     # float32 throughout (SIMD); sigma clipped so that its square and inverse stay finite
     dz, s2, inv = (np.empty(d.shape, np.float32) for _ in range(3))
     _denoise_weights(d, s, valid, dz, s2, inv)
-    return denoise_weighted(dz, s2, inv, radius=radius, k=k)
+    return denoise_weighted(dz, s2, inv, radius=radius, k=k, weight_sum=weight_sum)
+
+
+def denoise_weight_sums(dphi: NDArray[np.floating], sigma: NDArray[np.floating],
+                        valid: NDArray[np.bool_]) -> NDArray[np.float32]:
+    """Each pixel's own weight ``1 / sigma^2`` as :func:`denoise_phase` computes it (0 where
+    not valid): the weight sum of an unfiltered phase (radius 0)."""
+    d = np.asarray(dphi)
+    d = d if d.dtype in (np.float32, np.float64) else d.astype(np.float64)
+    s = np.asarray(sigma)
+    s = s if s.dtype in (np.float32, np.float64) else s.astype(np.float64)
+    dz, s2, inv = (np.empty(d.shape, np.float32) for _ in range(3))
+    _denoise_weights(d, s, np.asarray(valid, bool), dz, s2, inv)
+    return inv
 
 
 def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDArray[np.float32], *,
-                     radius: int = 2, k: float = 3.0) -> NDArray[np.float32]:
+                     radius: int = 2, k: float = 3.0,
+                     weight_sum: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """:func:`denoise_phase` on its prepared float32 inputs (for callers that compute them on
     the fly, like the fused kernel): ``ok = valid & finite(dphi) & finite(sigma) & sigma > 0``,
     ``dz = ok ? dphi : 0``, ``s2 = float32(clip(ok ? sigma : 1, 1e-9, 1e9)) ** 2`` and
-    ``inv = ok ? 1 / s2 : 0``. Returns the filtered phase, NaN where ``inv == 0``.
+    ``inv = ok ? 1 / s2 : 0``. Returns the filtered phase, NaN where ``inv == 0``;
+    ``weight_sum`` (float32, C-contiguous, optional) receives the sums of the weights used.
     """
     arrays = [np.ascontiguousarray(x, dtype=np.float32) for x in (dz, s2, inv)]
     if not arrays[0].shape == arrays[1].shape == arrays[2].shape or arrays[0].ndim != 2:
         raise ValueError("dz, s2 and inv must be 2-D arrays of the same shape")
     out = np.empty(arrays[0].shape, np.float32)
-    _denoise_kernel(*arrays, int(radius), np.float32(float(k) ** 2), out)
+    if weight_sum is not None and (weight_sum.shape != out.shape or weight_sum.dtype != np.float32
+                                   or not weight_sum.flags.c_contiguous):
+        raise ValueError("weight_sum must be a C-contiguous float32 array of the phase's shape")
+    _denoise_kernel(*arrays, int(radius), np.float32(float(k) ** 2), out, weight_sum)
     return out
