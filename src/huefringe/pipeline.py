@@ -368,7 +368,8 @@ def compensation(session: str, table: str, model: str, hue_model: str, calibrati
 def measure_frames(session: str, frames: Sequence[int], table: str, model: str, hue_model: str,
                    measurement: Mapping[str, Any], calibration: Mapping[str, Any],
                    heights: Sequence[str], qa: Sequence[str], phases: Sequence[str] = (),
-                   hues: Sequence[str] = (), map_frames: Sequence[int] | None = None) -> None:
+                   hues: Sequence[str] = (), map_frames: Sequence[int] | None = None,
+                   uncertainties: Sequence[str] = ()) -> None:
     """Measure a batch of frames: height TIFF and QA JSON per frame, phase and hue maps of some.
 
     Parameters
@@ -380,6 +381,9 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
     map_frames : sequence of int, optional
         The frames whose maps are written (the workflow: those it renders, or all with
         ``measurement.maps: all``); default: every frame of ``frames``.
+    uncertainties : sequence of str
+        One standard-uncertainty TIFF (mm, NaN where the height is NaN;
+        :mod:`huefringe.uncertainty`) per frame of ``frames``, or none.
 
     The coloured point clouds are written from the height TIFFs by :func:`cloud_frames`, a stage
     (and workflow job) of its own.
@@ -397,11 +401,14 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
     maps = {n: (phases[k], hues[k]) for k, n in enumerate(map_frames)}
     if not set(maps) <= set(frames):
         raise ValueError(f"measure_frames: map frames {sorted(set(maps) - set(frames))} are not in the batch")
+    if uncertainties and len(uncertainties) != len(frames):
+        raise ValueError(f"measure_frames: {len(frames)} frames, {len(uncertainties)} uncertainty maps")
     s = load_session(session)
     t = HueTable.load(table)
     cal = PlaneCalibration.load(model)
     white = read_rgb(s.object_white)
     shadow = shadow_mask(white, measurement["shadow_fraction"])
+    budget = None
     fast = bool(measurement["kernel"]) and measurement["unwrap"] == "reference"
     if fast:
         prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=measurement["min_saturation"],
@@ -414,21 +421,26 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         path = s.frames[n]
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
             m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"],
-                                  want_maps=n in maps, want_dphi=True, out=buffers)
+                                  want_maps=n in maps, want_dphi=True, want_uncertainty=bool(uncertainties),
+                                  out=buffers)
             flags = unwrap(m.dphi, m.valid, "reference").flags  # type: ignore[arg-type]
             px = m.valid.size
             stats = frame_stats(m.valid, m.height, flags, clipped_fraction=m.counts["clipped"] / px,
                                 hue_undefined_fraction=m.counts["hue_undefined"] / px,
                                 table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
                                 hue_model=hue_model, unwrap_mode="reference")
-            height, phase, hue = m.height, m.phase, m.hue
+            height, phase, hue, u_map = m.height, m.phase, m.hue, m.uncertainty
         else:
+            budget = pixel_budget(t, cal) if budget is None else budget
             res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
-                                denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion)
-            height, phase, hue, stats = res.height, res.phase, res.hue, res.stats
+                                denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
+                                budget=budget)
+            height, phase, hue, stats, u_map = res.height, res.phase, res.hue, res.stats, res.uncertainty
         _refuse_bad_frame(path, stats, measurement)
         write_tiff(heights[i], height)
+        if uncertainties:
+            write_tiff(uncertainties[i], u_map)
         if n in maps:
             write_tiff(maps[n][0], phase)
             write_tiff(maps[n][1], hue)
@@ -505,8 +517,13 @@ def baseline_frames(session: str, frames: Sequence[int], model: str, object_tabl
 
 
 def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str], report: str,
-                    measurement: Mapping[str, Any]) -> None:
-    """Height error against the bench's ground truth, for the method and the baseline."""
+                    measurement: Mapping[str, Any], uncertainties: Sequence[str] = (), reliability: str = "") -> None:
+    """Height error against the bench's ground truth, for the method and the baseline.
+
+    With ``uncertainties`` the method's block gains ``uncertainty``: the fraction of the valid
+    pixels with ``|error| <= 2 u`` (per frame and pooled) and the binned reliability curve
+    (:func:`huefringe.uncertainty.reliability`), drawn to ``reliability`` (PNG).
+    """
     s = load_session(session)
     lit = ~shadow_mask(read_rgb(s.object_white), measurement["shadow_fraction"])
 
@@ -524,6 +541,24 @@ def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str
         return {"summary": summary, "per_frame": per}
 
     out: dict[str, Any] = {"session": s.id, "method": "trapezoidal-hsi", "trapezoidal-hsi": block(heights, s.frame_ids)}
+    if uncertainties:
+        from huefringe import uncertainty as unc
+
+        errs, us, per = [], [], []
+        for p, q, n in zip(heights, uncertainties, s.frame_ids, strict=True):
+            e = (read_tiff(p).astype(np.float64) - read_tiff(s.ground_truth[n]))
+            u = read_tiff(q).astype(np.float64)
+            r = unc.reliability(e, u)
+            per.append({"frame": n, "coverage_2u": r["coverage_2u"], "rms_u_mm": r.get("rms_u_mm")})
+            errs.append(e.ravel())
+            us.append(u.ravel())
+        pooled = unc.reliability(np.concatenate(errs), np.concatenate(us))
+        pooled["per_frame"] = per
+        out["trapezoidal-hsi"]["uncertainty"] = pooled
+        if reliability:
+            from huefringe.render import reliability_figure
+
+            reliability_figure(pooled, reliability, title=f"{s.id}: observed error against predicted u")
     if baseline:
         out["three-step-phase-shift"] = block(baseline, sorted(s.phase_shift))
     write_json(report, out)
@@ -550,11 +585,12 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
                       model=str(out / "model.npz"), stats=str(out / "planes.json"))
     paths: dict[str, Any] = {
         k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
-        for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"))
+        for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"),
+                       ("uncertainties", "tiff"))
     }
     measure_frames(str(session), frames, str(out / "table_object.json"), str(out / "model.npz"), model,
                    config["measurement"], cal, heights=paths["heights"], phases=paths["phases"], hues=paths["hues"],
-                   qa=paths["qa"])
+                   qa=paths["qa"], uncertainties=paths["uncertainties"])
     cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"])
     if baseline:
         paths["baseline"] = [str(out / "baseline" / f"frame_{n:04d}.tiff") for n in frames]
@@ -614,8 +650,14 @@ def render_frame(session: str, mesh: str, height: str, phase: str, render: Mappi
 
 def metrology_report(session: str, heights: Sequence[str], qa: Sequence[str], baseline: Sequence[str], planes: str, tables: str,
                      cross_section: str, render: str, height_map: str, accuracy: Sequence[str],
-                     config: Mapping[str, Any], json: str, html: str, profile: str, per_frame: str) -> None:
-    """Step-height metrology of every frame: report.json (results contract) and report.html."""
+                     config: Mapping[str, Any], json: str, html: str, profile: str, per_frame: str,
+                     uncertainties: Sequence[str] = (), model: str = "", object_table: str = "") -> None:
+    """Step-height metrology of every frame: report.json (results contract) and report.html.
+
+    With ``uncertainties`` (one map per height map), the phase-to-height ``model`` and the
+    ``object_table``, each step also gets ``u_mm``, ``U_mm``, its ISO 14253-1 ``conformance``
+    and its ``uncertainty_budget`` (:func:`add_step_uncertainty`).
+    """
     import json as jsonlib
 
     from huefringe import metrology, report
@@ -638,6 +680,10 @@ def metrology_report(session: str, heights: Sequence[str], qa: Sequence[str], ba
             raise metrology.MetrologyError(f"{where}: {exc} (specimen in {s.root / 'session.yaml'})") from exc
 
     method = evaluate(heights)
+    if uncertainties:
+        add_step_uncertainty(method, maps, [read_tiff(p) for p in uncertainties], spec, s.pixel_pitch_mm,
+                             PlaneCalibration.load(model), HueTable.load(object_table), edge_exclusion=edge,
+                             denoise_radius=int(config["measurement"]["denoise_radius"]))
     base = evaluate(baseline, method="three-step-phase-shift") if baseline else None
     plane_stats = jsonlib.loads(Path(planes).read_text())
     table_stats = jsonlib.loads(Path(tables).read_text())
@@ -672,6 +718,31 @@ def metrology_report(session: str, heights: Sequence[str], qa: Sequence[str], ba
                "per_frame": Path(per_frame), "calibration_qa": Path(cross_section)}
     write_json(json, doc)
     report.write_report_html(html, doc, figures, provenance)
+
+
+def add_step_uncertainty(method: dict[str, Any], heights: Sequence[NDArray[np.floating]],
+                         uncertainties: Sequence[NDArray[np.floating]], specimen: Mapping[str, Any], pitch_mm: float,
+                         cal: PlaneCalibration, table: HueTable, *, edge_exclusion: float, denoise_radius: int) -> None:
+    """Add ``u_mm``, ``U_mm`` (k = 2), ``conformance`` and ``uncertainty_budget`` to each step of an
+    :func:`huefringe.metrology.evaluate_session` block, and ``verdict_with_uncertainty`` to the block.
+
+    ``pass`` stays ``|error| <= tolerance`` (the contract); ``conformance`` is the ISO 14253-1
+    decision with U: ``pass``, ``fail`` or ``undecided``.
+    """
+    from huefringe import uncertainty as unc
+
+    if len(uncertainties) != len(heights):
+        raise ValueError(f"{len(heights)} height maps but {len(uncertainties)} uncertainty maps")
+    budgets = unc.step_budget(heights, uncertainties, specimen, pitch_mm, cal.a, cal.b, unc.pixel_budget(table, cal),
+                              edge_exclusion=edge_exclusion, denoise_radius=denoise_radius)
+    tol = float(method["tolerance_mm"])
+    for step, bud in zip(method["steps"], budgets, strict=True):
+        step["u_mm"] = bud["u_mm"]
+        step["U_mm"] = bud["U_mm"]
+        step["conformance"] = unc.conformance(step["error_mm"], tol, bud["U_mm"])
+        step["uncertainty_budget"] = {k: v for k, v in bud.items() if k not in ("name", "u_mm", "U_mm")}
+    zones = {st["conformance"] for st in method["steps"]}
+    method["verdict_with_uncertainty"] = "FAIL" if "fail" in zones else ("UNDECIDED" if "undecided" in zones else "PASS")
 
 
 def archive_session(session: str, results: str, config: Mapping[str, Any], archive: str) -> None:

@@ -45,6 +45,7 @@ def frame_outputs(sid, frames):
         "phases": [R(sid, "phase", f"{fname(n)}.tiff") for n in frames],
         "hues": [R(sid, "hue", f"{fname(n)}.tiff") for n in frames],
         "qa": [R(sid, "qa", "frames", f"{fname(n)}.json") for n in frames],
+        "uncertainties": [R(sid, "uncertainty", f"{fname(n)}.tiff") for n in frames],
     }
 
 
@@ -58,7 +59,7 @@ def map_frames(sid):
 
 def measure_outputs(sid, frames):
     """Outputs of the measurement job of a batch: height and QA of every frame, maps of some."""
-    out = {k: v for k, v in frame_outputs(sid, frames).items() if k in ("heights", "qa")}
+    out = {k: v for k, v in frame_outputs(sid, frames).items() if k in ("heights", "qa", "uncertainties")}
     maps = [n for n in frames if n in set(map_frames(sid))]
     if maps:
         out.update({k: frame_outputs(sid, maps)[k] for k in ("phases", "hues")})

@@ -86,8 +86,10 @@ rule accuracy:
     input:
         heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
         baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
+        uncertainties=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["uncertainties"],
     output:
         report=R("{sid}", "accuracy.json"),
+        reliability=R("{sid}", "metrology", "reliability.png"),
     params:
         session=session_dir,
         measurement=config["measurement"],

@@ -5,6 +5,9 @@ rule metrology:
     input:
         heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
         qa=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["qa"],
+        uncertainties=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["uncertainties"],
+        model=R("{sid}", "calib", "phase_to_height.npz"),
+        object_table=R("{sid}", "calib", "table_object.json"),
         baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
         planes=R("{sid}", "calib", "planes.json"),
         tables=R("{sid}", "calib", "table_object.stats.json"),
