@@ -160,3 +160,20 @@ def test_frame_noise_term_matches_frame_to_frame_spread(still: dict) -> None:
     for k in ("reference", "model", "interpolation"):
         assert np.nanmedian(terms[k]) > 0, k
     assert 0.02 < float(np.nanmedian(us[0])) < 0.3
+
+
+def test_clouds_carry_sigma_mm(still: dict) -> None:
+    """Each point's sigma_mm (Open3D tensor API and trimesh read it back) is the uncertainty
+    map's value at its pixel, in row-major order."""
+    import open3d as o3d
+    import trimesh
+
+    paths = still["paths"]
+    h = read_tiff(paths["heights"][0])
+    u = read_tiff(paths["uncertainties"][0])
+    t = o3d.t.io.read_point_cloud(paths["clouds"][0])
+    np.testing.assert_array_equal(t.point["sigma_mm"].numpy().ravel(), u[np.isfinite(h)])
+    np.testing.assert_allclose(t.point["positions"].numpy()[:, 2], h[np.isfinite(h)])
+    raw = trimesh.load(paths["clouds"][0]).metadata["_ply_raw"]["vertex"]["data"]
+    np.testing.assert_array_equal(raw["sigma_mm"], u[np.isfinite(h)])
+    assert raw["red"].dtype == np.uint8

@@ -21,7 +21,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from huefringe.io import atomic_path
 
-__all__ = ["height_to_cloud", "height_to_points", "write_cloud"]
+__all__ = ["height_to_cloud", "height_to_points", "write_cloud", "write_cloud_sigma"]
 
 
 def _check_height(height: ArrayLike, pitch_mm: float) -> NDArray[np.floating]:
@@ -159,3 +159,41 @@ def _empty_ply_header(colours: bool, normals: bool) -> bytes:
         props += ["property uchar red", "property uchar green", "property uchar blue"]
     lines = ["ply", "format binary_little_endian 1.0", "comment Created by huefringe", "element vertex 0"]
     return ("\n".join(lines + props + ["end_header"]) + "\n").encode("ascii")
+
+
+def write_cloud_sigma(path: str | os.PathLike[str], pcd: o3d.geometry.PointCloud, sigma_mm: ArrayLike) -> Path:
+    """:func:`write_cloud` with a per-point scalar ``sigma_mm`` (the height's standard uncertainty).
+
+    Written through Open3D's tensor API as a float vertex property after ``x y z`` (double) and
+    ``red green blue`` (uchar), so Open3D (``o3d.t.io.read_point_cloud(...).point["sigma_mm"]``),
+    trimesh and MeshLab (as a per-vertex scalar) read it back.
+
+    Parameters
+    ----------
+    sigma_mm : array_like, shape (N,)
+        One value per point, in the cloud's point order (for :func:`height_to_cloud`:
+        ``u_map[np.isfinite(height)]``, row-major).
+    """
+    path = Path(path)
+    if path.suffix.lower() != ".ply":
+        raise ValueError(f"{path}: write_cloud_sigma writes PLY; use a .ply file name")
+    sigma = np.asarray(sigma_mm, dtype=np.float32).reshape(-1)
+    if sigma.size != len(pcd.points):
+        raise ValueError(f"{path}: {sigma.size} sigma values for {len(pcd.points)} points")
+    if sigma.size == 0:
+        with atomic_path(path) as tmp:
+            tmp.write_bytes(_empty_ply_header(pcd.has_colors(), pcd.has_normals())
+                            .replace(b"end_header", b"property float sigma_mm\nend_header"))
+        return path
+    t = o3d.t.geometry.PointCloud()
+    t.point["positions"] = o3d.core.Tensor(np.asarray(pcd.points, np.float64))
+    if pcd.has_normals():
+        t.point["normals"] = o3d.core.Tensor(np.asarray(pcd.normals, np.float64))
+    if pcd.has_colors():
+        rgb = np.rint(np.clip(np.asarray(pcd.colors), 0.0, 1.0) * 255.0).astype(np.uint8)
+        t.point["colors"] = o3d.core.Tensor(rgb)
+    t.point["sigma_mm"] = o3d.core.Tensor(sigma[:, None])
+    with atomic_path(path) as tmp:
+        if not o3d.t.io.write_point_cloud(str(tmp), t, write_ascii=False, compressed=False):
+            raise OSError(f"{path}: Open3D could not write the point cloud")
+    return path

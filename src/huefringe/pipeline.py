@@ -202,8 +202,12 @@ def bench_session(config: str, out: str, period_px: float | None = None) -> None
 
 
 def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_mm: float,
-           markdown: str, csv: str, figure: str) -> None:
-    """The paper's Table 1 from the metrology reports of a period sweep, beside the published values."""
+           markdown: str, csv: str, figure: str, uncertainty_ratio: str = "") -> None:
+    """The paper's Table 1 from the metrology reports of a period sweep, beside the published values.
+
+    ``uncertainty_ratio`` (JSON): per period, the step's observed std over the frames against the
+    predicted independent part of one frame's u (``uncertainty_budget.independent_per_frame_mm``).
+    """
     import json as jsonlib
 
     from huefringe import table1 as t1
@@ -216,6 +220,20 @@ def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_
             results[int(period)]["baseline"] = doc["baseline"]
     rows = t1.table1_rows(results, step_name=step, nominal=nominal_mm)
     t1.write_table1(rows, markdown, csv, figure)
+    if uncertainty_ratio:
+        ratios = {}
+        for period, res in results.items():
+            st = next((x for x in res["method"]["steps"] if x["name"] == step), None)
+            bud = (st or {}).get("uncertainty_budget")
+            if st is None or bud is None or st.get("std_mm") is None:
+                continue
+            ind = float(bud["independent_per_frame_mm"])
+            ratios[str(period)] = {"frames": len(st["per_frame_mm"]), "std_mm": st["std_mm"],
+                                   "independent_per_frame_mm": ind, "ratio": st["std_mm"] / ind if ind > 0 else None,
+                                   "u_mm": st.get("u_mm"), "error_mm": st["error_mm"]}
+            log.info("period %s px: std %.4f mm, predicted independent u %.4f mm, ratio %.2f (target 0.7-1.4)",
+                     period, st["std_mm"], ind, ratios[str(period)]["ratio"] or float("nan"))
+        write_json(uncertainty_ratio, {"step": step, "target": [0.7, 1.4], "periods": ratios})
 
 
 def _calibration_opts(calibration: Mapping[str, Any]) -> dict[str, Any]:
@@ -449,7 +467,8 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
                  stats["median_height_mm"] or float("nan"))
 
 
-def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], clouds: Sequence[str]) -> None:
+def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], clouds: Sequence[str],
+                 uncertainties: Sequence[str] = ()) -> None:
     """Coloured point clouds of a batch of measured frames, from their height TIFFs.
 
     Parameters
@@ -464,6 +483,9 @@ def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], cl
     clouds : sequence of str
         Target ``.ply`` files, one per frame, written atomically by
         :func:`huefringe.cloud.write_cloud`.
+    uncertainties : sequence of str, optional
+        The frames' uncertainty TIFFs: each point then carries ``sigma_mm``
+        (:func:`huefringe.cloud.write_cloud_sigma`).
 
     Raises
     ------
@@ -471,15 +493,21 @@ def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], cl
         If ``frames``, ``heights`` and ``clouds`` differ in length, or a height map does not
         match the white image's size.
     """
-    from huefringe.cloud import height_to_cloud, write_cloud
+    from huefringe.cloud import height_to_cloud, write_cloud, write_cloud_sigma
 
     if not len(frames) == len(heights) == len(clouds):
         raise ValueError(f"cloud_frames: {len(frames)} frames, {len(heights)} height maps, {len(clouds)} clouds")
     s = load_session(session)
     white = read_rgb(s.object_white)
-    for n, height, cloud in zip(frames, heights, clouds, strict=True):
-        pcd = height_to_cloud(read_tiff(height), s.pixel_pitch_mm, colours=white)
-        write_cloud(cloud, pcd)
+    if uncertainties and len(uncertainties) != len(frames):
+        raise ValueError(f"cloud_frames: {len(frames)} frames, {len(uncertainties)} uncertainty maps")
+    for i, (n, height, cloud) in enumerate(zip(frames, heights, clouds, strict=True)):
+        h = read_tiff(height)
+        pcd = height_to_cloud(h, s.pixel_pitch_mm, colours=white)
+        if uncertainties:
+            write_cloud_sigma(cloud, pcd, read_tiff(uncertainties[i])[np.isfinite(h)])
+        else:
+            write_cloud(cloud, pcd)
         log.info("frame %04d: %d points", n, len(pcd.points))
 
 
@@ -591,7 +619,8 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
     measure_frames(str(session), frames, str(out / "table_object.json"), str(out / "model.npz"), model,
                    config["measurement"], cal, heights=paths["heights"], phases=paths["phases"], hues=paths["hues"],
                    qa=paths["qa"], uncertainties=paths["uncertainties"])
-    cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"])
+    cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"],
+                 uncertainties=paths["uncertainties"])
     if baseline:
         paths["baseline"] = [str(out / "baseline" / f"frame_{n:04d}.tiff") for n in frames]
         baseline_frames(str(session), frames, str(out / "model.npz"), str(out / "table_object.json"),

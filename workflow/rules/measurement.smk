@@ -38,6 +38,7 @@ for _sid, _plan in PLANS.items():
                 f"cloud_{_sid.replace('-', '_')}_{_b:03d}"
             input:
                 heights=frame_outputs(_sid, _frames)["heights"],
+                uncertainties=frame_outputs(_sid, _frames)["uncertainties"],
             output:
                 clouds=frame_outputs(_sid, _frames)["clouds"],
             params:

@@ -41,6 +41,7 @@ rule table1:
     output:
         markdown=report(R("table1", "table1.md"), caption="../report/table1.rst", category="Table 1"),
         csv=R("table1", "table1.csv"),
+        uncertainty_ratio=R("table1", "uncertainty_ratio.json"),
         figure=report(R("table1", "table1.png"), caption="../report/table1.rst", category="Table 1"),
     params:
         periods=config.get("table1", {}).get("periods", []),
