@@ -654,8 +654,10 @@ def mesh_frame(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl
 
 
 def render_frame(session: str, mesh: str, height: str, phase: str, render: Mapping[str, Any], frame: str,
-                 top: str, oblique1: str, oblique2: str, height_map: str, phase_map: str) -> None:
-    """Off-screen renders (top and two oblique views) and the height and phase figures of one frame."""
+                 top: str, oblique1: str, oblique2: str, height_map: str, phase_map: str,
+                 uncertainty: str = "", uncertainty_map: str = "") -> None:
+    """Off-screen renders (top and two oblique views) and the height and phase figures of one frame
+    (and, given the frame's ``uncertainty`` TIFF, the uncertainty figure beside the height's)."""
     import trimesh
 
     from huefringe import render as rendering
@@ -675,6 +677,9 @@ def render_frame(session: str, mesh: str, height: str, phase: str, render: Mappi
                                 title=f"{s.id} frame {frame}: height (mm)")
     rendering.wrapped_phase_figure(read_tiff(phase), phase_map, pitch_mm=s.pixel_pitch_mm,
                                    title=f"{s.id} frame {frame}: corrected code phase")
+    if uncertainty and uncertainty_map:
+        rendering.uncertainty_map_figure(read_tiff(uncertainty), s.pixel_pitch_mm, uncertainty_map,
+                                         title=f"{s.id} frame {frame}: height uncertainty u")
 
 
 def metrology_report(session: str, heights: Sequence[str], qa: Sequence[str], baseline: Sequence[str], planes: str, tables: str,

@@ -78,7 +78,8 @@ RENDER_VIEWS = ["top", "oblique1", "oblique2"]
 
 def render_outputs(sid, n):
     views = [R(sid, "renders", f"{fname(n)}_{v}.png") for v in RENDER_VIEWS]
-    return views + [R(sid, "renders", f"{fname(n)}_height.png"), R(sid, "renders", f"{fname(n)}_phase.png")]
+    return views + [R(sid, "renders", f"{fname(n)}_height.png"), R(sid, "renders", f"{fname(n)}_phase.png"),
+                    R(sid, "renders", f"{fname(n)}_uncertainty.png")]
 
 
 def all_targets():

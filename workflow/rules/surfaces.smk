@@ -28,6 +28,7 @@ rule render:
         mesh=R("{sid}", "mesh", "frame_{frame}.ply"),
         height=R("{sid}", "height", "frame_{frame}.tiff"),
         phase=R("{sid}", "phase", "frame_{frame}.tiff"),
+        uncertainty=R("{sid}", "uncertainty", "frame_{frame}.tiff"),
     output:
         top=report(R("{sid}", "renders", "frame_{frame}_top.png"), caption="../report/render.rst", category="Renders"),
         oblique1=R("{sid}", "renders", "frame_{frame}_oblique1.png"),
@@ -36,6 +37,7 @@ rule render:
             R("{sid}", "renders", "frame_{frame}_height.png"), caption="../report/height_map.rst", category="Height maps"
         ),
         phase_map=R("{sid}", "renders", "frame_{frame}_phase.png"),
+        uncertainty_map=R("{sid}", "renders", "frame_{frame}_uncertainty.png"),
     params:
         session=session_dir,
         render=config["render"],
