@@ -177,3 +177,35 @@ def test_clouds_carry_sigma_mm(still: dict) -> None:
     raw = trimesh.load(paths["clouds"][0]).metadata["_ply_raw"]["vertex"]["data"]
     np.testing.assert_array_equal(raw["sigma_mm"], u[np.isfinite(h)])
     assert raw["red"].dtype == np.uint8
+
+
+def test_step_uncertainty_in_report(still: dict) -> None:
+    """Each step gets u_mm, U_mm = 2 u, an ISO 14253-1 conformance consistent with its error,
+    the report validates against the schema, and report.html shows the budget."""
+    from huefringe import metrology, report
+
+    paths = still["paths"]
+    s = paths["session"]
+    out = Path(paths["heights"][0]).parents[1]
+    hs = [read_tiff(p) for p in paths["heights"][:10]]
+    us = [read_tiff(p) for p in paths["uncertainties"][:10]]
+    method = metrology.evaluate_session(hs, s.specimen, s.pixel_pitch_mm, range_mm=6.0, edge_exclusion=0.2)
+    pipeline.add_step_uncertainty(method, hs, us, s.specimen, s.pixel_pitch_mm, PlaneCalibration.load(str(out / "model.npz")),
+                                  HueTable.load(out / "table_object.json"), edge_exclusion=0.2, denoise_radius=0)
+    tol = method["tolerance_mm"]
+    for st in method["steps"]:
+        assert st["U_mm"] == pytest.approx(2 * st["u_mm"])
+        # 0.8 mm pixels, no filter, a 3-px-high base strip far from the tops (tilt leverage): ~0.2 mm
+        assert 0 < st["u_mm"] < 0.5
+        assert st["conformance"] == uncertainty.conformance(st["error_mm"], tol, st["U_mm"])
+        b = st["uncertainty_budget"]
+        # the mean over 10 frames: independent part / sqrt(10), the calibration parts whole
+        assert b["independent_mm"] == pytest.approx(b["independent_per_frame_mm"] / np.sqrt(10))
+        assert st["u_mm"] ** 2 == pytest.approx(b["independent_mm"] ** 2 + b["pixel_calibration_mm"] ** 2
+                                                + b["correlated_mm"] ** 2)
+        # observed frame-to-frame spread against the predicted independent part (still scene)
+        assert 0.6 < st["std_mm"] / b["independent_per_frame_mm"] < 1.6
+    doc = report.build_report_json(s.id, s.specimen, method)
+    assert doc["verdict_with_uncertainty"] in ("PASS", "FAIL", "UNDECIDED")
+    page = report.render_report_html(doc, {}, {})
+    assert "Uncertainty budget" in page and "ISO 14253-1" in page
