@@ -21,7 +21,7 @@ CONFIG = yaml.safe_load((REPO / "config.yaml").read_text())
 
 
 def _budget_identity(shape: tuple[int, int], table_factor: float = 0.0) -> uncertainty.PixelBudget:
-    return uncertainty.PixelBudget(np.zeros((*shape, 5), np.float32), table_factor)
+    return uncertainty.PixelBudget(np.zeros((5, *shape), np.float32), table_factor)
 
 
 def test_filter_variance_is_inverse_weight_sum() -> None:

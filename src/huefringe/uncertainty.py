@@ -162,7 +162,8 @@ def table_interpolation_rad(table: Any, *, rows: int = 64) -> NDArray[np.float32
 
 @dataclass(eq=False)
 class PixelBudget:
-    """Per-session inputs of the per-pixel budget: ``terms`` ``(H, W, 5)`` float32 holding the
+    """Per-session inputs of the per-pixel budget: ``terms`` ``(5, H, W)`` float32 (planes, so
+    that the kernel's rows vectorise) holding the
     reference phase's uncertainty (rad), the (a, b) covariance ``aa, ab, bb`` and the table's
     interpolation error (rad); ``table_factor`` (:func:`table_variance_factor`)."""
 
@@ -171,11 +172,11 @@ class PixelBudget:
 
     @property
     def u_ref_rad(self) -> NDArray[np.float32]:
-        return self.terms[..., 0]
+        return self.terms[0]
 
     @property
     def u_interp_rad(self) -> NDArray[np.float32]:
-        return self.terms[..., 4]
+        return self.terms[4]
 
 
 def pixel_budget(table: Any, cal: Any) -> PixelBudget:
@@ -185,12 +186,12 @@ def pixel_budget(table: Any, cal: Any) -> PixelBudget:
     model terms; a calibration without it (an older model file) gives zeros for them.
     """
     h, w = table.shape
-    terms = np.zeros((h, w, 5), np.float32)
+    terms = np.zeros((5, h, w), np.float32)
     bud = getattr(cal, "budget", None) or {}
     for k, name in enumerate(("u_ref_rad", "cov_aa", "cov_ab", "cov_bb")):
         if name in bud:
-            terms[..., k] = np.nan_to_num(np.asarray(bud[name], np.float32))
-    terms[..., 4] = table_interpolation_rad(table)
+            terms[k] = np.nan_to_num(np.asarray(bud[name], np.float32))
+    terms[4] = table_interpolation_rad(table)
     st = table.stats or {}
     opts = st.get("params", {}) if isinstance(st.get("params"), dict) else {}
     window = int(opts.get("smooth_window", 15))
@@ -204,26 +205,36 @@ def pixel_budget(table: Any, cal: Any) -> PixelBudget:
 # --------------------------------------------------------------------------------------------
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, out):  # pragma: no cover - numba
+    """Branch-free rows (LLVM vectorises them); NaN where not valid or without weight."""
     h, w = dphi.shape
     tf = np.float32(1.0) + np.float32(table_factor)
     nan32 = np.float32(np.nan)
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    two = np.float32(2.0)
     for v in range(h):
+        dv = dphi[v]
+        sv = sumw[v]
+        okv = valid[v]
+        av = a[v]
+        bv = b[v]
+        t0, t1, t2, t3, t4 = terms[0, v], terms[1, v], terms[2, v], terms[3, v], terms[4, v]
+        ov = out[v]
         for u in range(w):
-            if not valid[v, u] or not sumw[v, u] > 0:
-                out[v, u] = nan32
-                continue
-            d = dphi[v, u]
-            av = a[v, u]
-            den = av + b[v, u] * d
-            inv2 = np.float32(1.0) / (den * den)
-            g = abs(av) * inv2
+            sw = sv[u]
+            ok = okv[u] & (sw > zero)
+            d = dv[u] if ok else zero
+            sw = sw if ok else one
+            aa = av[u]
+            den = aa + bv[u] * d
+            inv2 = one / (den * den)
+            g = abs(aa) * inv2
             ja = -d * inv2
             jb = ja * d
-            t = terms[v, u]
-            var_n = g * g / sumw[v, u]
-            var = var_n * tf + (g * t[0]) ** 2 + (g * t[4]) ** 2
-            var += ja * ja * t[1] + np.float32(2.0) * ja * jb * t[2] + jb * jb * t[3]
-            out[v, u] = np.sqrt(max(var, np.float32(0.0)))
+            var = g * g / sw * tf + (g * t0[u]) ** 2 + (g * t4[u]) ** 2
+            var += ja * ja * t1[u] + two * ja * jb * t2[u] + jb * jb * t3[u]
+            r = np.sqrt(max(var, zero))
+            ov[u] = r if ok else nan32
 
 
 def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], valid: NDArray[np.bool_],
@@ -272,9 +283,9 @@ def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArra
         ja = -d / den**2
         jb = ja * d
     out = {
-        "interpolation": g * t[..., 4],
-        "reference": g * t[..., 0],
-        "model": np.sqrt(np.maximum(ja * ja * t[..., 1] + 2 * ja * jb * t[..., 2] + jb * jb * t[..., 3], 0.0)),
+        "interpolation": g * t[4],
+        "reference": g * t[0],
+        "model": np.sqrt(np.maximum(ja * ja * t[1] + 2 * ja * jb * t[2] + jb * jb * t[3], 0.0)),
     }
     rest = np.asarray(u, np.float64) ** 2 - out["interpolation"] ** 2 - out["reference"] ** 2 - out["model"] ** 2
     noise = np.sqrt(np.maximum(rest, 0.0) / (1.0 + budget.table_factor))
