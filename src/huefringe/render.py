@@ -660,12 +660,15 @@ def reliability_figure(rel: Mapping[str, Any], out_png: str | os.PathLike[str], 
         y = np.array([b["observed_rms_mm"] for b in bins]) * 1000
         lo, hi = float(min(x.min(), y.min())) * 0.8, float(max(x.max(), y.max())) * 1.25
         ax.plot([lo, hi], [lo, hi], color="0.5", lw=1, label="observed = predicted")
-        ax.plot(x, y, "o-", label="per bin of predicted u")
+        ax.plot(x, y, "o-", label="rms |error| per bin of u")
+        if all("observed_p68_mm" in b for b in bins):
+            ax.plot(x, np.array([b["observed_p68_mm"] for b in bins]) * 1000, "s--",
+                    label="68th percentile of |error| (robust 1 sigma)")
         ax.set_xscale("log")
         ax.set_yscale("log")
     cov = rel.get("coverage_2u")
     ax.set_xlabel("predicted u (µm, rms in bin)")
-    ax.set_ylabel("observed |error| (µm, rms in bin)")
+    ax.set_ylabel("observed |error| in bin (µm)")
     ax.legend(title=None if cov is None else f"|error| ≤ 2u: {100 * cov:.1f} % of pixels", fontsize=8)
     if title:
         ax.set_title(title, fontsize=9)

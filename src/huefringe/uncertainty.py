@@ -418,8 +418,9 @@ def conformance(error_mm: float, tolerance_mm: float, expanded_mm: float) -> str
 # validation against ground truth
 # --------------------------------------------------------------------------------------------
 def reliability(errors: NDArray[np.floating], u: NDArray[np.floating], *, bins: int = 12) -> dict[str, Any]:
-    """Coverage of ``|error| <= 2 u`` and the binned reliability curve (observed rms error against
-    predicted u, bins of equal count). NaN pixels (either) are left out."""
+    """Coverage of ``|error| <= 2 u`` and the binned reliability curve (observed rms error, and the
+    68.27th percentile of ``|error|`` — the robust one-sigma, equal to u for Gaussian errors —
+    against predicted u, bins of equal count). NaN pixels (either) are left out."""
     e = np.asarray(errors, np.float64).ravel()
     s = np.asarray(u, np.float64).ravel()
     ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
@@ -434,6 +435,7 @@ def reliability(errors: NDArray[np.floating], u: NDArray[np.floating], *, bins: 
         if m.sum() < 10:
             continue
         rows.append({"u_mm": float(np.sqrt(np.mean(s[m] ** 2))), "observed_rms_mm": float(np.sqrt(np.mean(e[m] ** 2))),
+                     "observed_p68_mm": float(np.percentile(np.abs(e[m]), 68.27)),
                      "coverage_2u": float(np.mean(np.abs(e[m]) <= 2 * s[m])), "pixels": int(m.sum())})
     return {"pixels": int(e.size), "coverage_2u": float(np.mean(np.abs(e) <= 2 * s)),
             "median_u_mm": float(np.median(s)), "rms_error_mm": float(np.sqrt(np.mean(e**2))),
