@@ -96,6 +96,28 @@ def test_kernel_matches_reference(rig: dict, model: str, pd: bool, denoise: int)
         np.testing.assert_array_equal(h, ref.height)  # in fact bit for bit
 
 
+@pytest.mark.parametrize(("model", "pd"), [("hexcone", True), ("hsi", True), ("hexcone", False)])
+@pytest.mark.parametrize("denoise", [0, 2])
+def test_kernel_uncertainty_matches_reference(rig: dict, model: str, pd: bool, denoise: int) -> None:
+    """The kernel's uncertainty map is measure_frame's bit for bit, NaN exactly where the height
+    is NaN, and the heights are those without the map."""
+    shadow = perframe.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
+    prep = _prepare(rig, model, shadow, pd)
+    for n in rig["session"].frame_ids:
+        ref = _reference(rig, model, read_rgb(rig["session"].frames[n]), shadow, denoise, pd)
+        m = kernel.frame_maps(prep, _frame_u8(rig, n), denoise_radius=denoise, want_uncertainty=True)
+        _assert_same(m.height, m.valid, ref)
+        np.testing.assert_array_equal(np.isnan(m.uncertainty), np.isnan(m.height))
+        np.testing.assert_array_equal(np.isnan(ref.uncertainty), np.isnan(ref.height))
+        if model == "hexcone":
+            np.testing.assert_array_equal(m.uncertainty, ref.uncertainty)
+            np.testing.assert_array_equal(m.height, ref.height)
+        else:
+            np.testing.assert_allclose(m.uncertainty[m.valid], ref.uncertainty[m.valid], rtol=1e-3)
+        u = m.uncertainty[m.valid]
+        assert np.all(u > 0) and 1e-4 < float(np.median(u)) < 0.5
+
+
 def test_uint8_and_float_input_agree(rig: dict) -> None:
     prep = _prepare(rig, "hexcone", perframe.shadow_mask(rig["white"], 0.12))
     u8 = _frame_u8(rig, 0)

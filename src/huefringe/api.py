@@ -43,6 +43,9 @@ class Measurement:
     """The hue tables of the ``"reference"`` plate and of the ``"object"``."""
     stats: list[dict[str, Any]] = field(default_factory=list)
     """Per-frame QA figures (as ``qa/frames/frame_NNNN.json``)."""
+    uncertainty: NDArray[np.float32] | None = None
+    """``(F, H, W)`` standard uncertainty of the heights (mm, NaN where the height is NaN;
+    :mod:`huefringe.uncertainty`), as ``uncertainty/frame_NNNN.tiff``."""
     config: dict[str, Any] = field(default_factory=dict)
     """The configuration used (packaged defaults with ``config`` over them)."""
 
@@ -90,10 +93,12 @@ def measure(session: str | os.PathLike[str] | Session,
     cal = session_plane_calibration(s, tables["reference"], hue_model, calibration)
     frames = s.frame_ids if frames is None else list(frames)
     heights = np.empty((len(frames), s.height, s.width), np.float32)
+    u = np.empty_like(heights)
     stats = []
-    for i, (_, h, _, _, st) in enumerate(frame_results(s, tables["object"], cal, frames, hue_model, measurement,
-                                                       map_frames=set())):
+    for i, (_, h, _, _, st, u_map) in enumerate(frame_results(s, tables["object"], cal, frames, hue_model, measurement,
+                                                              map_frames=set())):
         heights[i] = h  # copied: the kernel reuses its buffers
+        u[i] = u_map
         stats.append(st)
     return Measurement(session=s, frames=frames, heights=heights, valid=np.isfinite(heights), calibration=cal,
-                       tables=tables, stats=stats, config=cfg)
+                       tables=tables, stats=stats, config=cfg, uncertainty=u)

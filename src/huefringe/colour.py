@@ -289,7 +289,7 @@ def white_balance(rgb: ArrayLike, white: ArrayLike, floor: float = 1.0 / 255.0) 
         the white level is kept (hue is scale invariant). This removes the per-pixel, per-channel
         gains ``alpha_k r_k`` of eqs. 7-8 (and the white level of the projector gamma), but not
         the gamma curve itself, nor crosstalk or ambient light: those are what the hue tables of
-        :mod:`huefringe.calibration` calibrate.
+        :mod:`huefringe.huetable` calibrate.
     """
     return np.multiply(np.asarray(rgb, dtype=np.float32), white_gains(white, floor), dtype=np.float32)
 

@@ -52,6 +52,9 @@ class PlaneCalibration:
     phase_error: NDArray[np.float64] | None = None
     """The phase-error table ``e(phi)`` the planes and frames are corrected with
     (:mod:`huefringe.phase_error`), or None (no correction)."""
+    budget: dict[str, NDArray[np.float32]] | None = None
+    """Uncertainty inputs (:mod:`huefringe.uncertainty`): ``u_ref_rad`` (the smoothed reference
+    phase's standard uncertainty) and ``cov_aa``, ``cov_ab``, ``cov_bb`` (covariance of a, b)."""
 
     def height(self, dphi: NDArray[np.floating]) -> NDArray[np.float32]:
         """Height in mm from an unwrapped phase difference (NaN stays NaN)."""
@@ -70,14 +73,17 @@ class PlaneCalibration:
 
         with atomic_path(path) as tmp:
             with open(tmp, "wb") as f:
-                extra = {} if self.phase_error is None else {"phase_error": np.asarray(self.phase_error, np.float64)}
+                extra = {f"budget_{k}": v for k, v in (self.budget or {}).items()}
+                if self.phase_error is not None:
+                    extra["phase_error"] = np.asarray(self.phase_error, np.float64)
                 np.savez(f, phi_ref=self.phi_ref, a=self.a, b=self.b, planes_mm=np.asarray(self.planes_mm), **extra)
 
     @classmethod
     def load(cls, path: str) -> PlaneCalibration:
         with np.load(path) as z:
             pe = z["phase_error"] if "phase_error" in z.files else None
-            return cls(z["phi_ref"], z["a"], z["b"], [float(v) for v in z["planes_mm"]], phase_error=pe)
+            budget = {k[len("budget_"):]: z[k] for k in z.files if k.startswith("budget_")} or None
+            return cls(z["phi_ref"], z["a"], z["b"], [float(v) for v in z["planes_mm"]], phase_error=pe, budget=budget)
 
 
 def _design(shape: tuple[int, int], degree: int, uu: NDArray, vv: NDArray) -> NDArray[np.float64]:
@@ -204,17 +210,25 @@ def calibrate_planes(
             )
 
     # per-pixel least squares: a z + b z dphi = dphi
-    if len(others) == 1:
-        (z1,) = others
-        a = dphis[z1] / z1
-        b = np.zeros(shape)
-        model_kind = "linear (one plane besides the reference: b = 0)"
-    else:
+    def solve(dphis: dict[float, NDArray[np.float64]]) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        if len(others) == 1:
+            (z1,) = others
+            return dphis[z1] / z1, np.zeros(shape)
         s_zz = sum(z * z for z in others) * np.ones(shape)
         s_zzd = sum(z * z * dphis[z] for z in others)
         s_zzdd = sum(z * z * dphis[z] ** 2 for z in others)
         s_zd = sum(z * dphis[z] for z in others)
         s_zdd = sum(z * dphis[z] ** 2 for z in others)
+        det = s_zz * s_zzdd - s_zzd**2
+        with np.errstate(divide="ignore", invalid="ignore"):
+            return (s_zd * s_zzdd - s_zdd * s_zzd) / det, (s_zz * s_zdd - s_zzd * s_zd) / det
+
+    if len(others) == 1:
+        model_kind = "linear (one plane besides the reference: b = 0)"
+    else:
+        s_zz = sum(z * z for z in others) * np.ones(shape)
+        s_zzd = sum(z * z * dphis[z] for z in others)
+        s_zzdd = sum(z * z * dphis[z] ** 2 for z in others)
         det = s_zz * s_zzdd - s_zzd**2
         spread = float(np.nanmedian(np.abs(det)) / max(float(np.nanmedian(s_zz * s_zzdd)), 1e-30))
         if spread < 1e-8:
@@ -222,10 +236,8 @@ def calibrate_planes(
                 "the calibration planes are too close together to fit the rational model; "
                 f"planes_mm = {zs}"
             )
-        with np.errstate(divide="ignore", invalid="ignore"):
-            a = (s_zd * s_zzdd - s_zdd * s_zzd) / det
-            b = (s_zz * s_zdd - s_zzd * s_zd) / det
         model_kind = "rational h = dphi / (a + b dphi)"
+    a, b = solve(dphis)
 
     cal = PlaneCalibration(phi_ref.astype(np.float32), a.astype(np.float32), b.astype(np.float32), zs)
     # residuals: heights of the raw (unsmoothed) plane phases against the known z
@@ -254,7 +266,35 @@ def calibrate_planes(
         "sensitivity_rad_per_mm": sensitivity,
         "projector_height_mm_estimate": float(1.0 / np.nanmedian(b)) if np.nanmedian(b) > 0 else None,
     }
+    cal.budget, cal.stats["uncertainty"] = _budget(solve, phi0, phi_ref, v0, raw, dphis, plane_valid, smooth_degree)
     return cal
+
+
+def _budget(solve: Any, phi0: NDArray[np.float64], phi_ref: NDArray[np.float64], v0: NDArray[np.bool_],
+            raw: dict[float, NDArray[np.float64]], dphis: dict[float, NDArray[np.float64]],
+            plane_valid: dict[float, NDArray[np.bool_]], smooth_degree: int | None
+            ) -> tuple[dict[str, NDArray[np.float32]], dict[str, Any]]:
+    """The calibration's uncertainty inputs (:mod:`huefringe.uncertainty`) and their summary."""
+    from huefringe import uncertainty as unc
+
+    n_terms = 1 if smooth_degree is None else (smooth_degree + 1) * (smooth_degree + 2) // 2
+    if smooth_degree is None:  # raw pixels: the reference is one capture, its noise is the frame's
+        u_ref = np.zeros(phi0.shape)
+        u_d = {z: np.zeros(phi0.shape) for z in dphis}
+        sig0 = 0.0
+    else:
+        u_ref, sig0 = unc.systematic_rms(wrap(phi0 - phi_ref), v0, n_terms=n_terms)
+        u_d = {z: unc.systematic_rms(raw[z] - dphis[z], plane_valid[z], n_terms=n_terms)[0] for z in dphis}
+    fill = float(np.nanmedian(u_ref)) if np.isfinite(u_ref).any() else 0.0
+    budget = {"u_ref_rad": np.where(np.isfinite(u_ref), u_ref, fill).astype(np.float32)}
+    budget.update(unc.calibration_terms(solve, dphis, {z: np.where(np.isfinite(u), u, np.nanmedian(u)) for z, u in u_d.items()}))
+    summary = {
+        "residual_box_px": unc.RESIDUAL_BOX_PX,
+        "reference_phase_u_rad_median": float(np.median(budget["u_ref_rad"])),
+        "reference_phase_noise_rad": sig0,
+        "plane_phase_u_rad_median": {f"{z:.3f}": float(np.nanmedian(u)) for z, u in u_d.items()},
+    }
+    return budget, summary
 
 
 def coverage(height: NDArray[np.floating], truth: NDArray[np.floating],

@@ -78,6 +78,7 @@ from huefringe.perframe import capture_noise, shadow_mask, sigma_from_slope
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
+from huefringe.uncertainty import PixelBudget, height_uncertainty, pixel_budget
 
 __all__ = ["FrameMaps", "Prepared", "frame_maps", "frame_to_height", "prepare"]
 
@@ -145,6 +146,8 @@ class Prepared:
     phase_error: NDArray[np.float64] | None = None
     """The plane calibration's phase-error table (``PlaneCalibration.phase_error``), or None."""
     stats: dict[str, Any] = field(default_factory=dict)
+    budget: PixelBudget | None = None
+    """Session inputs of the per-pixel height uncertainty (:func:`huefringe.uncertainty.pixel_budget`)."""
 
     @property
     def nbytes(self) -> int:
@@ -264,6 +267,7 @@ def prepare(
         prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index = _predistortion_arrays(predistortion)
     if getattr(cal, "phase_error", None) is not None:
         prep.phase_error = np.ascontiguousarray(cal.phase_error, dtype=np.float64)
+    prep.budget = pixel_budget(table, cal)
     prep.stats = {
         "table_invalid_fraction": float(np.mean(~np.asarray(table.valid, bool))),
         "shadow_fraction": float(shadow_arr.mean()),
@@ -947,6 +951,9 @@ class FrameMaps:
     dphi: NDArray[np.float32] | None = None
     """Wrapped phase difference to the reference plane before the denoise filter,
     ``float32(wrap(phase - phi_ref))``, NaN where no phase was decoded (``want_dphi``)."""
+    uncertainty: NDArray[np.float32] | None = None
+    """Standard uncertainty of the height in mm, NaN where the height is NaN
+    (``want_uncertainty``; :func:`huefringe.uncertainty.height_uncertainty`)."""
 
 
 def _check_frame(prep: Prepared, rgb: NDArray[Any]) -> tuple[NDArray[Any], float]:
@@ -972,6 +979,7 @@ def frame_maps(
     denoise_k: float = 3.0,
     want_maps: bool = False,
     want_dphi: bool = False,
+    want_uncertainty: bool = False,
     out: tuple[NDArray[np.float32], NDArray[np.bool_]] | None = None,
     denoise_adaptive: dict[str, Any] | None = None,
 ) -> FrameMaps:
@@ -979,7 +987,8 @@ def frame_maps(
 
     ``want_maps=True`` also returns the corrected code phase and the white-balanced hue (as
     ``measure_frame``'s ``phase`` and ``hue``), ``want_dphi=True`` the phase difference before
-    denoising (for the unwrapping flags); ``counts`` hold the pixel counts of the frame
+    denoising (for the unwrapping flags), ``want_uncertainty=True`` the height's standard
+    uncertainty (from the filter's sums of weights); ``counts`` hold the pixel counts of the frame
     statistics. ``out`` = (height, valid) buffers to reuse (float32 and bool, shape (H, W)).
     ``denoise_adaptive``: the filter's sigma-adaptive support (``measurement.denoise_adaptive``,
     :func:`huefringe.phase.adaptive_kwargs`), as ``measure_frame``'s.
@@ -997,7 +1006,8 @@ def frame_maps(
     phase = np.empty((h, w), dtype=np.float32) if want_maps else None
     hue = np.empty((h, w), dtype=np.float32) if want_maps else None
     dphi = np.empty((h, w), dtype=np.float32) if denoise or want_dphi else None
-    weights = np.empty((3, h, w), dtype=np.float32) if denoise else None  # the filter's dz, s2, inv
+    # the filter's dz, s2, inv (also without the filter when the uncertainty needs them)
+    weights = np.empty((3, h, w), dtype=np.float32) if denoise or want_uncertainty else None
     top = 1.0 - 0.5 / (2**prep.bit_depth - 1)
     hsi = prep.hue_model == "hsi"
     atan = None
@@ -1013,13 +1023,23 @@ def frame_maps(
         prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, prep.phase_error, height, valid, dphi, weights,
         phase, hue,
     )
+    sumw = None
     if denoise:
+        sumw = np.empty((h, w), dtype=np.float32) if want_uncertainty else None
         smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k),
-                                  **adaptive_kwargs(denoise_adaptive))
+                                  weight_sum=sumw, **adaptive_kwargs(denoise_adaptive))
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
+    elif want_uncertainty:  # no filter: the weights path, heights from the unfiltered dz
+        smooth, sumw = weights[0], weights[2]
+        n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
+    u_map = None
+    if want_uncertainty:
+        if prep.budget is None:
+            raise ValueError("the prepared calibration has no uncertainty budget (kernel.prepare sets it)")
+        u_map = height_uncertainty(smooth, sumw, valid, prep.a, prep.b, prep.budget)
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
               "guess_far": int(n_far)}
-    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None)
+    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map)
 
 
 def frame_to_height(

@@ -21,8 +21,9 @@ from huefringe.colour import intensity, white_balance
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
 from huefringe import phase_error
-from huefringe.phase import adaptive_kwargs, denoise_phase, unwrap, wrap
+from huefringe.phase import adaptive_kwargs, denoise_phase, denoise_weight_sums, unwrap, wrap
 from huefringe.session import Predistortion
+from huefringe.uncertainty import PixelBudget, height_uncertainty, pixel_budget
 
 __all__ = [
     "FrameError",
@@ -72,6 +73,8 @@ class FrameResult:
     """Raw captured hue after white balance (NaN where undefined)."""
     valid: NDArray[np.bool_]
     stats: dict[str, Any] = field(default_factory=dict)
+    uncertainty: NDArray[np.float32] | None = None
+    """Standard uncertainty of the height (mm), NaN where the height is NaN (:mod:`huefringe.uncertainty`)."""
 
 
 def measure_frame(
@@ -89,6 +92,7 @@ def measure_frame(
     denoise_radius: int = 2,
     predistortion: Predistortion | None = None,
     denoise_adaptive: Mapping[str, Any] | None = None,
+    budget: PixelBudget | None = None,
 ) -> FrameResult:
     """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
 
@@ -117,13 +121,13 @@ def measure_frame(
     denoise_adaptive : mapping, optional
         ``measurement.denoise_adaptive`` (:func:`huefringe.phase.adaptive_kwargs`): the filter's
         sigma-adaptive support and the rejection of pixels no filter can save.
+    budget : PixelBudget, optional
+        Session inputs of the height uncertainty (:func:`huefringe.uncertainty.pixel_budget`,
+        computed when not given); the result's ``uncertainty`` is the kernel's, bit for bit.
     """
     balanced = white_balance(rgb, white)
     hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
-    if denoise_radius > 0:  # the filter's uncertainty needs the table slope: one search for both
-        emitted, slope = table.to_phase_and_slope(hue)
-    else:
-        emitted = table.to_phase(hue)
+    emitted, slope = table.to_phase_and_slope(hue)  # the phase's uncertainty needs the table slope
     phase = emitted if predistortion is None else predistortion.decode(emitted)
     phase = phase_error.correct(phase, cal.phase_error)  # the planes' phase-error table (or none)
     clipped = clipped_mask(rgb, bit_depth)
@@ -132,14 +136,21 @@ def measure_frame(
         valid &= ~shadow
     dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
     un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
+    sigma = phase_sigma(table, slope)
+    if predistortion is not None:
+        sigma = sigma * np.abs(predistortion.decode_slope(emitted))
+    sumw = np.zeros(valid.shape, np.float32)
     if denoise_radius > 0:
-        sigma = phase_sigma(table, slope)
-        if predistortion is not None:
-            sigma = sigma * np.abs(predistortion.decode_slope(emitted))
-        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius, **adaptive_kwargs(denoise_adaptive))
+        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius, weight_sum=sumw,
+                                **adaptive_kwargs(denoise_adaptive))
+    else:  # one pixel's weight 1 / sigma^2, in the filter's float32 arithmetic
+        sumw = denoise_weight_sums(un.dphi, sigma, valid)
     height = cal.height(un.dphi)
     valid &= np.isfinite(height)
     height = np.where(valid, height, np.nan).astype(np.float32)
+    if budget is None:
+        budget = pixel_budget(table, cal)
+    u_map = height_uncertainty(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b, budget)
     stats = frame_stats(
         valid, height, un.flags,
         clipped_fraction=float(clipped.mean()),
@@ -148,7 +159,8 @@ def measure_frame(
         shadow_fraction=float(shadow.mean()) if shadow is not None else 0.0,
         hue_model=hue_model, unwrap_mode=unwrap_mode, below_reference_mm=below_reference_mm,
     )
-    return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats)
+    return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats,
+                       u_map)
 
 
 def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Mapping[str, NDArray[np.bool_]], *,

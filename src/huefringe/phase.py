@@ -209,7 +209,7 @@ def _denoise_row(dj, di, sj2, si2, inv, k2, acc, wsum):  # pragma: no cover - co
 def _denoise_kernel(d, s2, inv, radius, k2, out, wout):  # pragma: no cover - compiled
     """Row by row, window offset by window offset (``dv`` then ``du``, the same order for every
     pixel); ``inv = 0`` marks invalid pixels, which then add nothing. ``wout``: each pixel's sum
-    of accepted weights (its filtered variance is ``1 / wout``)."""
+    of accepted weights (its filtered variance is ``1 / wout``; 0 where not valid)."""
     h, w = d.shape
     acc = np.empty(w, np.float32)
     wsum = np.empty(w, np.float32)
@@ -227,18 +227,19 @@ def _denoise_kernel(d, s2, inv, radius, k2, out, wout):  # pragma: no cover - co
                              inv[vv, u0 + du : u1 + du], k2, acc[u0:u1], wsum[u0:u1])
         for u in range(w):
             out[v, u] = d[v, u] + acc[u] / wsum[u] if inv[v, u] > 0 else np.float32(np.nan)
-            wout[v, u] = wsum[u]
+            wout[v, u] = wsum[u] if inv[v, u] > 0 else np.float32(0.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out):  # pragma: no cover
+def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout):  # pragma: no cover
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
     accepted when they agree with the pixel's first-pass estimate within ``k`` combined sigma
     (``diff^2 <= k2 (s_j^2 + 1 / wfirst)``): a noisy pixel is judged by its better estimate, so
     a step stays a step. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
-    save them). Float32, fixed visiting order: the result depends only on the inputs."""
+    save them). ``wout`` receives each pixel's final sum of accepted weights (0 where not
+    valid). Float32, fixed visiting order: the result depends only on the inputs."""
     h, w = d.shape
     two_pi = np.float32(2.0 * np.pi)
     inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
@@ -247,6 +248,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     for v in range(h):
         for u in range(w):
             out[v, u] = first[v, u]
+            wout[v, u] = wfirst[v, u]
             if inv[v, u] <= 0:
                 continue
             ws = wfirst[v, u]
@@ -284,11 +286,12 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
             else:
                 val = d[v, u] + acc / wsum
             out[v, u] = val if wsum >= reject_w else nan
+            wout[v, u] = wsum
 
 
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
                   *, radius: int = 2, k: float = 3.0, max_radius: int = 0, target_sigma: float = 0.0,
-                  reject_sigma: float = 0.0) -> NDArray[np.float32]:
+                  reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """Edge-preserving, uncertainty-weighted local mean of a phase map.
 
     Each valid pixel becomes the inverse-variance weighted mean of the valid pixels in its
@@ -314,6 +317,10 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         never crossed); 0 = fixed window.
     reject_sigma : float
         Pixels whose filtered sigma stays above this become NaN (invalid); 0 = never.
+    weight_sum : float32 ndarray, optional
+        Receives each pixel's sum of the weights ``1 / sigma^2`` of the neighbours it averaged
+        (0 where not valid): the filtered phase's variance from independent pixel noise is
+        exactly ``1 / weight_sum`` (:mod:`huefringe.uncertainty`).
 
     Returns
     -------
@@ -334,30 +341,50 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     dz, s2, inv = (np.empty(d.shape, np.float32) for _ in range(3))
     _denoise_weights(d, s, valid, dz, s2, inv)
     return denoise_weighted(dz, s2, inv, radius=radius, k=k, max_radius=max_radius, target_sigma=target_sigma,
-                            reject_sigma=reject_sigma)
+                            reject_sigma=reject_sigma, weight_sum=weight_sum)
+
+
+def denoise_weight_sums(dphi: NDArray[np.floating], sigma: NDArray[np.floating],
+                        valid: NDArray[np.bool_]) -> NDArray[np.float32]:
+    """Each pixel's own weight ``1 / sigma^2`` as :func:`denoise_phase` computes it (0 where
+    not valid): the weight sum of an unfiltered phase (radius 0)."""
+    d = np.asarray(dphi)
+    d = d if d.dtype in (np.float32, np.float64) else d.astype(np.float64)
+    s = np.asarray(sigma)
+    s = s if s.dtype in (np.float32, np.float64) else s.astype(np.float64)
+    dz, s2, inv = (np.empty(d.shape, np.float32) for _ in range(3))
+    _denoise_weights(d, s, np.asarray(valid, bool), dz, s2, inv)
+    return inv
 
 
 def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDArray[np.float32], *,
                      radius: int = 2, k: float = 3.0, max_radius: int = 0, target_sigma: float = 0.0,
-                     reject_sigma: float = 0.0) -> NDArray[np.float32]:
+                     reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """:func:`denoise_phase` on its prepared float32 inputs (for callers that compute them on
     the fly, like the fused kernel): ``ok = valid & finite(dphi) & finite(sigma) & sigma > 0``,
     ``dz = ok ? dphi : 0``, ``s2 = float32(clip(ok ? sigma : 1, 1e-9, 1e9)) ** 2`` and
-    ``inv = ok ? 1 / s2 : 0``. Returns the filtered phase, NaN where ``inv == 0``.
+    ``inv = ok ? 1 / s2 : 0``. Returns the filtered phase, NaN where ``inv == 0``;
+    ``weight_sum`` (float32, C-contiguous, optional) receives the sums of the weights used.
     """
     arrays = [np.ascontiguousarray(x, dtype=np.float32) for x in (dz, s2, inv)]
     if not arrays[0].shape == arrays[1].shape == arrays[2].shape or arrays[0].ndim != 2:
         raise ValueError("dz, s2 and inv must be 2-D arrays of the same shape")
     out = np.empty(arrays[0].shape, np.float32)
+    if weight_sum is not None and (weight_sum.shape != out.shape or weight_sum.dtype != np.float32
+                                   or not weight_sum.flags.c_contiguous):
+        raise ValueError("weight_sum must be a C-contiguous float32 array of the phase's shape")
     wsum = np.empty(arrays[0].shape, np.float32)
     _denoise_kernel(*arrays, int(radius), np.float32(float(k) ** 2), out, wsum)
     if (max_radius > radius and target_sigma > 0) or reject_sigma > 0:
         final = np.empty_like(out)
+        wfinal = weight_sum if weight_sum is not None else np.empty_like(wsum)
         target_w = np.float32(1.0 / target_sigma**2) if target_sigma > 0 else np.float32(0.0)
         reject_w = np.float32(1.0 / reject_sigma**2) if reject_sigma > 0 else np.float32(0.0)
         _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), np.float32(float(k) ** 2),
-                       target_w, reject_w, final)
+                       target_w, reject_w, final, wfinal)
         return final
+    if weight_sum is not None:
+        weight_sum[...] = wsum
     return out
 
 

@@ -610,3 +610,66 @@ def profile_figure(
     ax.grid(True, alpha=0.3)
     ax.set_title(title if title is not None else f"Profile at row {row} (Y = {row * float(pitch_mm):.2f} mm)")
     return _save_figure(fig, out_png, dpi)
+
+
+def uncertainty_map_figure(
+    u: ArrayLike,
+    pitch_mm: float,
+    out_png: str | os.PathLike[str],
+    *,
+    title: str | None = "Height uncertainty",
+    clim: tuple[float, float] | None = None,
+    dpi: int = 150,
+) -> Path:
+    """Standard-uncertainty map (mm) beside the height figure: same axes, colour bar in µm.
+
+    ``clim`` defaults to [0, 99th percentile] so a few edge pixels do not wash the map out;
+    NaN (no height) is drawn light grey.
+    """
+    import matplotlib as mpl  # noqa: PLC0415
+
+    s = _as_map(u, "uncertainty") * 1000.0
+    finite = s[np.isfinite(s)]
+    if clim is None:
+        clim = (0.0, float(np.percentile(finite, 99)) if finite.size else 1.0)
+    else:
+        clim = (clim[0] * 1000.0, clim[1] * 1000.0)
+    fig = _new_figure((6.4, 4.8))
+    ax = fig.add_subplot()
+    cm = mpl.colormaps["magma"].with_extremes(bad="0.85")
+    im = ax.imshow(np.ma.masked_invalid(s), cmap=cm, vmin=clim[0], vmax=clim[1], extent=_image_extent(s.shape, pitch_mm),
+                   interpolation="nearest", origin="upper")
+    ax.set_xlabel("X (mm)")
+    ax.set_ylabel("Y (mm)")
+    ax.set_aspect("equal")
+    if title:
+        ax.set_title(title)
+    fig.colorbar(im, ax=ax, label="u (µm)")
+    return _save_figure(fig, out_png, dpi)
+
+
+def reliability_figure(rel: Mapping[str, Any], out_png: str | os.PathLike[str], *, title: str | None = None,
+                       dpi: int = 150) -> Path:
+    """Reliability plot of a predicted uncertainty: observed rms error against predicted rms u per
+    bin of u (:func:`huefringe.uncertainty.reliability`), with the line of perfect calibration."""
+    bins = rel.get("bins", [])
+    fig = _new_figure((5.2, 4.4))
+    ax = fig.add_subplot()
+    if bins:
+        x = np.array([b["u_mm"] for b in bins]) * 1000
+        y = np.array([b["observed_rms_mm"] for b in bins]) * 1000
+        lo, hi = float(min(x.min(), y.min())) * 0.8, float(max(x.max(), y.max())) * 1.25
+        ax.plot([lo, hi], [lo, hi], color="0.5", lw=1, label="observed = predicted")
+        ax.plot(x, y, "o-", label="rms |error| per bin of u")
+        if all("observed_p68_mm" in b for b in bins):
+            ax.plot(x, np.array([b["observed_p68_mm"] for b in bins]) * 1000, "s--",
+                    label="68th percentile of |error| (robust 1 sigma)")
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+    cov = rel.get("coverage_2u")
+    ax.set_xlabel("predicted u (µm, rms in bin)")
+    ax.set_ylabel("observed |error| in bin (µm)")
+    ax.legend(title=None if cov is None else f"|error| ≤ 2u: {100 * cov:.1f} % of pixels", fontsize=8)
+    if title:
+        ax.set_title(title, fontsize=9)
+    return _save_figure(fig, out_png, dpi)

@@ -195,7 +195,7 @@ def build_report_json(
                 baseline[key] = _plain(baseline_result[key])
         report["baseline"] = baseline
     report["tolerance_mm"] = tol
-    for key in ("range_mm", "edge_exclusion", "min_coverage", "distance"):
+    for key in ("range_mm", "edge_exclusion", "min_coverage", "distance", "verdict_with_uncertainty"):
         if key in method_result:
             report[key] = _plain(method_result[key])
     report["verdict"] = "PASS" if all(s["pass"] for s in report["steps"]) else "FAIL"
@@ -615,6 +615,39 @@ def _conditions(report: Mapping[str, Any]) -> str:
     return f'<h2>Measurement conditions</h2><dl class="cond">{body}</dl>'
 
 
+def _uncertainty_table(report: Mapping[str, Any]) -> str:
+    """The per-step uncertainty budget (GUM, docs/uncertainty.md) and the ISO 14253-1 decisions,
+    and the validation against ground truth when the report carries one; empty without ``u_mm``."""
+    steps = [s for s in report.get("steps", []) if "u_mm" in s]
+    if not steps:
+        return ""
+    terms = ("noise", "table", "interpolation", "reference", "model")
+    head = "".join(f"<th>{t}</th>" for t in terms)
+    rows = []
+    for s in steps:
+        b = s.get("uncertainty_budget", {})
+        t = b.get("terms_mm", {})
+        cells = "".join(f"<td>{_num(t.get(k), '.4f')}</td>" for k in terms)
+        rows.append(f"<tr><td>{_e(s['name'])}</td>{cells}<td>{_num(b.get('base_plane_per_frame_mm'), '.4f')}</td>"
+                    f"<td>{_num(b.get('effective_independent_pixels'), '.0f')}</td><td>{_num(s['u_mm'], '.4f')}</td>"
+                    f"<td>{_num(s['U_mm'], '.4f')}</td><td>{_e(s.get('conformance', ''))}</td></tr>")
+    val = ""
+    acc = report.get("accuracy", {}).get("trapezoidal-hsi", {}).get("uncertainty")
+    if acc:
+        val = (f'<p class="note">Against ground truth: {_num(100 * acc["coverage_2u"], ".1f")} % of the valid pixels '
+               f"have |error| ≤ 2u (target 95 ± 3 %); rms error {_num(acc['rms_error_mm'], '.4f')} mm, "
+               f"rms u {_num(acc['rms_u_mm'], '.4f')} mm.</p>")
+    return ("<h2>Uncertainty budget (mm)</h2><table><tr><th>step</th>" + head +
+            "<th>base plane (1 frame)</th><th>independent pixels</th><th>u</th><th>U (k = 2)</th>"
+            "<th>ISO 14253-1</th></tr>" + "".join(rows) + "</table>"
+            '<p class="note">Standard uncertainties of the mean step height: noise (sensor noise of the frames, '
+            "through the phase filter, / √frames), table (hue-table noise) and interpolation (averaged over pixels, "
+            "not frames), reference phase and phase-to-height model (correlated: not averaged). ISO 14253-1: pass "
+            "when |error| ≤ tolerance − U, fail when |error| > tolerance + U, else undecided; the column "
+            f"'pass' above is |error| ≤ tolerance. Decision with U: {_e(report.get('verdict_with_uncertainty', ''))}.</p>"
+            + val)
+
+
 def _flatness_table(report: Mapping[str, Any]) -> str:
     steps = [s for s in report.get("steps", []) if "flatness" in s or "coverage" in s]
     if not steps:
@@ -733,6 +766,7 @@ def render_report_html(
         '<p class="note">Mean and σ over frames (σ: sample standard deviation, n − 1); ±3σ = 3σ (repeatability); '
         "error = mean − nominal; error % nominal = 100 · (mean − nominal) / nominal; "
         "error % range = 100 · error / measuring range; pass = |error| ≤ tolerance.</p>",
+        _uncertainty_table(report),
         _conditions(report),
         _flatness_table(report),
         f"<h2>Figures</h2>{figs}" if figs else "",

@@ -19,6 +19,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from huefringe import kernel
 from huefringe.colour import hue as hue_of
@@ -30,6 +31,7 @@ from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, frame_stats, measure_frame, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
 from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
+from huefringe.uncertainty import pixel_budget
 
 log = logging.getLogger("huefringe")
 
@@ -239,7 +241,8 @@ def compensation(session: str, table: str, model: str, hue_model: str, calibrati
 def measure_frames(session: str, frames: Sequence[int], table: str, model: str, hue_model: str,
                    measurement: Mapping[str, Any], calibration: Mapping[str, Any],
                    heights: Sequence[str], qa: Sequence[str], phases: Sequence[str] = (),
-                   hues: Sequence[str] = (), map_frames: Sequence[int] | None = None) -> None:
+                   hues: Sequence[str] = (), map_frames: Sequence[int] | None = None,
+                   uncertainties: Sequence[str] = ()) -> None:
     """Measure a batch of frames: height TIFF and QA JSON per frame, phase and hue maps of some.
 
     Parameters
@@ -251,6 +254,9 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
     map_frames : sequence of int, optional
         The frames whose maps are written (the workflow: those it renders, or all with
         ``measurement.maps: all``); default: every frame of ``frames``.
+    uncertainties : sequence of str
+        One standard-uncertainty TIFF (mm, NaN where the height is NaN;
+        :mod:`huefringe.uncertainty`) per frame of ``frames``, or none.
 
     The coloured point clouds are written from the height TIFFs by :func:`cloud_frames`, a stage
     (and workflow job) of its own.
@@ -266,11 +272,16 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
     maps = {n: (phases[k], hues[k]) for k, n in enumerate(map_frames)}
     if not set(maps) <= set(frames):
         raise ValueError(f"measure_frames: map frames {sorted(set(maps) - set(frames))} are not in the batch")
+    if uncertainties and len(uncertainties) != len(frames):
+        raise ValueError(f"measure_frames: {len(frames)} frames, {len(uncertainties)} uncertainty maps")
     s = load_session(session)
-    for i, (n, height, phase, hue, stats) in enumerate(frame_results(s, HueTable.load(table), PlaneCalibration.load(model),
-                                                                     frames, hue_model, measurement, set(maps))):
+    results = frame_results(s, HueTable.load(table), PlaneCalibration.load(model), frames, hue_model, measurement,
+                            set(maps), want_uncertainty=bool(uncertainties))
+    for i, (n, height, phase, hue, stats, u_map) in enumerate(results):
         path = s.frames[n]
         write_tiff(heights[i], height)
+        if uncertainties:
+            write_tiff(uncertainties[i], u_map)
         if n in maps:
             write_tiff(maps[n][0], phase)
             write_tiff(maps[n][1], hue)
@@ -280,19 +291,22 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
 
 
 def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequence[int], hue_model: str,
-                  measurement: Mapping[str, Any], map_frames: set[int] | None = None):
-    """Measure frames of a session one by one: yields ``(frame, height, phase, hue, stats)``.
+                  measurement: Mapping[str, Any], map_frames: set[int] | None = None, want_uncertainty: bool = True):
+    """Measure frames of a session one by one: yields ``(frame, height, phase, hue, stats, uncertainty)``.
 
     The loop of :func:`measure_frames` (which writes what it yields) and of :func:`huefringe.measure`
     (which keeps it): the fused kernel with ``measurement.kernel`` and reference-relative
     unwrapping, :func:`~huefringe.perframe.measure_frame` otherwise. ``phase`` and ``hue`` are
     those of the frames in ``map_frames`` (default: all; None from the kernel for the others).
+    ``uncertainty`` is the height's standard uncertainty map (mm, :mod:`huefringe.uncertainty`;
+    None from the kernel with ``want_uncertainty=False``).
     Each frame is refused (:class:`~huefringe.perframe.FrameError`, naming it) before it is yielded.
     The kernel's arrays are reused from frame to frame: copy what you keep.
     """
     maps = set(frames) if map_frames is None else set(map_frames)
     white = read_rgb(s.object_white)
     shadow = shadow_mask(white, measurement["shadow_fraction"])
+    budget = None
     fast = bool(measurement["kernel"]) and measurement["unwrap"] == "reference"
     if fast:
         prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=measurement["min_saturation"],
@@ -306,25 +320,28 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
             m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"],
                                   denoise_adaptive=measurement.get("denoise_adaptive"),
-                                  want_maps=n in maps, want_dphi=True, out=buffers)
+                                  want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty,
+                                  out=buffers)
             flags = unwrap(m.dphi, m.valid, "reference").flags  # type: ignore[arg-type]
             px = m.valid.size
             stats = frame_stats(m.valid, m.height, flags, clipped_fraction=m.counts["clipped"] / px,
                                 hue_undefined_fraction=m.counts["hue_undefined"] / px,
                                 table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
                                 hue_model=hue_model, unwrap_mode="reference")
-            height, phase, hue = m.height, m.phase, m.hue
+            height, phase, hue, u_map = m.height, m.phase, m.hue, m.uncertainty
         else:
+            budget = pixel_budget(t, cal) if budget is None else budget
             res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
                                 denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
-                                denoise_adaptive=measurement.get("denoise_adaptive"))
-            height, phase, hue, stats = res.height, res.phase, res.hue, res.stats
+                                denoise_adaptive=measurement.get("denoise_adaptive"), budget=budget)
+            height, phase, hue, stats, u_map = res.height, res.phase, res.hue, res.stats, res.uncertainty
         _refuse_bad_frame(path, stats, measurement)
-        yield n, height, phase, hue, stats
+        yield n, height, phase, hue, stats, u_map
 
 
-def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], clouds: Sequence[str]) -> None:
+def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], clouds: Sequence[str],
+                 uncertainties: Sequence[str] = ()) -> None:
     """Coloured point clouds of a batch of measured frames, from their height TIFFs.
 
     Parameters
@@ -339,6 +356,8 @@ def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], cl
     clouds : sequence of str
         Target ``.ply`` files, one per frame, written atomically by
         :func:`huefringe.cloud.write_height_cloud` (the bytes Open3D would write).
+    uncertainties : sequence of str, optional
+        The frames' uncertainty TIFFs: each point then carries a float ``sigma_mm`` property.
 
     Raises
     ------
@@ -352,12 +371,15 @@ def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], cl
         raise ValueError(f"cloud_frames: {len(frames)} frames, {len(heights)} height maps, {len(clouds)} clouds")
     s = load_session(session)
     white = read_rgb(s.object_white)
+    if uncertainties and len(uncertainties) != len(frames):
+        raise ValueError(f"cloud_frames: {len(frames)} frames, {len(uncertainties)} uncertainty maps")
     rgb = colour_bytes(_check_colours(white, white.shape[:2]).reshape(-1, 3))  # once per batch
-    for n, height, cloud in zip(frames, heights, clouds, strict=True):
+    for i, (n, height, cloud) in enumerate(zip(frames, heights, clouds, strict=True)):
         h = read_tiff(height)
         if h.shape != white.shape[:2]:
             raise ValueError(f"{height}: height map {h.shape} does not match the white image {white.shape[:2]}")
-        points = write_height_cloud(cloud, h, s.pixel_pitch_mm, colours=rgb)
+        scalars = {"sigma_mm": read_tiff(uncertainties[i])} if uncertainties else None
+        points = write_height_cloud(cloud, h, s.pixel_pitch_mm, colours=rgb, scalars=scalars)
         log.info("frame %04d: %d points", n, points)
 
 
@@ -395,8 +417,13 @@ def baseline_frames(session: str, frames: Sequence[int], model: str, object_tabl
 
 
 def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str], report: str,
-                    measurement: Mapping[str, Any]) -> None:
-    """Height error against the bench's ground truth, for the method and the baseline."""
+                    measurement: Mapping[str, Any], uncertainties: Sequence[str] = (), reliability: str = "") -> None:
+    """Height error against the bench's ground truth, for the method and the baseline.
+
+    With ``uncertainties`` the method's block gains ``uncertainty``: the fraction of the valid
+    pixels with ``|error| <= 2 u`` (per frame and pooled) and the binned reliability curve
+    (:func:`huefringe.uncertainty.reliability`), drawn to ``reliability`` (PNG).
+    """
     s = load_session(session)
     lit = ~shadow_mask(read_rgb(s.object_white), measurement["shadow_fraction"])
 
@@ -414,6 +441,24 @@ def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str
         return {"summary": summary, "per_frame": per}
 
     out: dict[str, Any] = {"session": s.id, "method": "trapezoidal-hsi", "trapezoidal-hsi": block(heights, s.frame_ids)}
+    if uncertainties:
+        from huefringe import uncertainty as unc
+
+        errs, us, per = [], [], []
+        for p, q, n in zip(heights, uncertainties, s.frame_ids, strict=True):
+            e = (read_tiff(p).astype(np.float64) - read_tiff(s.ground_truth[n]))
+            u = read_tiff(q).astype(np.float64)
+            r = unc.reliability(e, u)
+            per.append({"frame": n, "coverage_2u": r["coverage_2u"], "rms_u_mm": r.get("rms_u_mm")})
+            errs.append(e.ravel())
+            us.append(u.ravel())
+        pooled = unc.reliability(np.concatenate(errs), np.concatenate(us))
+        pooled["per_frame"] = per
+        out["trapezoidal-hsi"]["uncertainty"] = pooled
+        if reliability:
+            from huefringe.render import reliability_figure
+
+            reliability_figure(pooled, reliability, title=f"{s.id}: observed error against predicted u")
     if baseline:
         out["three-step-phase-shift"] = block(baseline, sorted(s.phase_shift))
     write_json(report, out)
@@ -443,8 +488,10 @@ def mesh(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str,
 
 
 def render(session: str, mesh: str, height: str, phase: str, render: Mapping[str, Any], frame: str,
-                 top: str, oblique1: str, oblique2: str, height_map: str, phase_map: str) -> None:
-    """Off-screen renders (top and two oblique views) and the height and phase figures of one frame."""
+           top: str, oblique1: str, oblique2: str, height_map: str, phase_map: str,
+           uncertainty: str = "", uncertainty_map: str = "") -> None:
+    """Off-screen renders (top and two oblique views) and the height and phase figures of one frame
+    (and, given the frame's ``uncertainty`` TIFF, the uncertainty figure beside the height's)."""
     import trimesh
 
     from huefringe import render as rendering
@@ -464,6 +511,9 @@ def render(session: str, mesh: str, height: str, phase: str, render: Mapping[str
                                 title=f"{s.id} frame {frame}: height (mm)")
     rendering.wrapped_phase_figure(read_tiff(phase), phase_map, pitch_mm=s.pixel_pitch_mm,
                                    title=f"{s.id} frame {frame}: corrected code phase")
+    if uncertainty and uncertainty_map:
+        rendering.uncertainty_map_figure(read_tiff(uncertainty), s.pixel_pitch_mm, uncertainty_map,
+                                         title=f"{s.id} frame {frame}: height uncertainty u")
 
 
 # ----------------------------------------------- workflow/rules/metrology.smk
@@ -471,8 +521,14 @@ def render(session: str, mesh: str, height: str, phase: str, render: Mapping[str
 
 def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline: Sequence[str], planes: str, tables: str,
                      cross_section: str, render: str, height_map: str, accuracy: Sequence[str],
-                     config: Mapping[str, Any], json: str, html: str, profile: str, per_frame: str) -> None:
-    """Step-height metrology of every frame: report.json (results contract) and report.html."""
+                     config: Mapping[str, Any], json: str, html: str, profile: str, per_frame: str,
+                     uncertainties: Sequence[str] = (), model: str = "", object_table: str = "") -> None:
+    """Step-height metrology of every frame: report.json (results contract) and report.html.
+
+    With ``uncertainties`` (one map per height map), the phase-to-height ``model`` and the
+    ``object_table``, each step also gets ``u_mm``, ``U_mm``, its ISO 14253-1 ``conformance``
+    and its ``uncertainty_budget`` (:func:`add_step_uncertainty`).
+    """
     import json as jsonlib
 
     from huefringe import metrology, report
@@ -495,6 +551,10 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
             raise metrology.MetrologyError(f"{where}: {exc} (specimen in {s.root / 'session.yaml'})") from exc
 
     method = evaluate(heights)
+    if uncertainties:
+        add_step_uncertainty(method, maps, [read_tiff(p) for p in uncertainties], spec, s.pixel_pitch_mm,
+                             PlaneCalibration.load(model), HueTable.load(object_table), edge_exclusion=edge,
+                             denoise_radius=int(config["measurement"]["denoise_radius"]))
     base = evaluate(baseline, method="three-step-phase-shift") if baseline else None
     plane_stats = jsonlib.loads(Path(planes).read_text())
     table_stats = jsonlib.loads(Path(tables).read_text())
@@ -532,8 +592,12 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
     report.write_report_html(html, doc, figures, provenance)
 
 def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_mm: float,
-           markdown: str, csv: str, figure: str) -> None:
-    """The paper's Table 1 from the metrology reports of a period sweep, beside the published values."""
+           markdown: str, csv: str, figure: str, uncertainty_ratio: str = "") -> None:
+    """The paper's Table 1 from the metrology reports of a period sweep, beside the published values.
+
+    ``uncertainty_ratio`` (JSON): per period, the step's observed std over the frames against the
+    predicted independent part of one frame's u (``uncertainty_budget.independent_per_frame_mm``).
+    """
     import json as jsonlib
 
     from huefringe import table1 as t1
@@ -546,9 +610,48 @@ def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_
             results[int(period)]["baseline"] = doc["baseline"]
     rows = t1.table1_rows(results, step_name=step, nominal=nominal_mm)
     t1.write_table1(rows, markdown, csv, figure)
+    if uncertainty_ratio:
+        ratios = {}
+        for period, res in results.items():
+            st = next((x for x in res["method"]["steps"] if x["name"] == step), None)
+            bud = (st or {}).get("uncertainty_budget")
+            if st is None or bud is None or st.get("std_mm") is None:
+                continue
+            ind = float(bud["independent_per_frame_mm"])
+            ratios[str(period)] = {"frames": len(st["per_frame_mm"]), "std_mm": st["std_mm"],
+                                   "independent_per_frame_mm": ind, "ratio": st["std_mm"] / ind if ind > 0 else None,
+                                   "u_mm": st.get("u_mm"), "error_mm": st["error_mm"]}
+            log.info("period %s px: std %.4f mm, predicted independent u %.4f mm, ratio %.2f (target 0.7-1.4)",
+                     period, st["std_mm"], ind, ratios[str(period)]["ratio"] or float("nan"))
+        write_json(uncertainty_ratio, {"step": step, "target": [0.7, 1.4], "periods": ratios})
 
 
 # ------------------------------------------------- workflow/rules/archive.smk
+
+
+def add_step_uncertainty(method: dict[str, Any], heights: Sequence[NDArray[np.floating]],
+                         uncertainties: Sequence[NDArray[np.floating]], specimen: Mapping[str, Any], pitch_mm: float,
+                         cal: PlaneCalibration, table: HueTable, *, edge_exclusion: float, denoise_radius: int) -> None:
+    """Add ``u_mm``, ``U_mm`` (k = 2), ``conformance`` and ``uncertainty_budget`` to each step of an
+    :func:`huefringe.metrology.evaluate_session` block, and ``verdict_with_uncertainty`` to the block.
+
+    ``pass`` stays ``|error| <= tolerance`` (the contract); ``conformance`` is the ISO 14253-1
+    decision with U: ``pass``, ``fail`` or ``undecided``.
+    """
+    from huefringe import uncertainty as unc
+
+    if len(uncertainties) != len(heights):
+        raise ValueError(f"{len(heights)} height maps but {len(uncertainties)} uncertainty maps")
+    budgets = unc.step_budget(heights, uncertainties, specimen, pitch_mm, cal.a, cal.b, unc.pixel_budget(table, cal),
+                              edge_exclusion=edge_exclusion, denoise_radius=denoise_radius)
+    tol = float(method["tolerance_mm"])
+    for step, bud in zip(method["steps"], budgets, strict=True):
+        step["u_mm"] = bud["u_mm"]
+        step["U_mm"] = bud["U_mm"]
+        step["conformance"] = unc.conformance(step["error_mm"], tol, bud["U_mm"])
+        step["uncertainty_budget"] = {k: v for k, v in bud.items() if k not in ("name", "u_mm", "U_mm")}
+    zones = {st["conformance"] for st in method["steps"]}
+    method["verdict_with_uncertainty"] = "FAIL" if "fail" in zones else ("UNDECIDED" if "undecided" in zones else "PASS")
 
 
 def archive_session(session: str, results: str, config: Mapping[str, Any], archive: str) -> None:
@@ -586,12 +689,14 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
                       phase_error_table=str(out / "phase_error.npz"), phase_error_summary=str(out / "phase_error.json"))
     paths: dict[str, Any] = {
         k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
-        for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"))
+        for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"),
+                       ("uncertainties", "tiff"))
     }
     measure_frames(str(session), frames, str(out / "table_object.json"), str(out / "model.npz"), model,
                    config["measurement"], cal, heights=paths["heights"], phases=paths["phases"], hues=paths["hues"],
-                   qa=paths["qa"])
-    cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"])
+                   qa=paths["qa"], uncertainties=paths["uncertainties"])
+    cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"],
+                 uncertainties=paths["uncertainties"])
     if baseline:
         paths["baseline"] = [str(out / "baseline" / f"frame_{n:04d}.tiff") for n in frames]
         baseline_frames(str(session), frames, str(out / "model.npz"), str(out / "table_object.json"),

@@ -67,6 +67,7 @@ def frame_outputs(sid, frames):
         "phases": [R(sid, "phase", f"{fname(n)}.tiff") for n in frames],
         "hues": [R(sid, "hue", f"{fname(n)}.tiff") for n in frames],
         "qa": [R(sid, "qa", "frames", f"{fname(n)}.json") for n in frames],
+        "uncertainties": [R(sid, "uncertainty", f"{fname(n)}.tiff") for n in frames],
     }
 
 
@@ -81,7 +82,9 @@ def map_frames(sid):
 def measure_outputs(sid, frames):
     """Outputs of the measurement job of a batch: height and QA of every frame, maps of some."""
     out = {
-        k: v for k, v in frame_outputs(sid, frames).items() if k in ("heights", "qa")
+        k: v
+        for k, v in frame_outputs(sid, frames).items()
+        if k in ("heights", "qa", "uncertainties")
     }
     maps = [n for n in frames if n in set(map_frames(sid))]
     if maps:
@@ -104,6 +107,7 @@ def render_outputs(sid, n):
     return views + [
         R(sid, "renders", f"{fname(n)}_height.png"),
         R(sid, "renders", f"{fname(n)}_phase.png"),
+        R(sid, "renders", f"{fname(n)}_uncertainty.png"),
     ]
 
 

@@ -46,6 +46,7 @@ for _sid, _plan in PLANS.items():
                 f"cloud_frames_{_sid.replace('-', '_')}_{_b:03d}"
             input:
                 heights=frame_outputs(_sid, _frames)["heights"],
+                uncertainties=frame_outputs(_sid, _frames)["uncertainties"],
             output:
                 clouds=frame_outputs(_sid, _frames)["clouds"],
             log:
@@ -94,8 +95,12 @@ rule accuracy_report:
     input:
         heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
         baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
+        uncertainties=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)[
+            "uncertainties"
+        ],
     output:
         report=R("{sid}", "accuracy.json"),
+        reliability=R("{sid}", "metrology", "reliability.png"),
     log:
         "logs/{sid}/accuracy.log",
     conda:

@@ -6,6 +6,11 @@ rule metrology:
     input:
         heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
         qa=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["qa"],
+        uncertainties=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)[
+            "uncertainties"
+        ],
+        model=R("{sid}", "calib", "phase_to_height.npz"),
+        object_table=R("{sid}", "calib", "table_object.json"),
         baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
         planes=R("{sid}", "calib", "planes.json"),
         tables=R("{sid}", "calib", "table_object.stats.json"),
@@ -57,6 +62,7 @@ rule table1:
             category="Table 1",
         ),
         csv=R("table1", "table1.csv"),
+        uncertainty_ratio=R("table1", "uncertainty_ratio.json"),
         figure=report(
             R("table1", "table1.png"),
             caption="../report/table1.rst",

@@ -29,6 +29,7 @@ rule render:
         mesh=R("{sid}", "mesh", "frame_{frame}.ply"),
         height=R("{sid}", "height", "frame_{frame}.tiff"),
         phase=R("{sid}", "phase", "frame_{frame}.tiff"),
+        uncertainty=R("{sid}", "uncertainty", "frame_{frame}.tiff"),
     output:
         top=report(
             R("{sid}", "renders", "frame_{frame}_top.png"),
@@ -43,6 +44,7 @@ rule render:
             category="Height maps",
         ),
         phase_map=R("{sid}", "renders", "frame_{frame}_phase.png"),
+        uncertainty_map=R("{sid}", "renders", "frame_{frame}_uncertainty.png"),
     log:
         "logs/{sid}/render_{frame}.log",
     conda:

@@ -1,0 +1,73 @@
+"""Does the predicted height uncertainty hold? Coverage and step ratios on bench presets.
+
+Usage: ./run python benchmarks/uncertainty_validation.py [--frames 5] [--presets demo flat dental]
+
+For each preset the bench writes a session, the whole chain measures it (the uncertainty maps
+from the kernel's pass), and against the bench's ground truth it prints: the fraction of the
+valid pixels with |error| <= 2u (target 0.95 +- 0.03), the rms error and rms u, and, for
+sessions with a specimen, each step's std over the frames against the predicted independent
+part of one frame's u (target ratio 0.7-1.4; with few frames the std is itself uncertain:
+its relative standard error is about 1 / sqrt(2 (frames - 1))).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import tifffile
+import yaml
+
+from huefringe import bench, metrology, stages, uncertainty
+from huefringe.settings import load_config
+from huefringe.huetable import HueTable
+from huefringe.height import PlaneCalibration
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--frames", type=int, default=5)
+    ap.add_argument("--presets", nargs="+", default=["demo", "flat", "dental"])
+    args = ap.parse_args()
+    cfg = load_config(REPO / "config.yaml")
+    print(f"{'preset':8} {'|e|<=2u':>8} {'rms e mm':>9} {'rms u mm':>9} {'median u mm':>11}  steps: std / independent u")
+    with tempfile.TemporaryDirectory() as tmp:
+        for preset in args.presets:
+            bcfg = copy.deepcopy(bench.load_bench_config(bench.preset_path(preset)))
+            bcfg["session"]["frames"] = args.frames
+            bcfg.setdefault("phase_shift", {})["enabled"] = False
+            session = bench.write_session(bcfg, Path(tmp) / preset)
+            out = Path(tmp) / f"{preset}-out"
+            p = stages.measure_session(session, out, cfg)
+            s = p["session"]
+            hs = [tifffile.imread(h) for h in p["heights"]]
+            us = [tifffile.imread(u) for u in p["uncertainties"]]
+            errs = [h.astype(np.float64) - tifffile.imread(s.ground_truth[n]) for h, n in zip(hs, s.frame_ids, strict=True)]
+            rel = uncertainty.reliability(np.concatenate([e.ravel() for e in errs]), np.concatenate([u.ravel() for u in us]))
+            line = (f"{preset:8} {rel['coverage_2u']:8.3f} {rel['rms_error_mm']:9.4f} {rel['rms_u_mm']:9.4f} "
+                    f"{rel['median_u_mm']:11.4f}")
+            if s.specimen:
+                method = metrology.evaluate_session(hs, s.specimen, s.pixel_pitch_mm,
+                                                    range_mm=max(s.planes_mm) - min(s.planes_mm),
+                                                    edge_exclusion=cfg["metrology"]["edge_exclusion"])
+                stages.add_step_uncertainty(method, hs, us, s.specimen, s.pixel_pitch_mm,
+                                              PlaneCalibration.load(str(out / "model.npz")),
+                                              HueTable.load(out / "table_object.json"),
+                                              edge_exclusion=cfg["metrology"]["edge_exclusion"],
+                                              denoise_radius=cfg["measurement"]["denoise_radius"])
+                parts = []
+                for st in method["steps"]:
+                    ind = st["uncertainty_budget"]["independent_per_frame_mm"]
+                    parts.append(f"{st['name']} {st['std_mm']:.4f}/{ind:.4f}={st['std_mm'] / ind:.2f} "
+                                 f"(error {st['error_mm']:+.4f}, U {st['U_mm']:.4f}, {st['conformance']})")
+                line += "  " + "; ".join(parts)
+            print(line, flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,442 @@
+"""Per-pixel height uncertainty (GUM), and its propagation into step heights.
+
+The height of a pixel is ``h = dphi / (a + b dphi)`` with ``dphi = phi - phi_ref`` (filtered).
+Its standard uncertainty combines five terms (``docs/uncertainty.md`` has the formulas and their
+sizes on the demo), kept in three groups because they average differently:
+
+=============  ==============================================  ==================================
+group          terms                                           averages over
+=============  ==============================================  ==================================
+independent    ``noise``: sensor (shot + read) noise of the    pixels (by the effective number of
+               frame through the hue, the table slope and the  independent pixels) and frames
+               phase filter (``1 / sum w``)
+pixel          ``table``: noise of the smoothed table entries; pixels, not frames (the table is
+               ``interpolation``: linear interpolation          the same for every frame)
+               between bands
+correlated     ``reference``: the z = 0 plane's smoothed       neither (shared by the pixels of a
+               phase; ``model``: the (a, b) fit of the planes  region and by every frame)
+=============  ==============================================  ==================================
+
+With the height's sensitivity ``G = dh/ddphi = a / (a + b dphi)^2`` and the parameter
+sensitivities ``J = (dh/da, dh/db) = -(dphi, dphi^2) / (a + b dphi)^2``:
+
+    u_noise = G / sqrt(sum w)          sum of the filter's weights w = 1/sigma^2 it used
+    u_table = u_noise sqrt(f_table)    f_table = smoothed entry variance / one capture's
+    u_interp = G u_interp_rad          rms linear-interpolation error of the pixel's table
+    u_ref = G u_ref_rad                smoothed-reference error (fit noise + unmodelled misfit)
+    u_model = sqrt(J C J^T)            C = covariance of (a, b) from the planes' errors
+
+This module is pure: it never reads files and never imports the bench.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe.huetable import band_smoothing_matrix
+
+__all__ = [
+    "TERMS", "PixelBudget", "calibration_terms", "conformance", "height_uncertainty", "pixel_budget",
+    "reliability", "split_terms", "step_budget", "table_interpolation_rad", "table_variance_factor",
+]
+
+TERMS = ("noise", "table", "interpolation", "reference", "model")
+"""Names of the per-pixel terms, in the order of :func:`split_terms`."""
+GROUPS = {"noise": "independent", "table": "pixel", "interpolation": "pixel", "reference": "correlated",
+          "model": "correlated"}
+
+#: Side (px) of the box over which the planes' residuals are averaged to tell their systematic
+#: part (a calibration error) from their pixel noise.
+RESIDUAL_BOX_PX = 31
+
+
+# --------------------------------------------------------------------------------------------
+# calibration terms (once per session)
+# --------------------------------------------------------------------------------------------
+def _box_mean(x: NDArray[np.floating], valid: NDArray[np.bool_], size: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Mean of ``x`` over the valid pixels of a ``size`` box around each pixel, and their count."""
+    from scipy import ndimage
+
+    v = valid & np.isfinite(x)
+    s = ndimage.uniform_filter(np.where(v, x, 0.0).astype(np.float64), size, mode="constant")
+    c = ndimage.uniform_filter(v.astype(np.float64), size, mode="constant")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(c > 0, s / c, np.nan), c * size * size
+
+
+def systematic_rms(residual: NDArray[np.floating], valid: NDArray[np.bool_], *, n_terms: int,
+                   size: int = RESIDUAL_BOX_PX) -> tuple[NDArray[np.float64], float]:
+    """Per-pixel uncertainty of a smoothed (polynomial-fitted) map from the raw map's residual.
+
+    ``residual`` = raw - fitted. Its box mean over ``size`` pixels is the fit's local misfit
+    (systematic, kept) plus the pixel noise that leaks through the box (``sigma^2 / n``,
+    removed in quadrature); the polynomial's own noise adds ``sigma^2 n_terms / N`` (its mean
+    leverage over ``N`` valid pixels). ``sigma`` is the robust spread of the residual about its
+    box mean. Returns the map (rad, NaN where no valid pixel is near) and ``sigma``.
+    """
+    r = np.where(valid, np.asarray(residual, np.float64), np.nan)
+    mean, count = _box_mean(r, valid, size)
+    dev = (r - mean)[np.isfinite(r) & np.isfinite(mean)]
+    sigma = float(1.4826 * np.median(np.abs(dev))) if dev.size else 0.0
+    n = max(int(np.count_nonzero(np.isfinite(r))), 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sys2 = np.maximum(mean**2 - sigma**2 / np.maximum(count, 1.0), 0.0)
+    return np.sqrt(sys2 + sigma**2 * n_terms / n), sigma
+
+
+def calibration_terms(
+    solve: Any,
+    dphis: Mapping[float, NDArray[np.floating]],
+    u_dphi: Mapping[float, NDArray[np.floating]],
+    *,
+    eps: float = 1e-4,
+) -> dict[str, NDArray[np.float32]]:
+    """Covariance of the per-pixel model parameters ``(a, b)`` from the planes' phase errors.
+
+    ``solve(dphis) -> (a, b)`` is the fit of :func:`huefringe.height.calibrate_planes`; its
+    Jacobian with respect to each plane's phase difference is taken by forward differences
+    (``eps`` rad, the model is smooth), and ``C = sum_j g_j g_j^T u_j^2`` (planes independent).
+    """
+    a0, b0 = solve(dphis)
+    caa = np.zeros(np.shape(a0))
+    cab = np.zeros_like(caa)
+    cbb = np.zeros_like(caa)
+    for z in dphis:
+        moved = dict(dphis)
+        moved[z] = np.asarray(dphis[z], np.float64) + eps
+        a1, b1 = solve(moved)
+        ga, gb = (a1 - a0) / eps, (b1 - b0) / eps
+        u2 = np.nan_to_num(np.asarray(u_dphi[z], np.float64)) ** 2
+        caa += ga * ga * u2
+        cab += ga * gb * u2
+        cbb += gb * gb * u2
+    return {"cov_aa": caa.astype(np.float32), "cov_ab": cab.astype(np.float32), "cov_bb": cbb.astype(np.float32)}
+
+
+def table_variance_factor(n_bands: int, window: int, order: int, repeats: int) -> float:
+    """Variance of a smoothed table entry over the variance of one capture's hue.
+
+    An entry is the mean of ``repeats`` captures (variance / R), smoothed along the band axis by
+    :func:`huefringe.huetable.band_smoothing_matrix` (variance times the sum of its squared
+    coefficients; the mean over the bands, since the windows are one-sided near sextant
+    boundaries). Interpolating between two neighbouring entries, whose smoothing windows share
+    almost all bands, keeps that variance.
+    """
+    window = min(int(window), int(n_bands) - (1 - int(n_bands) % 2))  # the smoother never exceeds N
+    if window > 1:
+        coef = band_smoothing_matrix(int(n_bands), int(window), int(order))
+        g = float(np.mean(np.sum(coef**2, axis=1)))
+    else:
+        g = 1.0
+    return g / max(int(repeats), 1)
+
+
+def table_interpolation_rad(table: Any, *, rows: int = 64) -> NDArray[np.float32]:
+    """Per-pixel rms error (rad) of interpolating the hue table linearly between bands.
+
+    Between two bands, a curved hue curve departs from its chord by ``f (1 - f) D2 / 2`` (``f``
+    the fraction of the band width, ``D2`` the second difference of the entries); over a uniform
+    ``f`` that has rms ``D2 / sqrt(120)``, which in code phase is ``D2 / D1 * step / sqrt(120)``
+    (``D1`` the first difference: hue counts per band). The rms over the pixel's bands.
+    """
+    t = np.asarray(table.table)
+    n = t.shape[0]
+    step = 2.0 * np.pi / n
+    out = np.zeros(t.shape[1:], np.float32)
+    for v0 in range(0, t.shape[1], rows):
+        c = t[:, v0 : v0 + rows].astype(np.int32)
+        d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768  # counts per band, circular
+        d2 = np.roll(d1, -1, axis=0) - d1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e = np.where(d1 > 0, np.abs(d2) / d1, 0.0) * step / math.sqrt(120.0)
+        out[v0 : v0 + rows] = np.sqrt(np.mean(np.minimum(e, step) ** 2, axis=0))
+    return np.where(np.asarray(table.valid, bool), out, 0.0).astype(np.float32)
+
+
+@dataclass(eq=False)
+class PixelBudget:
+    """Per-session inputs of the per-pixel budget: ``terms`` ``(5, H, W)`` float32 (planes, so
+    that the kernel's rows vectorise) holding the
+    reference phase's uncertainty (rad), the (a, b) covariance ``aa, ab, bb`` and the table's
+    interpolation error (rad); ``table_factor`` (:func:`table_variance_factor`)."""
+
+    terms: NDArray[np.float32]
+    table_factor: float
+
+    @property
+    def u_ref_rad(self) -> NDArray[np.float32]:
+        return self.terms[0]
+
+    @property
+    def u_interp_rad(self) -> NDArray[np.float32]:
+        return self.terms[4]
+
+
+def pixel_budget(table: Any, cal: Any) -> PixelBudget:
+    """The per-pixel budget's session inputs from the object's hue table and the plane calibration.
+
+    ``cal.budget`` (written by :func:`huefringe.height.calibrate_planes`) gives the reference and
+    model terms; a calibration without it (an older model file) gives zeros for them.
+    """
+    h, w = table.shape
+    terms = np.zeros((5, h, w), np.float32)
+    bud = getattr(cal, "budget", None) or {}
+    for k, name in enumerate(("u_ref_rad", "cov_aa", "cov_ab", "cov_bb")):
+        if name in bud:
+            terms[k] = np.nan_to_num(np.asarray(bud[name], np.float32))
+    terms[4] = table_interpolation_rad(table)
+    st = table.stats or {}
+    opts = st.get("params", {}) if isinstance(st.get("params"), dict) else {}
+    window = int(opts.get("smooth_window", 15))
+    order = int(opts.get("smooth_order", 2))
+    factor = table_variance_factor(table.n_bands, window, order, int(st.get("repeats", 1) or 1))
+    return PixelBudget(np.ascontiguousarray(terms), factor)
+
+
+# --------------------------------------------------------------------------------------------
+# per frame (called identically by perframe.measure_frame and kernel.frame_maps)
+# --------------------------------------------------------------------------------------------
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, out):  # pragma: no cover - numba
+    """Branch-free rows (LLVM vectorises them); NaN where not valid or without weight."""
+    h, w = dphi.shape
+    tf = np.float32(1.0) + np.float32(table_factor)
+    nan32 = np.float32(np.nan)
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    two = np.float32(2.0)
+    for v in range(h):
+        dv = dphi[v]
+        sv = sumw[v]
+        okv = valid[v]
+        av = a[v]
+        bv = b[v]
+        t0, t1, t2, t3, t4 = terms[0, v], terms[1, v], terms[2, v], terms[3, v], terms[4, v]
+        ov = out[v]
+        for u in range(w):
+            sw = sv[u]
+            ok = okv[u] & (sw > zero)
+            d = dv[u] if ok else zero
+            sw = sw if ok else one
+            aa = av[u]
+            den = aa + bv[u] * d
+            inv2 = one / (den * den)
+            g = abs(aa) * inv2
+            ja = -d * inv2
+            jb = ja * d
+            var = g * g / sw * tf + (g * t0[u]) ** 2 + (g * t4[u]) ** 2
+            var += ja * ja * t1[u] + two * ja * jb * t2[u] + jb * jb * t3[u]
+            r = np.sqrt(max(var, zero))
+            ov[u] = r if ok else nan32
+
+
+def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], valid: NDArray[np.bool_],
+                       a: NDArray[np.float32], b: NDArray[np.float32], budget: PixelBudget,
+                       out: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+    """Combined standard uncertainty (mm) of each pixel's height; NaN where not ``valid``.
+
+    Parameters
+    ----------
+    dphi : float32 (H, W)
+        The (filtered) phase difference the height was computed from.
+    sumw : float32 (H, W)
+        Sum of the inverse-variance weights the phase filter averaged (``1 / sigma^2`` without
+        the filter): the filtered phase's variance from frame noise is ``1 / sumw``.
+    valid : bool (H, W)
+        Pixels with a finite height.
+    a, b : float32 (H, W)
+        The height model.
+    budget : PixelBudget
+        From :func:`pixel_budget`.
+    """
+    if out is None:
+        out = np.empty(np.shape(dphi), np.float32)
+    _uncertainty_kernel(np.ascontiguousarray(dphi, np.float32), np.ascontiguousarray(sumw, np.float32),
+                        np.ascontiguousarray(valid, bool), np.ascontiguousarray(a, np.float32),
+                        np.ascontiguousarray(b, np.float32), budget.terms, np.float32(budget.table_factor), out)
+    return out
+
+
+def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArray[np.floating],
+                b: NDArray[np.floating], budget: PixelBudget) -> dict[str, NDArray[np.float64]]:
+    """The five terms (mm) of a combined uncertainty map, recovered from ``u`` and the height.
+
+    ``dphi = a h / (1 - b h)`` inverts the model; the calibration terms are recomputed, and the
+    noise term is what remains: ``u_noise^2 = (u^2 - u_interp^2 - u_ref^2 - u_model^2) /
+    (1 + f_table)``. Keys: :data:`TERMS`.
+    """
+    h = np.asarray(height, np.float64)
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    t = budget.terms.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = a * h / (1.0 - b * h)
+        den = a + b * d
+        g = np.abs(a) / den**2
+        ja = -d / den**2
+        jb = ja * d
+    out = {
+        "interpolation": g * t[4],
+        "reference": g * t[0],
+        "model": np.sqrt(np.maximum(ja * ja * t[1] + 2 * ja * jb * t[2] + jb * jb * t[3], 0.0)),
+    }
+    rest = np.asarray(u, np.float64) ** 2 - out["interpolation"] ** 2 - out["reference"] ** 2 - out["model"] ** 2
+    noise = np.sqrt(np.maximum(rest, 0.0) / (1.0 + budget.table_factor))
+    out["noise"] = noise
+    out["table"] = noise * math.sqrt(budget.table_factor)
+    return {k: out[k] for k in TERMS}
+
+
+# --------------------------------------------------------------------------------------------
+# step heights
+# --------------------------------------------------------------------------------------------
+def _neighbour_counts(valid: NDArray[np.bool_], radius: int) -> NDArray[np.float64]:
+    """Valid pixels in each pixel's ``(2 r + 1)^2`` window: how many raw pixels its filtered value
+    shares with its neighbours (1 without the filter)."""
+    if radius <= 0:
+        return np.ones(valid.shape)
+    from scipy import ndimage
+
+    n = 2 * radius + 1
+    return np.rint(ndimage.uniform_filter(valid.astype(np.float64), n, mode="constant") * n * n)
+
+
+def step_budget(
+    heights: Sequence[NDArray[np.floating]],
+    uncertainties: Sequence[NDArray[np.floating]],
+    specimen: Mapping[str, Any],
+    pitch_mm: float,
+    a: NDArray[np.floating],
+    b: NDArray[np.floating],
+    budget: PixelBudget,
+    *,
+    edge_exclusion: float,
+    denoise_radius: int,
+) -> list[dict[str, Any]]:
+    """Standard uncertainty of each step's mean height over the frames, term by term.
+
+    A step height is ``mean_T(z) - mean_T(plane)``, the plane fitted over the base boxes B
+    (:func:`huefringe.metrology.step_height`). Per frame and term:
+
+    - independent and pixel terms: a filtered pixel shares its raw pixels with the ``n_i``
+      valid pixels of its window, so a mean over a region has variance
+      ``sum_i c_i^2 u_i^2 n_i`` (``c_i = 1/N`` on T; on B the plane's weights, which give
+      ``mean_T(plane)``); ``N / mean(n_i)`` is the effective number of independent pixels;
+    - correlated terms: fully correlated within T and within B, independent between them:
+      ``mean_T(u)^2 + mean_B(u)^2``.
+
+    Over F frames the independent part is divided by F, the others are not:
+    ``u^2 = <u_ind^2> / F + <u_pixel^2> + <u_corr>^2``.
+    """
+    from huefringe import metrology
+
+    base, steps, _ = metrology._specimen_parts(specimen)
+    shape = np.shape(heights[0])
+    base_boxes = [metrology.check_box(bx, shape, f"base_roi[{i}]") for i, bx in enumerate(base)]
+    rows: dict[int, dict[str, list[float]]] = {k: {t: [] for t in (*TERMS, "base_plane", "n_eff")} for k in range(len(steps))}
+    for z, u in zip(heights, uncertainties, strict=True):
+        z = np.asarray(z, np.float64)
+        valid = np.isfinite(z) & np.isfinite(u)
+        parts = split_terms(u, z, a, b, budget)
+        ncount = _neighbour_counts(valid, denoise_radius)
+        bmask = np.zeros(shape, bool)
+        for u0, v0, u1, v1 in base_boxes:
+            bmask[v0:v1, u0:u1] = True
+        bmask &= valid
+        vb, ub = np.nonzero(bmask)
+        xb = np.column_stack([np.ones(vb.size), ub * pitch_mm, vb * pitch_mm])
+        pinv = np.linalg.pinv(xb)  # (3, NB): plane coefficients from the base heights
+        for k, s in enumerate(steps):
+            box = metrology.central_box(metrology.check_box(s["roi"], shape, str(s["name"])), edge_exclusion)
+            tmask = np.zeros(shape, bool)
+            tmask[box[1] : box[3], box[0] : box[2]] = True
+            tmask &= valid
+            vt, ut = np.nonzero(tmask)
+            nt = vt.size
+            xbar = np.array([1.0, ut.mean() * pitch_mm, vt.mean() * pitch_mm])
+            cb = xbar @ pinv  # weights of the base pixels in mean_T(plane)
+            n_t = ncount[tmask]
+            rows[k]["n_eff"].append(float(nt / n_t.mean()))
+            plane_var = 0.0
+            for term in TERMS:
+                p = parts[term]
+                if GROUPS[term] == "correlated":
+                    var = np.mean(p[tmask]) ** 2 + np.mean(p[bmask]) ** 2
+                else:
+                    vtop = float(np.sum(p[tmask] ** 2 * n_t)) / nt**2
+                    vbase = float(np.sum(cb**2 * p[bmask] ** 2 * ncount[bmask]))
+                    var = vtop + vbase
+                    plane_var += vbase
+                rows[k][term].append(float(var))
+            rows[k]["base_plane"].append(plane_var)
+    out = []
+    nf = len(heights)
+    for k, s in enumerate(steps):
+        r = rows[k]
+        mean_var = {t: float(np.mean(r[t])) for t in TERMS}
+        ind_frame = math.sqrt(mean_var["noise"])
+        pix = math.sqrt(mean_var["table"] + mean_var["interpolation"])
+        corr = math.sqrt(mean_var["reference"] + mean_var["model"])
+        u = math.sqrt(ind_frame**2 / nf + pix**2 + corr**2)
+        out.append({
+            "name": str(s["name"]),
+            "u_mm": u,
+            "U_mm": 2.0 * u,
+            "k": 2.0,
+            "independent_per_frame_mm": ind_frame,
+            "independent_mm": ind_frame / math.sqrt(nf),
+            "pixel_calibration_mm": pix,
+            "correlated_mm": corr,
+            "base_plane_per_frame_mm": math.sqrt(float(np.mean(r["base_plane"]))),
+            "effective_independent_pixels": float(np.mean(r["n_eff"])),
+            "terms_mm": {t: math.sqrt(mean_var[t] / (nf if GROUPS[t] == "independent" else 1)) for t in TERMS},
+            "frames": nf,
+        })
+    return out
+
+
+def conformance(error_mm: float, tolerance_mm: float, expanded_mm: float) -> str:
+    """ISO 14253-1 decision with the expanded uncertainty U: ``pass`` when
+    ``|error| <= tolerance - U`` (conformance zone), ``fail`` when ``|error| > tolerance + U``
+    (non-conformance zone), ``undecided`` between them."""
+    e = abs(float(error_mm))
+    if e <= tolerance_mm - expanded_mm:
+        return "pass"
+    if e > tolerance_mm + expanded_mm:
+        return "fail"
+    return "undecided"
+
+
+# --------------------------------------------------------------------------------------------
+# validation against ground truth
+# --------------------------------------------------------------------------------------------
+def reliability(errors: NDArray[np.floating], u: NDArray[np.floating], *, bins: int = 12) -> dict[str, Any]:
+    """Coverage of ``|error| <= 2 u`` and the binned reliability curve (observed rms error, and the
+    68.27th percentile of ``|error|`` — the robust one-sigma, equal to u for Gaussian errors —
+    against predicted u, bins of equal count). NaN pixels (either) are left out."""
+    e = np.asarray(errors, np.float64).ravel()
+    s = np.asarray(u, np.float64).ravel()
+    ok = np.isfinite(e) & np.isfinite(s) & (s > 0)
+    e, s = e[ok], s[ok]
+    if e.size == 0:
+        return {"pixels": 0, "coverage_2u": None, "bins": []}
+    edges = np.unique(np.quantile(s, np.linspace(0, 1, bins + 1)))
+    idx = np.clip(np.searchsorted(edges, s, side="right") - 1, 0, max(edges.size - 2, 0))
+    rows = []
+    for i in range(max(edges.size - 1, 1)):
+        m = idx == i
+        if m.sum() < 10:
+            continue
+        rows.append({"u_mm": float(np.sqrt(np.mean(s[m] ** 2))), "observed_rms_mm": float(np.sqrt(np.mean(e[m] ** 2))),
+                     "observed_p68_mm": float(np.percentile(np.abs(e[m]), 68.27)),
+                     "coverage_2u": float(np.mean(np.abs(e[m]) <= 2 * s[m])), "pixels": int(m.sum())})
+    return {"pixels": int(e.size), "coverage_2u": float(np.mean(np.abs(e) <= 2 * s)),
+            "median_u_mm": float(np.median(s)), "rms_error_mm": float(np.sqrt(np.mean(e**2))),
+            "rms_u_mm": float(np.sqrt(np.mean(s**2))), "bins": rows}
