@@ -23,8 +23,12 @@
 ``report.html``
     :func:`write_report_html` writes one self-contained file: inline CSS, figures embedded as
     ``data:image/png;base64`` URIs, no script and no external reference, so it opens offline in
-    any browser. Order: verdict, step-height table (baseline side by side), measurement
-    conditions, flatness/coverage, figures, provenance (collapsible). All text is escaped.
+    any browser. Rendered from the Jinja2 templates in ``huefringe/templates/`` (package data,
+    autoescaped). Order: header (capture date, operator, instrument, simulated-data notice),
+    verdict (and the ISO 14253-1 decision with U), step-height table (baseline side by side,
+    the ISO 14253-1 zone beside the contract's pass), uncertainty and conformance, measurement
+    conditions (the method and the hue model in words), flatness/coverage with the evaluated
+    boxes in pixels and mm, figures, provenance (collapsible).
 """
 
 from __future__ import annotations
@@ -32,7 +36,6 @@ from __future__ import annotations
 import base64
 import functools
 import hashlib
-import html
 import importlib.metadata
 import importlib.resources
 import json
@@ -53,6 +56,8 @@ __all__ = [
     "CONTRACT_STEP_KEYS",
     "CONTRACT_TOP_KEYS",
     "FIGURE_ORDER",
+    "HUE_MODEL_WORDS",
+    "METHOD_WORDS",
     "ReportError",
     "build_report_json",
     "collect_provenance",
@@ -412,74 +417,84 @@ def collect_provenance(
 
 
 # --------------------------------------------------------------------------------------------
-# report.html
+# report.html (Jinja2 templates in huefringe/templates/, autoescaped)
 # --------------------------------------------------------------------------------------------
 
-_CSS = """
-:root { color-scheme: light; }
-* { box-sizing: border-box; }
-body { font-family: "DejaVu Sans", system-ui, -apple-system, "Segoe UI", Arial, sans-serif;
-       margin: 0 auto; max-width: 1280px; padding: 1.2rem 1.5rem 3rem; color: #1b1b1b;
-       background: #ffffff; line-height: 1.45; }
-h1 { font-size: 1.6rem; margin: .2rem 0 .6rem; }
-dl.capture { display: grid; grid-template-columns: max-content 1fr; gap: .1rem .8rem; margin: .4rem 0; }
-dl.capture dt { font-weight: 600; } dl.capture dd { margin: 0; }
-.simulated { background: #fff4d6; border-left: 5px solid #b26b00; padding: .5rem .8rem; margin: .5rem 0; }
-h2 { font-size: 1.25rem; margin: 2rem 0 .6rem; border-bottom: 2px solid #e3e3e3; padding-bottom: .2rem; }
-.sub { color: #555; margin: 0; }
-.verdict { display: flex; flex-wrap: wrap; align-items: center; gap: .6rem 2rem; color: #ffffff;
-           border-radius: 12px; padding: 1.1rem 1.6rem; margin: 1rem 0 1.2rem; }
-.verdict-pass { background: #1b6e35; }
-.verdict-fail { background: #b3261e; }
-.verdict-word { font-size: 4.2rem; font-weight: 800; letter-spacing: .08em; line-height: 1; }
-.verdict-detail { font-size: 1.15rem; }
-.verdict-detail ul { margin: .3rem 0 0 1.1rem; padding: 0; }
-.verdict-baseline { font-size: .95rem; opacity: .9; margin-top: .3rem; }
-.table-wrap { overflow-x: auto; }
-table { border-collapse: collapse; font-variant-numeric: tabular-nums; margin: .3rem 0; }
-th, td { padding: .35rem .65rem; text-align: right; white-space: nowrap; border-bottom: 1px solid #dcdcdc; }
-th:first-child, td:first-child { text-align: left; }
-thead th { background: #f1f3f5; font-weight: 600; vertical-align: bottom; }
-th.group { text-align: center; border-bottom: 2px solid #9aa0a6; }
-table#steps { font-size: .9rem; }
-table#steps thead th { white-space: normal; min-width: 4.6em; max-width: 7.5em; padding: .3rem .45rem; }
-table#steps td { padding: .32rem .45rem; }
-table#steps caption { caption-side: top; text-align: left; }
-.grp { border-left: 2px solid #9aa0a6; }
-td.ok { color: #1b6e35; font-weight: 700; }
-td.bad { color: #b3261e; font-weight: 700; background: #fdecea; }
-.note { color: #555; font-size: .9rem; max-width: 70rem; }
-dl.cond { display: grid; grid-template-columns: max-content auto; gap: .15rem 1.2rem; margin: .3rem 0; }
-dl.cond dt { color: #555; }
-dl.cond dd { margin: 0; font-variant-numeric: tabular-nums; }
-figure { margin: 1.4rem 0; }
-figure img { display: block; max-width: 100%; height: auto; border: 1px solid #dcdcdc; }
-figcaption { color: #444; font-size: .95rem; margin-top: .35rem; }
-details { margin-top: 2rem; border: 1px solid #dcdcdc; border-radius: 8px; padding: .6rem 1rem; }
-summary { cursor: pointer; font-weight: 600; font-size: 1.1rem; }
-table.kv th { text-align: left; vertical-align: top; color: #444; font-weight: 600; }
-table.kv td { text-align: left; white-space: normal; }
-.mono, pre { font-family: "DejaVu Sans Mono", ui-monospace, Menlo, Consolas, monospace; font-size: .82rem; }
-.mono { word-break: break-all; }
-pre { white-space: pre-wrap; word-break: break-word; background: #f6f7f8; padding: .5rem .7rem; margin: 0; }
-@media print { .verdict, td.bad { -webkit-print-color-adjust: exact; print-color-adjust: exact; } }
-"""
+#: What each method name means, in words (banner and measurement conditions).
+METHOD_WORDS: dict[str, dict[str, str]] = {
+    "trapezoidal-hsi": {
+        "short": "trapezoidal HSI phase shifting",
+        "long": "the paper's trapezoidal HSI phase shifting (Chen, Nguyen & Shu): one colour frame whose "
+                "hue encodes the projected code phase, calibrated per pixel with multi-band hue tables",
+    },
+    BASELINE_METHOD: {
+        "short": "three-step phase shifting",
+        "long": "traditional three-step phase shifting of grey sinusoidal fringes (three frames per height map)",
+    },
+}
 
+#: Which RGB -> hue formula each ``hue_model`` is (huefringe.colour).
+HUE_MODEL_WORDS: dict[str, str] = {
+    "hexcone": "HSV hexcone hue (Smith), exactly linear in the code phase of the trapezoidal pattern",
+    "hsi": "the paper's HSI hue, eqs. 1-2 (arccos form), nearly linear in the code phase "
+           "(about 0.02 rad peak deviation, absorbed by the hue tables)",
+}
 
-def _e(x: Any) -> str:
-    return html.escape(str(x), quote=True)
+_STEP_HEAD = ("Mean (mm)", "Std σ (mm)", "±3σ (mm)", "Error (mm)", "Error / nominal (%)", "Error / range (%)", "Pass")
+_BUDGET_TERMS = ("noise", "table", "interpolation", "reference", "model")
+_ZONE_CLASS = {"pass": "ok", "fail": "bad", "undecided": "undecided"}
 
 
 def _num(x: Any, fmt: str) -> str:
+    """``format(x, fmt)`` for a finite number, "—" for None/NaN/inf, ``str(x)`` for a non-number."""
     if x is None:
         return "—"
     try:
         v = float(x)
     except (TypeError, ValueError):
-        return _e(x)
+        return str(x)
     if not math.isfinite(v):
         return "—"
-    return _e(format(v, fmt))
+    if fmt == "d":
+        return str(int(round(v)))
+    return format(v, fmt)
+
+
+def _box(box: Sequence[Any] | None, fmt: str) -> str:
+    """``[a, b, c, d)``: a half-open box, each number formatted with :func:`_num`."""
+    if box is None:
+        return "—"
+    return "[" + ", ".join(_num(x, fmt) for x in box) + ")"
+
+
+def _is_flat(v: Any) -> bool:
+    return not isinstance(v, Mapping | list | tuple)
+
+
+def _tojson_pretty(v: Any, sort_keys: bool) -> str:
+    return json.dumps(v, indent=2, sort_keys=sort_keys, default=str, ensure_ascii=False)
+
+
+@functools.cache
+def _environment() -> Any:
+    """The Jinja2 environment on the packaged templates: autoescape on, undefined names are errors."""
+    import jinja2
+
+    env = jinja2.Environment(
+        loader=jinja2.PackageLoader("huefringe", "templates"),
+        autoescape=True,
+        undefined=jinja2.StrictUndefined,
+        keep_trailing_newline=True,
+    )
+    env.filters.update(num=_num, box=_box, tojson_pretty=_tojson_pretty)
+    env.tests["flat"] = _is_flat
+    return env
+
+
+def _css() -> Any:
+    import markupsafe
+
+    return markupsafe.Markup(importlib.resources.files("huefringe").joinpath("templates/report.css").read_text("utf-8"))
 
 
 def _verdict(report: Mapping[str, Any]) -> str:
@@ -489,237 +504,179 @@ def _verdict(report: Mapping[str, Any]) -> str:
     return "PASS" if report.get("steps") and all(s.get("pass") for s in report["steps"]) else "FAIL"
 
 
-def _step_cells(s: Mapping[str, Any] | None, first_group_class: str) -> list[str]:
-    if s is None:
-        return [f'<td class="{first_group_class}">—</td>'] + ["<td>—</td>"] * 6
+def _with_rep3(s: Mapping[str, Any]) -> dict[str, Any]:
+    out = dict(s)
     rep = s.get("repeatability_3sigma_mm")
     if rep is None and s.get("std_mm") is not None:
         rep = 3.0 * float(s["std_mm"])
-    ok = bool(s.get("pass"))
-    return [
-        f'<td class="{first_group_class}">{_num(s.get("mean_mm"), ".4f")}</td>',
-        f"<td>{_num(s.get('std_mm'), '.4f')}</td>",
-        f"<td>{'±' + _num(rep, '.4f') if rep is not None else '—'}</td>",
-        f"<td>{_num(s.get('error_mm'), '+.4f')}</td>",
-        f"<td>{_num(s.get('error_pct'), '+.2f')}</td>",
-        f"<td>{_num(s.get('error_pct_of_range'), '+.2f')}</td>",
-        f'<td class="{"ok" if ok else "bad"}">{"pass" if ok else "FAIL"}</td>',
-    ]
+    out["rep3"] = rep
+    out.setdefault("error_pct_of_range", None)
+    out.setdefault("conformance", None)
+    return out
 
 
-_STEP_HEAD = ("Mean (mm)", "Std σ (mm)", "±3σ (mm)", "Error (mm)", "Error / nominal (%)", "Error / range (%)", "Pass")
+def _mm_box(box: Sequence[Any] | None, pitch: float | None) -> list[float] | None:
+    if box is None or pitch is None:
+        return None
+    return [float(x) * pitch for x in box]
 
 
-def _steps_table(report: Mapping[str, Any]) -> str:
-    baseline = report.get("baseline")
-    bsteps = {s["name"]: s for s in baseline["steps"]} if baseline else {}
+def _flat_rows(report: Mapping[str, Any], pitch: float | None) -> list[dict[str, Any]]:
     rows = []
-    head_method = f"{_e(report.get('method', 'method'))} ({_e(report.get('frames', '?'))} frames)"
-    if baseline:
-        head_base = f"{_e(baseline.get('method', BASELINE_METHOD))} ({_e(baseline.get('frames', '?'))} frames)"
-        sub = "".join(f'<th{" class=grp" if i == 0 else ""}>{_e(h)}</th>' for i, h in enumerate(_STEP_HEAD))
-        thead = (
-            '<tr><th rowspan="2">Step</th><th rowspan="2">Nominal (mm)</th>'
-            f'<th class="group grp" colspan="7" scope="colgroup">{head_method}</th>'
-            f'<th class="group grp" colspan="7" scope="colgroup">baseline: {head_base}</th></tr>'
-            f"<tr>{sub}{sub}</tr>"
-        )
-    else:
-        thead = "<tr><th>Step</th><th>Nominal (mm)</th>" + "".join(f"<th>{_e(h)}</th>" for h in _STEP_HEAD) + "</tr>"
     for s in report.get("steps", []):
-        cells = [f"<td>{_e(s.get('name'))}</td>", f"<td>{_num(s.get('nominal_mm'), '.4f')}</td>"]
-        cells += _step_cells(s, "grp" if baseline else "")
-        if baseline:
-            cells += _step_cells(bsteps.get(s.get("name")), "grp")
-        rows.append("<tr>" + "".join(cells) + "</tr>")
-    caption = f"Step heights, {_e(report.get('method', ''))}" + (" vs. baseline" if baseline else "")
-    return (
-        f'<div class="table-wrap"><table id="steps"><caption class="note">'
-        f"{caption}</caption><thead>{thead}</thead><tbody>{''.join(rows)}</tbody></table></div>"
-    )
+        if "flatness" not in s and "coverage" not in s:
+            continue
+        f, c = s.get("flatness") or {}, s.get("coverage") or {}
+
+        def scaled(d: Mapping[str, Any], key: str, k: float) -> float | None:
+            return None if d.get(key) is None else k * float(d[key])
+
+        box = s.get("evaluated_roi")
+        rows.append({
+            "name": s.get("name"),
+            "Sa_um": scaled(f, "Sa_mm", 1000), "Sq_um": scaled(f, "Sq_mm", 1000), "Sz_um": scaled(f, "Sz_mm", 1000),
+            "cov_roi": scaled(c, "roi", 100), "cov_eval": scaled(c, "evaluated", 100),
+            "cov_min": scaled(c, "evaluated_min", 100),
+            "box_px": box, "box_mm": _mm_box(box, pitch),
+        })  # fmt: skip
+    return rows
 
 
-def _verdict_block(report: Mapping[str, Any]) -> str:
-    verdict = _verdict(report)
-    steps = report.get("steps", [])
-    npass = sum(1 for s in steps if s.get("pass"))
+def _u_rows(report: Mapping[str, Any]) -> list[dict[str, Any]]:
     tol = report.get("tolerance_mm")
-    tol_txt = f" within ±{_num(tol, 'g')} mm" if tol is not None else ""
-    detail = (
-        f"{npass} of {len(steps)} step heights{tol_txt} · method {_e(report.get('method', ''))} · "
-        f"{_e(report.get('frames', '?'))} frames"
-    )
-    failing = [s for s in steps if not s.get("pass")]
-    if failing:
-        items = "".join(
-            f"<li>{_e(s.get('name'))}: error {_num(s.get('error_mm'), '+.4f')} mm "
-            f"({_num(s.get('error_pct'), '+.2f')} % of nominal)</li>"
-            for s in failing
-        )
-        detail += f"<ul>{items}</ul>"
-    baseline = report.get("baseline")
-    if isinstance(baseline, Mapping) and baseline.get("steps"):
-        bpass = sum(1 for s in baseline["steps"] if s.get("pass"))
-        detail += (
-            f'<div class="verdict-baseline">baseline {_e(baseline.get("method", BASELINE_METHOD))}: '
-            f"{bpass} of {len(baseline['steps'])} within tolerance (for comparison; not part of the verdict)</div>"
-        )
-    cls = "verdict-pass" if verdict == "PASS" else "verdict-fail"
-    return (
-        f'<section class="verdict {cls}" id="verdict" aria-label="verdict">'
-        f'<div class="verdict-word">{verdict}</div><div class="verdict-detail">{detail}</div></section>'
-    )
+    rows = []
+    for s in report.get("steps", []):
+        if "u_mm" not in s:
+            continue
+        row = _with_rep3(s)
+        row.setdefault("uncertainty_budget", {})
+        row["abs_error"] = abs(float(s["error_mm"]))
+        big_u = float(s["U_mm"])
+        t = math.nan if tol is None else float(tol)
+        row["pass_limit"], row["fail_limit"] = t - big_u, t + big_u
+        rows.append(row)
+    return rows
 
 
-def _conditions(report: Mapping[str, Any]) -> str:
-    items: list[tuple[str, str]] = []
+def _conditions(report: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Label/value(/note/strong) items of the measurement conditions; values are plain text."""
+    items: list[dict[str, Any]] = []
+
+    def add(label: str, value: str, note: str = "", strong: str = "") -> None:
+        items.append({"label": label, "value": value, "note": note, "strong": strong})
+
+    method = str(report.get("method", ""))
+    hue_model = report.get("hue_model")
+    if method:
+        words = METHOD_WORDS.get(method, {}).get("long", "")
+        add("Method", f"{method}: {words}" if words else method,
+            "The method names the phase-shifting technique; the hue model below is the RGB → hue formula it "
+            "uses to read the code phase from each colour pixel." if hue_model else "")
+    if hue_model is not None:
+        add("Hue model", f"{hue_model}: {HUE_MODEL_WORDS.get(str(hue_model), 'RGB → hue formula')}",
+            "Options: hexcone (default) or hsi (config key hue_model); both feed the same trapezoidal HSI "
+            "method and its per-pixel hue tables.")
     if "tolerance_mm" in report:
-        items.append(("Tolerance", f"±{_num(report['tolerance_mm'], 'g')} mm on the mean step height"))
+        add("Tolerance", f"±{_num(report['tolerance_mm'], 'g')} mm on the mean step height")
     if "range_mm" in report:
-        items.append(("Measuring range", f"{_num(report['range_mm'], 'g')} mm (denominator of “error % range”)"))
+        add("Measuring range", f"{_num(report['range_mm'], 'g')} mm (denominator of “error % range”)")
     if "edge_exclusion" in report:
         e = float(report["edge_exclusion"])
-        items.append(
-            ("Edge exclusion", f"{_num(100 * e, '.1f')} % of each top-box side at each edge (central {_num(100 * (1 - 2 * e), '.1f')} % evaluated)")
-        )
+        add("Edge exclusion", f"{_num(100 * e, '.1f')} % of each top-box side at each edge "
+                              f"(central {_num(100 * (1 - 2 * e), '.1f')} % evaluated)")
     if "distance" in report:
-        items.append(("Distance to base plane", _e(report["distance"])))
+        add("Distance to base plane", str(report["distance"]))
     if "min_coverage" in report:
-        items.append(("Minimum coverage", f"{_num(100 * float(report['min_coverage']), '.0f')} % valid pixels per evaluated box"))
+        add("Minimum coverage", f"{_num(100 * float(report['min_coverage']), '.0f')} % valid pixels per evaluated box")
     base = report.get("base")
     if isinstance(base, Mapping) and "residual_rms_mm" in base:
-        items.append(
-            (
-                "Base plane fit residual (rms)",
-                f"{_num(1000 * float(base['residual_rms_mm']), '.2f')} µm mean, "
-                f"{_num(1000 * float(base.get('residual_rms_mm_max', math.nan)), '.2f')} µm worst frame",
-            )
-        )
-    if "hue_model" in report:
-        items.append(("Hue model", _e(report["hue_model"])))
+        add("Base plane fit residual (rms)",
+            f"{_num(1000 * float(base['residual_rms_mm']), '.2f')} µm mean, "
+            f"{_num(1000 * float(base.get('residual_rms_mm_max', math.nan)), '.2f')} µm worst frame")
     if "unwrap" in report:
-        items.append(("Phase unwrapping", _e(report["unwrap"])))
+        add("Phase unwrapping", str(report["unwrap"]))
     cal = report.get("calibration") or {}
     if cal.get("unambiguous_range_mm"):
         lo, hi = cal["unambiguous_range_mm"]
-        items.append(("Unambiguous depth", f"{_num(lo, '.2f')} to {_num(hi, '.2f')} mm"))
+        add("Unambiguous depth", f"{_num(lo, '.2f')} to {_num(hi, '.2f')} mm")
     fq = report.get("frame_qa") or {}
     if "phase_ambiguity_suspected" in fq:
         bad = fq["phase_ambiguity_suspected"]
-        items.append(("Phase ambiguity", "none suspected" if not bad else
-                      f"<strong>suspected in frames {_e(', '.join(str(n) for n in bad))}</strong> "
-                      "(a step may exceed the unambiguous depth)"))
-    if not items:
-        return ""
-    body = "".join(f"<dt>{_e(k)}</dt><dd>{v}</dd>" for k, v in items)
-    return f'<h2>Measurement conditions</h2><dl class="cond">{body}</dl>'
+        if bad:
+            add("Phase ambiguity", "", strong=f"suspected in frames {', '.join(str(n) for n in bad)}",
+                note="(a step may exceed the unambiguous depth)")
+        else:
+            add("Phase ambiguity", "none suspected")
+    return items
 
 
-def _uncertainty_table(report: Mapping[str, Any]) -> str:
-    """The per-step uncertainty budget (GUM, docs/uncertainty.md) and the ISO 14253-1 decisions,
-    and the validation against ground truth when the report carries one; empty without ``u_mm``."""
-    steps = [s for s in report.get("steps", []) if "u_mm" in s]
-    if not steps:
-        return ""
-    terms = ("noise", "table", "interpolation", "reference", "model")
-    head = "".join(f"<th>{t}</th>" for t in terms)
-    rows = []
-    for s in steps:
-        b = s.get("uncertainty_budget", {})
-        t = b.get("terms_mm", {})
-        cells = "".join(f"<td>{_num(t.get(k), '.4f')}</td>" for k in terms)
-        rows.append(f"<tr><td>{_e(s['name'])}</td>{cells}<td>{_num(b.get('base_plane_per_frame_mm'), '.4f')}</td>"
-                    f"<td>{_num(b.get('effective_independent_pixels'), '.0f')}</td><td>{_num(s['u_mm'], '.4f')}</td>"
-                    f"<td>{_num(s['U_mm'], '.4f')}</td><td>{_e(s.get('conformance', ''))}</td></tr>")
-    val = ""
-    acc = report.get("accuracy", {}).get("trapezoidal-hsi", {}).get("uncertainty")
-    if acc:
-        val = (f'<p class="note">Against ground truth: {_num(100 * acc["coverage_2u"], ".1f")} % of the valid pixels '
-               f"have |error| ≤ 2u (target 95 ± 3 %); rms error {_num(acc['rms_error_mm'], '.4f')} mm, "
-               f"rms u {_num(acc['rms_u_mm'], '.4f')} mm.</p>")
-    return ("<h2>Uncertainty budget (mm)</h2><table><tr><th>step</th>" + head +
-            "<th>base plane (1 frame)</th><th>independent pixels</th><th>u</th><th>U (k = 2)</th>"
-            "<th>ISO 14253-1</th></tr>" + "".join(rows) + "</table>"
-            '<p class="note">Standard uncertainties of the mean step height: noise (sensor noise of the frames, '
-            "through the phase filter, / √frames), table (hue-table noise) and interpolation (averaged over pixels, "
-            "not frames), reference phase and phase-to-height model (correlated: not averaged). ISO 14253-1: pass "
-            "when |error| ≤ tolerance − U, fail when |error| > tolerance + U, else undecided; the column "
-            f"'pass' above is |error| ≤ tolerance. Decision with U: {_e(report.get('verdict_with_uncertainty', ''))}.</p>"
-            + val)
-
-
-def _flatness_table(report: Mapping[str, Any]) -> str:
-    steps = [s for s in report.get("steps", []) if "flatness" in s or "coverage" in s]
-    if not steps:
-        return ""
-    rows = []
-    for s in steps:
-        f = s.get("flatness", {})
-        c = s.get("coverage", {})
-
-        def um(key: str, f: Mapping[str, Any] = f) -> str:
-            return _num(None if f.get(key) is None else 1000 * float(f[key]), ".2f")
-
-        def pct(key: str, c: Mapping[str, Any] = c) -> str:
-            return _num(None if c.get(key) is None else 100 * float(c[key]), ".1f")
-
-        box = s.get("evaluated_roi")
-        rows.append(
-            f"<tr><td>{_e(s.get('name'))}</td><td>{um('Sa_mm')}</td><td>{um('Sq_mm')}</td><td>{um('Sz_mm')}</td>"
-            f"<td>{pct('roi')}</td><td>{pct('evaluated')}</td><td>{pct('evaluated_min')}</td>"
-            f"<td class=mono>{_e(box) if box is not None else '—'}</td></tr>"
-        )
-    head = (
-        "<tr><th>Step</th><th>Sa (µm)</th><th>Sq (µm)</th><th>Sz (µm)</th><th>Coverage ROI (%)</th>"
-        "<th>Coverage evaluated (%)</th><th>worst frame (%)</th><th>Evaluated box [u0, v0, u1, v1)</th></tr>"
-    )
-    return (
-        "<h2>Flatness of the tops and coverage</h2>"
-        f'<div class="table-wrap"><table id="flatness"><thead>{head}</thead><tbody>{"".join(rows)}</tbody></table></div>'
-        '<p class="note">Flatness: least-squares plane removed from the evaluated box of each top '
-        "(no other filter); Sa = mean |r|, Sq = rms r, Sz = highest peak + deepest pit; mean over frames. "
-        "Coverage: fraction of valid pixels, mean over frames.</p>"
-    )
-
-
-def _figure(key: str, path: str | os.PathLike[str]) -> str:
+def _figure_entry(key: str, path: str | os.PathLike[str]) -> dict[str, str]:
     data = Path(path).read_bytes()
     if not data.startswith(_PNG_MAGIC):
         raise ValueError(f"figure {key!r}: {path} is not a PNG file")
     uri = "data:image/png;base64," + base64.b64encode(data).decode("ascii")
-    caption = FIGURE_ORDER.get(key, key.replace("_", " "))
-    return f'<figure id="fig-{_e(key)}"><img src="{uri}" alt="{_e(caption)}"><figcaption>{_e(caption)}</figcaption></figure>'
+    return {"key": key, "uri": uri, "caption": FIGURE_ORDER.get(key, key.replace("_", " "))}
 
 
-def _prov_value(value: Any) -> str:
-    value = _plain(value)
-    if isinstance(value, Mapping):
-        if value and all(not isinstance(v, Mapping | list) for v in value.values()):
-            rows = "".join(f'<tr><th>{_e(k)}</th><td class="mono">{_e(v)}</td></tr>' for k, v in value.items())
-            return f'<table class="kv">{rows}</table>'
-        return f"<pre>{_e(json.dumps(value, indent=2, sort_keys=True, default=str, ensure_ascii=False))}</pre>"
-    if isinstance(value, list):
-        if all(not isinstance(v, Mapping | list) for v in value):
-            return "<ul>" + "".join(f'<li class="mono">{_e(v)}</li>' for v in value) + "</ul>"
-        return f"<pre>{_e(json.dumps(value, indent=2, default=str, ensure_ascii=False))}</pre>"
-    return f'<span class="mono">{_e(value)}</span>'
-
-
-def _provenance(report: Mapping[str, Any], provenance: Mapping[str, Any]) -> str:
-    rows = [f"<tr><th>session</th><td>{_prov_value(report.get('session', ''))}</td></tr>"]
-    rows += [f"<tr><th>{_e(k)}</th><td>{_prov_value(v)}</td></tr>" for k, v in provenance.items() if k not in ("session", "capture")]
-    return (
-        '<details id="provenance"><summary>Provenance: session, configuration, software versions, input checksums</summary>'
-        f'<table class="kv">{"".join(rows)}</table></details>'
-    )
+def _context(report: Mapping[str, Any], figures: Mapping[str, str | os.PathLike[str]],
+             provenance: Mapping[str, Any], pixel_pitch_mm: float | None) -> dict[str, Any]:
+    """Everything the templates show, derived from the report (numbers formatted in the templates)."""
+    report = _plain(report)
+    provenance = _plain(dict(provenance))
+    steps = [_with_rep3(s) for s in report.get("steps", [])]
+    baseline = report.get("baseline")
+    bsteps = {s["name"]: _with_rep3(s) for s in baseline["steps"]} if baseline else {}
+    keys = [k for k in FIGURE_ORDER if k in figures] + [k for k in figures if k not in FIGURE_ORDER]
+    u_steps = _u_rows(report)
+    decision = None
+    if u_steps:
+        zones = [s["conformance"] for s in u_steps]
+        word = report.get("verdict_with_uncertainty") or (
+            "FAIL" if "fail" in zones else "UNDECIDED" if "undecided" in zones else "PASS")
+        decision = {"word": word, "counts": [(z, zones.count(z)) for z in ("pass", "undecided", "fail") if z in zones]}
+    pitch = None if pixel_pitch_mm is None else float(pixel_pitch_mm)
+    base = report.get("base") if isinstance(report.get("base"), Mapping) else {}
+    return {
+        "report": report,
+        "css": _css(),
+        "verdict": _verdict(report),
+        "steps": steps,
+        "npass": sum(1 for s in steps if s.get("pass")),
+        "failing": [s for s in steps if not s.get("pass")],
+        "baseline_steps": bsteps,
+        "baseline_pass": sum(1 for s in bsteps.values() if s.get("pass")) if bsteps else None,
+        "method_words": METHOD_WORDS.get(str(report.get("method", ""))),
+        "hue_model": report.get("hue_model"),
+        "decision": decision,
+        "has_u": bool(u_steps),
+        "u_steps": u_steps,
+        "u_validation": (report.get("accuracy") or {}).get("trapezoidal-hsi", {}).get("uncertainty"),
+        "step_head": _STEP_HEAD,
+        "budget_terms": _BUDGET_TERMS,
+        "zone_class": _ZONE_CLASS,
+        "conditions": _conditions(report),
+        "flat_steps": _flat_rows(report, pitch),
+        "pitch": pitch,
+        "base_rois": [{"px": r, "mm": _mm_box(r, pitch)} for r in base.get("rois", [])],
+        "figures": [_figure_entry(k, figures[k]) for k in keys],
+        "capture": {k: None for k in ("captured_at", "operator", "instrument", "simulated", "notes")}
+                   | dict(provenance.get("capture") or {}),
+        "provenance": provenance,
+    }  # fmt: skip
 
 
 def render_report_html(
     report: Mapping[str, Any],
     figures: Mapping[str, str | os.PathLike[str]] | None = None,
     provenance: Mapping[str, Any] | None = None,
+    *,
+    pixel_pitch_mm: float | None = None,
 ) -> str:
     """The HTML text of :func:`write_report_html` (pure: reads only the figure files).
+
+    The page comes from the Jinja2 templates ``huefringe/templates/report.html.j2`` and
+    ``partials/*.html.j2`` (package data) with autoescaping on: every value of the report and
+    the provenance is escaped.
 
     Parameters
     ----------
@@ -730,7 +687,10 @@ def render_report_html(
         ``per_frame``, ``calibration_qa``) come first in that order, other keys after them in
         the given order, captioned with their key.
     provenance : mapping, optional
-        Shown in the collapsible provenance section (e.g. from :func:`collect_provenance`).
+        Shown in the collapsible provenance section (e.g. from :func:`collect_provenance`); its
+        ``capture`` entry (session.yaml ``provenance``) in the header.
+    pixel_pitch_mm : float, optional
+        The session's pixel pitch: the evaluated boxes are also shown in mm (``X = u * pitch``).
 
     Returns
     -------
@@ -744,54 +704,9 @@ def render_report_html(
     ValueError
         A figure file is not a PNG.
     """
-    figures = dict(figures or {})
-    keys = [k for k in FIGURE_ORDER if k in figures] + [k for k in figures if k not in FIGURE_ORDER]
-    figs = "".join(_figure(k, figures[k]) for k in keys)
-    session = report.get("session", "")
-    parts = [
-        "<!DOCTYPE html>",
-        '<html lang="en"><head><meta charset="utf-8">',
-        '<meta name="viewport" content="width=device-width, initial-scale=1">',
-        '<meta name="generator" content="huefringe.report">',
-        f"<title>{_verdict(report)}: metrology report, session {_e(session)}</title>",
-        f"<style>{_CSS}</style></head><body>",
-        f"<header><h1>Metrology report: session {_e(session)}</h1>",
-        '<p class="sub">Step heights after ISO 5436-1 (type A, areal form): least-squares base plane, '
-        "central part of each top evaluated.</p>",
-        _capture_block((provenance or {}).get("capture") or {}),
-        "</header>",
-        _verdict_block(report),
-        "<h2>Step heights</h2>",
-        _steps_table(report),
-        '<p class="note">Mean and σ over frames (σ: sample standard deviation, n − 1); ±3σ = 3σ (repeatability); '
-        "error = mean − nominal; error % nominal = 100 · (mean − nominal) / nominal; "
-        "error % range = 100 · error / measuring range; pass = |error| ≤ tolerance.</p>",
-        _uncertainty_table(report),
-        _conditions(report),
-        _flatness_table(report),
-        f"<h2>Figures</h2>{figs}" if figs else "",
-        _provenance(report, provenance or {}),
-        "</body></html>",
-    ]
-    return "\n".join(p for p in parts if p) + "\n"
-
-
-def _capture_block(capture: Mapping[str, Any]) -> str:
-    """Capture date, operator and instrument (session.yaml ``provenance``), and a notice for simulated data."""
-    def field(label: str, key: str) -> str:
-        value = capture.get(key)
-        shown = _e(value) if value not in (None, "") else '<span class="note">not recorded in session.yaml</span>'
-        return f"<dt>{label}</dt><dd>{shown}</dd>"
-
-    out = ['<dl class="capture">', field("Captured", "captured_at"), field("Operator", "operator"),
-           field("Instrument", "instrument"), "</dl>"]
-    if capture.get("simulated"):
-        out.append('<p class="simulated" role="alert"><strong>Simulated data.</strong> This session was written by a '
-                   "virtual bench (session.yaml provenance.simulated: true): the figures below measure a simulation, "
-                   "not a physical specimen.</p>")
-    if capture.get("notes"):
-        out.append(f'<p class="note">Notes: {_e(capture["notes"])}</p>')
-    return "".join(out)
+    ctx = _context(report, dict(figures or {}), provenance or {}, pixel_pitch_mm)
+    text: str = _environment().get_template("report.html.j2").render(ctx)
+    return text
 
 
 def write_report_html(
@@ -799,6 +714,8 @@ def write_report_html(
     report: Mapping[str, Any],
     figures: Mapping[str, str | os.PathLike[str]] | None,
     provenance: Mapping[str, Any] | None,
+    *,
+    pixel_pitch_mm: float | None = None,
 ) -> Path:
     """Write the self-contained ``report.html`` atomically.
 
@@ -816,13 +733,15 @@ def write_report_html(
         collapsed ``<details>``). Its ``capture`` entry (the session's ``provenance`` block)
         is shown in the header: capture date, operator, instrument, and a "simulated data"
         notice when ``simulated`` is true.
+    pixel_pitch_mm : float, optional
+        The session's pixel pitch, to show the evaluated boxes in mm as well as in pixels.
 
     Returns
     -------
     Path
         ``path``.
     """
-    text = render_report_html(report, figures, provenance)
+    text = render_report_html(report, figures, provenance, pixel_pitch_mm=pixel_pitch_mm)
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
