@@ -145,6 +145,21 @@ def test_profile_figure(tmp_path):
         render.profile_figure(h, H, PITCH, tmp_path / "bad.png")
 
 
+def test_profile_figure_names_its_row(tmp_path, monkeypatch):
+    seen = []
+    save = render._save_figure
+    monkeypatch.setattr(render, "_save_figure", lambda fig, out, dpi: (seen.append(fig), save(fig, out, dpi))[1])
+    render.profile_figure(step_height(), 45, PITCH, tmp_path / "p.png", title="demo frame 0000: cross-section")
+    render.profile_figure(step_height(), -1, PITCH, tmp_path / "q.png")
+    (ax,), (ax2,) = seen[0].axes, seen[1].axes
+    y = 45 * PITCH
+    assert ax.get_title() == f"demo frame 0000: cross-section\nat image row v = 45 px (Y = {y:.2f} mm)"
+    assert f"row v = 45 px (Y = {y:.2f} mm)" in ax.get_xlabel() and "(mm)" in ax.get_xlabel()
+    assert ax2.get_title() == f"Profile at image row v = {H - 1} px (Y = {(H - 1) * PITCH:.2f} mm)"
+    # the plotted line is that row of the map
+    np.testing.assert_array_equal(ax.lines[0].get_ydata(), step_height()[45])
+
+
 def test_colour_by_vertex_rgb(tmp_path):
     red = np.zeros((H, W, 3), np.float32)
     red[..., 0] = 1.0

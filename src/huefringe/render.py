@@ -576,7 +576,8 @@ def profile_figure(
         A profile to overlay (e.g. the nominal or a ground-truth profile), dashed.
     reference_label : str, default "reference"
     title : str, optional
-        Default ``"Profile at row {row} (Y = ... mm)"``.
+        Default ``"Profile"``; the row is always added (``"...\\nat image row v = 247 px
+        (Y = 49.40 mm)"``) and also named on the X axis, so the figure says which row it cuts.
     ylim : (float, float), optional
         Height axis limits in mm.
     figsize : (float, float), default (6.4, 3.6)
@@ -602,13 +603,14 @@ def profile_figure(
             raise ValueError(f"reference must have shape ({W},), got {ref.shape}")
         ax.plot(x, ref, lw=1.0, ls="--", color="C3", label=reference_label)
         ax.legend(loc="best")
-    ax.set_xlabel("X (mm)")
+    where = f"row v = {row} px (Y = {row * float(pitch_mm):.2f} mm)"
+    ax.set_xlabel(f"X = u · pitch (mm), along image {where}")
     ax.set_ylabel("Height (mm)")
     ax.set_xlim(x[0], x[-1] if W > 1 else x[0] + 1.0)
     if ylim is not None:
         ax.set_ylim(*ylim)
     ax.grid(True, alpha=0.3)
-    ax.set_title(title if title is not None else f"Profile at row {row} (Y = {row * float(pitch_mm):.2f} mm)")
+    ax.set_title(f"Profile at image {where}" if title is None else f"{title}\nat image {where}", fontsize=10)
     return _save_figure(fig, out_png, dpi)
 
 

@@ -589,7 +589,7 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
     figures = {"profile": Path(profile), "height": Path(height_map), "render": Path(render),
                "per_frame": Path(per_frame), "calibration_qa": Path(cross_section)}
     write_json(json, doc)
-    report.write_report_html(html, doc, figures, provenance)
+    report.write_report_html(html, doc, figures, provenance, pixel_pitch_mm=s.pixel_pitch_mm)
 
 def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_mm: float,
            markdown: str, csv: str, figure: str, uncertainty_ratio: str = "") -> None:
