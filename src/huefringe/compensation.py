@@ -257,8 +257,9 @@ def hue_cross_section_figure(
     """Paper Fig. 7 (c, d): captured hue along one row before and after calibration.
 
     Top panel: raw captured hue (ripples) and the true code phase; bottom: the calibrated phase.
-    A thin lower strip in each panel shows the wrapped error against the true phase (or, if
-    ``true_phase_row`` is None, against a straight-line fit). Written atomically.
+    A thin lower strip in each panel shows the wrapped error in mrad against the true phase (or,
+    if ``true_phase_row`` is None, against a straight-line fit), with its RMS in the strip's
+    title; the legends sit above the panels, off the data. Written atomically.
     """
     import matplotlib
 
@@ -282,16 +283,18 @@ def hue_cross_section_figure(
         if truth is not None:
             ax.plot(x, truth, color="0.6", lw=1.0, label="true code phase")
         ax.plot(x, y, ".", ms=2.5, color="C0" if k == 0 else "C2", label=name.split(": ")[1])
-        ax.set_ylabel("rad")
+        ax.set_ylabel("phase (rad)")
         ax.set_ylim(-0.1, TWO_PI + 0.1)
         ax.set_title(name, fontsize=9, loc="left")
-        ax.legend(fontsize=7, loc="upper right")
+        # above the panel, right of its title: the ramps fill the whole panel, so no corner is free
+        ax.legend(fontsize=7, loc="lower right", bbox_to_anchor=(1.0, 1.0), ncol=2, frameon=False, borderaxespad=0.1)
         err = colour.wrap_pi(y - ref)
-        axe.plot(x, err, lw=0.8, color="C3")
+        axe.plot(x, 1e3 * err, lw=0.8, color="C3")
         axe.axhline(0, color="0.5", lw=0.5)
-        axe.set_ylabel("err", fontsize=8)
+        axe.set_ylabel("error\n(mrad)", fontsize=8)
         rms = float(np.sqrt(np.nanmean(err**2))) if np.any(np.isfinite(err)) else float("nan")
-        axe.text(0.01, 0.75, f"RMS {rms:.4f} rad", transform=axe.transAxes, fontsize=7)
+        against = "true code phase" if truth is not None else "straight-line fit of the row"
+        axe.set_title(f"error against the {against}: RMS {1e3 * rms:.1f} mrad", fontsize=7, loc="left")
     axes[-1].set_xlabel("image column u (px)")
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()

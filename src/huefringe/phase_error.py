@@ -269,7 +269,7 @@ def qa_figure(lut: PhaseErrorLUT, path: str, *, title: str = "") -> None:
     from huefringe.io import atomic_path
 
     c = lut.centres
-    fig, ax = plt.subplots(figsize=(8, 4), dpi=110)
+    fig, ax = plt.subplots(figsize=(9.5, 4), dpi=110)
     ax.plot(c, 1e3 * lut.before, lw=1.0, color="tab:red", label=f"before (rms {1e3 * lut.stats['binned_rms_before_rad']:.1f} mrad)")
     ax.plot(c, 1e3 * lut.after, lw=1.0, color="tab:green", label=f"after (rms {1e3 * lut.stats['binned_rms_after_rad']:.1f} mrad)")
     ax.plot(c, 1e3 * lut.error, lw=0.8, ls="--", color="k", label="table e(phi)")
@@ -279,7 +279,7 @@ def qa_figure(lut: PhaseErrorLUT, path: str, *, title: str = "") -> None:
     ax.set_xlabel("decoded code phase (rad)")
     ax.set_ylabel("plane residual, median per bin (mrad)")
     ax.set_title(title or "phase-dependent error on the calibration planes")
-    ax.legend(fontsize=8)
+    ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)  # off the data
     fig.tight_layout()
     with atomic_path(path) as tmp:
         fig.savefig(tmp, format="png")
