@@ -71,6 +71,28 @@ def report(method_result, baseline_result):
     return build_report_json("gauge-blocks-p60", SPECIMEN, method_result, baseline_result, {"hue_model": "hsi"})
 
 
+def with_uncertainty(result: dict, expanded: dict[str, float]) -> dict:
+    """``result`` with u_mm, U_mm and the ISO 14253-1 conformance per step (U given per step)."""
+    from huefringe.uncertainty import conformance
+
+    out = copy.deepcopy(result)
+    tol = SPECIMEN["tolerance_mm"]
+    for st in out["steps"]:
+        big_u = expanded[st["name"]]
+        st.update(u_mm=big_u / 2, U_mm=big_u, conformance=conformance(st["error_mm"], tol, big_u))
+    zones = {st["conformance"] for st in out["steps"]}
+    out["verdict_with_uncertainty"] = "FAIL" if "fail" in zones else "UNDECIDED" if "undecided" in zones else "PASS"
+    return out
+
+
+@pytest.fixture(scope="module")
+def u_report(baseline_result):
+    # blue 0.03 mm off, U 0.03 mm: within the tolerance (contract pass) but not by U -> undecided
+    res = evaluate_session(frames(8, 0.01, 1, bias={"blue": 0.03}), SPECIMEN, PITCH, range_mm=4.0)
+    res = with_uncertainty(res, {"green": 0.01, "red": 0.012, "blue": 0.03})
+    return build_report_json("gauge-blocks-p60", SPECIMEN, res, baseline_result, {"hue_model": "hexcone"})
+
+
 def tiny_png(path: Path, colour=(200, 30, 30)) -> Path:
     from matplotlib.backends.backend_agg import FigureCanvasAgg
     from matplotlib.figure import Figure
@@ -178,7 +200,8 @@ def test_per_frame_figure(report, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def html_file(report, tmp_path_factory):
+def html_file(u_report, tmp_path_factory):
+    report = u_report
     d = tmp_path_factory.mktemp("html")
     figs = {
         "per_frame": per_frame_figure(report, d / "per_frame.png"),
@@ -188,7 +211,7 @@ def html_file(report, tmp_path_factory):
     inputs = [figs["height"], figs["calibration_qa"]]
     prov = collect_provenance("gauge-blocks-p60", {"period_px": 60, "note": "<script>alert(1)</script>"}, inputs, root=d)
     prov["capture"] = {"captured_at": "2026-11-30T14:05:00Z", "instrument": "bench-2 <DLP>", "simulated": True}
-    path = write_report_html(d / "metrology" / "report.html", report, figs, prov)
+    path = write_report_html(d / "metrology" / "report.html", report, figs, prov, pixel_pitch_mm=PITCH)
     return path, figs, prov
 
 
@@ -219,6 +242,104 @@ def test_html_is_self_contained(html_file):
     assert "<dt>Captured</dt><dd>2026-11-30T14:05:00Z</dd>" in header and "bench-2 &lt;DLP&gt;" in header
     assert "<dt>Operator</dt><dd><span class=\"note\">not recorded in session.yaml</span>" in header
     assert "<strong>Simulated data.</strong>" in header
+
+
+def _row(text: str, table_id: str, name: str) -> str:
+    table = text[text.index(f'id="{table_id}"'):]
+    table = table[: table.index("</table>")]
+    return re.search(rf"<tr><td>{name}</td>.*?</tr>", table, re.S).group(0)
+
+
+def test_html_iso_zone_beside_the_contract_pass(html_file, u_report):
+    path, _, _ = html_file
+    text = path.read_text(encoding="utf-8")
+    tol = u_report["tolerance_mm"]
+    zones = {st["name"]: st["conformance"] for st in u_report["steps"]}
+    assert zones == {"green": "pass", "blue": "undecided", "red": "pass"}
+    assert u_report["verdict"] == "PASS" and u_report["verdict_with_uncertainty"] == "UNDECIDED"
+    verdict = text[text.index('id="verdict"'):text.index("</section>")]
+    assert 'class="verdict-word">PASS<' in verdict
+    assert 'With measurement uncertainty (ISO 14253-1): <span class="zone undecided">UNDECIDED</span>' in verdict
+    assert "2 pass, 1 undecided" in verdict
+    # steps table: the contract's pass and the zone, side by side
+    assert "ISO 14253‑1 zone (with U)" in text
+    blue = _row(text, "steps", "blue")
+    assert '<td class="ok">pass</td><td class="undecided">undecided</td>' in blue
+    assert '<td class="ok">pass</td><td class="ok">pass</td>' in _row(text, "steps", "green")
+    # decision table: the zone limits T - U and T + U per step
+    for st in u_report["steps"]:
+        row = _row(text, "conformance", st["name"])
+        big_u = st["U_mm"]
+        assert f"<td>{abs(st['error_mm']):.4f}</td><td>{big_u:.4f}</td>" in row
+        assert f"<td>≤ {tol - big_u:.4f}</td><td>&gt; {tol + big_u:.4f}</td>" in row
+        assert f'<td class="{ {"pass": "ok", "undecided": "undecided"}[st["conformance"]] }">{st["conformance"]}</td>' in row
+
+
+def test_html_fail_zone(method_result):
+    res = evaluate_session(frames(4, 0.01, 5, bias={"red": 0.08}), SPECIMEN, PITCH, range_mm=4.0)
+    res = with_uncertainty(res, {"green": 0.06, "blue": 0.01, "red": 0.01})
+    r = build_report_json("s3", SPECIMEN, res)
+    green, red = r["steps"][0], r["steps"][2]
+    assert red["error_mm"] > SPECIMEN["tolerance_mm"] + 0.01 and red["conformance"] == "fail" and not red["pass"]
+    text = render_report_html(r, {}, {})
+    assert 'class="verdict-word">FAIL<' in text and '<span class="zone fail">FAIL</span>' in text
+    assert "1 pass, 1 undecided, 1 fail" in text
+    assert '<td class="bad">FAIL</td><td class="bad">fail</td>' in _row(text, "steps", "red")
+    # U larger than the tolerance: no pass zone at all, whatever the error
+    assert green["conformance"] == "undecided" and green["pass"]
+    assert "<td>none (U ≥ T)</td><td>&gt; 0.1100</td>" in _row(text, "conformance", "green")
+
+
+def test_html_method_and_hue_model_in_words(html_file, method_result):
+    path, _, _ = html_file
+    text = path.read_text(encoding="utf-8")
+    verdict = text[text.index('id="verdict"'):text.index("</section>")]
+    assert "method trapezoidal-hsi (trapezoidal HSI phase shifting, hue model hexcone)" in verdict
+    cond = text[text.index("<h2>Measurement conditions</h2>"):]
+    cond = cond[: cond.index("</dl>")]
+    assert "<dt>Method</dt><dd>trapezoidal-hsi: the paper&#39;s trapezoidal HSI phase shifting" in cond
+    assert "the hue model below is the RGB → hue formula it uses" in cond
+    assert "<dt>Hue model</dt><dd>hexcone: HSV hexcone hue (Smith), exactly linear in the code phase" in cond
+    hsi = render_report_html(build_report_json("s4", SPECIMEN, method_result, extras={"hue_model": "hsi"}), {}, {})
+    assert "<dt>Hue model</dt><dd>hsi: the paper&#39;s HSI hue, eqs. 1-2" in hsi
+
+
+def test_html_boxes_in_pixels_and_mm(html_file, u_report):
+    path, _, _ = html_file
+    text = path.read_text(encoding="utf-8")
+    assert "<th>Evaluated box, pixels [u0, v0, u1, v1)</th><th>Evaluated box, mm [x0, y0, x1, y1)</th>" in text
+    for st in u_report["steps"]:
+        px = st["evaluated_roi"]
+        row = _row(text, "flatness", st["name"])
+        assert f'<td class="mono">[{", ".join(str(int(x)) for x in px)})</td>' in row
+        assert f'<td class="mono">[{", ".join(f"{x * PITCH:.2f}" for x in px)})</td>' in row
+    assert f"pixel pitch {PITCH:g} mm" in text
+    base = u_report["base"]["rois"][0]
+    assert f"[{', '.join(str(x) for x in base)}) = [{', '.join(f'{x * PITCH:.2f}' for x in base)}) mm" in text
+    # without the pitch: pixels only, and said so
+    bare = render_report_html(u_report, {}, {})
+    assert "the pixel pitch was not given, so no mm" in bare and "<td class=\"mono\">—</td>" in bare
+
+
+def test_html_from_packaged_templates():
+    import fnmatch
+    import importlib.resources
+    import tomllib
+
+    import huefringe.report
+
+    root = importlib.resources.files("huefringe") / "templates"
+    files = sorted(p.relative_to(Path(str(root))).as_posix() for p in Path(str(root)).rglob("*") if p.is_file())
+    assert "report.html.j2" in files and any(f.startswith("partials/") for f in files)
+    pyproject = tomllib.loads((Path(__file__).resolve().parent.parent / "pyproject.toml").read_text())
+    patterns = pyproject["tool"]["setuptools"]["package-data"]["huefringe"]
+    assert all(any(fnmatch.fnmatch(f"templates/{f}", pat) for pat in patterns) for f in files), (files, patterns)
+    assert any(d.startswith("jinja2>=") for d in pyproject["project"]["dependencies"])
+    # the HTML lives in the templates, not in f-strings of report.py
+    code = Path(huefringe.report.__file__).read_text()
+    assert "<td" not in code and "<table" not in code and "<section" not in code
+    env = huefringe.report._environment()
+    assert env.autoescape is True
 
 
 def test_no_simulated_notice_for_a_real_capture(report):

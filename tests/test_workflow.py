@@ -94,6 +94,23 @@ def test_results_contract(e2e: Path) -> None:
     assert acc["trapezoidal-hsi"]["summary"]["median_abs_mm"] < 0.05
 
 
+def test_snakemake_report_includes_the_metrology_page(e2e: Path, tmp_path: Path) -> None:
+    import zipfile
+
+    out = tmp_path / "snakemake-report.zip"
+    run_snakemake(e2e, "--report", str(out))
+    page = (e2e / "results" / "e2e-demo" / "metrology" / "report.html").read_bytes()
+    with zipfile.ZipFile(out) as z:
+        names = z.namelist()
+        # Snakemake keeps each reported file under <report>/data/raw/<hash>/<name>
+        inside = [n for n in names if n.startswith("snakemake-report/data/raw/") and n.endswith("/report.html")]
+        assert [z.read(n) == page for n in inside] == [True], names  # the self-contained page, byte for byte
+        caption = (REPO / "workflow" / "report" / "metrology_html.rst").read_text().split(":")[0]
+        texts = [z.read(n).decode("utf-8", "replace") for n in names if n.endswith((".html", ".js", ".json"))
+                 and not n.startswith("snakemake-report/data/raw/")]
+        assert any(caption[:60] in t for t in texts), [n for n in names if "data/raw" not in n]
+
+
 def test_rerun_is_a_no_op(e2e: Path) -> None:
     proc = run_snakemake(e2e, "-n")
     assert "Nothing to be done" in proc.stdout + proc.stderr

@@ -26,7 +26,11 @@ rule metrology:
             caption="../report/metrology.rst",
             category="Metrology",
         ),
-        html=R("{sid}", "metrology", "report.html"),
+        html=report(
+            R("{sid}", "metrology", "report.html"),
+            caption="../report/metrology_html.rst",
+            category="Metrology",
+        ),
         profile=report(
             R("{sid}", "metrology", "profile.png"),
             caption="../report/profile.rst",
