@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import html as html_lib
 import json
 import re
 import shutil
@@ -199,6 +200,32 @@ def test_per_frame_figure(report, tmp_path):
     assert data.startswith(b"\x89PNG\r\n\x1a\n") and len(data) > 10_000
 
 
+def test_per_frame_figure_shows_u_and_keeps_the_legend_off_the_data(u_report, tmp_path, monkeypatch):
+    import huefringe.report as rep
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    seen = []
+    write = rep.write_figure_png
+    monkeypatch.setattr(rep, "write_figure_png", lambda fig, out, *a, **k: (seen.append(fig), write(fig, out, *a, **k))[1])
+    per_frame_figure(u_report, tmp_path / "pf.png")
+    (fig,) = seen
+    axes = [a for a in fig.axes if a.get_visible()]
+    assert [a.get_title() for a in axes] == [
+        "green: nominal 3 mm (pass, ISO 14253-1 pass)", "blue: nominal 1 mm (pass, ISO 14253-1 undecided)",
+        "red: nominal 4 mm (pass, ISO 14253-1 pass)"]  # fmt: skip
+    for ax, st in zip(axes, u_report["steps"], strict=True):
+        spans = [p for p in ax.patches if p.get_label() == "mean ± U (k = 2)"]
+        assert len(spans) == 1
+        y0, y1 = spans[0].get_path().transformed(spans[0].get_patch_transform()).get_extents().intervaly
+        assert (y0, y1) == pytest.approx((st["mean_mm"] - st["U_mm"], st["mean_mm"] + st["U_mm"]))
+        assert ax.get_legend() is None
+    (leg,) = fig.legends
+    canvas = FigureCanvasAgg(fig)
+    canvas.draw()
+    box = leg.get_window_extent(canvas.get_renderer())
+    assert not any(box.overlaps(a.get_window_extent(canvas.get_renderer())) for a in axes)
+
+
 @pytest.fixture(scope="module")
 def html_file(u_report, tmp_path_factory):
     report = u_report
@@ -307,7 +334,7 @@ def test_html_method_and_hue_model_in_words(html_file, method_result):
 def test_html_boxes_in_pixels_and_mm(html_file, u_report):
     path, _, _ = html_file
     text = path.read_text(encoding="utf-8")
-    assert "<th>Evaluated box, pixels [u0, v0, u1, v1)</th><th>Evaluated box, mm [x0, y0, x1, y1)</th>" in text
+    assert "pixels <span class=\"nw\">[u0, v0, u1, v1)</span></th><th>Evaluated box, mm <span class=\"nw\">[x0, y0, x1, y1)</span>" in text
     for st in u_report["steps"]:
         px = st["evaluated_roi"]
         row = _row(text, "flatness", st["name"])
@@ -411,3 +438,52 @@ def test_html_renders_in_headless_chromium(html_file, tmp_path):
     assert 'class="verdict-word">PASS</div>' in dom.stdout, dom.stderr[-2000:]
     assert dom.stdout.count("data:image/png;base64,") == 3
     assert "<strong>Simulated data.</strong>" in dom.stdout
+    # the new items are laid out visibly at 1280 px: a copy of the page with a probe script that
+    # reports each element's rendered text, size and whether its table scrolls it out of view
+    probe = tmp_path / "probed.html"
+    probe.write_text(path.read_text(encoding="utf-8").replace("</body>", _PROBE + "</body>"), encoding="utf-8")
+    dom = subprocess.run(
+        [str(CHROMIUM), *flags, f"--user-data-dir={tmp_path / 'profile-c'}", "--window-size=1280,1400", "--dump-dom",
+         probe.resolve().as_uri()],
+        capture_output=True, text=True, timeout=180,
+    )  # fmt: skip
+    found = re.search(r'<pre id="probe">(.*?)</pre>', dom.stdout, re.S)
+    assert found, dom.stderr[-2000:]
+    seen = json.loads(html_lib.unescape(found.group(1)))
+    for key, els in seen.items():
+        assert els, f"{key}: not on the page"
+        for el in els:
+            assert el["w"] > 0 and el["h"] > 0 and el["vis"] == "visible" and el["inside"], (key, el)
+    assert "UNDECIDED" in seen["verdict_u"][0]["text"] and "2 pass, 1 undecided" in seen["verdict_u"][0]["text"]
+    assert "trapezoidal HSI phase shifting, hue model hexcone" in seen["banner"][0]["text"]
+    assert [e["text"] for e in seen["zone_cells"]] == ["pass", "undecided", "pass"]
+    assert [e["text"] for e in seen["contract_cells"]] == ["pass", "pass", "pass"]
+    assert seen["zone_head"][0]["text"].replace("\n", " ") == "ISO 14253‑1 zone (with U)"
+    assert [e["text"] for e in seen["conformance_zone"]] == ["pass", "undecided", "pass"]
+    assert seen["box_mm"][0]["text"].startswith("[") and seen["box_mm"][0]["text"].endswith(")")
+    assert "HSV hexcone hue" in seen["conditions"][0]["text"] and "RGB → hue formula" in seen["conditions"][0]["text"]
+
+
+_PROBE = """<script>
+const sel = {
+  banner: "#verdict .verdict-detail", verdict_u: "#verdict-u",
+  zone_head: "#steps thead tr:nth-child(2) th:nth-child(8)",
+  zone_cells: "#steps tbody td:nth-child(10)", contract_cells: "#steps tbody td:nth-child(9)",
+  conformance_zone: "#conformance tbody td:nth-child(6)", box_px: "#flatness tbody td:nth-child(8)",
+  box_mm: "#flatness tbody td:nth-child(9)", conditions: "dl.cond",
+};
+const out = {};
+for (const [key, css] of Object.entries(sel)) {
+  out[key] = [...document.querySelectorAll(css)].map((e) => {
+    const r = e.getBoundingClientRect();
+    const wrap = e.closest(".table-wrap");
+    const w = wrap ? wrap.getBoundingClientRect() : { left: 0, right: document.documentElement.clientWidth };
+    return { text: e.innerText, w: r.width, h: r.height, vis: getComputedStyle(e).visibility,
+             inside: r.left >= w.left - 0.5 && r.right <= w.right + 0.5 };
+  });
+}
+const pre = document.createElement("pre");
+pre.id = "probe";
+pre.textContent = JSON.stringify(out);
+document.body.appendChild(pre);
+</script>"""

@@ -78,11 +78,13 @@ CONTRACT_STEP_KEYS: tuple[str, ...] = (
 
 #: Known figure keys of :func:`write_report_html`, in display order, with their captions.
 FIGURE_ORDER: dict[str, str] = {
-    "profile": "Cross-section profile across the steps (cf. paper Fig. 9 d)",
+    "profile": "Cross-section profile across the steps along one image row, named in the figure (cf. paper Fig. 9 d)",
     "height": "Height map, mm above the reference plane",
     "render": "Rendered surface",
     "per_frame": "Per-frame step heights with nominal value and tolerance band",
-    "calibration_qa": "Calibration quality assurance",
+    "calibration_qa": "Calibration quality assurance: hue along a row of the flat reference plate before and after "
+                      "the multi-band hue calibration, and its error against the true code phase in mrad "
+                      "(cf. paper Fig. 7 c, d)",
 }
 
 _PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
@@ -296,6 +298,9 @@ def validate_report(report: Mapping[str, Any]) -> None:
 def per_frame_figure(report: Mapping[str, Any], out_png: str | os.PathLike[str]) -> Path:
     """Scatter of the per-frame step heights, one panel per step, with nominal and tolerance band.
 
+    With ``U_mm`` per step, the interval mean ± U is shaded and the panel's title gives the
+    ISO 14253-1 zone beside the contract's pass; one legend for all panels sits below them.
+
     Parameters
     ----------
     report : mapping
@@ -331,17 +336,23 @@ def per_frame_figure(report: Mapping[str, Any], out_png: str | os.PathLike[str])
         frames = np.arange(pf.size)
         ax.plot(frames, pf, "o", ms=4, color="#1f4e9c", label=str(report.get("method", "method")))
         ax.axhline(float(s["mean_mm"]), color="#1f4e9c", ls="--", lw=1.0, label="mean")
+        if s.get("U_mm") is not None:  # the ISO 14253-1 decision compares this interval with the band
+            m, big_u = float(s["mean_mm"]), float(s["U_mm"])
+            ax.axhspan(m - big_u, m + big_u, color="#1f4e9c", alpha=0.12, lw=0, label="mean ± U (k = 2)")
         if s["name"] in base:
             b = np.asarray(base[s["name"]]["per_frame_mm"], dtype=float)
             ax.plot(np.arange(b.size), b, "s", ms=4, mfc="none", color="#c25100", label=BASELINE_METHOD)
             ax.axhline(float(base[s["name"]]["mean_mm"]), color="#c25100", ls=":", lw=1.0, label="baseline mean")
         verdict = "pass" if s["pass"] else "FAIL"
-        ax.set_title(f"{s['name']}: nominal {nominal:g} mm ({verdict})", fontsize=10)
+        zone = f", ISO 14253-1 {s['conformance']}" if s.get("conformance") else ""
+        ax.set_title(f"{s['name']}: nominal {nominal:g} mm ({verdict}{zone})", fontsize=10)
         ax.set_xlabel("frame")
         ax.set_ylabel("step height (mm)")
         ax.grid(True, alpha=0.3)
         ax.ticklabel_format(axis="y", useOffset=False)
-    axes.ravel()[0].legend(fontsize=7, loc="best")
+    # one legend for all panels, below them: inside a panel it covers the tolerance band and data
+    handles, labels = axes.ravel()[0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside lower center", ncol=min(7, len(labels)), fontsize=8, frameon=False)
     fig.suptitle(f"Session {report.get('session', '')}: per-frame step heights", fontsize=11)
     return write_figure_png(fig, out_png)
 
