@@ -238,13 +238,22 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     accepted when they agree with the pixel's first-pass estimate within ``k`` combined sigma
     (``diff^2 <= k2 (s_j^2 + 1 / wfirst)``): a noisy pixel is judged by its better estimate, so
     a step stays a step. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
-    save them). Float32, fixed visiting order: the result depends only on the inputs."""
+    save them). Float32, fixed visiting order: the result depends only on the inputs.
+
+    The pixels of a row that need the pass go through :func:`_adaptive_row` together, one
+    window offset at a time across all of them (SIMD over the pixels); each pixel still adds its
+    neighbours in the same order (ring, then row ``dv``, then ``du``), so the sums are the ones
+    of a pixel-by-pixel loop, bit for bit."""
     h, w = d.shape
-    two_pi = np.float32(2.0 * np.pi)
-    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
-    pi = np.float32(np.pi)
     nan = np.float32(np.nan)
+    pu = np.empty(w, np.int64)  # the row's pixels that need the pass, and their running state
+    pm = np.empty(w, np.float32)
+    psf = np.empty(w, np.float32)
+    pdc = np.empty(w, np.float32)
+    pacc = np.empty(w, np.float32)
+    pw = np.empty(w, np.float32)
     for v in range(h):
+        n = 0
         for u in range(w):
             out[v, u] = first[v, u]
             if inv[v, u] <= 0:
@@ -253,37 +262,84 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
             if ws >= target_w or max_radius <= radius:
                 out[v, u] = first[v, u] if ws >= reject_w else nan
                 continue
-            m = first[v, u]
-            sf2 = np.float32(1.0) / ws
-            acc = np.float32(0.0)
-            wsum = np.float32(0.0)
-            for r in range(0, max_radius + 1):
-                for dv in range(-r, r + 1):
-                    vv = v + dv
-                    if vv < 0 or vv >= h:
+            pu[n] = u
+            n += 1
+        if n == 0:
+            continue
+        for q in range(n):
+            u = pu[q]
+            pm[q] = first[v, u]
+            psf[q] = np.float32(1.0) / wfirst[v, u]
+            pdc[q] = d[v, u]
+            pacc[q] = 0.0
+            pw[q] = 0.0
+        for r in range(0, max_radius + 1):
+            for dv in range(-r, r + 1):
+                vv = v + dv
+                if vv < 0 or vv >= h:
+                    continue
+                edge_row = dv == -r or dv == r
+                step = 1 if edge_row else 2 * r
+                du = -r
+                while du <= r:
+                    _adaptive_row(d[vv], s2[vv], inv[vv], du, n, pu, pm, psf, pdc, k2, pacc, pw)
+                    du += step if step > 0 else 1
+            if r >= radius or r == max_radius:
+                # a pixel stops once its weights reach the target (or at the last ring): its
+                # result is written and it leaves the list
+                last = r == max_radius
+                keep_n = 0
+                for q in range(n):
+                    if last or pw[q] >= target_w:
+                        u = pu[q]
+                        ws = wfirst[v, u]
+                        wsum = pw[q]
+                        if wsum < ws:  # the grown window found less support than the first pass
+                            wsum = ws
+                            val = pm[q]
+                        else:
+                            val = pdc[q] + pacc[q] / wsum
+                        out[v, u] = val if wsum >= reject_w else nan
                         continue
-                    edge_row = dv == -r or dv == r
-                    step = 1 if edge_row else 2 * r
-                    du = -r
-                    while du <= r:
-                        uu = u + du
-                        if 0 <= uu < w and inv[vv, uu] > 0:
-                            dm = d[vv, uu] - m
-                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            if dm * dm <= k2 * (s2[vv, uu] + sf2):
-                                diff = d[vv, uu] - d[v, u]
-                                diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                                acc += inv[vv, uu] * diff
-                                wsum += inv[vv, uu]
-                        du += step if step > 0 else 1
-                if r >= radius and wsum >= target_w:
+                    pu[keep_n] = pu[q]
+                    pm[keep_n] = pm[q]
+                    psf[keep_n] = psf[q]
+                    pdc[keep_n] = pdc[q]
+                    pacc[keep_n] = pacc[q]
+                    pw[keep_n] = pw[q]
+                    keep_n += 1
+                n = keep_n
+                if n == 0:
                     break
-            if wsum < ws:  # the grown window found less support than the first pass: keep it
-                wsum = ws
-                val = m
-            else:
-                val = d[v, u] + acc / wsum
-            out[v, u] = val if wsum >= reject_w else nan
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _adaptive_row(dr, s2r, invr, du, n, pu, pm, psf, pdc, k2, pacc, pw):  # pragma: no cover - compiled
+    """One window offset (neighbour row ``dr``, column offset ``du``) for the ``n`` pixels
+    ``pu`` of :func:`_adaptive_pass` still growing their window: each adds the neighbour if it
+    is valid and agrees with its first-pass estimate ``pm`` within ``k`` combined sigma.
+
+    Branch-free over the pixels (LLVM vectorises it, with gathers). A pixel that does not take
+    the neighbour adds +0 to its sums, which leaves them bit for bit as skipping it would:
+    they start at +0 and so are never -0."""
+    two_pi = np.float32(2.0 * np.pi)
+    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
+    pi = np.float32(np.pi)
+    zero = np.float32(0.0)
+    w = dr.size
+    for q in range(n):
+        uu = pu[q] + du
+        inb = (uu >= 0) & (uu < w)
+        uc = min(max(uu, 0), w - 1)
+        x = dr[uc]
+        iv = invr[uc]
+        dm = x - pm[q]
+        dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+        keep = inb & (iv > 0) & (dm * dm <= k2 * (s2r[uc] + psf[q]))
+        diff = x - pdc[q]
+        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+        pacc[q] += iv * diff if keep else zero
+        pw[q] += iv if keep else zero
 
 
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
