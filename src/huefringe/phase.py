@@ -240,18 +240,25 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     a step stays a step. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
     save them). Float32, fixed visiting order: the result depends only on the inputs.
 
-    The pixels of a row that need the pass go through :func:`_adaptive_row` together, one
-    window offset at a time across all of them (SIMD over the pixels); each pixel still adds its
-    neighbours in the same order (ring, then row ``dv``, then ``du``), so the sums are the ones
-    of a pixel-by-pixel loop, bit for bit."""
+    The pixels of a row that need the pass go through it together, one window offset at a time
+    across all of them (SIMD over the pixels), each leaving the list once its weights reach the
+    target; each pixel still adds its neighbours in the same order (ring, then row ``dv``, then
+    ``du``), so the sums are those of a pixel-by-pixel loop, bit for bit."""
     h, w = d.shape
     nan = np.float32(np.nan)
+    two_pi = np.float32(2.0 * np.pi)
+    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
+    pi = np.float32(np.pi)
+    zero = np.float32(0.0)
     pu = np.empty(w, np.int64)  # the row's pixels that need the pass, and their running state
     pm = np.empty(w, np.float32)
     psf = np.empty(w, np.float32)
     pdc = np.empty(w, np.float32)
     pacc = np.empty(w, np.float32)
     pw = np.empty(w, np.float32)
+    xg = np.empty(w, np.float32)  # scratch: the gathered neighbours
+    ig = np.empty(w, np.float32)
+    sg = np.empty(w, np.float32)
     for v in range(h):
         n = 0
         for u in range(w):
@@ -282,7 +289,27 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                 step = 1 if edge_row else 2 * r
                 du = -r
                 while du <= r:
-                    _adaptive_row(d[vv], s2[vv], inv[vv], du, n, pu, pm, psf, pdc, k2, pacc, pw)
+                    # the neighbours gathered into contiguous scratch rows (the arithmetic below
+                    # is not vectorised on gathered loads), 0 inverse variance outside the image
+                    for q in range(n):
+                        uu = pu[q] + du
+                        inb = (uu >= 0) & (uu < w)
+                        uc = min(max(uu, 0), w - 1)
+                        xg[q] = d[vv, uc]
+                        ig[q] = inv[vv, uc] if inb else zero
+                        sg[q] = s2[vv, uc]
+                    # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to sums
+                    # that start at +0 and so are never -0: bit for bit as skipping it
+                    for q in range(n):
+                        x = xg[q]
+                        iv = ig[q]
+                        dm = x - pm[q]
+                        dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                        keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                        diff = x - pdc[q]
+                        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                        pacc[q] += iv * diff if keep else zero
+                        pw[q] += iv if keep else zero
                     du += step if step > 0 else 1
             if r >= radius or r == max_radius:
                 # a pixel stops once its weights reach the target (or at the last ring): its
@@ -311,35 +338,6 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                 n = keep_n
                 if n == 0:
                     break
-
-
-@njit(cache=True, nogil=True, error_model="numpy")
-def _adaptive_row(dr, s2r, invr, du, n, pu, pm, psf, pdc, k2, pacc, pw):  # pragma: no cover - compiled
-    """One window offset (neighbour row ``dr``, column offset ``du``) for the ``n`` pixels
-    ``pu`` of :func:`_adaptive_pass` still growing their window: each adds the neighbour if it
-    is valid and agrees with its first-pass estimate ``pm`` within ``k`` combined sigma.
-
-    Branch-free over the pixels (LLVM vectorises it, with gathers). A pixel that does not take
-    the neighbour adds +0 to its sums, which leaves them bit for bit as skipping it would:
-    they start at +0 and so are never -0."""
-    two_pi = np.float32(2.0 * np.pi)
-    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
-    pi = np.float32(np.pi)
-    zero = np.float32(0.0)
-    w = dr.size
-    for q in range(n):
-        uu = pu[q] + du
-        inb = (uu >= 0) & (uu < w)
-        uc = min(max(uu, 0), w - 1)
-        x = dr[uc]
-        iv = invr[uc]
-        dm = x - pm[q]
-        dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-        keep = inb & (iv > 0) & (dm * dm <= k2 * (s2r[uc] + psf[q]))
-        diff = x - pdc[q]
-        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-        pacc[q] += iv * diff if keep else zero
-        pw[q] += iv if keep else zero
 
 
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
