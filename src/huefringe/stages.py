@@ -27,7 +27,7 @@ from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, 
 from huefringe.huetable import HueTable, HueTableError, build_table
 from huefringe import phase_error
 from huefringe.io import read_tiff, write_json, write_tiff
-from huefringe.perframe import FrameError, clipped_mask, frame_stats, measure_frame, shadow_mask
+from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
 from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
 
@@ -307,12 +307,11 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"],
                                   denoise_adaptive=measurement.get("denoise_adaptive"),
                                   want_maps=n in maps, want_dphi=True, out=buffers)
-            flags = unwrap(m.dphi, m.valid, "reference").flags  # type: ignore[arg-type]
-            px = m.valid.size
-            stats = frame_stats(m.valid, m.height, flags, clipped_fraction=m.counts["clipped"] / px,
-                                hue_undefined_fraction=m.counts["hue_undefined"] / px,
-                                table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
-                                hue_model=hue_model, unwrap_mode="reference")
+            px = m.valid.size  # frame_stats with unwrap's reference flags, in one compiled pass
+            stats = reference_frame_stats(m.dphi, m.valid, m.height, clipped_fraction=m.counts["clipped"] / px,  # type: ignore[arg-type]
+                                          hue_undefined_fraction=m.counts["hue_undefined"] / px,
+                                          table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
+                                          hue_model=hue_model)
             height, phase, hue = m.height, m.phase, m.hue
         else:
             res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
