@@ -50,3 +50,15 @@ def test_flags_and_median_on_a_known_map() -> None:
     assert b["flags"]["below_reference"] == 1  # -1 mm at (0, 1); the -2 at (0, 0) is invalid
     assert b["median_height_mm"] == float(np.median(height[valid])) == 10.0  # 23 values: the middle one
     assert b["valid_fraction"] == 23 / 24
+
+
+def test_no_valid_pixel_and_a_nan_height_as_frame_stats() -> None:
+    dphi = np.zeros((3, 4), np.float32)
+    height = np.ones((3, 4), np.float32)
+    a, b = _both(dphi, np.zeros((3, 4), bool), height)
+    assert a == b and b["median_height_mm"] is None and b["valid_fraction"] == 0.0
+    height[1, 2] = np.nan  # a valid pixel without a height: np.median gives NaN
+    a, b = _both(dphi, np.ones((3, 4), bool), height)
+    assert np.isnan(a["median_height_mm"]) and np.isnan(b["median_height_mm"])
+    a.pop("median_height_mm"), b.pop("median_height_mm")
+    assert a == b

@@ -255,7 +255,8 @@ def reference_frame_stats(dphi: NDArray[np.float32], valid: NDArray[np.bool_], h
         "shadow_fraction": shadow_fraction,
         "flags": counts,
         "phase_ambiguity_suspected": bool(suspect),
-        "median_height_mm": float(_median_keys(keys, int(n_keys))) if n_keys else None,
+        "median_height_mm": (None if n_valid == 0 else float("nan") if n_keys < n_valid  # NaN among them: np.median's NaN
+                             else float(_median_keys(keys, int(n_keys)))),
         "hue_model": hue_model,
         "unwrap": "reference",
     }
