@@ -231,14 +231,18 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
         c.append(time.perf_counter())
         kernel.frame_maps(prep, codes, denoise_radius=0, want_dphi=True, out=buf)
         c.append(time.perf_counter())
-        m = kernel.frame_maps(prep, codes, denoise_radius=m_cfg["denoise_radius"], want_dphi=True, out=buf)
+        m = kernel.frame_maps(prep, codes, denoise_radius=m_cfg["denoise_radius"], want_dphi=True, out=buf,
+                              denoise_adaptive=m_cfg.get("denoise_adaptive"))  # as stages.frame_results
         t_filter = time.perf_counter() - c[-1] - (c[-1] - c[-2])  # kernel with the filter minus without
         c.append(time.perf_counter())
-        flags = unwrap(m.dphi, m.valid, "reference").flags
         px = m.valid.size
-        st = perframe.frame_stats(m.valid, m.height, flags, clipped_fraction=m.counts["clipped"] / px,
-                                  hue_undefined_fraction=m.counts["hue_undefined"] / px, table_invalid_fraction=0.0,
-                                  shadow_fraction=0.0, hue_model="hexcone", unwrap_mode="reference")
+        qa = dict(clipped_fraction=m.counts["clipped"] / px, hue_undefined_fraction=m.counts["hue_undefined"] / px,
+                  table_invalid_fraction=0.0, shadow_fraction=0.0, hue_model="hexcone")
+        if hasattr(perframe, "reference_frame_stats"):  # what stages.frame_results calls
+            st = perframe.reference_frame_stats(m.dphi, m.valid, m.height, **qa)
+        else:  # (so that the same script measures the commits before it)
+            st = perframe.frame_stats(m.valid, m.height, unwrap(m.dphi, m.valid, "reference").flags,
+                                      unwrap_mode="reference", **qa)
         c.append(time.perf_counter())
         write_tiff(out / f"h{k}.tiff", m.height)
         c.append(time.perf_counter())

@@ -80,3 +80,78 @@ def test_uncertain_pixels_follow_their_neighbours_and_invalid_ones_are_ignored()
     lone = np.zeros((5, 5), bool)
     lone[2, 2] = True
     assert denoise_phase(np.full((5, 5), 0.7, np.float32), np.full((5, 5), 0.1), lone)[2, 2] == np.float32(0.7)
+
+
+def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w):
+    """The adaptive pass pixel by pixel, its definition (float32, rings in order, each pixel's
+    neighbours added row by row, column by column, stopping once the weights reach the target)."""
+    f32 = np.float32
+    two_pi, inv_two_pi, pi = f32(2 * np.pi), f32(1 / (2 * np.pi)), f32(np.pi)
+
+    def wrapped(x):
+        return f32(x - two_pi * np.floor(f32((x + pi) * inv_two_pi)))
+
+    h, w = d.shape
+    out = first.copy()
+    wout = wfirst.copy()
+    for v in range(h):
+        for u in range(w):
+            if inv[v, u] <= 0:
+                continue
+            ws = wfirst[v, u]
+            if ws >= target_w or max_radius <= radius:
+                out[v, u] = first[v, u] if ws >= reject_w else np.nan
+                continue
+            m, sf2 = first[v, u], f32(1) / ws
+            acc = wsum = f32(0)
+            for r in range(max_radius + 1):
+                for dv in range(-r, r + 1):
+                    if not 0 <= v + dv < h:
+                        continue
+                    dus = range(-r, r + 1) if abs(dv) == r else (-r, r)
+                    for du in dus:
+                        vv, uu = v + dv, u + du
+                        if 0 <= uu < w and inv[vv, uu] > 0:
+                            dm = wrapped(f32(d[vv, uu] - m))
+                            if f32(dm * dm) <= f32(k2 * f32(s2[vv, uu] + sf2)):
+                                diff = wrapped(f32(d[vv, uu] - d[v, u]))
+                                acc = f32(acc + f32(inv[vv, uu] * diff))
+                                wsum = f32(wsum + inv[vv, uu])
+                if r >= radius and wsum >= target_w:
+                    break
+            if wsum < ws:
+                wsum, val = ws, m
+            else:
+                val = f32(d[v, u] + f32(acc / wsum))
+            out[v, u] = val if wsum >= reject_w else np.nan
+            wout[v, u] = wsum
+    return out, wout
+
+
+def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
+    """The compiled pass (all of a row's pixels through each window offset together) gives the
+    pixel-by-pixel loop's bits: noisy pixels near the borders, invalid neighbours, a step."""
+    from huefringe.phase import _adaptive_pass, _denoise_kernel, _denoise_weights
+
+    rng = np.random.default_rng(7)
+    h, w = 23, 31
+    sigma = np.where(rng.random((h, w)) < 0.3, 0.02, 0.003) * rng.uniform(0.5, 2, (h, w))
+    d = rng.normal(0, 1, (h, w)) * sigma + 0.4
+    d[:, 20:] += 1.0  # a step
+    d = wrap(d)
+    valid = rng.random((h, w)) > 0.1
+    dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
+    _denoise_weights(d, sigma, valid, dz, s2, inv)
+    first, wfirst = np.empty_like(dz), np.empty_like(dz)
+    k2 = np.float32(9.0)
+    _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst)
+    for max_radius, target, reject in ((4, 0.0008, 0.002), (6, 0.0005, 0.001), (2, 0.0009, 0.0)):
+        tw, rw = np.float32(1 / target**2), np.float32(1 / reject**2 if reject else 0.0)
+        got, got_w = np.empty_like(dz), np.empty_like(dz)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w)
+        want, want_w = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw)
+        assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))  # the final weight sums too
+        grown = (inv > 0) & (wfirst < tw)
+        assert grown.sum() > 50  # the pass has work to do
+        assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+        assert not np.array_equal(got[grown], first[grown])  # and it changed those pixels

@@ -305,3 +305,30 @@ def test_step_height_invariant_to_rigid_tilt_and_offset(c1, c2, offset, nominal)
     assert step_height(z, coeffs, [30, 18, 60, 42], PITCH) == pytest.approx(nominal, abs=1e-9)
     slope2 = c1**2 + c2**2
     assert step_height(z, coeffs, [30, 18, 60, 42], PITCH, normal=True) == pytest.approx(nominal / math.sqrt(1 + slope2), abs=1e-9)
+
+
+def test_maps_are_taken_one_at_a_time():
+    """A generator of maps (the metrology stage reads each TIFF as it goes) gives the list's
+    result, key for key, without the maps being held together; a later frame of another
+    shape is refused by its index."""
+    import weakref
+
+    frames = make_frames(6, noise=0.002, seed=3)
+    alive: list[weakref.ref] = []
+
+    def one_by_one():
+        for z in frames:
+            # every map but the first and the one evaluated last is already released
+            assert all(r() is None for r in alive[1:-1])
+            c = z.copy()
+            alive.append(weakref.ref(c))
+            yield c
+            del c
+
+    as_list = evaluate_session(frames, SPECIMEN, PITCH, range_mm=4.0)
+    streamed = evaluate_session(one_by_one(), SPECIMEN, PITCH, range_mm=4.0)
+    assert streamed == as_list
+    assert streamed["frames"] == 6 and streamed["steps"][0]["std_mm"] > 0
+    with pytest.raises(MetrologyError) as err:
+        evaluate_session(iter([frames[0], frames[1], frames[2][:-1]]), SPECIMEN, PITCH, range_mm=4.0)
+    assert err.value.frame == 2

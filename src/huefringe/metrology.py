@@ -47,7 +47,7 @@ range (e.g. ``max(planes_mm)``), and ``pass = |error_mm| <= tolerance_mm``. The 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any
 
 import numpy as np
@@ -485,7 +485,7 @@ def _specimen_parts(specimen: Mapping[str, Any]) -> tuple[list[Any], list[Mappin
 
 
 def evaluate_session(
-    heights: Sequence[ArrayLike],
+    heights: Iterable[ArrayLike],
     specimen: Mapping[str, Any],
     pitch_mm: float,
     *,
@@ -499,8 +499,9 @@ def evaluate_session(
 
     Parameters
     ----------
-    heights : sequence of array_like, each (H, W)
-        Per-frame height maps in mm (NaN = invalid), all of the same shape.
+    heights : iterable of array_like, each (H, W)
+        Per-frame height maps in mm (NaN = invalid), all of the same shape. Taken one at a
+        time: a generator that reads each map from disk keeps one map in memory.
     specimen : mapping
         The ``specimen`` block of ``session.yaml``: ``base_roi``, ``steps`` (``name``,
         ``nominal_mm``, ``roi``) and ``tolerance_mm``.
@@ -549,41 +550,68 @@ def evaluate_session(
     if not (math.isfinite(rng) and rng > 0):
         raise ValueError(f"range_mm must be a positive number, got {range_mm!r}")
     central_box((0, 0, 3, 3), edge_exclusion)  # validates edge_exclusion early
-    maps = [_height_map(h, i) for i, h in enumerate(heights)]
-    if not maps:
+    # one frame at a time (a generator of maps read from disk keeps one map in memory: 1000
+    # frames of 640 x 480 would be 1.2 GB held at once)
+    maps = iter(heights)
+    first = next(maps, None)
+    if first is None:
         raise MetrologyError("no height map given: nothing to evaluate")
-    shape = maps[0].shape
-    for i, z in enumerate(maps):
-        if z.shape != shape:
-            raise MetrologyError(f"height map shape {z.shape} differs from frame 0's {shape}", frame=i)
+    z0 = _height_map(first, 0)
+    shape = z0.shape
 
     base_boxes = [check_box(b, shape, f"base_roi[{i}]") for i, b in enumerate(base)]
     step_boxes = [check_box(s["roi"], shape, str(s["name"])) for s in steps]
     eval_boxes = [central_box(b, edge_exclusion) for b in step_boxes]
 
-    n = len(maps)
-    planes = np.empty((n, 3))
-    rms = np.empty(n)
-    base_cov = np.empty((n, len(base_boxes)))
-    per_frame = np.empty((len(steps), n))
-    cov_roi = np.empty((len(steps), n))
-    cov_eval = np.empty((len(steps), n))
-    flat = np.empty((len(steps), n, 5))
+    planes_l: list[NDArray[np.float64]] = []
+    rms_l: list[float] = []
+    base_cov_l: list[list[float]] = []
+    per_frame_l: list[list[float]] = []
+    cov_roi_l: list[list[float]] = []
+    cov_eval_l: list[list[float]] = []
+    flat_l: list[list[list[float]]] = []
     flat_keys = ("Sa_mm", "Sq_mm", "Sp_mm", "Sv_mm", "Sz_mm")
 
-    for f, z in enumerate(maps):
-        planes[f], rms[f] = fit_plane(z, base_boxes, pitch, min_coverage=min_coverage, frame=f)
-        base_cov[f] = [coverage(z, b) for b in base_boxes]
+    def frames() -> Iterator[tuple[int, NDArray[np.floating[Any]]]]:
+        yield 0, z0
+        for i, h in enumerate(maps, start=1):
+            z = _height_map(h, i)
+            if z.shape != shape:
+                raise MetrologyError(f"height map shape {z.shape} differs from frame 0's {shape}", frame=i)
+            yield i, z
+
+    for f, z in frames():
+        plane_f, res = fit_plane(z, base_boxes, pitch, min_coverage=min_coverage, frame=f)
+        plane = np.empty(3)
+        plane[:] = plane_f
+        planes_l.append(plane)
+        rms_l.append(res)
+        base_cov_l.append([coverage(z, b) for b in base_boxes])
+        pf, cr, ce, fls = [], [], [], []
         for k, (s, box) in enumerate(zip(steps, step_boxes, strict=True)):
             name = str(s["name"])
-            per_frame[k, f] = step_height(
-                z, planes[f], box, pitch, edge_exclusion,
+            pf.append(step_height(
+                z, plane, box, pitch, edge_exclusion,
                 name=name, min_coverage=min_coverage, normal=normal, frame=f,
-            )  # fmt: skip
-            cov_roi[k, f] = coverage(z, box)
-            cov_eval[k, f] = coverage(z, eval_boxes[k])
+            ))  # fmt: skip
+            cr.append(coverage(z, box))
+            ce.append(coverage(z, eval_boxes[k]))
             fl = flatness(z, box, pitch, edge_exclusion, name=name, min_coverage=min_coverage, frame=f)
-            flat[k, f] = [fl[key] for key in flat_keys]
+            fls.append([fl[key] for key in flat_keys])
+        per_frame_l.append(pf)
+        cov_roi_l.append(cr)
+        cov_eval_l.append(ce)
+        flat_l.append(fls)
+        del z
+
+    n = len(rms_l)
+    planes = np.array(planes_l, dtype=np.float64).reshape(n, 3)
+    rms = np.array(rms_l, dtype=np.float64)
+    base_cov = np.array(base_cov_l, dtype=np.float64).reshape(n, len(base_boxes))
+    per_frame = np.array(per_frame_l, dtype=np.float64).reshape(n, len(steps)).T
+    cov_roi = np.array(cov_roi_l, dtype=np.float64).reshape(n, len(steps)).T
+    cov_eval = np.array(cov_eval_l, dtype=np.float64).reshape(n, len(steps)).T
+    flat = np.array(flat_l, dtype=np.float64).reshape(n, len(steps), 5).transpose(1, 0, 2)
 
     step_out: list[dict[str, Any]] = []
     for k, s in enumerate(steps):

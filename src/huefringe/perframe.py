@@ -33,6 +33,7 @@ __all__ = [
     "frame_stats",
     "measure_frame",
     "phase_sigma",
+    "reference_frame_stats",
     "shadow_mask",
     "sigma_from_slope",
 ]
@@ -232,3 +233,140 @@ def _phase_sigma_map(noise, slope, floor_slope, out):  # pragma: no cover - comp
     for v in range(h):
         for u in range(w):
             out[v, u] = sigma_from_slope(noise[v, u], slope[v, u], floor_slope)
+
+
+def reference_frame_stats(dphi: NDArray[np.float32], valid: NDArray[np.bool_], height: NDArray[np.float32], *,
+                          clipped_fraction: float, hue_undefined_fraction: float, table_invalid_fraction: float,
+                          shadow_fraction: float, hue_model: str, near_wrap: float = 0.9 * np.pi,
+                          below_reference_mm: float = 0.25) -> dict[str, Any]:
+    """:func:`frame_stats` of a reference-relative frame, flags included, in one compiled pass.
+
+    Equals ``frame_stats(valid, height, phase.unwrap(dphi, valid, "reference").flags, ...,
+    unwrap_mode="reference")`` value for value (the flag counts, the valid fraction and the
+    median height, NumPy's ``np.median`` of the float32 heights: the middle value, or the
+    float32 mean of the two middle ones), without the flag maps, the unwrapped copy and the
+    sort: what the kernel's measurement loop needs per frame (``dphi`` is the phase difference
+    before the filter, ``valid`` and ``height`` the final ones).
+    """
+    d = np.ascontiguousarray(dphi)
+    ok = np.ascontiguousarray(valid, dtype=bool)
+    z = np.ascontiguousarray(height, dtype=np.float32)
+    if not d.shape == ok.shape == z.shape or d.ndim != 2:
+        raise ValueError(f"dphi {d.shape}, valid {ok.shape} and height {z.shape} must be the same 2-D shape")
+    edge = np.empty((3, d.shape[1]), np.uint8)
+    keys = np.empty(d.size + 1, np.uint32)
+    n_valid, n_edge, n_near, n_below, n_keys = _reference_counts(d, ok, z, float(near_wrap), np.float32(below_reference_mm),
+                                                                 edge, keys)
+    counts = {"wrap_edge": int(n_edge), "near_wrap": int(n_near), "isolated": 0, "below_reference": int(n_below)}
+    suspect = (counts["below_reference"] + counts["wrap_edge"]) > 0.001 * ok.size
+    return {
+        "valid_fraction": int(n_valid) / ok.size,
+        "clipped_fraction": clipped_fraction,
+        "hue_undefined_fraction": hue_undefined_fraction,
+        "table_invalid_fraction": table_invalid_fraction,
+        "shadow_fraction": shadow_fraction,
+        "flags": counts,
+        "phase_ambiguity_suspected": bool(suspect),
+        "median_height_mm": (None if n_valid == 0 else float("nan") if n_keys < n_valid  # NaN among them: np.median's NaN
+                             else float(_median_keys(keys, int(n_keys)))),
+        "hue_model": hue_model,
+        "unwrap": "reference",
+    }
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _reference_counts(d, valid, height, near_wrap, below, edge, keys):  # pragma: no cover - numba
+    """``phase._wrap_flags`` counted (on ``valid & finite(d)``, differences in float64), the
+    pixels below ``-below`` among ``valid``, and the valid heights as order-preserving uint32
+    keys (for :func:`_median_keys`). Returns (valid, wrap_edge, near_wrap, below, keys).
+
+    Row by row in branch-free loops (LLVM vectorises them): a pixel is on a wrap edge when one
+    of its four neighbour pairs is; ``edge`` is scratch ``(3, W)`` uint8 (the pairs to the right,
+    to the row above and to the row below)."""
+    h, w = d.shape
+    n_valid = 0
+    n_near = 0
+    n_below = 0
+    n_keys = 0
+    n_edge = 0
+    pi = np.pi
+    zb = height.reshape(-1).view(np.uint32)
+    right = edge[0]
+    up = edge[1]
+    down = edge[2]
+    up[:] = 0
+    for v in range(h):
+        dv = d[v]
+        okv = valid[v]
+        hv = height[v]
+        zv = zb[v * w : v * w + w]
+        for u in range(w):
+            ok = okv[u]
+            hh = hv[u]
+            n_valid += ok
+            n_below += ok & (hh < -below)
+            b = zv[u]
+            keys[n_keys] = b ^ (np.uint32(0xFFFFFFFF) if b >> np.uint32(31) else np.uint32(0x80000000))
+            n_keys += ok & (hh == hh)
+            x = np.float64(dv[u])
+            n_near += ok & (x - x == 0) & (abs(x) > near_wrap)
+        for u in range(w - 1):
+            x = np.float64(dv[u])
+            y = np.float64(dv[u + 1])
+            right[u] = okv[u] & okv[u + 1] & (x - x == 0) & (y - y == 0) & (abs(y - x) > pi)
+        right[w - 1] = 0
+        if v + 1 < h:
+            dn = d[v + 1]
+            okn = valid[v + 1]
+            for u in range(w):
+                x = np.float64(dv[u])
+                y = np.float64(dn[u])
+                down[u] = okv[u] & okn[u] & (x - x == 0) & (y - y == 0) & (abs(y - x) > pi)
+        else:
+            down[:] = 0
+        n_edge += right[0] | up[0] | down[0]
+        for u in range(1, w):
+            n_edge += right[u] | right[u - 1] | up[u] | down[u]
+        for u in range(w):
+            up[u] = down[u]
+    return n_valid, n_edge, n_near, n_below, n_keys
+
+
+@numba.njit(cache=True, nogil=True)
+def _select_key(keys, n, k, hist):  # pragma: no cover - numba
+    """The ``k``-th smallest of ``keys[:n]`` (radix select: top 16 bits, then the low 16)."""
+    hist[:] = 0
+    for i in range(n):
+        hist[keys[i] >> np.uint32(16)] += 1
+    top = 0
+    while hist[top] <= k:
+        k -= hist[top]
+        top += 1
+    hist[:] = 0
+    for i in range(n):
+        x = keys[i]
+        if (x >> np.uint32(16)) == top:
+            hist[x & np.uint32(0xFFFF)] += 1
+    low = 0
+    while hist[low] <= k:
+        k -= hist[low]
+        low += 1
+    return np.uint32((top << 16) | low)
+
+
+@numba.njit(cache=True, nogil=True)
+def _key_value(key):  # pragma: no cover - numba
+    b = key ^ (np.uint32(0x80000000) if key >> np.uint32(31) else np.uint32(0xFFFFFFFF))
+    return np.array([b], dtype=np.uint32).view(np.float32)[0]
+
+
+@numba.njit(cache=True, nogil=True)
+def _median_keys(keys, n):  # pragma: no cover - numba
+    """``np.median`` of the float32 values of ``keys[:n]``: the middle one, or for even ``n``
+    the float32 mean of the two middle ones (``np.mean`` of two float32: sum, then / 2)."""
+    hist = np.empty(65536, np.int64)
+    hi = _key_value(_select_key(keys, n, n // 2, hist))
+    if n % 2:
+        return np.float64(hi)
+    lo = _key_value(_select_key(keys, n, n // 2 - 1, hist))
+    return np.float64((lo + hi) / np.float32(2.0))

@@ -239,13 +239,29 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     (``diff^2 <= k2 (s_j^2 + 1 / wfirst)``): a noisy pixel is judged by its better estimate, so
     a step stays a step. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
     save them). ``wout`` receives each pixel's final sum of accepted weights (0 where not
-    valid). Float32, fixed visiting order: the result depends only on the inputs."""
+    valid). Float32, fixed visiting order: the result depends only on the inputs.
+
+    The pixels of a row that need the pass go through it together, one window offset at a time
+    across all of them (SIMD over the pixels), each leaving the list once its weights reach the
+    target; each pixel still adds its neighbours in the same order (ring, then row ``dv``, then
+    ``du``), so the sums are those of a pixel-by-pixel loop, bit for bit."""
     h, w = d.shape
+    nan = np.float32(np.nan)
     two_pi = np.float32(2.0 * np.pi)
     inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
     pi = np.float32(np.pi)
-    nan = np.float32(np.nan)
+    zero = np.float32(0.0)
+    pu = np.empty(w, np.int64)  # the row's pixels that need the pass, and their running state
+    pm = np.empty(w, np.float32)
+    psf = np.empty(w, np.float32)
+    pdc = np.empty(w, np.float32)
+    pacc = np.empty(w, np.float32)
+    pw = np.empty(w, np.float32)
+    xg = np.empty(w, np.float32)  # scratch: the gathered neighbours
+    ig = np.empty(w, np.float32)
+    sg = np.empty(w, np.float32)
     for v in range(h):
+        n = 0
         for u in range(w):
             out[v, u] = first[v, u]
             wout[v, u] = wfirst[v, u]
@@ -255,38 +271,76 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
             if ws >= target_w or max_radius <= radius:
                 out[v, u] = first[v, u] if ws >= reject_w else nan
                 continue
-            m = first[v, u]
-            sf2 = np.float32(1.0) / ws
-            acc = np.float32(0.0)
-            wsum = np.float32(0.0)
-            for r in range(0, max_radius + 1):
-                for dv in range(-r, r + 1):
-                    vv = v + dv
-                    if vv < 0 or vv >= h:
+            pu[n] = u
+            n += 1
+        if n == 0:
+            continue
+        for q in range(n):
+            u = pu[q]
+            pm[q] = first[v, u]
+            psf[q] = np.float32(1.0) / wfirst[v, u]
+            pdc[q] = d[v, u]
+            pacc[q] = 0.0
+            pw[q] = 0.0
+        for r in range(0, max_radius + 1):
+            for dv in range(-r, r + 1):
+                vv = v + dv
+                if vv < 0 or vv >= h:
+                    continue
+                edge_row = dv == -r or dv == r
+                step = 1 if edge_row else 2 * r
+                du = -r
+                while du <= r:
+                    # the neighbours gathered into contiguous scratch rows (the arithmetic below
+                    # is not vectorised on gathered loads), 0 inverse variance outside the image
+                    for q in range(n):
+                        uu = pu[q] + du
+                        inb = (uu >= 0) & (uu < w)
+                        uc = min(max(uu, 0), w - 1)
+                        xg[q] = d[vv, uc]
+                        ig[q] = inv[vv, uc] if inb else zero
+                        sg[q] = s2[vv, uc]
+                    # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to sums
+                    # that start at +0 and so are never -0: bit for bit as skipping it
+                    for q in range(n):
+                        x = xg[q]
+                        iv = ig[q]
+                        dm = x - pm[q]
+                        dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                        keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                        diff = x - pdc[q]
+                        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                        pacc[q] += iv * diff if keep else zero
+                        pw[q] += iv if keep else zero
+                    du += step if step > 0 else 1
+            if r >= radius or r == max_radius:
+                # a pixel stops once its weights reach the target (or at the last ring): its
+                # result is written and it leaves the list
+                last = r == max_radius
+                keep_n = 0
+                for q in range(n):
+                    if last or pw[q] >= target_w:
+                        u = pu[q]
+                        ws = wfirst[v, u]
+                        wsum = pw[q]
+                        if wsum < ws:  # the grown window found less support than the first pass
+                            wsum = ws
+                            val = pm[q]
+                        else:
+                            val = pdc[q] + pacc[q] / wsum
+                        out[v, u] = val if wsum >= reject_w else nan
+                        wout[v, u] = wsum
                         continue
-                    edge_row = dv == -r or dv == r
-                    step = 1 if edge_row else 2 * r
-                    du = -r
-                    while du <= r:
-                        uu = u + du
-                        if 0 <= uu < w and inv[vv, uu] > 0:
-                            dm = d[vv, uu] - m
-                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            if dm * dm <= k2 * (s2[vv, uu] + sf2):
-                                diff = d[vv, uu] - d[v, u]
-                                diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                                acc += inv[vv, uu] * diff
-                                wsum += inv[vv, uu]
-                        du += step if step > 0 else 1
-                if r >= radius and wsum >= target_w:
+                    pu[keep_n] = pu[q]
+                    pm[keep_n] = pm[q]
+                    psf[keep_n] = psf[q]
+                    pdc[keep_n] = pdc[q]
+                    pacc[keep_n] = pacc[q]
+                    pw[keep_n] = pw[q]
+                    keep_n += 1
+                n = keep_n
+                if n == 0:
                     break
-            if wsum < ws:  # the grown window found less support than the first pass: keep it
-                wsum = ws
-                val = m
-            else:
-                val = d[v, u] + acc / wsum
-            out[v, u] = val if wsum >= reject_w else nan
-            wout[v, u] = wsum
 
 
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],

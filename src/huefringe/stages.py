@@ -28,7 +28,7 @@ from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, 
 from huefringe.huetable import HueTable, HueTableError, build_table
 from huefringe import phase_error
 from huefringe.io import read_tiff, write_json, write_tiff
-from huefringe.perframe import FrameError, clipped_mask, frame_stats, measure_frame, shadow_mask
+from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
 from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
 from huefringe.uncertainty import pixel_budget
@@ -322,12 +322,11 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                                   denoise_adaptive=measurement.get("denoise_adaptive"),
                                   want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty,
                                   out=buffers)
-            flags = unwrap(m.dphi, m.valid, "reference").flags  # type: ignore[arg-type]
-            px = m.valid.size
-            stats = frame_stats(m.valid, m.height, flags, clipped_fraction=m.counts["clipped"] / px,
-                                hue_undefined_fraction=m.counts["hue_undefined"] / px,
-                                table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
-                                hue_model=hue_model, unwrap_mode="reference")
+            px = m.valid.size  # frame_stats with unwrap's reference flags, in one compiled pass
+            stats = reference_frame_stats(m.dphi, m.valid, m.height, clipped_fraction=m.counts["clipped"] / px,  # type: ignore[arg-type]
+                                          hue_undefined_fraction=m.counts["hue_undefined"] / px,
+                                          table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
+                                          hue_model=hue_model)
             height, phase, hue, u_map = m.height, m.phase, m.hue, m.uncertainty
         else:
             budget = pixel_budget(t, cal) if budget is None else budget
@@ -538,13 +537,14 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
     spec = s.specimen
     if spec is None:
         raise ValueError(f"{s.root / 'session.yaml'}: no specimen block, nothing to evaluate")
-    maps = [read_tiff(p) for p in heights]
     range_mm = max(s.planes_mm) - min(s.planes_mm)
     edge = float(config["metrology"]["edge_exclusion"])
 
     def evaluate(paths: Sequence[str], **kw: Any) -> dict[str, Any]:
         try:
-            return metrology.evaluate_session([read_tiff(p) for p in paths], spec, s.pixel_pitch_mm,
+            # a generator: one height map in memory at a time (1000 frames held at once were
+            # 1.2 GB, twice over with the profile's list: 2.5 GB peak)
+            return metrology.evaluate_session((read_tiff(p) for p in paths), spec, s.pixel_pitch_mm,
                                               range_mm=range_mm, edge_exclusion=edge, **kw)
         except metrology.MetrologyError as exc:
             where = paths[exc.frame] if exc.frame is not None and exc.frame < len(paths) else s.root / "session.yaml"
@@ -552,7 +552,7 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
 
     method = evaluate(heights)
     if uncertainties:
-        add_step_uncertainty(method, maps, [read_tiff(p) for p in uncertainties], spec, s.pixel_pitch_mm,
+        add_step_uncertainty(method, _TiffMaps(heights), _TiffMaps(uncertainties), spec, s.pixel_pitch_mm,
                              PlaneCalibration.load(model), HueTable.load(object_table), edge_exclusion=edge,
                              denoise_radius=int(config["measurement"]["denoise_radius"]))
     base = evaluate(baseline, method="three-step-phase-shift") if baseline else None
@@ -583,13 +583,30 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
     doc = report.build_report_json(s.id, spec, method, base, extras=extras)
     # a profile through the middle of the steps' ROIs (paper Fig. 9 d)
     rows = [(st["roi"][1] + st["roi"][3]) // 2 for st in spec["steps"]]
-    rendering.profile_figure(maps[0], int(np.median(rows)), s.pixel_pitch_mm, profile,
+    rendering.profile_figure(read_tiff(heights[0]), int(np.median(rows)), s.pixel_pitch_mm, profile,
                              title=f"{s.id} frame {s.frame_ids[0]:04d}: cross-section")
     report.per_frame_figure(doc, per_frame)
     figures = {"profile": Path(profile), "height": Path(height_map), "render": Path(render),
                "per_frame": Path(per_frame), "calibration_qa": Path(cross_section)}
     write_json(json, doc)
     report.write_report_html(html, doc, figures, provenance, pixel_pitch_mm=s.pixel_pitch_mm)
+
+
+class _TiffMaps(Sequence):
+    """TIFF maps as a sequence that reads each one when it is taken (one map in memory at a time
+    while it is iterated: 1000 frames held at once are 1.2 GB per kind)."""
+
+    def __init__(self, paths: Sequence[str]):
+        self.paths = list(paths)
+
+    def __len__(self) -> int:
+        return len(self.paths)
+
+    def __getitem__(self, i):  # type: ignore[override]
+        if isinstance(i, slice):
+            return _TiffMaps(self.paths[i])
+        return read_tiff(self.paths[i])
+
 
 def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_mm: float,
            markdown: str, csv: str, figure: str, uncertainty_ratio: str = "") -> None:
