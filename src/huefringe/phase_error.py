@@ -286,7 +286,7 @@ def qa_figure(lut: PhaseErrorLUT, path: str, *, title: str = "") -> None:
     plt.close(fig)
 
 
-DEFAULTS: dict[str, Any] = {"enabled": True, "bins": 512, "iterations": 3, "smooth_bins": 1.5}
+DEFAULTS: dict[str, Any] = {"enabled": True, "bins": 512, "iterations": 3, "smooth_bins": 8.0}
 
 
 def from_calibration(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]],
