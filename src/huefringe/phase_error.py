@@ -153,48 +153,20 @@ def binned_median(phase: NDArray[np.floating], residual: NDArray[np.floating], b
     return med, counts
 
 
-def _row_unwrap(phi: NDArray[np.float64], valid: NDArray[np.bool_]) -> NDArray[np.float64]:
-    """Rows unwrapped along u over their valid pixels (``np.unwrap``), each row's 2 pi offset set
-    to the row above's (median over shared columns); NaN where invalid."""
-    out = np.full(phi.shape, np.nan)
-    prev = None
-    for v in range(phi.shape[0]):
-        ok = valid[v]
-        if ok.sum() < 2:
-            continue
-        row = np.full(phi.shape[1], np.nan)
-        row[ok] = np.unwrap(phi[v, ok])
-        if prev is not None:
-            both = np.isfinite(prev) & ok
-            if both.any():
-                row -= TWO_PI * np.round(np.median(row[both] - prev[both]) / TWO_PI)
-        out[v] = row
-        prev = row
-    return out
-
-
 def unwrap_planes(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]],
                   degree: int = 3, step: int = 2) -> dict[float, NDArray[np.float64]]:
     """Each plane's decoded phase unwrapped, NaN where invalid.
 
-    A plane's phase is smooth, so rows are unwrapped along u (:func:`_row_unwrap`), a robust
-    2-D polynomial (:func:`huefringe.height.fit_poly2d`, degree ``degree``) is fitted, and the
-    phase is taken as that fit plus the wrapped difference to it (twice), which repairs any row
-    slip; this is fast where a 2-D quality-guided unwrapper on a noisy, short-period plane is not
-    (a 320 x 240 plane at 20 px, 8 bit: minutes in ``skimage.restoration.unwrap_phase``). Done
+    A plane's phase is smooth: :func:`huefringe.height.unwrap_smooth` (rows, then a robust 2-D
+    polynomial of degree ``degree`` and the wrapped difference to it). Done
     once: a correction ``e(phi)`` (small, continuous, periodic) changes the unwrapped phase by
     ``-e(phi)`` and never its 2 pi offsets, so :func:`plane_residuals` reuses these maps."""
-    from huefringe.height import fit_poly2d
+    from huefringe.height import unwrap_smooth
 
     out = {}
     for z in sorted(plane_phases):
         phi = np.asarray(plane_phases[z], np.float64)
-        valid = np.asarray(plane_valid[z], bool) & np.isfinite(phi)
-        un = _row_unwrap(phi, valid)
-        for _ in range(2):
-            fit = fit_poly2d(un, valid, degree, step=step)
-            un = np.where(valid, fit + np.angle(np.exp(1j * (phi - fit))), np.nan)
-        out[z] = un
+        out[z] = unwrap_smooth(phi, np.asarray(plane_valid[z], bool) & np.isfinite(phi), degree, step=step)
     return out
 
 
