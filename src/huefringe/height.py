@@ -217,7 +217,7 @@ def calibrate_planes(
         else:
             # nearest plane: unwrap spatially (its difference may cross +-pi somewhere in the
             # field) and take the 2 pi offset that puts the median within (-pi, pi]
-            d = unwrap_rows(d, valid)
+            d = unwrap_rows(d, valid) if smooth_degree is None else unwrap_smooth(d, valid, smooth_degree)
             d -= 2 * np.pi * np.round(np.nanmedian(d[valid]) / (2 * np.pi))
             d = np.where(valid, d, 0.0)
         raw[z] = np.where(valid, d, np.nan)
