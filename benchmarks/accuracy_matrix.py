@@ -1,16 +1,18 @@
 """Accuracy on a harder bench: every case through the whole chain, each correction on and off.
 
-Usage: ./run python benchmarks/accuracy_matrix.py [--cases NAME ...] [--keep DIR]
+Usage: ./run python benchmarks/accuracy_matrix.py [--cases NAME ...] [--tuning] [--variants NAME ...] [--keep DIR]
 
 Each case is a bench preset plus overrides (plain and pre-distorted projection, periods 20-64 px,
 defocus 0.5-2 camera px, 64/96/256 bands x 1-3 repeats, per-channel gamma 1.8-2.5, crosstalk,
 multi-colour coatings with dark ones, a relief printed with a real photograph, 8 and 16 bit,
 vibration). Cases marked HOLD-OUT were never looked at while choosing the methods' settings:
-they only score. Every case is measured with ``stages.measure_session`` (the workflow's stages)
+they only score. Every case is measured with the workflow's stages (``hue_table`` once per case,
+then ``plane_calibration`` and ``measure_frames`` per variant, as ``stages.measure_session``)
 under the variants in ``VARIANTS``; errors are against the bench's ground truth (which only
 scores), averaged over the frames; ``coverage`` is the valid fraction of the pixels where the
 ground truth is defined (lit, unshadowed); gauge-block cases also print the worst step error
-(um) and the mean |step error| (%) from ``metrology.evaluate_session``. About 5-8 min on 2 cores.
+(um) and the mean |step error| (%) from ``metrology.evaluate_session``. About 10 min on a
+shared 2-core machine (6.2 min tuning, 4.3 min hold-outs at load 6-9).
 """
 
 from __future__ import annotations
