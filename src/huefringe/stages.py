@@ -154,7 +154,8 @@ def plane_calibration(session: str, table: str, hue_model: str, calibration: Map
                       model: str, stats: str, phase_error_table: str | None = None,
                       phase_error_figure: str | None = None, phase_error_summary: str | None = None) -> None:
     """Fit the per-pixel phase-to-height model on the calibration planes (after the phase-error
-    table, :mod:`huefringe.phase_error`, when ``calibration.phase_error.enabled``)."""
+    table, :mod:`huefringe.phase_error`, as ``calibration.phase_error.enabled`` decides; auto: the
+    leave-one-plane-out test)."""
     cal = session_plane_calibration(load_session(session), HueTable.load(table), hue_model, calibration,
                                     phase_error_table=phase_error_table, phase_error_figure=phase_error_figure,
                                     phase_error_summary=phase_error_summary)
@@ -170,7 +171,7 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     """The plane calibration of a session from its reference table, in memory (:func:`plane_calibration` writes it).
 
     The planes' phases are first corrected with the phase-error table learned from them
-    (:mod:`huefringe.phase_error`, when ``calibration.phase_error.enabled``); the table is kept
+    (:mod:`huefringe.phase_error`, as ``calibration.phase_error.enabled`` decides); the table is kept
     in ``cal.phase_error`` (applied to every frame) and its figures in ``cal.stats["phase_error"]``.
     The table, its summary and QA figure are written to the paths given.
 
@@ -287,6 +288,9 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     (which keeps it): the fused kernel with ``measurement.kernel`` and reference-relative
     unwrapping, :func:`~huefringe.perframe.measure_frame` otherwise. ``phase`` and ``hue`` are
     those of the frames in ``map_frames`` (default: all; None from the kernel for the others).
+    After either chain, ``measurement.edge_jump_mm`` > 0 invalidates the mixed pixels of step edges
+    (:func:`~huefringe.perframe.step_edge_mask`; ``stats["edge_fraction"]``), so the kernel and
+    :func:`~huefringe.perframe.measure_frame` stay identical to each other.
     Each frame is refused (:class:`~huefringe.perframe.FrameError`, naming it) before it is yielded.
     The kernel's arrays are reused from frame to frame: copy what you keep.
     """
