@@ -36,7 +36,9 @@ def test_measure_gives_ground_truth_heights(small_demo: Path) -> None:
         print(f"frame {n}: median |error| {acc['median_abs_mm']:.4f} mm, p95 {acc['p95_abs_mm']:.4f} mm")
         assert acc["median_abs_mm"] < 0.03, acc
         assert acc["p95_abs_mm"] < 0.12, acc
-        assert m.valid[m.frames.index(n)].mean() > 0.9
+        valid = m.valid[m.frames.index(n)].mean()
+        print(f"frame {n}: valid {valid:.3f}")
+        assert valid > 0.85  # the step-edge mask removes the mixed pixels around the three blocks
     assert m.calibration.phi_ref.shape == (150, 200)
     assert set(m.tables) == {"reference", "object"} and m.tables["object"].shape == (150, 200)
     assert m.config == defaults()  # nothing given: the packaged defaults

@@ -117,3 +117,19 @@ def test_kernel_stage_equals_reference_stage(tmp_path: Path) -> None:
     for key in ("heights", "phases", "hues", "qa"):
         for a, b in zip(outs[True][key], outs[False][key], strict=True):
             assert Path(a).read_bytes() == Path(b).read_bytes(), (key, a)
+
+
+def test_step_edge_mask_marks_both_sides_of_a_jump_only() -> None:
+    """Mixed pixels at a step: both pixels of a 4-neighbour pair differing by more than jump_mm;
+    a smooth slope below it and NaN neighbours are left alone; 0 switches it off."""
+    import numpy as np
+
+    from huefringe.perframe import step_edge_mask
+
+    h = np.tile(np.linspace(0.0, 1.0, 12, dtype=np.float32), (6, 1))  # 0.09 mm per pixel slope
+    h[:, 8:] += 2.0  # a 2 mm step between columns 7 and 8
+    h[0, 0] = np.nan
+    m = step_edge_mask(h, 0.25)
+    assert m[:, 7].all() and m[:, 8].all()
+    assert m.sum() == 12
+    assert not step_edge_mask(h, 0.0).any()

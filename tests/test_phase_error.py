@@ -127,3 +127,23 @@ def test_table_never_reads_ground_truth(plain_flat: Path, tmp_path: Path) -> Non
         with np.load(tmp_path / f"{name}.pe.npz") as z:
             outs.append(z["error"])
     np.testing.assert_array_equal(outs[0], outs[1])
+
+
+def test_holdout_check_applies_a_real_error_and_refuses_noise() -> None:
+    """``enabled: auto``: a table learned from two planes must lower the third plane's residual.
+    With an injected e(phi) it does (applied); with noise alone it does not (not applied)."""
+    phases, valid, _ = _planes()
+    check = phase_error.holdout_check(phases, valid, bins=256, smooth_bins=1.5)
+    assert check["helps"] and check["holdout_residual_rms_after_rad"] < 0.5 * check["holdout_residual_rms_before_rad"]
+    rng = np.random.default_rng(3)
+    v, u = np.mgrid[0:120, 0:200].astype(np.float64)
+    noisy = {z: np.mod(2 * np.pi * u / 23.0 + 0.35 * z + rng.normal(0, 0.02, u.shape), 2 * np.pi).astype(np.float32)
+             for z in (0.0, 3.0, 6.0)}
+    ones = {z: np.ones(u.shape, bool) for z in noisy}
+    check = phase_error.holdout_check(noisy, ones, bins=512, smooth_bins=1.5)
+    assert not check["helps"], check
+    cal = {"plane_smooth_degree": 3, "phase_error": {"enabled": "auto", "smooth_bins": 1.5}}
+    assert phase_error.from_calibration(noisy, ones, cal) is None
+    assert phase_error.from_calibration(phases, valid, cal) is not None
+    with pytest.raises(ValueError, match="true, false or auto"):
+        phase_error.from_calibration(phases, valid, {"phase_error": {"enabled": "yes"}})

@@ -56,6 +56,36 @@ def shadow_mask(white: NDArray[np.floating], fraction: float) -> NDArray[np.bool
     return level < fraction * float(np.percentile(level, 99))
 
 
+def step_edge_mask(height: NDArray[np.floating], jump_mm: float) -> NDArray[np.bool_]:
+    """Valid pixels next to a height jump: the mixed pixels of a step edge.
+
+    A pixel whose height differs from a valid 4-neighbour's by more than ``jump_mm`` sees (through
+    projector defocus and lens blur) two surfaces at different fringe phases: its colour is a
+    mixture and its height belongs to neither. Both pixels of such a pair are returned (True =
+    to invalidate). Smooth slopes steeper than ``jump_mm`` per pixel are cut too, so ``jump_mm``
+    must exceed the steepest real slope per pixel (0 returns an all-False mask).
+
+    Parameters
+    ----------
+    height : ndarray (H, W)
+        Height map, NaN where invalid.
+    jump_mm : float
+        Largest height difference between 4-neighbours kept (mm).
+    """
+    h = np.asarray(height, np.float32)
+    out = np.zeros(h.shape, bool)
+    if jump_mm <= 0:
+        return out
+    with np.errstate(invalid="ignore"):
+        dx = np.abs(h[:, 1:] - h[:, :-1]) > jump_mm  # NaN compares False: only valid pairs
+        dy = np.abs(h[1:, :] - h[:-1, :]) > jump_mm
+    out[:, 1:] |= dx
+    out[:, :-1] |= dx
+    out[1:, :] |= dy
+    out[:-1, :] |= dy
+    return out
+
+
 def clipped_mask(rgb: NDArray[np.floating], bit_depth: int) -> NDArray[np.bool_]:
     """Pixels with any channel at the sensor's maximum code."""
     top = 1.0 - 0.5 / (2**bit_depth - 1)

@@ -153,22 +153,53 @@ def binned_median(phase: NDArray[np.floating], residual: NDArray[np.floating], b
     return med, counts
 
 
+def unwrap_planes(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]],
+                  degree: int = 3, step: int = 2) -> dict[float, NDArray[np.float64]]:
+    """Each plane's decoded phase unwrapped, NaN where invalid.
+
+    A plane's phase is smooth: :func:`huefringe.height.unwrap_smooth` (rows, then a robust 2-D
+    polynomial of degree ``degree`` and the wrapped difference to it). Done
+    once: a correction ``e(phi)`` (small, continuous, periodic) changes the unwrapped phase by
+    ``-e(phi)`` and never its 2 pi offsets, so :func:`plane_residuals` reuses these maps."""
+    from huefringe.height import unwrap_smooth
+
+    out = {}
+    for z in sorted(plane_phases):
+        phi = np.asarray(plane_phases[z], np.float64)
+        out[z] = unwrap_smooth(phi, np.asarray(plane_valid[z], bool) & np.isfinite(phi), degree, step=step)
+    return out
+
+
+def table_at(phase: NDArray[np.floating], error: NDArray[np.float64]) -> NDArray[np.float64]:
+    """``e(phi)``: the table linear between its bin centres (periodic), float64, as :func:`correct_one`."""
+    n = error.size
+    x = np.asarray(phase, np.float64) * (n / TWO_PI) - 0.5
+    i0 = np.floor(x)
+    f = x - i0
+    i0 = np.nan_to_num(i0).astype(np.int64)
+    return (1.0 - f) * error[i0 % n] + f * error[(i0 + 1) % n]
+
+
 def plane_residuals(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]],
-                    degree: int = 3) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-    """Decoded phase and its residual against the plane's smooth 2-D fit, over all planes.
+                    degree: int = 3, step: int = 2, *, error: NDArray[np.float64] | None = None,
+                    unwrapped: dict[float, NDArray[np.float64]] | None = None,
+                    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Decoded phase and the residual of the corrected phase against the plane's smooth 2-D fit.
 
-    Each plane's phase is unwrapped (:func:`huefringe.phase.unwrap_rows`) and fitted with a
-    robust 2-D polynomial of total degree ``degree`` (:func:`huefringe.height.fit_poly2d`).
-    Returns the wrapped phases and residuals (rad) of the valid pixels, concatenated."""
+    Each plane's phase is unwrapped (``unwrapped``, from :func:`unwrap_planes`, or here),
+    corrected by ``error`` (``un - e(phi)``; none: uncorrected) and fitted with a robust 2-D
+    polynomial of total degree ``degree`` (:func:`huefringe.height.fit_poly2d`, sampled every
+    ``step`` pixels). Returns the decoded (uncorrected, wrapped) phases, the table's argument,
+    and the residuals (rad) of the valid pixels, concatenated over the planes."""
     from huefringe.height import fit_poly2d
-    from huefringe.phase import unwrap_rows
 
+    un_all = unwrapped if unwrapped is not None else unwrap_planes(plane_phases, plane_valid, degree, step)
     phis, res = [], []
     for z in sorted(plane_phases):
         phi = np.asarray(plane_phases[z], np.float64)
         valid = np.asarray(plane_valid[z], bool) & np.isfinite(phi)
-        un = unwrap_rows(phi, valid)
-        fit = fit_poly2d(un, valid, degree)
+        un = un_all[z] if error is None else un_all[z] - table_at(phi, error)
+        fit = fit_poly2d(un, valid, degree, step=step)
         r = un - fit
         keep = valid & np.isfinite(r)
         r = r[keep]
@@ -181,7 +212,8 @@ def plane_residuals(plane_phases: dict[float, NDArray[np.floating]], plane_valid
 
 def estimate(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]], *,
              degree: int = 3, bins: int = 512, iterations: int = 3, smooth_bins: float = 1.5,
-             min_count: int = 10) -> PhaseErrorLUT:
+             min_count: int = 10, fit_step: int = 2,
+             unwrapped: dict[float, NDArray[np.float64]] | None = None) -> PhaseErrorLUT:
     """Estimate the phase-error table ``e(phi)`` from the calibration planes (no ground truth).
 
     Parameters
@@ -197,6 +229,10 @@ def estimate(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[
         Fit, bin, correct rounds; each adds the binned residual left by the previous one.
     smooth_bins : float
         Standard deviation (bins) of the periodic Gaussian applied to each round's binned medians.
+    fit_step : int
+        Sampling step (pixels) of each plane's smooth fit.
+    unwrapped : dict, optional
+        The planes' unwrapped phases (:func:`unwrap_planes`), when the caller has them.
 
     Returns
     -------
@@ -208,13 +244,13 @@ def estimate(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[
         raise ValueError(f"bins must be >= 8, got {bins}")
     error = np.zeros(bins)
     phases = {z: np.asarray(p, np.float32) for z, p in plane_phases.items()}
+    if unwrapped is None:  # once: the corrections never change the 2 pi offsets
+        unwrapped = unwrap_planes(phases, plane_valid, degree, fit_step)
     before = None
     history = []
     for _ in range(max(int(iterations), 1)):
-        corrected = {z: correct(p, error) for z, p in phases.items()}
-        phi_c, r = plane_residuals(corrected, plane_valid, degree)
-        # bin by the *decoded* phase (the table's argument): map corrected samples back
-        phi_d = _uncorrect_lookup(phi_c, error)
+        # residuals of the corrected planes, binned by the *decoded* phase (the table's argument)
+        phi_d, r = plane_residuals(phases, plane_valid, degree, fit_step, error=error, unwrapped=unwrapped)
         med, counts = binned_median(phi_d, r, bins, min_count)
         if before is None:
             before = _fill_periodic(med)
@@ -222,9 +258,8 @@ def estimate(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[
         step = _circular_smooth(_fill_periodic(med), smooth_bins)
         history.append(float(np.sqrt(np.mean(step**2))))
         error = error + step
-    corrected = {z: correct(p, error) for z, p in phases.items()}
-    phi_c, r = plane_residuals(corrected, plane_valid, degree)
-    after, counts = binned_median(_uncorrect_lookup(phi_c, error), r, bins, min_count)
+    phi_d, r = plane_residuals(phases, plane_valid, degree, fit_step, error=error, unwrapped=unwrapped)
+    after, counts = binned_median(phi_d, r, bins, min_count)
     after = _fill_periodic(after)
     assert before is not None
     stats = {
@@ -242,21 +277,6 @@ def estimate(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[
         "round_step_rms_rad": history,
     }
     return PhaseErrorLUT(error, before, after, stats)
-
-
-def _uncorrect_lookup(phi_c: NDArray[np.floating], error: NDArray[np.float64]) -> NDArray[np.float64]:
-    """Approximate decoded phase of corrected samples: ``phi_c + e(phi_c)`` (one fixed-point step;
-    e is small and smooth)."""
-    if not np.any(error):
-        return np.asarray(phi_c, np.float64)
-    n = error.size
-    centres = (np.arange(n) + 0.5) * TWO_PI / n
-    ext_x = np.concatenate([centres - TWO_PI, centres, centres + TWO_PI])
-    ext_e = np.tile(error, 3)
-    p = np.asarray(phi_c, np.float64)
-    for _ in range(2):
-        p = np.mod(np.asarray(phi_c, np.float64) + np.interp(p, ext_x, ext_e), TWO_PI)
-    return p
 
 
 def qa_figure(lut: PhaseErrorLUT, path: str, *, title: str = "") -> None:
@@ -286,7 +306,43 @@ def qa_figure(lut: PhaseErrorLUT, path: str, *, title: str = "") -> None:
     plt.close(fig)
 
 
-DEFAULTS: dict[str, Any] = {"enabled": True, "bins": 512, "iterations": 3, "smooth_bins": 1.5}
+DEFAULTS: dict[str, Any] = {"enabled": "auto", "bins": 512, "iterations": 3, "smooth_bins": 8.0}
+
+
+def holdout_check(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]], *,
+                  degree: int = 3, **kw: Any) -> dict[str, Any]:
+    """Leave-one-plane-out test of the table: does it lower the error of a plane it did not see?
+
+    For each plane, a table is learned from the other planes (:func:`estimate`, same settings but
+    one round, which holds most of the table: later rounds add about a tenth, and fits sampled
+    every 4 pixels) and the held-out plane's residual against its smooth fit is measured without and with it.
+    Needs at least two planes (else ``{"planes": n}`` only). Returns the mean per-pixel residual
+    rms and binned (systematic) rms of the held-out planes before/after, and ``helps``: the
+    per-pixel rms after is below the rms before (the decision of ``enabled: auto``).
+    """
+    zs = sorted(plane_phases)
+    if len(zs) < 2:
+        return {"planes": len(zs)}
+    rms_b, rms_a, bin_b, bin_a = [], [], [], []
+    bins = int(kw.get("bins", 512))
+    unwrapped = unwrap_planes(plane_phases, plane_valid, degree, 4)
+    for z in zs:
+        train = {k: plane_phases[k] for k in zs if k != z}
+        lut = estimate(train, {k: plane_valid[k] for k in train}, degree=degree, **{**kw, "iterations": 1, "fit_step": 4},
+                       unwrapped={k: unwrapped[k] for k in train})
+        for err, rms, binned in ((None, rms_b, bin_b), (lut.error, rms_a, bin_a)):
+            phi_d, r = plane_residuals({z: plane_phases[z]}, {z: plane_valid[z]}, degree, 4, error=err,
+                                       unwrapped={z: unwrapped[z]})
+            med, _ = binned_median(phi_d, r, bins)
+            rms.append(float(np.sqrt(np.mean(r**2))))
+            binned.append(float(np.sqrt(np.nanmean(med**2))))
+    out = {"planes": len(zs),
+           "holdout_residual_rms_before_rad": float(np.mean(rms_b)),
+           "holdout_residual_rms_after_rad": float(np.mean(rms_a)),
+           "holdout_binned_rms_before_rad": float(np.mean(bin_b)),
+           "holdout_binned_rms_after_rad": float(np.mean(bin_a))}
+    out["helps"] = bool(out["holdout_residual_rms_after_rad"] < out["holdout_residual_rms_before_rad"])
+    return out
 
 
 def from_calibration(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]],
@@ -296,20 +352,28 @@ def from_calibration(plane_phases: dict[float, NDArray[np.floating]], plane_vali
 
     The table is always estimated and recorded (``phase_error`` .npz, ``summary`` .json,
     ``figure`` .png, each when given), so a run with the correction off still shows the error it
-    leaves; it is returned (to be applied) only when ``enabled``.
+    leaves; it is returned (to be applied) when ``enabled`` is true, or, with ``enabled: auto``
+    (the default), when the leave-one-plane-out test (:func:`holdout_check`) shows that a table
+    learned from the other planes lowers a plane's residual. The decision and its figures are in
+    the summary (``applied``, ``holdout``).
     """
     from huefringe.io import write_json
 
     opts = {**DEFAULTS, **dict(calibration.get("phase_error") or {})}
-    degree = calibration.get("plane_smooth_degree") or 3
-    lut = estimate(plane_phases, plane_valid, degree=int(degree), bins=int(opts["bins"]),
-                   iterations=int(opts["iterations"]), smooth_bins=float(opts["smooth_bins"]))
-    lut.stats["enabled"] = bool(opts["enabled"])
+    degree = int(calibration.get("plane_smooth_degree") or 3)
+    kw = {"bins": int(opts["bins"]), "iterations": int(opts["iterations"]), "smooth_bins": float(opts["smooth_bins"])}
+    lut = estimate(plane_phases, plane_valid, degree=degree, **kw)
+    mode = opts["enabled"]
+    if mode not in (True, False, "auto"):
+        raise ValueError(f"calibration.phase_error.enabled must be true, false or auto, got {mode!r}")
+    check = holdout_check(plane_phases, plane_valid, degree=degree, **kw) if mode == "auto" else {}
+    applied = bool(check.get("helps", True)) if mode == "auto" else bool(mode)
+    lut.stats.update({"enabled": mode, "applied": applied, "holdout": check})
     if phase_error:
         lut.save(phase_error)
     if summary:
         write_json(summary, lut.stats)
     if figure:
-        state = "applied" if opts["enabled"] else "NOT applied (calibration.phase_error.enabled: false)"
+        state = "applied" if applied else f"NOT applied (calibration.phase_error.enabled: {mode})"
         qa_figure(lut, figure, title=f"phase-dependent error on the calibration planes; table {state}")
-    return lut if opts["enabled"] else None
+    return lut if applied else None

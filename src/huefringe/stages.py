@@ -28,7 +28,7 @@ from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, 
 from huefringe.huetable import HueTable, HueTableError, build_table
 from huefringe import phase_error
 from huefringe.io import read_tiff, write_json, write_tiff
-from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, shadow_mask
+from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, shadow_mask, step_edge_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
 from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
 from huefringe.uncertainty import pixel_budget
@@ -156,7 +156,8 @@ def plane_calibration(session: str, table: str, hue_model: str, calibration: Map
                       model: str, stats: str, phase_error_table: str | None = None,
                       phase_error_figure: str | None = None, phase_error_summary: str | None = None) -> None:
     """Fit the per-pixel phase-to-height model on the calibration planes (after the phase-error
-    table, :mod:`huefringe.phase_error`, when ``calibration.phase_error.enabled``)."""
+    table, :mod:`huefringe.phase_error`, as ``calibration.phase_error.enabled`` decides; auto: the
+    leave-one-plane-out test)."""
     cal = session_plane_calibration(load_session(session), HueTable.load(table), hue_model, calibration,
                                     phase_error_table=phase_error_table, phase_error_figure=phase_error_figure,
                                     phase_error_summary=phase_error_summary)
@@ -172,7 +173,7 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     """The plane calibration of a session from its reference table, in memory (:func:`plane_calibration` writes it).
 
     The planes' phases are first corrected with the phase-error table learned from them
-    (:mod:`huefringe.phase_error`, when ``calibration.phase_error.enabled``); the table is kept
+    (:mod:`huefringe.phase_error`, as ``calibration.phase_error.enabled`` decides); the table is kept
     in ``cal.phase_error`` (applied to every frame) and its figures in ``cal.stats["phase_error"]``.
     The table, its summary and QA figure are written to the paths given.
 
@@ -300,6 +301,9 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     those of the frames in ``map_frames`` (default: all; None from the kernel for the others).
     ``uncertainty`` is the height's standard uncertainty map (mm, :mod:`huefringe.uncertainty`;
     None from the kernel with ``want_uncertainty=False``).
+    After either chain, ``measurement.edge_jump_mm`` > 0 invalidates the mixed pixels of step edges
+    (:func:`~huefringe.perframe.step_edge_mask`; ``stats["edge_fraction"]``), so the kernel and
+    :func:`~huefringe.perframe.measure_frame` stay identical to each other.
     Each frame is refused (:class:`~huefringe.perframe.FrameError`, naming it) before it is yielded.
     The kernel's arrays are reused from frame to frame: copy what you keep.
     """
@@ -335,6 +339,18 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                                 denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
                                 denoise_adaptive=measurement.get("denoise_adaptive"), budget=budget)
             height, phase, hue, stats, u_map = res.height, res.phase, res.hue, res.stats, res.uncertainty
+        jump = float(measurement.get("edge_jump_mm", 0.0) or 0.0)
+        if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
+            edge = step_edge_mask(height, jump)
+            height = np.where(edge, np.float32(np.nan), height).astype(np.float32)
+            if phase is not None:
+                phase = np.where(edge, np.float32(np.nan), phase).astype(np.float32)
+            if u_map is not None:
+                u_map = np.where(edge, np.float32(np.nan), u_map).astype(np.float32)
+            stats = dict(stats)
+            stats["edge_fraction"] = float(edge.mean())
+            stats["valid_fraction"] = float(np.count_nonzero(np.isfinite(height)) / height.size)
+            stats["median_height_mm"] = float(np.nanmedian(height)) if np.isfinite(height).any() else None
         _refuse_bad_frame(path, stats, measurement)
         yield n, height, phase, hue, stats, u_map
 
