@@ -195,6 +195,10 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
         ) from exc
     cal.phase_error = None if lut is None else lut.error
     cal.stats["phase_error"] = None if lut is None else lut.stats
+    if lut is not None:  # its residual on the planes (reported; not added to u: docs/uncertainty.md)
+        from huefringe.uncertainty import phase_error_residual_rad
+
+        cal.stats.setdefault("uncertainty", {})["phase_error_residual_u_rad"] = phase_error_residual_rad(lut.stats)
     return cal
 
 

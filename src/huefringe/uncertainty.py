@@ -43,14 +43,21 @@ from numpy.typing import NDArray
 from huefringe.huetable import band_smoothing_matrix
 
 __all__ = [
-    "TERMS", "PixelBudget", "calibration_terms", "conformance", "height_uncertainty", "pixel_budget",
-    "reliability", "split_terms", "step_budget", "table_interpolation_rad", "table_variance_factor",
+    "TERMS", "PixelBudget", "calibration_terms", "conformance", "height_uncertainty", "interpolation_bins",
+    "phase_error_residual_rad", "pixel_budget", "reliability", "split_terms", "step_budget",
+    "table_interpolation_rad", "table_variance_factor",
 ]
 
 TERMS = ("noise", "table", "interpolation", "reference", "model")
 """Names of the per-pixel terms, in the order of :func:`split_terms`."""
 GROUPS = {"noise": "independent", "table": "pixel", "interpolation": "pixel", "reference": "correlated",
           "model": "correlated"}
+
+#: Phase bins of the interpolation term: each pixel's error is taken in the bin its phase falls in.
+INTERP_BINS = 12
+#: Log code of the binned interpolation errors (uint8): ``q > 0`` means ``E0 2^(q / 16)`` rad.
+_INTERP_E0 = 1e-5
+_INTERP_LUT = np.concatenate([[0.0], _INTERP_E0 * 2.0 ** (np.arange(1, 256) / 16.0)]).astype(np.float32)
 
 #: Side (px) of the box over which the planes' residuals are averaged to tell their systematic
 #: part (a calibration error) from their pixel noise.
@@ -160,6 +167,52 @@ def table_interpolation_rad(table: Any, *, rows: int = 64) -> NDArray[np.float32
     return np.where(np.asarray(table.valid, bool), out, 0.0).astype(np.float32)
 
 
+def interpolation_bins(table: Any, *, bins: int = INTERP_BINS, rows: int = 64) -> NDArray[np.float32]:
+    """Per-pixel rms linear-interpolation error (rad) in each of ``bins`` equal code-phase bins,
+    ``(H, W, bins)``: the error of interval ``k`` (between entries ``k`` and ``k + 1``) is
+    ``|D2| / D1 * step / sqrt(120)`` with ``D2`` the mean of the second differences at its two
+    entries (see :func:`table_interpolation_rad`), and a bin holds the rms over its intervals.
+    A pixel's term is then the value of the bin its phase falls in, not the rms over its whole
+    table (where a few flattened bands near the sextant starts would dominate)."""
+    t = np.asarray(table.table)
+    n = t.shape[0]
+    step = 2.0 * np.pi / n
+    which = (np.arange(n) * bins) // n
+    out = np.zeros((*t.shape[1:], bins), np.float32)
+    for v0 in range(0, t.shape[1], rows):
+        c = t[:, v0 : v0 + rows].astype(np.int32)
+        d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768  # interval k: entries k, k + 1
+        d2 = np.roll(d1, -1, axis=0) - d1  # at entry k + 1
+        curv = 0.5 * (np.roll(d2, 1, axis=0) + d2)  # at the interval's two entries
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e = np.minimum(np.where(d1 > 0, np.abs(curv) / d1, 0.0) * step / math.sqrt(120.0), step)
+        for j in range(bins):
+            out[v0 : v0 + rows, :, j] = np.sqrt(np.mean(e[which == j] ** 2, axis=0))
+    return np.where(np.asarray(table.valid, bool)[..., None], out, 0.0).astype(np.float32)
+
+
+def _encode_interp(e: NDArray[np.floating]) -> NDArray[np.uint8]:
+    """Log code of :data:`_INTERP_LUT` (4.4 % steps; 0 below ``E0``), nearest in log."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = np.rint(16.0 * np.log2(np.asarray(e, np.float64) / _INTERP_E0))
+    return np.clip(np.nan_to_num(q, nan=0.0, neginf=0.0), 0, 255).astype(np.uint8)
+
+
+def phase_error_residual_rad(stats: Mapping[str, Any] | None) -> float:
+    """What the phase-error table leaves on the planes (rad), from its QA figures: the rms over
+    the bins of the median plane residual after the correction (``binned_rms_after_rad``),
+    less in quadrature its noise part (a median of ``samples / bins`` residuals of rms
+    ``residual_rms_after_rad``: variance ``(pi / 2) s^2 bins / samples``). Reported in
+    ``planes.json``; not added to u (``docs/uncertainty.md``: on the bench it over-predicts,
+    the planes' spatial misfit that the reference and model terms carry shows in its bins)."""
+    if not stats:
+        return 0.0
+    b = float(stats.get("binned_rms_after_rad", 0.0))
+    s = float(stats.get("residual_rms_after_rad", 0.0))
+    leak = 0.5 * math.pi * s * s * float(stats.get("bins", 0)) / max(float(stats.get("samples", 0)), 1.0)
+    return math.sqrt(max(b * b - leak, 0.0))
+
+
 @dataclass(eq=False)
 class PixelBudget:
     """Per-session inputs of the per-pixel budget: ``terms`` ``(5, H, W)`` float32 (planes, so
@@ -169,6 +222,11 @@ class PixelBudget:
 
     terms: NDArray[np.float32]
     table_factor: float
+    interp_bins: NDArray[np.uint8] | None = None
+    """``(H, W, INTERP_BINS)`` log codes of :func:`interpolation_bins` (None: ``terms[4]`` for
+    every phase)."""
+    phi_ref: NDArray[np.float32] | None = None
+    """The reference phase: a pixel's code phase is ``phi_ref + dphi``, which picks its bin."""
 
     @property
     def u_ref_rad(self) -> NDArray[np.float32]:
@@ -192,21 +250,40 @@ def pixel_budget(table: Any, cal: Any) -> PixelBudget:
         if name in bud:
             terms[k] = np.nan_to_num(np.asarray(bud[name], np.float32))
     terms[4] = table_interpolation_rad(table)
+    bins = _encode_interp(interpolation_bins(table))
     st = table.stats or {}
     opts = st.get("params", {}) if isinstance(st.get("params"), dict) else {}
     window = int(opts.get("smooth_window", 15))
     order = int(opts.get("smooth_order", 2))
     factor = table_variance_factor(table.n_bands, window, order, int(st.get("repeats", 1) or 1))
-    return PixelBudget(np.ascontiguousarray(terms), factor)
+    return PixelBudget(np.ascontiguousarray(terms), factor, np.ascontiguousarray(bins),
+                       np.ascontiguousarray(cal.phi_ref, np.float32))
+
+
+def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.float64]:
+    """Interpolation error (rad) at each pixel's phase, as the kernel picks it (float32 bin)."""
+    if budget.interp_bins is None:
+        return budget.terms[4].astype(np.float64)
+    k = budget.interp_bins.shape[-1]
+    d = np.nan_to_num(np.asarray(dphi, np.float32))
+    t = (budget.phi_ref + d) * np.float32(k / (2.0 * np.pi))
+    t = t - np.float32(k) * np.floor(t / np.float32(k))
+    kb = np.minimum(t.astype(np.int64), k - 1)
+    q = np.take_along_axis(budget.interp_bins, kb[..., None], axis=-1)[..., 0]
+    return _INTERP_LUT[q].astype(np.float64)
 
 
 # --------------------------------------------------------------------------------------------
 # per frame (called identically by perframe.measure_frame and kernel.frame_maps)
 # --------------------------------------------------------------------------------------------
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, out):  # pragma: no cover - numba
-    """Branch-free rows (LLVM vectorises them); NaN where not valid or without weight."""
+def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut, phi_ref, out):  # pragma: no cover
+    """Branch-free rows (LLVM vectorises them); NaN where not valid or without weight. The
+    interpolation error is that of the phase bin of ``phi_ref + dphi`` (``bins``, ``lut``)."""
     h, w = dphi.shape
+    nb = bins.shape[2]
+    kf = np.float32(nb)
+    to_bin = np.float32(nb / (2.0 * np.pi))
     tf = np.float32(1.0) + np.float32(table_factor)
     nan32 = np.float32(np.nan)
     zero = np.float32(0.0)
@@ -218,7 +295,9 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, out):  # p
         okv = valid[v]
         av = a[v]
         bv = b[v]
-        t0, t1, t2, t3, t4 = terms[0, v], terms[1, v], terms[2, v], terms[3, v], terms[4, v]
+        t0, t1, t2, t3 = terms[0, v], terms[1, v], terms[2, v], terms[3, v]
+        bv_ = bins[v]
+        pr = phi_ref[v]
         ov = out[v]
         for u in range(w):
             sw = sv[u]
@@ -231,7 +310,11 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, out):  # p
             g = abs(aa) * inv2
             ja = -d * inv2
             jb = ja * d
-            var = g * g / sw * tf + (g * t0[u]) ** 2 + (g * t4[u]) ** 2
+            t = (pr[u] + d) * to_bin
+            t = t - kf * np.floor(t / kf)
+            kb = min(np.int64(t), nb - 1)
+            t4 = lut[bv_[u, max(kb, 0)]]
+            var = g * g / sw * tf + (g * t0[u]) ** 2 + (g * t4) ** 2
             var += ja * ja * t1[u] + two * ja * jb * t2[u] + jb * jb * t3[u]
             r = np.sqrt(max(var, zero))
             ov[u] = r if ok else nan32
@@ -258,9 +341,15 @@ def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], val
     """
     if out is None:
         out = np.empty(np.shape(dphi), np.float32)
+    if budget.interp_bins is None:  # one bin: the table-wide figure for every phase
+        bins = _encode_interp(budget.terms[4])[..., None]
+        phi_ref = np.zeros(np.shape(dphi), np.float32)
+    else:
+        bins, phi_ref = budget.interp_bins, budget.phi_ref
     _uncertainty_kernel(np.ascontiguousarray(dphi, np.float32), np.ascontiguousarray(sumw, np.float32),
                         np.ascontiguousarray(valid, bool), np.ascontiguousarray(a, np.float32),
-                        np.ascontiguousarray(b, np.float32), budget.terms, np.float32(budget.table_factor), out)
+                        np.ascontiguousarray(b, np.float32), budget.terms, np.float32(budget.table_factor), bins,
+                        _INTERP_LUT, phi_ref, out)
     return out
 
 
@@ -283,7 +372,7 @@ def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArra
         ja = -d / den**2
         jb = ja * d
     out = {
-        "interpolation": g * t[4],
+        "interpolation": g * _interp_of(d, budget),
         "reference": g * t[0],
         "model": np.sqrt(np.maximum(ja * ja * t[1] + 2 * ja * jb * t[2] + jb * jb * t[3], 0.0)),
     }
