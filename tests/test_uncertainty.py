@@ -292,3 +292,50 @@ def test_step_uncertainty_in_report(still: dict) -> None:
     assert doc["verdict_with_uncertainty"] in ("PASS", "FAIL", "UNDECIDED")
     page = report.render_report_html(doc, {}, {})
     assert "Uncertainty budget" in page and "ISO 14253-1" in page
+
+
+def test_edge_floor_analytic() -> None:
+    """A tilted plane leaves u alone; next to a step of height H the floor is the 3 x 3 plane
+    residual: a window with one column at H has residual sum of squares 3 H^2 - H^2 - 1.5 H^2
+    = H^2 / 2 over 6 degrees of freedom (0.29 H); an invalid neighbour takes the general least
+    squares; NaN stays NaN."""
+    v, x = np.mgrid[0:20, 0:30].astype(np.float32)
+    plane = (0.1 * x + 0.05 * v).astype(np.float32)
+    valid = np.ones(plane.shape, bool)
+    u = np.full(plane.shape, 1e-3, np.float32)
+    out = uncertainty.edge_floor(plane, valid, u.copy())
+    np.testing.assert_allclose(out, 1e-3, atol=1e-6)
+    step = np.where(x >= 15, 2.0, 0.0).astype(np.float32)
+    out = uncertainty.edge_floor(step, valid, u.copy())
+    np.testing.assert_allclose(out[10, 14], np.sqrt(0.5 * 4.0 / 6.0), rtol=1e-5)
+    np.testing.assert_allclose(out[10, 15], np.sqrt(0.5 * 4.0 / 6.0), rtol=1e-5)
+    assert out[10, 12] == pytest.approx(1e-3)
+    # an invalid neighbour: the general path agrees with a direct least-squares fit
+    valid2 = valid.copy()
+    valid2[9, 13] = False
+    uu = u.copy()
+    uu[~valid2] = np.nan
+    out2 = uncertainty.edge_floor(step, valid2, uu)
+    yy, xx = np.mgrid[-1:2, -1:2]
+    m = valid2[9:12, 13:16].ravel()
+    A = np.column_stack([np.ones(9), xx.ravel(), yy.ravel()])[m]
+    z = step[9:12, 13:16].ravel()[m].astype(np.float64)
+    r = z - A @ np.linalg.lstsq(A, z, rcond=None)[0]
+    np.testing.assert_allclose(out2[10, 14], np.sqrt(np.sum(r**2) / (m.sum() - 3)), rtol=1e-4)
+    assert np.isnan(out2[9, 13])
+
+
+def test_interpolation_bins_pick_the_local_error() -> None:
+    """A table whose hue curve is straight except one curved stretch: the pixel's bins hold
+    the chord error there and zero elsewhere, and the uncertainty pass picks the bin of the
+    pixel's phase."""
+    n = 48
+    code = 2 * np.pi * np.arange(n) / n
+    hue = code + 0.05 * np.sin(6 * np.clip(code - np.pi, 0, np.pi / 6) * np.pi / (np.pi / 6) / 6)
+    counts = np.round(np.mod(hue, 2 * np.pi) * 65536 / (2 * np.pi)).astype(np.uint16)
+    tab = np.repeat(counts[:, None, None], 2, axis=2)
+    table = HueTable(model="hexcone", n_bands=n, table=tab, valid=np.ones((1, 2), bool),
+                     start=np.zeros((1, 2), np.uint16), reason=np.zeros((1, 2), np.uint8),
+                     noise_rad=np.full((1, 2), 0.01, np.float32), stats={"repeats": 1})
+    e = uncertainty.interpolation_bins(table, bins=12)[0, 0]
+    assert e[6] > 1e-4 and e[0] < 1e-5 and e[3] < 1e-5  # bin 6 = [pi, 7 pi / 6): the curved stretch

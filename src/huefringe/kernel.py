@@ -78,7 +78,7 @@ from huefringe.perframe import _hue_noise_kernel, capture_noise, sensor_model, s
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
-from huefringe.uncertainty import PixelBudget, height_uncertainty, pixel_budget
+from huefringe.uncertainty import PixelBudget, edge_floor, height_uncertainty, pixel_budget
 
 __all__ = ["FrameMaps", "Prepared", "frame_maps", "frame_to_height", "prepare"]
 
@@ -1044,7 +1044,7 @@ def frame_maps(
     if want_uncertainty:
         if prep.budget is None:
             raise ValueError("the prepared calibration has no uncertainty budget (kernel.prepare sets it)")
-        u_map = height_uncertainty(smooth, sumw, valid, prep.a, prep.b, prep.budget)
+        u_map = edge_floor(height, valid, height_uncertainty(smooth, sumw, valid, prep.a, prep.b, prep.budget))
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
               "guess_far": int(n_far)}
     return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map)

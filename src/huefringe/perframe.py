@@ -24,7 +24,7 @@ from huefringe.huetable import HueTable
 from huefringe import phase_error
 from huefringe.phase import adaptive_kwargs, denoise_phase, denoise_weight_sums, unwrap, wrap
 from huefringe.session import Predistortion
-from huefringe.uncertainty import PixelBudget, height_uncertainty, pixel_budget
+from huefringe.uncertainty import PixelBudget, edge_floor, height_uncertainty, pixel_budget
 
 __all__ = [
     "FrameError",
@@ -154,7 +154,8 @@ def measure_frame(
     height = np.where(valid, height, np.nan).astype(np.float32)
     if budget is None:
         budget = pixel_budget(table, cal)
-    u_map = height_uncertainty(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b, budget)
+    u_map = edge_floor(height, valid, height_uncertainty(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b,
+                                                         budget))
     stats = frame_stats(
         valid, height, un.flags,
         clipped_fraction=float(clipped.mean()),

@@ -476,8 +476,10 @@ def _height_limits(s: Session) -> tuple[float, float]:
     return (min(0.0, min(s.planes_mm)), max(s.planes_mm))
 
 
-def mesh(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str, stats: str) -> None:
-    """Triangle mesh of one height map (no bridging of jumps), cleaned, exported as PLY + STL."""
+def mesh(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str, stats: str,
+         uncertainty: str | None = None) -> None:
+    """Triangle mesh of one height map (no bridging of jumps), cleaned, exported as PLY + STL; the
+    PLY's vertices carry ``sigma_mm`` from the uncertainty map (:func:`huefringe.mesh.attach_sigma`)."""
     from huefringe import mesh as meshing
 
     s = load_session(session)
@@ -486,6 +488,8 @@ def mesh(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str,
     m = meshing.clean_mesh(m, min_island_faces=mesh["min_island_faces"])
     if mesh["decimate_faces"]:
         m = meshing.decimate(m, mesh["decimate_faces"])
+    if uncertainty is not None:
+        meshing.attach_sigma(m, read_tiff(uncertainty), s.pixel_pitch_mm)
     meshing.export_mesh(m, ply, stl)
     if meshing.stats_path(ply) != Path(stats):
         raise RuntimeError(f"mesh statistics went to {meshing.stats_path(ply)}, the workflow expects {stats}")

@@ -22,9 +22,15 @@ sensitivities ``J = (dh/da, dh/db) = -(dphi, dphi^2) / (a + b dphi)^2``:
 
     u_noise = G / sqrt(sum w)          sum of the filter's weights w = 1/sigma^2 it used
     u_table = u_noise sqrt(f_table)    f_table = smoothed entry variance / one capture's
-    u_interp = G u_interp_rad          rms linear-interpolation error of the pixel's table
+    u_interp = G u_interp_rad          rms linear-interpolation error of the pixel's table in
+                                       the code-phase bin of its own phase (12 bins)
     u_ref = G u_ref_rad                smoothed-reference error (fit noise + unmodelled misfit)
     u_model = sqrt(J C J^T)            C = covariance of (a, b) from the planes' errors
+
+The frame's hue noise (behind ``w``) comes from its own RGB signal through a shot + read noise
+model fitted on the hue bands' repeats (:func:`huefringe.perframe.frame_hue_noise`). After the
+root sum of squares, :func:`edge_floor` raises mixed pixels (steps, shadow borders) to the local
+scatter of the heights about their 3 x 3 plane.
 
 This module is pure: it never reads files and never imports the bench.
 """
@@ -43,8 +49,8 @@ from numpy.typing import NDArray
 from huefringe.huetable import band_smoothing_matrix
 
 __all__ = [
-    "TERMS", "PixelBudget", "calibration_terms", "conformance", "height_uncertainty", "interpolation_bins",
-    "phase_error_residual_rad", "pixel_budget", "reliability", "split_terms", "step_budget",
+    "TERMS", "PixelBudget", "calibration_terms", "conformance", "edge_floor", "height_uncertainty",
+    "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "reliability", "split_terms", "step_budget",
     "table_interpolation_rad", "table_variance_factor",
 ]
 
@@ -284,6 +290,7 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
     nb = bins.shape[2]
     kf = np.float32(nb)
     to_bin = np.float32(nb / (2.0 * np.pi))
+    t4row = np.empty(w, np.float32)
     tf = np.float32(1.0) + np.float32(table_factor)
     nan32 = np.float32(np.nan)
     zero = np.float32(0.0)
@@ -299,6 +306,13 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
         bv_ = bins[v]
         pr = phi_ref[v]
         ov = out[v]
+        for u in range(w):  # the gather of each pixel's bin first (scalar), so the next loop vectorises
+            ok = okv[u] & (sv[u] > zero)
+            d = dv[u] if ok else zero
+            t = (pr[u] + d) * to_bin
+            t = t - kf * np.floor(t / kf)
+            kb = min(np.int64(t), nb - 1)
+            t4row[u] = lut[bv_[u, max(kb, 0)]]
         for u in range(w):
             sw = sv[u]
             ok = okv[u] & (sw > zero)
@@ -310,11 +324,7 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
             g = abs(aa) * inv2
             ja = -d * inv2
             jb = ja * d
-            t = (pr[u] + d) * to_bin
-            t = t - kf * np.floor(t / kf)
-            kb = min(np.int64(t), nb - 1)
-            t4 = lut[bv_[u, max(kb, 0)]]
-            var = g * g / sw * tf + (g * t0[u]) ** 2 + (g * t4) ** 2
+            var = g * g / sw * tf + (g * t0[u]) ** 2 + (g * t4row[u]) ** 2
             var += ja * ja * t1[u] + two * ja * jb * t2[u] + jb * jb * t3[u]
             r = np.sqrt(max(var, zero))
             ov[u] = r if ok else nan32
@@ -351,6 +361,108 @@ def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], val
                         np.ascontiguousarray(b, np.float32), budget.terms, np.float32(budget.table_factor), bins,
                         _INTERP_LUT, phi_ref, out)
     return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _edge_floor_kernel(height, valid, u):  # pragma: no cover - numba
+    """In place: ``u = max(u, s)``, ``s`` the rms residual (``n - 3`` degrees of freedom) of the
+    valid heights of the 3 x 3 window about their least-squares plane (at least 5 pixels)."""
+    h, w = height.shape
+    zero = np.float32(0.0)
+    sixth = np.float32(1.0 / 6.0)
+    ninth = np.float32(1.0 / 9.0)
+    todo = np.zeros(w, np.bool_)
+    rrow = np.zeros(w, np.float32)
+    for v in range(1, h - 1):
+        # full windows (the common case): x, y in {-1, 0, 1}, sum x^2 = sum y^2 = 6, the plane's
+        # residual sum of squares in closed form; branch-free, so that LLVM vectorises the row
+        h0, h1, h2 = height[v - 1], height[v], height[v + 1]
+        m0, m1, m2 = valid[v - 1], valid[v], valid[v + 1]
+        uv = u[v]
+        for x in range(1, w - 1):
+            full = (m0[x - 1] & m0[x] & m0[x + 1]) & (m1[x - 1] & m1[x] & m1[x + 1]) & (m2[x - 1] & m2[x] & m2[x + 1])
+            hc = h1[x]
+            za = h0[x - 1] - hc
+            zb = h0[x] - hc
+            zc = h0[x + 1] - hc
+            zd = h1[x - 1] - hc
+            ze = h1[x + 1] - hc
+            zf = h2[x - 1] - hc
+            zg = h2[x] - hc
+            zh = h2[x + 1] - hc
+            sh = ((za + zb) + (zc + zd)) + ((ze + zf) + (zg + zh))
+            sxh = (zc + ze + zh) - (za + zd + zf)
+            syh = (zf + zg + zh) - (za + zb + zc)
+            shh = ((za * za + zb * zb) + (zc * zc + zd * zd)) + ((ze * ze + zf * zf) + (zg * zg + zh * zh))
+            ss = shh - sh * sh * ninth - (sxh * sxh + syh * syh) * sixth
+            r = np.sqrt(max(ss, zero) * sixth)
+            rrow[x] = r if full else zero
+            todo[x] = m1[x] & (not full)
+        for x in range(1, w - 1):
+            uv[x] = rrow[x] if rrow[x] > uv[x] else uv[x]  # NaN (not valid) stays NaN
+        for x in range(1, w - 1):  # windows with invalid pixels: the general least squares
+            if not todo[x]:
+                continue
+            n = zero
+            sx = zero
+            sy = zero
+            sxx = zero
+            syy = zero
+            sxy = zero
+            sh = zero
+            sxh = zero
+            syh = zero
+            shh = zero
+            hc = height[v, x]
+            for dv in range(-1, 2):
+                for du in range(-1, 2):
+                    m = valid[v + dv, x + du]
+                    z = height[v + dv, x + du] - hc if m else zero
+                    wgt = np.float32(1.0) if m else zero
+                    fx = np.float32(du) * wgt
+                    fy = np.float32(dv) * wgt
+                    n += wgt
+                    sx += fx
+                    sy += fy
+                    sxx += fx * du
+                    syy += fy * dv
+                    sxy += fx * dv
+                    sh += z
+                    sxh += fx * z
+                    syh += fy * z
+                    shh += z * z
+            # normal equations of z = c + gx x + gy y, by Cramer's rule
+            a11, a12, a13, a22, a23, a33 = n, sx, sy, sxx, sxy, syy
+            c11 = a22 * a33 - a23 * a23
+            c12 = a13 * a23 - a12 * a33
+            c13 = a12 * a23 - a13 * a22
+            det = a11 * c11 + a12 * c12 + a13 * c13
+            if n < np.float32(5.0) or det <= np.float32(1e-3):
+                continue
+            c22 = a11 * a33 - a13 * a13
+            c23 = a12 * a13 - a11 * a23
+            c33 = a11 * a22 - a12 * a12
+            b0 = (c11 * sh + c12 * sxh + c13 * syh) / det
+            b1 = (c12 * sh + c22 * sxh + c23 * syh) / det
+            b2 = (c13 * sh + c23 * sxh + c33 * syh) / det
+            ss = shh - (b0 * sh + b1 * sxh + b2 * syh)
+            s2 = max(ss, zero) / (n - np.float32(3.0))
+            r = np.float32(np.sqrt(s2))
+            u[v, x] = r if r > u[v, x] else u[v, x]
+
+
+def edge_floor(height: NDArray[np.float32], valid: NDArray[np.bool_], u: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Mixed pixels: raise ``u`` (in place) to the local scatter of the heights about their 3 x 3
+    least-squares plane where that is larger.
+
+    At a step edge or a cast-shadow border a pixel sees both surfaces (lens blur), and its hue,
+    phase and height lie between them: an error the noise and calibration terms do not hold. A
+    smooth surface (plane or gentle slope) leaves the residual at its noise, below ``u``; a step
+    of height ``H`` gives ``H / sqrt(12) = 0.29 H`` next to it. Called by the reference chain and
+    the kernel alike on the float32 height map.
+    """
+    _edge_floor_kernel(np.ascontiguousarray(height, np.float32), np.ascontiguousarray(valid, bool), u)
+    return u
 
 
 def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArray[np.floating],
