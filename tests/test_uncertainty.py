@@ -218,7 +218,14 @@ def test_frame_noise_term_matches_frame_to_frame_spread(still: dict) -> None:
     std, noise, ok = _noise_ratio(paths)
     ratio = std[ok] / noise[ok]
     assert abs(float(np.median(ratio)) - 1.0) < 0.15, float(np.median(ratio))
-    rms = float(np.sqrt(np.mean(std[ok] ** 2) / np.mean(noise[ok] ** 2)))
+    # the rms without the pixels next to the steps (2 px: ground truth only selects them), where
+    # the edge floor raises u and split_terms gives that excess to the noise term
+    from scipy import ndimage
+
+    sess = load_session(still["session"])
+    gt = read_tiff(sess.ground_truth[sess.frame_ids[0]])
+    m = ok & ((ndimage.maximum_filter(gt, 5) - ndimage.minimum_filter(gt, 5)) < 0.05)
+    rms = float(np.sqrt(np.mean(std[m] ** 2) / np.mean(noise[m] ** 2)))
     assert abs(rms - 1.0) < 0.15, rms
     # and the calibration terms are there; unfiltered 0.8 mm pixels: about 0.1 mm (measured 0.103)
     terms = uncertainty.split_terms(us[0], hs[0], cal.a, cal.b, bud)

@@ -363,9 +363,14 @@ def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], val
     return out
 
 
+#: The edge floor acts where the 3 x 3 residual exceeds this many u: noise alone (6 degrees of
+#: freedom) gets there with probability 6e-4, a mixed pixel next to a step of height H >> u does.
+EDGE_SIGNIFICANCE = np.float32(2.0)
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _edge_floor_kernel(height, valid, u):  # pragma: no cover - numba
-    """In place: ``u = max(u, s)``, ``s`` the rms residual (``n - 3`` degrees of freedom) of the
+    """In place: ``u = s`` where ``s > EDGE_SIGNIFICANCE u``, ``s`` the rms residual (``n - 3`` degrees of freedom) of the
     valid heights of the 3 x 3 window about their least-squares plane (at least 5 pixels)."""
     h, w = height.shape
     zero = np.float32(0.0)
@@ -399,7 +404,7 @@ def _edge_floor_kernel(height, valid, u):  # pragma: no cover - numba
             rrow[x] = r if full else zero
             todo[x] = m1[x] & (not full)
         for x in range(1, w - 1):
-            uv[x] = rrow[x] if rrow[x] > uv[x] else uv[x]  # NaN (not valid) stays NaN
+            uv[x] = rrow[x] if rrow[x] > EDGE_SIGNIFICANCE * uv[x] else uv[x]  # NaN (not valid) stays NaN
         for x in range(1, w - 1):  # windows with invalid pixels: the general least squares
             if not todo[x]:
                 continue
@@ -448,12 +453,13 @@ def _edge_floor_kernel(height, valid, u):  # pragma: no cover - numba
             ss = shh - (b0 * sh + b1 * sxh + b2 * syh)
             s2 = max(ss, zero) / (n - np.float32(3.0))
             r = np.float32(np.sqrt(s2))
-            u[v, x] = r if r > u[v, x] else u[v, x]
+            u[v, x] = r if r > EDGE_SIGNIFICANCE * u[v, x] else u[v, x]
 
 
 def edge_floor(height: NDArray[np.float32], valid: NDArray[np.bool_], u: NDArray[np.float32]) -> NDArray[np.float32]:
     """Mixed pixels: raise ``u`` (in place) to the local scatter of the heights about their 3 x 3
-    least-squares plane where that is larger.
+    least-squares plane where that exceeds ``EDGE_SIGNIFICANCE`` (2) times ``u`` (noise alone
+    rarely does: with unfiltered heights it would otherwise count the noise twice).
 
     At a step edge or a cast-shadow border a pixel sees both surfaces (lens blur), and its hue,
     phase and height lie between them: an error the noise and calibration terms do not hold. A
