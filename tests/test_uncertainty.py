@@ -206,8 +206,8 @@ def test_frame_hue_noise_matches_monte_carlo(model: str) -> None:
 def test_frame_noise_term_matches_frame_to_frame_spread(still: dict) -> None:
     """Per-pixel std of the height over 40 noise draws of the same still scene = the noise term
     of the written uncertainty maps (the frame's own hue noise from the sensor model), without
-    the filter: median and rms ratio within 15 % (measured 0.95 and 0.99; 1.11 with the
-    pooled hue noise)."""
+    the filter: median ratio within 15 % (measured 0.91; 1.11 with the pooled hue noise), and
+    the rms ratio 2 px or more from the steps (measured 0.97)."""
     paths = still["paths"]
     hs = np.array([read_tiff(p) for p in paths["heights"]], np.float64)
     us = np.array([read_tiff(p) for p in paths["uncertainties"]], np.float64)
