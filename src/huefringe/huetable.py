@@ -85,6 +85,7 @@ __all__ = [
     "HueTable",
     "band_smoothing_matrix",
     "build_table",
+    "fit_sensor_noise",
     "hue_band_paths",
     "table_nbytes",
 ]
@@ -671,6 +672,97 @@ class _Reader:
         return self.pending.pop((i, r)).result()
 
 
+#: Stride (px, both axes) of the pixels whose repeats feed the sensor-noise fit; signal bins.
+_NOISE_STRIDE = 3
+_NOISE_BINS = 64
+
+
+class _RepeatStats:
+    """Per-channel temporal variance of the band repeats against their mean signal (a subsample
+    of pixels, binned by signal) for :func:`fit_sensor_noise`."""
+
+    def __init__(self, h: int, w: int, repeats: int) -> None:
+        self.repeats = repeats
+        shape = (len(range(0, h, _NOISE_STRIDE)), len(range(0, w, _NOISE_STRIDE)), 3)
+        self.s1 = np.zeros(shape)
+        self.s2 = np.zeros(shape)
+        self.lo = np.full(shape, np.inf)
+        self.hi = np.full(shape, -np.inf)
+        self.var_sum = np.zeros((3, _NOISE_BINS))
+        self.sig_sum = np.zeros((3, _NOISE_BINS))
+        self.count = np.zeros((3, _NOISE_BINS))
+        self.top = None
+
+    def add(self, img: NDArray[np.floating]) -> None:
+        x = np.asarray(img[::_NOISE_STRIDE, ::_NOISE_STRIDE], np.float64)
+        self.s1 += x
+        self.s2 += x * x
+        np.minimum(self.lo, x, out=self.lo)
+        np.maximum(self.hi, x, out=self.hi)
+
+    def end_band(self) -> None:
+        r = self.repeats
+        if r >= 2:
+            mean = self.s1 / r
+            var = np.maximum(self.s2 - r * mean * mean, 0.0) / (r - 1)
+            # repeats clipped at either end of the sensor's range have a truncated spread
+            ok = (self.lo > 0.0) & (self.hi < 1.0)
+            idx = np.minimum((mean * _NOISE_BINS).astype(np.int64), _NOISE_BINS - 1)
+            for c in range(3):
+                m = ok[..., c]
+                k = idx[..., c][m]
+                self.var_sum[c] += np.bincount(k, var[..., c][m], _NOISE_BINS)
+                self.sig_sum[c] += np.bincount(k, mean[..., c][m], _NOISE_BINS)
+                self.count[c] += np.bincount(k, minlength=_NOISE_BINS)
+        self.s1[:] = 0.0
+        self.s2[:] = 0.0
+        self.lo[:] = np.inf
+        self.hi[:] = -np.inf
+
+    def fit(self) -> dict[str, Any] | None:
+        return fit_sensor_noise(self.sig_sum, self.var_sum, self.count, self.repeats)
+
+
+def fit_sensor_noise(sig_sum: NDArray[np.floating], var_sum: NDArray[np.floating], count: NDArray[np.floating],
+                     repeats: int, min_count: int = 50) -> dict[str, Any] | None:
+    """Shot + read noise model ``var_c = gain_c * signal + read_c`` per channel (signal and
+    variance in units of the full scale, [0, 1]) from binned repeat statistics.
+
+    ``sig_sum``, ``var_sum``, ``count`` ``(3, bins)``: per signal bin the sums of the repeats'
+    mean signal and of their unbiased temporal variance, and the number of pixel-bands. A
+    weighted least-squares line through the bins' mean variances (weights ``count / var^2``: a
+    sample variance of ``R`` repeats has relative variance ``2 / (R - 1)``); slope and intercept
+    are kept non-negative. ``None`` without repeats (``R < 2``) or with fewer than two usable
+    bins. ``rel_rms`` is the rms relative misfit of the bins (a check that the model holds).
+    """
+    if repeats < 2:
+        return None
+    gain, read, rel = [], [], []
+    nbins = 0
+    for c in range(3):
+        m = count[c] >= min_count
+        if np.count_nonzero(m) < 2:
+            return None
+        s = sig_sum[c][m] / count[c][m]
+        v = var_sum[c][m] / count[c][m]
+        wgt = count[c][m] / np.maximum(v, 1e-30) ** 2
+        a = np.stack([s, np.ones_like(s)], axis=1)
+        sw = np.sqrt(wgt)
+        g, r = np.linalg.lstsq(a * sw[:, None], v * sw, rcond=None)[0]
+        if r < 0:  # through the origin
+            g, r = float(np.sum(wgt * s * v) / np.sum(wgt * s * s)), 0.0
+        if g < 0:  # read noise only
+            g, r = 0.0, float(np.sum(wgt * v) / np.sum(wgt))
+        r = max(float(r), 1e-12)
+        gain.append(float(g))
+        read.append(r)
+        rel.append(float(np.sqrt(np.average(((g * s + r) / v - 1.0) ** 2, weights=count[c][m]))))
+        nbins += int(np.count_nonzero(m))
+    return {"model": "variance = gain * signal + read (full scale = 1)", "gain": gain, "read": read,
+            "rel_rms": rel, "bins": nbins, "samples": int(np.sum(count)), "repeats": int(repeats),
+            "stride_px": _NOISE_STRIDE}
+
+
 def build_table(
     band_paths: Sequence[Sequence[str | os.PathLike[str]]],
     white: NDArray[np.floating],
@@ -780,6 +872,7 @@ def build_table(
         from tqdm import tqdm
 
         bands = tqdm(bands, desc="hue bands", unit="band")
+    repeat_stats = _RepeatStats(h, w, n_rep)
     with _Reader(read, band_paths, prefetch) as reader:
         for i in bands:
             for r, path in enumerate(band_paths[i]):
@@ -787,8 +880,10 @@ def build_table(
                 if img.shape != (h, w, 3):
                     raise ValueError(f"{path}: image shape {img.shape} differs from white {white.shape}")
                 colour.balanced_hue(img, gains, model, min_saturation=min_saturation, out=hues[r])
+                repeat_stats.add(img)
                 del img
             _accumulate_kernel(hues, tab[i], var_sum, dof_map, missing)
+            repeat_stats.end_band()
     del hues
 
     reason[(reason == 0) & missing] = _R_LOW_SAT
@@ -817,6 +912,7 @@ def build_table(
             "median": float(np.median(sv)) if sv.size else None,
             "p95": float(np.percentile(sv, 95)) if sv.size else None,
         },
+        "sensor_noise": repeat_stats.fit(),
         "table_bytes": int(table.nbytes),
         "params": {
             "min_saturation": float(min_saturation),

@@ -74,11 +74,11 @@ from numpy.typing import NDArray
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
-from huefringe.perframe import capture_noise, shadow_mask, sigma_from_slope
+from huefringe.perframe import _hue_noise_kernel, capture_noise, sensor_model, shadow_mask, sigma_from_slope
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
-from huefringe.uncertainty import PixelBudget, height_uncertainty, pixel_budget
+from huefringe.uncertainty import PixelBudget, edge_floor, height_uncertainty, pixel_budget
 
 __all__ = ["FrameMaps", "Prepared", "frame_maps", "frame_to_height", "prepare"]
 
@@ -148,6 +148,9 @@ class Prepared:
     stats: dict[str, Any] = field(default_factory=dict)
     budget: PixelBudget | None = None
     """Session inputs of the per-pixel height uncertainty (:func:`huefringe.uncertainty.pixel_budget`)."""
+    sensor: NDArray[np.float32] | None = None
+    """The table's shot + read noise model (``perframe.sensor_model``): with it each frame's own
+    hue noise (``perframe.frame_hue_noise``) replaces ``noise`` in the denoise weights."""
 
     @property
     def nbytes(self) -> int:
@@ -268,6 +271,7 @@ def prepare(
     if getattr(cal, "phase_error", None) is not None:
         prep.phase_error = np.ascontiguousarray(cal.phase_error, dtype=np.float64)
     prep.budget = pixel_budget(table, cal)
+    prep.sensor = sensor_model(table)
     prep.stats = {
         "table_invalid_fraction": float(np.mean(~np.asarray(table.valid, bool))),
         "shadow_fraction": float(shadow_arr.mean()),
@@ -1016,10 +1020,14 @@ def frame_maps(
         y = np.empty((h, w), dtype=np.float32)
         _hsi_xy(a, np.float32(scale), prep.gains, x, y)
         atan = np.arctan2(y, x, out=y)
+    noise = prep.noise
+    if weights is not None and prep.sensor is not None:  # this frame's own hue noise (as measure_frame)
+        noise = np.empty((h, w), dtype=np.float64)
+        _hue_noise_kernel(a, np.float32(scale), prep.gains, hsi, prep.sensor, prep.noise, noise)
     n_clip, n_undef, n_valid, n_miss, n_far = _frame_kernel(
         a, np.float32(scale), np.float32(top), float(top), prep.gains, prep.ok, prep.cols.reshape(-1),
         prep.heads.reshape(-1), prep.guess, prep.tiles_x, prep.n_bands, prep.start, prep.phi_ref, prep.a, prep.b,
-        prep.noise, atan, np.float32(prep.min_saturation), prep.min_saturation > 0.0, prep.floor_slope,
+        noise, atan, np.float32(prep.min_saturation), prep.min_saturation > 0.0, prep.floor_slope,
         prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, prep.phase_error, height, valid, dphi, weights,
         phase, hue,
     )
@@ -1036,7 +1044,7 @@ def frame_maps(
     if want_uncertainty:
         if prep.budget is None:
             raise ValueError("the prepared calibration has no uncertainty budget (kernel.prepare sets it)")
-        u_map = height_uncertainty(smooth, sumw, valid, prep.a, prep.b, prep.budget)
+        u_map = edge_floor(height, valid, height_uncertainty(smooth, sumw, valid, prep.a, prep.b, prep.budget))
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
               "guess_far": int(n_far)}
     return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map)

@@ -52,6 +52,7 @@ from huefringe.cloud import _check_colours, _check_height
 from huefringe.io import atomic_path, write_json
 
 __all__ = [
+    "attach_sigma",
     "boundary_loops",
     "clean_mesh",
     "decimate",
@@ -241,6 +242,30 @@ def height_to_mesh(
     mesh.metadata.update(
         pitch_mm=float(pitch_mm), jump_mm=float(jump_mm), noise_mm=used_noise, grid_shape=(int(H), int(W))
     )
+    return mesh
+
+
+def attach_sigma(mesh: trimesh.Trimesh, sigma: NDArray[np.floating], pitch_mm: float | None = None) -> trimesh.Trimesh:
+    """Give every vertex the height uncertainty ``sigma_mm`` of its pixel (in place; returned).
+
+    The value of the uncertainty map at the vertex's pixel: exact for grid meshes, also after
+    :func:`clean_mesh` (its pinch-split copies keep their pixel); after :func:`decimate`, whose
+    vertices leave the grid, the nearest pixel. Written by :func:`export_mesh` as two float
+    vertex properties with the same values: ``sigma_mm`` (Open3D's tensor reader,
+    ``o3d.t.io.read_point_cloud``, and trimesh read it) and ``quality`` (MeshLab's per-vertex
+    scalar; MeshLab ignores other names).
+    """
+    if pitch_mm is None:
+        pitch_mm = mesh.metadata.get("pitch_mm")
+        if pitch_mm is None:
+            raise ValueError("pitch_mm not given and not in mesh.metadata")
+    s = np.asarray(sigma, np.float32)
+    xy = np.asarray(mesh.vertices)[:, :2] / float(pitch_mm)
+    u = np.clip(np.rint(xy[:, 0]).astype(np.intp), 0, s.shape[1] - 1)
+    v = np.clip(np.rint(xy[:, 1]).astype(np.intp), 0, s.shape[0] - 1)
+    values = s[v, u]
+    mesh.vertex_attributes["sigma_mm"] = values
+    mesh.vertex_attributes["quality"] = values
     return mesh
 
 
@@ -734,7 +759,13 @@ def export_mesh(
     ply_path = Path(ply_path)
     if ply_path.suffix.lower() != ".ply":
         raise ValueError(f"{ply_path}: expected a .ply file name")
-    data = trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=False, include_attributes=False)
+    with_sigma = "sigma_mm" in mesh.vertex_attributes  # attach_sigma's two properties, nothing else
+    if with_sigma:
+        keep = {k: mesh.vertex_attributes[k] for k in ("sigma_mm", "quality")}
+        mesh = mesh.copy()
+        mesh.vertex_attributes.clear()
+        mesh.vertex_attributes.update(keep)
+    data = trimesh.exchange.ply.export_ply(mesh, encoding="binary", vertex_normal=False, include_attributes=with_sigma)
     with atomic_path(ply_path) as tmp:
         tmp.write_bytes(data)
     if stl_path is not None:

@@ -8,6 +8,7 @@ shares its compiled pieces (:func:`sigma_from_slope`, :func:`capture_noise`,
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import Any
@@ -17,23 +18,25 @@ import numpy as np
 from numpy.typing import NDArray
 
 from huefringe.colour import hue as hue_of
-from huefringe.colour import intensity, white_balance
+from huefringe.colour import intensity, white_balance, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
 from huefringe import phase_error
 from huefringe.phase import adaptive_kwargs, denoise_phase, denoise_weight_sums, unwrap, wrap
 from huefringe.session import Predistortion
-from huefringe.uncertainty import PixelBudget, height_uncertainty, pixel_budget
+from huefringe.uncertainty import PixelBudget, edge_floor, height_uncertainty, pixel_budget
 
 __all__ = [
     "FrameError",
     "FrameResult",
     "capture_noise",
     "clipped_mask",
+    "frame_hue_noise",
     "frame_stats",
     "measure_frame",
     "phase_sigma",
     "reference_frame_stats",
+    "sensor_model",
     "shadow_mask",
     "sigma_from_slope",
 ]
@@ -167,7 +170,8 @@ def measure_frame(
         valid &= ~shadow
     dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
     un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
-    sigma = phase_sigma(table, slope)
+    noise = frame_hue_noise(table, rgb, white_gains(white), hue_model)  # this frame's own signal
+    sigma = phase_sigma(table, slope, noise=noise)
     if predistortion is not None:
         sigma = sigma * np.abs(predistortion.decode_slope(emitted))
     sumw = np.zeros(valid.shape, np.float32)
@@ -181,7 +185,8 @@ def measure_frame(
     height = np.where(valid, height, np.nan).astype(np.float32)
     if budget is None:
         budget = pixel_budget(table, cal)
-    u_map = height_uncertainty(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b, budget)
+    u_map = edge_floor(height, valid, height_uncertainty(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b,
+                                                         budget))
     stats = frame_stats(
         valid, height, un.flags,
         clipped_fraction=float(clipped.mean()),
@@ -221,15 +226,18 @@ def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Ma
     }
 
 
-def phase_sigma(table: HueTable, slope: NDArray[np.floating], floor_slope: float = 0.05) -> NDArray[np.float64]:
+def phase_sigma(table: HueTable, slope: NDArray[np.floating], floor_slope: float = 0.05,
+                noise: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """Per-pixel standard deviation (rad) of the code phase decoded from one capture.
 
-    ``sigma_hue / slope``: the hue noise of one capture (the standard error of the bands' mean
-    times sqrt(repeats)) over the local slope d(captured hue)/d(code phase) of the pixel's table
-    (:meth:`HueTable.hue_slope` at the captured hue), floored at ``floor_slope``.
+    ``sigma_hue / slope``: the hue noise of one capture over the local slope d(captured
+    hue)/d(code phase) of the pixel's table (:meth:`HueTable.hue_slope` at the captured hue),
+    floored at ``floor_slope``. ``noise`` is the hue noise (rad) per pixel, e.g. the frame's own
+    (:func:`frame_hue_noise`); default the table's pooled figure (:func:`capture_noise`).
     """
     slope = np.where(np.isfinite(slope), slope, 1.0)  # (invalid pixels only: the kernel leaves them out)
-    noise = capture_noise(table)
+    if noise is None:
+        noise = capture_noise(table)
     out = np.empty(noise.shape, np.float64)
     _phase_sigma_map(noise, np.ascontiguousarray(slope, dtype=np.float64), float(floor_slope), out)
     return out
@@ -400,3 +408,88 @@ def _median_keys(keys, n):  # pragma: no cover - numba
         return np.float64(hi)
     lo = _key_value(_select_key(keys, n, n // 2 - 1, hist))
     return np.float64((lo + hi) / np.float32(2.0))
+
+
+# --------------------------------------------------------------------------- sensor noise
+
+
+def sensor_model(table: HueTable) -> NDArray[np.float32] | None:
+    """The table's shot + read noise model as float32 ``(2, 3)``: per channel ``gain`` (row 0)
+    and ``read`` (row 1) of ``variance = gain * signal + read`` (full scale 1), fitted on the
+    hue bands' repeats (:func:`huefringe.huetable.fit_sensor_noise`); None when the table has
+    none (one repeat, or a table built before the model existed)."""
+    m = (table.stats or {}).get("sensor_noise")
+    if not m:
+        return None
+    return np.ascontiguousarray(np.array([m["gain"], m["read"]], np.float32))
+
+
+def frame_hue_noise(table: HueTable, rgb: NDArray[Any], gains: NDArray[np.float32], hue_model: str,
+                    scale: float = 1.0) -> NDArray[np.float64]:
+    """Per-pixel hue noise (rad) of this capture, from its own signal and the sensor-noise model.
+
+    Each channel's variance ``gain_c * signal_c + read_c`` (:func:`sensor_model`), times the
+    white-balance gain squared, propagated through the hue formula by its first derivatives
+    (hexcone: ``(pi/3)^2 (v_mid C^2 + v_max (mid - min)^2 + v_min (max - mid)^2) / C^4``,
+    ``C = max - min``; HSI: the gradient of ``atan2(y, x)``). Where the table has no model, or
+    the hue is undefined, the table's pooled figure (:func:`capture_noise`). ``rgb``: the frame
+    as the kernel receives it (float in [0, 1], or integer codes with their ``scale``); the
+    fused kernel calls the same compiled loop, so both agree bit for bit.
+    """
+    fallback = capture_noise(table)
+    model = sensor_model(table)
+    if model is None:
+        return fallback
+    out = np.empty(fallback.shape, np.float64)
+    _hue_noise_kernel(np.ascontiguousarray(rgb), np.float32(scale), np.ascontiguousarray(gains, np.float32),
+                      hue_model == "hsi", model, fallback, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _hue_noise_kernel(rgb, scale, gains, hsi, model, fallback, out):  # pragma: no cover - compiled
+    """:func:`frame_hue_noise`'s loop; branch-free rows (selects), so that LLVM vectorises them."""
+    h, w, _ = rgb.shape
+    k0, k1, k2 = model[0, 0], model[0, 1], model[0, 2]
+    r0, r1, r2 = model[1, 0], model[1, 1], model[1, 2]
+    k3 = np.float32(math.sqrt(3.0) / 2.0)
+    half = np.float32(0.5)
+    zero = np.float32(0.0)
+    third2 = np.float32((np.pi / 3.0) ** 2)
+    for v in range(h):
+        px = rgb[v].reshape(-1)
+        gn = gains[v].reshape(-1)
+        fb = fallback[v]
+        ov = out[v]
+        for u in range(w):
+            f0 = np.float32(px[3 * u]) * scale
+            f1 = np.float32(px[3 * u + 1]) * scale
+            f2 = np.float32(px[3 * u + 2]) * scale
+            g0, g1, g2 = gn[3 * u], gn[3 * u + 1], gn[3 * u + 2]
+            r = f0 * g0
+            g = f1 * g1
+            bl = f2 * g2
+            vr = (k0 * f0 + r0) * (g0 * g0)
+            vg = (k1 * f1 + r1) * (g1 * g1)
+            vb = (k2 * f2 + r2) * (g2 * g2)
+            if hsi:
+                xx = r - half * (g + bl)
+                yy = k3 * (g - bl)
+                q = xx * xx + yy * yy
+                dg = xx * k3 + half * yy
+                db = half * yy - xx * k3
+                var = (yy * yy * vr + dg * dg * vg + db * db * vb) / (q * q)
+            else:
+                mx = max(max(r, g), bl)
+                mn = min(min(r, g), bl)
+                c = mx - mn
+                mid = ((r + g) + bl) - mx - mn
+                hi2 = (mid - mn) * (mid - mn)  # weight of the maximum's variance
+                lo2 = (mx - mid) * (mx - mid)  # of the minimum's
+                c2 = c * c
+                wr = hi2 if r == mx else (lo2 if r == mn else c2)
+                wg = hi2 if g == mx else (lo2 if g == mn else c2)
+                wb = hi2 if bl == mx else (lo2 if bl == mn else c2)
+                var = third2 * (wr * vr + wg * vg + wb * vb) / (c2 * c2)
+            s = np.sqrt(np.float64(var))
+            ov[u] = s if (s - s == 0) & (var > zero) else fb[u]

@@ -196,6 +196,10 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
         ) from exc
     cal.phase_error = None if lut is None else lut.error
     cal.stats["phase_error"] = None if lut is None else lut.stats
+    if lut is not None:  # its residual on the planes (reported; not added to u: docs/uncertainty.md)
+        from huefringe.uncertainty import phase_error_residual_rad
+
+        cal.stats.setdefault("uncertainty", {})["phase_error_residual_u_rad"] = phase_error_residual_rad(lut.stats)
     return cal
 
 
@@ -487,8 +491,10 @@ def _height_limits(s: Session) -> tuple[float, float]:
     return (min(0.0, min(s.planes_mm)), max(s.planes_mm))
 
 
-def mesh(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str, stats: str) -> None:
-    """Triangle mesh of one height map (no bridging of jumps), cleaned, exported as PLY + STL."""
+def mesh(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str, stats: str,
+         uncertainty: str | None = None) -> None:
+    """Triangle mesh of one height map (no bridging of jumps), cleaned, exported as PLY + STL; the
+    PLY's vertices carry ``sigma_mm`` from the uncertainty map (:func:`huefringe.mesh.attach_sigma`)."""
     from huefringe import mesh as meshing
 
     s = load_session(session)
@@ -497,6 +503,8 @@ def mesh(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str,
     m = meshing.clean_mesh(m, min_island_faces=mesh["min_island_faces"])
     if mesh["decimate_faces"]:
         m = meshing.decimate(m, mesh["decimate_faces"])
+    if uncertainty is not None:
+        meshing.attach_sigma(m, read_tiff(uncertainty), s.pixel_pitch_mm)
     meshing.export_mesh(m, ply, stl)
     if meshing.stats_path(ply) != Path(stats):
         raise RuntimeError(f"mesh statistics went to {meshing.stats_path(ply)}, the workflow expects {stats}")

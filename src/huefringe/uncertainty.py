@@ -22,9 +22,15 @@ sensitivities ``J = (dh/da, dh/db) = -(dphi, dphi^2) / (a + b dphi)^2``:
 
     u_noise = G / sqrt(sum w)          sum of the filter's weights w = 1/sigma^2 it used
     u_table = u_noise sqrt(f_table)    f_table = smoothed entry variance / one capture's
-    u_interp = G u_interp_rad          rms linear-interpolation error of the pixel's table
+    u_interp = G u_interp_rad          rms linear-interpolation error of the pixel's table in
+                                       the code-phase bin of its own phase (12 bins)
     u_ref = G u_ref_rad                smoothed-reference error (fit noise + unmodelled misfit)
     u_model = sqrt(J C J^T)            C = covariance of (a, b) from the planes' errors
+
+The frame's hue noise (behind ``w``) comes from its own RGB signal through a shot + read noise
+model fitted on the hue bands' repeats (:func:`huefringe.perframe.frame_hue_noise`). After the
+root sum of squares, :func:`edge_floor` raises mixed pixels (steps, shadow borders) to the local
+scatter of the heights about their 3 x 3 plane.
 
 This module is pure: it never reads files and never imports the bench.
 """
@@ -43,14 +49,21 @@ from numpy.typing import NDArray
 from huefringe.huetable import band_smoothing_matrix
 
 __all__ = [
-    "TERMS", "PixelBudget", "calibration_terms", "conformance", "height_uncertainty", "pixel_budget",
-    "reliability", "split_terms", "step_budget", "table_interpolation_rad", "table_variance_factor",
+    "TERMS", "PixelBudget", "calibration_terms", "conformance", "edge_floor", "height_uncertainty",
+    "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "reliability", "split_terms", "step_budget",
+    "table_interpolation_rad", "table_variance_factor",
 ]
 
 TERMS = ("noise", "table", "interpolation", "reference", "model")
 """Names of the per-pixel terms, in the order of :func:`split_terms`."""
 GROUPS = {"noise": "independent", "table": "pixel", "interpolation": "pixel", "reference": "correlated",
           "model": "correlated"}
+
+#: Phase bins of the interpolation term: each pixel's error is taken in the bin its phase falls in.
+INTERP_BINS = 12
+#: Log code of the binned interpolation errors (uint8): ``q > 0`` means ``E0 2^(q / 16)`` rad.
+_INTERP_E0 = 1e-5
+_INTERP_LUT = np.concatenate([[0.0], _INTERP_E0 * 2.0 ** (np.arange(1, 256) / 16.0)]).astype(np.float32)
 
 #: Side (px) of the box over which the planes' residuals are averaged to tell their systematic
 #: part (a calibration error) from their pixel noise.
@@ -160,6 +173,52 @@ def table_interpolation_rad(table: Any, *, rows: int = 64) -> NDArray[np.float32
     return np.where(np.asarray(table.valid, bool), out, 0.0).astype(np.float32)
 
 
+def interpolation_bins(table: Any, *, bins: int = INTERP_BINS, rows: int = 64) -> NDArray[np.float32]:
+    """Per-pixel rms linear-interpolation error (rad) in each of ``bins`` equal code-phase bins,
+    ``(H, W, bins)``: the error of interval ``k`` (between entries ``k`` and ``k + 1``) is
+    ``|D2| / D1 * step / sqrt(120)`` with ``D2`` the mean of the second differences at its two
+    entries (see :func:`table_interpolation_rad`), and a bin holds the rms over its intervals.
+    A pixel's term is then the value of the bin its phase falls in, not the rms over its whole
+    table (where a few flattened bands near the sextant starts would dominate)."""
+    t = np.asarray(table.table)
+    n = t.shape[0]
+    step = 2.0 * np.pi / n
+    which = (np.arange(n) * bins) // n
+    out = np.zeros((*t.shape[1:], bins), np.float32)
+    for v0 in range(0, t.shape[1], rows):
+        c = t[:, v0 : v0 + rows].astype(np.int32)
+        d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768  # interval k: entries k, k + 1
+        d2 = np.roll(d1, -1, axis=0) - d1  # at entry k + 1
+        curv = 0.5 * (np.roll(d2, 1, axis=0) + d2)  # at the interval's two entries
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e = np.minimum(np.where(d1 > 0, np.abs(curv) / d1, 0.0) * step / math.sqrt(120.0), step)
+        for j in range(bins):
+            out[v0 : v0 + rows, :, j] = np.sqrt(np.mean(e[which == j] ** 2, axis=0))
+    return np.where(np.asarray(table.valid, bool)[..., None], out, 0.0).astype(np.float32)
+
+
+def _encode_interp(e: NDArray[np.floating]) -> NDArray[np.uint8]:
+    """Log code of :data:`_INTERP_LUT` (4.4 % steps; 0 below ``E0``), nearest in log."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = np.rint(16.0 * np.log2(np.asarray(e, np.float64) / _INTERP_E0))
+    return np.clip(np.nan_to_num(q, nan=0.0, neginf=0.0), 0, 255).astype(np.uint8)
+
+
+def phase_error_residual_rad(stats: Mapping[str, Any] | None) -> float:
+    """What the phase-error table leaves on the planes (rad), from its QA figures: the rms over
+    the bins of the median plane residual after the correction (``binned_rms_after_rad``),
+    less in quadrature its noise part (a median of ``samples / bins`` residuals of rms
+    ``residual_rms_after_rad``: variance ``(pi / 2) s^2 bins / samples``). Reported in
+    ``planes.json``; not added to u (``docs/uncertainty.md``: on the bench it over-predicts,
+    the planes' spatial misfit that the reference and model terms carry shows in its bins)."""
+    if not stats:
+        return 0.0
+    b = float(stats.get("binned_rms_after_rad", 0.0))
+    s = float(stats.get("residual_rms_after_rad", 0.0))
+    leak = 0.5 * math.pi * s * s * float(stats.get("bins", 0)) / max(float(stats.get("samples", 0)), 1.0)
+    return math.sqrt(max(b * b - leak, 0.0))
+
+
 @dataclass(eq=False)
 class PixelBudget:
     """Per-session inputs of the per-pixel budget: ``terms`` ``(5, H, W)`` float32 (planes, so
@@ -169,6 +228,11 @@ class PixelBudget:
 
     terms: NDArray[np.float32]
     table_factor: float
+    interp_bins: NDArray[np.uint8] | None = None
+    """``(H, W, INTERP_BINS)`` log codes of :func:`interpolation_bins` (None: ``terms[4]`` for
+    every phase)."""
+    phi_ref: NDArray[np.float32] | None = None
+    """The reference phase: a pixel's code phase is ``phi_ref + dphi``, which picks its bin."""
 
     @property
     def u_ref_rad(self) -> NDArray[np.float32]:
@@ -192,21 +256,41 @@ def pixel_budget(table: Any, cal: Any) -> PixelBudget:
         if name in bud:
             terms[k] = np.nan_to_num(np.asarray(bud[name], np.float32))
     terms[4] = table_interpolation_rad(table)
+    bins = _encode_interp(interpolation_bins(table))
     st = table.stats or {}
     opts = st.get("params", {}) if isinstance(st.get("params"), dict) else {}
     window = int(opts.get("smooth_window", 15))
     order = int(opts.get("smooth_order", 2))
     factor = table_variance_factor(table.n_bands, window, order, int(st.get("repeats", 1) or 1))
-    return PixelBudget(np.ascontiguousarray(terms), factor)
+    return PixelBudget(np.ascontiguousarray(terms), factor, np.ascontiguousarray(bins),
+                       np.ascontiguousarray(cal.phi_ref, np.float32))
+
+
+def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.float64]:
+    """Interpolation error (rad) at each pixel's phase, as the kernel picks it (float32 bin)."""
+    if budget.interp_bins is None:
+        return budget.terms[4].astype(np.float64)
+    k = budget.interp_bins.shape[-1]
+    d = np.nan_to_num(np.asarray(dphi, np.float32))
+    t = (budget.phi_ref + d) * np.float32(k / (2.0 * np.pi))
+    t = t - np.float32(k) * np.floor(t / np.float32(k))
+    kb = np.minimum(t.astype(np.int64), k - 1)
+    q = np.take_along_axis(budget.interp_bins, kb[..., None], axis=-1)[..., 0]
+    return _INTERP_LUT[q].astype(np.float64)
 
 
 # --------------------------------------------------------------------------------------------
 # per frame (called identically by perframe.measure_frame and kernel.frame_maps)
 # --------------------------------------------------------------------------------------------
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, out):  # pragma: no cover - numba
-    """Branch-free rows (LLVM vectorises them); NaN where not valid or without weight."""
+def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut, phi_ref, out):  # pragma: no cover
+    """Branch-free rows (LLVM vectorises them); NaN where not valid or without weight. The
+    interpolation error is that of the phase bin of ``phi_ref + dphi`` (``bins``, ``lut``)."""
     h, w = dphi.shape
+    nb = bins.shape[2]
+    kf = np.float32(nb)
+    to_bin = np.float32(nb / (2.0 * np.pi))
+    t4row = np.empty(w, np.float32)
     tf = np.float32(1.0) + np.float32(table_factor)
     nan32 = np.float32(np.nan)
     zero = np.float32(0.0)
@@ -218,8 +302,17 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, out):  # p
         okv = valid[v]
         av = a[v]
         bv = b[v]
-        t0, t1, t2, t3, t4 = terms[0, v], terms[1, v], terms[2, v], terms[3, v], terms[4, v]
+        t0, t1, t2, t3 = terms[0, v], terms[1, v], terms[2, v], terms[3, v]
+        bv_ = bins[v]
+        pr = phi_ref[v]
         ov = out[v]
+        for u in range(w):  # the gather of each pixel's bin first (scalar), so the next loop vectorises
+            ok = okv[u] & (sv[u] > zero)
+            d = dv[u] if ok else zero
+            t = (pr[u] + d) * to_bin
+            t = t - kf * np.floor(t / kf)
+            kb = min(np.int64(t), nb - 1)
+            t4row[u] = lut[bv_[u, max(kb, 0)]]
         for u in range(w):
             sw = sv[u]
             ok = okv[u] & (sw > zero)
@@ -231,7 +324,7 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, out):  # p
             g = abs(aa) * inv2
             ja = -d * inv2
             jb = ja * d
-            var = g * g / sw * tf + (g * t0[u]) ** 2 + (g * t4[u]) ** 2
+            var = g * g / sw * tf + (g * t0[u]) ** 2 + (g * t4row[u]) ** 2
             var += ja * ja * t1[u] + two * ja * jb * t2[u] + jb * jb * t3[u]
             r = np.sqrt(max(var, zero))
             ov[u] = r if ok else nan32
@@ -258,10 +351,124 @@ def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], val
     """
     if out is None:
         out = np.empty(np.shape(dphi), np.float32)
+    if budget.interp_bins is None:  # one bin: the table-wide figure for every phase
+        bins = _encode_interp(budget.terms[4])[..., None]
+        phi_ref = np.zeros(np.shape(dphi), np.float32)
+    else:
+        bins, phi_ref = budget.interp_bins, budget.phi_ref
     _uncertainty_kernel(np.ascontiguousarray(dphi, np.float32), np.ascontiguousarray(sumw, np.float32),
                         np.ascontiguousarray(valid, bool), np.ascontiguousarray(a, np.float32),
-                        np.ascontiguousarray(b, np.float32), budget.terms, np.float32(budget.table_factor), out)
+                        np.ascontiguousarray(b, np.float32), budget.terms, np.float32(budget.table_factor), bins,
+                        _INTERP_LUT, phi_ref, out)
     return out
+
+
+#: The edge floor acts where the 3 x 3 residual exceeds this many u: noise alone (6 degrees of
+#: freedom) gets there with probability 6e-4, a mixed pixel next to a step of height H >> u does.
+EDGE_SIGNIFICANCE = np.float32(2.0)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _edge_floor_kernel(height, valid, u):  # pragma: no cover - numba
+    """In place: ``u = s`` where ``s > EDGE_SIGNIFICANCE u``, ``s`` the rms residual (``n - 3`` degrees of freedom) of the
+    valid heights of the 3 x 3 window about their least-squares plane (at least 5 pixels)."""
+    h, w = height.shape
+    zero = np.float32(0.0)
+    sixth = np.float32(1.0 / 6.0)
+    ninth = np.float32(1.0 / 9.0)
+    todo = np.zeros(w, np.bool_)
+    rrow = np.zeros(w, np.float32)
+    for v in range(1, h - 1):
+        # full windows (the common case): x, y in {-1, 0, 1}, sum x^2 = sum y^2 = 6, the plane's
+        # residual sum of squares in closed form; branch-free, so that LLVM vectorises the row
+        h0, h1, h2 = height[v - 1], height[v], height[v + 1]
+        m0, m1, m2 = valid[v - 1], valid[v], valid[v + 1]
+        uv = u[v]
+        for x in range(1, w - 1):
+            full = (m0[x - 1] & m0[x] & m0[x + 1]) & (m1[x - 1] & m1[x] & m1[x + 1]) & (m2[x - 1] & m2[x] & m2[x + 1])
+            hc = h1[x]
+            za = h0[x - 1] - hc
+            zb = h0[x] - hc
+            zc = h0[x + 1] - hc
+            zd = h1[x - 1] - hc
+            ze = h1[x + 1] - hc
+            zf = h2[x - 1] - hc
+            zg = h2[x] - hc
+            zh = h2[x + 1] - hc
+            sh = ((za + zb) + (zc + zd)) + ((ze + zf) + (zg + zh))
+            sxh = (zc + ze + zh) - (za + zd + zf)
+            syh = (zf + zg + zh) - (za + zb + zc)
+            shh = ((za * za + zb * zb) + (zc * zc + zd * zd)) + ((ze * ze + zf * zf) + (zg * zg + zh * zh))
+            ss = shh - sh * sh * ninth - (sxh * sxh + syh * syh) * sixth
+            r = np.sqrt(max(ss, zero) * sixth)
+            rrow[x] = r if full else zero
+            todo[x] = m1[x] & (not full)
+        for x in range(1, w - 1):
+            uv[x] = rrow[x] if rrow[x] > EDGE_SIGNIFICANCE * uv[x] else uv[x]  # NaN (not valid) stays NaN
+        for x in range(1, w - 1):  # windows with invalid pixels: the general least squares
+            if not todo[x]:
+                continue
+            n = zero
+            sx = zero
+            sy = zero
+            sxx = zero
+            syy = zero
+            sxy = zero
+            sh = zero
+            sxh = zero
+            syh = zero
+            shh = zero
+            hc = height[v, x]
+            for dv in range(-1, 2):
+                for du in range(-1, 2):
+                    m = valid[v + dv, x + du]
+                    z = height[v + dv, x + du] - hc if m else zero
+                    wgt = np.float32(1.0) if m else zero
+                    fx = np.float32(du) * wgt
+                    fy = np.float32(dv) * wgt
+                    n += wgt
+                    sx += fx
+                    sy += fy
+                    sxx += fx * du
+                    syy += fy * dv
+                    sxy += fx * dv
+                    sh += z
+                    sxh += fx * z
+                    syh += fy * z
+                    shh += z * z
+            # normal equations of z = c + gx x + gy y, by Cramer's rule
+            a11, a12, a13, a22, a23, a33 = n, sx, sy, sxx, sxy, syy
+            c11 = a22 * a33 - a23 * a23
+            c12 = a13 * a23 - a12 * a33
+            c13 = a12 * a23 - a13 * a22
+            det = a11 * c11 + a12 * c12 + a13 * c13
+            if n < np.float32(5.0) or det <= np.float32(1e-3):
+                continue
+            c22 = a11 * a33 - a13 * a13
+            c23 = a12 * a13 - a11 * a23
+            c33 = a11 * a22 - a12 * a12
+            b0 = (c11 * sh + c12 * sxh + c13 * syh) / det
+            b1 = (c12 * sh + c22 * sxh + c23 * syh) / det
+            b2 = (c13 * sh + c23 * sxh + c33 * syh) / det
+            ss = shh - (b0 * sh + b1 * sxh + b2 * syh)
+            s2 = max(ss, zero) / (n - np.float32(3.0))
+            r = np.float32(np.sqrt(s2))
+            u[v, x] = r if r > EDGE_SIGNIFICANCE * u[v, x] else u[v, x]
+
+
+def edge_floor(height: NDArray[np.float32], valid: NDArray[np.bool_], u: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Mixed pixels: raise ``u`` (in place) to the local scatter of the heights about their 3 x 3
+    least-squares plane where that exceeds ``EDGE_SIGNIFICANCE`` (2) times ``u`` (noise alone
+    rarely does: with unfiltered heights it would otherwise count the noise twice).
+
+    At a step edge or a cast-shadow border a pixel sees both surfaces (lens blur), and its hue,
+    phase and height lie between them: an error the noise and calibration terms do not hold. A
+    smooth surface (plane or gentle slope) leaves the residual at its noise, below ``u``; a step
+    of height ``H`` gives ``H / sqrt(12) = 0.29 H`` next to it. Called by the reference chain and
+    the kernel alike on the float32 height map.
+    """
+    _edge_floor_kernel(np.ascontiguousarray(height, np.float32), np.ascontiguousarray(valid, bool), u)
+    return u
 
 
 def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArray[np.floating],
@@ -283,7 +490,7 @@ def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArra
         ja = -d / den**2
         jb = ja * d
     out = {
-        "interpolation": g * t[4],
+        "interpolation": g * _interp_of(d, budget),
         "reference": g * t[0],
         "model": np.sqrt(np.maximum(ja * ja * t[1] + 2 * ja * jb * t[2] + jb * jb * t[3], 0.0)),
     }

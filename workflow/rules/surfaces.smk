@@ -5,6 +5,7 @@
 rule mesh:
     input:
         height=R("{sid}", "height", "frame_{frame}.tiff"),
+        uncertainty=R("{sid}", "uncertainty", "frame_{frame}.tiff"),
     output:
         ply=R("{sid}", "mesh", "frame_{frame}.ply"),
         stl=R("{sid}", "mesh", "frame_{frame}.stl"),
