@@ -211,16 +211,27 @@ def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Ma
     """
     counts = {k: int(np.count_nonzero(v)) for k, v in flags.items()}
     counts["below_reference"] = int(np.count_nonzero(valid & (height < -below_reference_mm)))
-    suspect = (counts["below_reference"] + counts["wrap_edge"]) > 0.001 * valid.size
+    return _qa_record(np.count_nonzero(valid) / valid.size, counts, valid.size,
+                      float(np.median(height[valid])) if valid.any() else None,
+                      clipped_fraction=clipped_fraction, hue_undefined_fraction=hue_undefined_fraction,
+                      table_invalid_fraction=table_invalid_fraction, shadow_fraction=shadow_fraction,
+                      hue_model=hue_model, unwrap_mode=unwrap_mode)
+
+
+def _qa_record(valid_fraction: float, counts: dict[str, int], pixels: int, median_height_mm: float | None, *,
+               clipped_fraction: float, hue_undefined_fraction: float, table_invalid_fraction: float,
+               shadow_fraction: float, hue_model: str, unwrap_mode: str) -> dict[str, Any]:
+    """The QA record of :func:`frame_stats` and :func:`reference_frame_stats`, from their counts."""
+    suspect = (counts["below_reference"] + counts["wrap_edge"]) > 0.001 * pixels
     return {
-        "valid_fraction": np.count_nonzero(valid) / valid.size,
+        "valid_fraction": valid_fraction,
         "clipped_fraction": clipped_fraction,
         "hue_undefined_fraction": hue_undefined_fraction,
         "table_invalid_fraction": table_invalid_fraction,
         "shadow_fraction": shadow_fraction,
         "flags": counts,
         "phase_ambiguity_suspected": bool(suspect),
-        "median_height_mm": float(np.median(height[valid])) if valid.any() else None,
+        "median_height_mm": median_height_mm,
         "hue_model": hue_model,
         "unwrap": unwrap_mode,
     }
@@ -296,20 +307,11 @@ def reference_frame_stats(dphi: NDArray[np.float32], valid: NDArray[np.bool_], h
     n_valid, n_edge, n_near, n_below, n_keys = _reference_counts(d, ok, z, float(near_wrap), np.float32(below_reference_mm),
                                                                  edge, keys)
     counts = {"wrap_edge": int(n_edge), "near_wrap": int(n_near), "isolated": 0, "below_reference": int(n_below)}
-    suspect = (counts["below_reference"] + counts["wrap_edge"]) > 0.001 * ok.size
-    return {
-        "valid_fraction": int(n_valid) / ok.size,
-        "clipped_fraction": clipped_fraction,
-        "hue_undefined_fraction": hue_undefined_fraction,
-        "table_invalid_fraction": table_invalid_fraction,
-        "shadow_fraction": shadow_fraction,
-        "flags": counts,
-        "phase_ambiguity_suspected": bool(suspect),
-        "median_height_mm": (None if n_valid == 0 else float("nan") if n_keys < n_valid  # NaN among them: np.median's NaN
-                             else float(_median_keys(keys, int(n_keys)))),
-        "hue_model": hue_model,
-        "unwrap": "reference",
-    }
+    median = (None if n_valid == 0 else float("nan") if n_keys < n_valid  # NaN among them: np.median's NaN
+              else float(_median_keys(keys, int(n_keys))))
+    return _qa_record(int(n_valid) / ok.size, counts, ok.size, median, clipped_fraction=clipped_fraction,
+                      hue_undefined_fraction=hue_undefined_fraction, table_invalid_fraction=table_invalid_fraction,
+                      shadow_fraction=shadow_fraction, hue_model=hue_model, unwrap_mode="reference")
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
