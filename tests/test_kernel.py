@@ -52,19 +52,19 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 def _reference(rig: dict, model: str, rgb: np.ndarray, shadow: np.ndarray, denoise: int,
-               pd: bool = True) -> perframe.FrameResult:
+               pd: bool = True, own: bool = False) -> perframe.FrameResult:
     table, cal = rig[model]
     m = CONFIG["measurement"]
     return perframe.measure_frame(rgb, rig["white"], table, cal, hue_model=model, min_saturation=m["min_saturation"],
                                   shadow=shadow, unwrap_mode="reference", bit_depth=8, denoise_radius=denoise,
-                                  predistortion=rig["session"].predistortion if pd else None)
+                                  predistortion=rig["session"].predistortion if pd else None, own_noise=own)
 
 
-def _prepare(rig: dict, model: str, shadow: np.ndarray, pd: bool = True) -> kernel.Prepared:
+def _prepare(rig: dict, model: str, shadow: np.ndarray, pd: bool = True, own: bool = False) -> kernel.Prepared:
     table, cal = rig[model]
     return kernel.prepare(table, cal, rig["white"], hue_model=model,
                           min_saturation=CONFIG["measurement"]["min_saturation"], shadow=shadow, bit_depth=8,
-                          predistortion=rig["session"].predistortion if pd else None)
+                          predistortion=rig["session"].predistortion if pd else None, own_noise=own)
 
 
 def _frame_u8(rig: dict, n: int) -> np.ndarray:
@@ -83,14 +83,15 @@ def _assert_same(h: np.ndarray, valid: np.ndarray, ref: perframe.FrameResult) ->
 
 @pytest.mark.parametrize(("model", "pd"), [("hexcone", True), ("hsi", True), ("hexcone", False)])
 @pytest.mark.parametrize("denoise", [0, 2])
-def test_kernel_matches_reference(rig: dict, model: str, pd: bool, denoise: int) -> None:
+@pytest.mark.parametrize("own", [False, True])
+def test_kernel_matches_reference(rig: dict, model: str, pd: bool, denoise: int, own: bool) -> None:
     """Same heights (to 1e-4 mm; bit for bit with hexcone) and valid mask as measure_frame, with
     and without the session's pre-distortion (the demo bench projects through one)."""
     assert rig["session"].predistortion is not None
     shadow = perframe.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
-    prep = _prepare(rig, model, shadow, pd)
+    prep = _prepare(rig, model, shadow, pd, own)
     for n in rig["session"].frame_ids:
-        ref = _reference(rig, model, read_rgb(rig["session"].frames[n]), shadow, denoise, pd)
+        ref = _reference(rig, model, read_rgb(rig["session"].frames[n]), shadow, denoise, pd, own)
         h, valid = kernel.frame_to_height(prep, _frame_u8(rig, n), denoise_radius=denoise)
         _assert_same(h, valid, ref)
         np.testing.assert_array_equal(h, ref.height)  # in fact bit for bit
@@ -98,13 +99,14 @@ def test_kernel_matches_reference(rig: dict, model: str, pd: bool, denoise: int)
 
 @pytest.mark.parametrize(("model", "pd"), [("hexcone", True), ("hsi", True), ("hexcone", False)])
 @pytest.mark.parametrize("denoise", [0, 2])
-def test_kernel_uncertainty_matches_reference(rig: dict, model: str, pd: bool, denoise: int) -> None:
+@pytest.mark.parametrize("own", [False, True])
+def test_kernel_uncertainty_matches_reference(rig: dict, model: str, pd: bool, denoise: int, own: bool) -> None:
     """The kernel's uncertainty map is measure_frame's bit for bit, NaN exactly where the height
     is NaN, and the heights are those without the map."""
     shadow = perframe.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
-    prep = _prepare(rig, model, shadow, pd)
+    prep = _prepare(rig, model, shadow, pd, own)
     for n in rig["session"].frame_ids:
-        ref = _reference(rig, model, read_rgb(rig["session"].frames[n]), shadow, denoise, pd)
+        ref = _reference(rig, model, read_rgb(rig["session"].frames[n]), shadow, denoise, pd, own)
         m = kernel.frame_maps(prep, _frame_u8(rig, n), denoise_radius=denoise, want_uncertainty=True)
         _assert_same(m.height, m.valid, ref)
         np.testing.assert_array_equal(np.isnan(m.uncertainty), np.isnan(m.height))

@@ -141,6 +141,7 @@ def still(tmp_path_factory: pytest.TempPathFactory) -> dict:
     # and without the step-edge mask: on unfiltered heights at this coarse pitch (0.8 mm) it
     # also takes noisy pixels for mixed ones; these tests score the noise term on every pixel
     cfg["measurement"]["edge_jump_mm"] = 0.0
+    cfg["measurement"]["own_noise"] = True  # these tests score the frame's own-signal noise model
     paths = stages.measure_session(session, root / "out", cfg)
     return {"paths": paths, "root": root, "session": session}
 
@@ -148,7 +149,9 @@ def still(tmp_path_factory: pytest.TempPathFactory) -> dict:
 @pytest.fixture(scope="module")
 def still_filtered(still: dict) -> dict:
     """The same still session through the default (radius 2, sigma-adaptive) phase filter."""
-    paths = stages.measure_session(still["session"], still["root"] / "out-filtered", CONFIG)
+    cfg = copy.deepcopy(CONFIG)
+    cfg["measurement"]["own_noise"] = True  # the own-signal noise model, as in `still`
+    paths = stages.measure_session(still["session"], still["root"] / "out-filtered", cfg)
     return {"paths": paths}
 
 

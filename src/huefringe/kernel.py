@@ -187,6 +187,7 @@ def prepare(
     floor: float = 1.0 / 255.0,
     floor_slope: float = 0.05,
     predistortion: Predistortion | None = None,
+    own_noise: bool = False,
 ) -> Prepared:
     """Prepare a session's calibration for :func:`frame_to_height` (once per session).
 
@@ -271,7 +272,7 @@ def prepare(
     if getattr(cal, "phase_error", None) is not None:
         prep.phase_error = np.ascontiguousarray(cal.phase_error, dtype=np.float64)
     prep.budget = pixel_budget(table, cal)
-    prep.sensor = sensor_model(table)
+    prep.sensor = sensor_model(table) if own_noise else None  # measure_frame's own_noise
     prep.stats = {
         "table_invalid_fraction": float(np.mean(~np.asarray(table.valid, bool))),
         "shadow_fraction": float(shadow_arr.mean()),

@@ -127,6 +127,7 @@ def measure_frame(
     predistortion: Predistortion | None = None,
     denoise_adaptive: Mapping[str, Any] | None = None,
     budget: PixelBudget | None = None,
+    own_noise: bool = False,
 ) -> FrameResult:
     """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
 
@@ -155,6 +156,12 @@ def measure_frame(
     denoise_adaptive : mapping, optional
         ``measurement.denoise_adaptive`` (:func:`huefringe.phase.adaptive_kwargs`): the filter's
         sigma-adaptive support and the rejection of pixels no filter can save.
+    own_noise : bool
+        Each pixel's phase sigma from this frame's own signal through the table's shot + read
+        noise model (:func:`frame_hue_noise`) instead of the table's pooled per-pixel noise
+        (``measurement.own_noise``; off by default: weighting the filter by it biases the
+        heights where the noise varies with the phase, Table 1 at 100 px: mean error 0.93 ->
+        1.59 %).
     budget : PixelBudget, optional
         Session inputs of the height uncertainty (:func:`huefringe.uncertainty.pixel_budget`,
         computed when not given); the result's ``uncertainty`` is the kernel's, bit for bit.
@@ -170,7 +177,7 @@ def measure_frame(
         valid &= ~shadow
     dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
     un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
-    noise = frame_hue_noise(table, rgb, white_gains(white), hue_model)  # this frame's own signal
+    noise = frame_hue_noise(table, rgb, white_gains(white), hue_model) if own_noise else None  # this frame's signal
     sigma = phase_sigma(table, slope, noise=noise)
     if predistortion is not None:
         sigma = sigma * np.abs(predistortion.decode_slope(emitted))

@@ -318,7 +318,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     fast = bool(measurement["kernel"]) and measurement["unwrap"] == "reference"
     if fast:
         prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=measurement["min_saturation"],
-                              shadow=shadow, bit_depth=s.bit_depth, predistortion=s.predistortion)
+                              shadow=shadow, bit_depth=s.bit_depth, predistortion=s.predistortion,
+                              own_noise=bool(measurement.get("own_noise", False)))
         table_invalid = float(np.mean(~t.valid))
         shadow_fraction = float(shadow.mean())
         del t  # the kernel's pixel-major copy replaces the band-major table
@@ -341,7 +342,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
                                 denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
-                                denoise_adaptive=measurement.get("denoise_adaptive"), budget=budget)
+                                denoise_adaptive=measurement.get("denoise_adaptive"), budget=budget,
+                                own_noise=bool(measurement.get("own_noise", False)))
             height, phase, hue, stats, u_map = res.height, res.phase, res.hue, res.stats, res.uncertainty
         jump = float(measurement.get("edge_jump_mm", 0.0) or 0.0)
         if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
