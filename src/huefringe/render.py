@@ -475,25 +475,33 @@ def height_map_figure(
     pathlib.Path
         ``out_png``.
     """
-    import matplotlib as mpl  # noqa: PLC0415
-
     h = _as_map(height, "height")
     if clim is None:
         finite = h[np.isfinite(h)]
         clim = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
+    return _map_figure(h, pitch_mm, out_png, cmap=cmap, clim=clim, title=title, label="Height (mm)",
+                       figsize=figsize, dpi=dpi)
+
+
+def _map_figure(values: NDArray[np.floating], pitch_mm: float, out_png: str | os.PathLike[str], *, cmap: str,
+                clim: tuple[float, float], title: str | None, label: str, figsize: tuple[float, float],
+                dpi: int) -> Path:
+    """A map in mm axes (X = u pitch, Y = v pitch, rows downwards), NaN light grey, with a colour bar."""
+    import matplotlib as mpl  # noqa: PLC0415
+
     fig = _new_figure(figsize)
     ax = fig.add_subplot()
     cm = mpl.colormaps[cmap].with_extremes(bad="0.85")
     im = ax.imshow(
-        np.ma.masked_invalid(h), cmap=cm, vmin=clim[0], vmax=clim[1], extent=_image_extent(h.shape, pitch_mm),
-        interpolation="nearest", origin="upper",
+        np.ma.masked_invalid(values), cmap=cm, vmin=clim[0], vmax=clim[1],
+        extent=_image_extent(values.shape, pitch_mm), interpolation="nearest", origin="upper",
     )  # fmt: skip
     ax.set_xlabel("X (mm)")
     ax.set_ylabel("Y (mm)")
     ax.set_aspect("equal")
     if title:
         ax.set_title(title)
-    fig.colorbar(im, ax=ax, label="Height (mm)")
+    fig.colorbar(im, ax=ax, label=label)
     return _save_figure(fig, out_png, dpi)
 
 
@@ -628,26 +636,14 @@ def uncertainty_map_figure(
     ``clim`` defaults to [0, 99th percentile] so a few edge pixels do not wash the map out;
     NaN (no height) is drawn light grey.
     """
-    import matplotlib as mpl  # noqa: PLC0415
-
     s = _as_map(u, "uncertainty") * 1000.0
     finite = s[np.isfinite(s)]
     if clim is None:
         clim = (0.0, float(np.percentile(finite, 99)) if finite.size else 1.0)
     else:
         clim = (clim[0] * 1000.0, clim[1] * 1000.0)
-    fig = _new_figure((6.4, 4.8))
-    ax = fig.add_subplot()
-    cm = mpl.colormaps["magma"].with_extremes(bad="0.85")
-    im = ax.imshow(np.ma.masked_invalid(s), cmap=cm, vmin=clim[0], vmax=clim[1], extent=_image_extent(s.shape, pitch_mm),
-                   interpolation="nearest", origin="upper")
-    ax.set_xlabel("X (mm)")
-    ax.set_ylabel("Y (mm)")
-    ax.set_aspect("equal")
-    if title:
-        ax.set_title(title)
-    fig.colorbar(im, ax=ax, label="u (µm)")
-    return _save_figure(fig, out_png, dpi)
+    return _map_figure(s, pitch_mm, out_png, cmap="magma", clim=clim, title=title, label="u (µm)",
+                       figsize=(6.4, 4.8), dpi=dpi)
 
 
 def reliability_figure(rel: Mapping[str, Any], out_png: str | os.PathLike[str], *, title: str | None = None,
