@@ -35,6 +35,9 @@ import numpy as np
 from numba import njit
 from numpy.typing import NDArray
 
+from huefringe.height import fit_poly2d, unwrap_smooth
+from huefringe.io import atomic_path, write_figure_png, write_json
+
 TWO_PI = 2.0 * np.pi
 
 
@@ -109,8 +112,6 @@ class PhaseErrorLUT:
 
     def save(self, npz: str) -> None:
         """``error``, ``before``, ``after`` and ``centres`` to an ``.npz`` (atomically)."""
-        from huefringe.io import atomic_path
-
         with atomic_path(npz) as tmp:
             with open(tmp, "wb") as f:
                 np.savez(f, error=self.error, before=self.before, after=self.after, centres=self.centres)
@@ -161,8 +162,6 @@ def unwrap_planes(plane_phases: dict[float, NDArray[np.floating]], plane_valid: 
     polynomial of degree ``degree`` and the wrapped difference to it). Done
     once: a correction ``e(phi)`` (small, continuous, periodic) changes the unwrapped phase by
     ``-e(phi)`` and never its 2 pi offsets, so :func:`plane_residuals` reuses these maps."""
-    from huefringe.height import unwrap_smooth
-
     out = {}
     for z in sorted(plane_phases):
         phi = np.asarray(plane_phases[z], np.float64)
@@ -191,8 +190,6 @@ def plane_residuals(plane_phases: dict[float, NDArray[np.floating]], plane_valid
     polynomial of total degree ``degree`` (:func:`huefringe.height.fit_poly2d`, sampled every
     ``step`` pixels). Returns the decoded (uncorrected, wrapped) phases, the table's argument,
     and the residuals (rad) of the valid pixels, concatenated over the planes."""
-    from huefringe.height import fit_poly2d
-
     un_all = unwrapped if unwrapped is not None else unwrap_planes(plane_phases, plane_valid, degree, step)
     phis, res = [], []
     for z in sorted(plane_phases):
@@ -286,8 +283,6 @@ def qa_figure(lut: PhaseErrorLUT, path: str, *, title: str = "") -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from huefringe.io import atomic_path
-
     c = lut.centres
     fig, ax = plt.subplots(figsize=(9.5, 4), dpi=110)
     ax.plot(c, 1e3 * lut.before, lw=1.0, color="tab:red", label=f"before (rms {1e3 * lut.stats['binned_rms_before_rad']:.1f} mrad)")
@@ -301,8 +296,7 @@ def qa_figure(lut: PhaseErrorLUT, path: str, *, title: str = "") -> None:
     ax.set_title(title or "phase-dependent error on the calibration planes")
     ax.legend(fontsize=8, loc="upper left", bbox_to_anchor=(1.01, 1.0), borderaxespad=0.0)  # off the data
     fig.tight_layout()
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, format="png")
+    write_figure_png(fig, path)
     plt.close(fig)
 
 
@@ -357,8 +351,6 @@ def from_calibration(plane_phases: dict[float, NDArray[np.floating]], plane_vali
     learned from the other planes lowers a plane's residual. The decision and its figures are in
     the summary (``applied``, ``holdout``).
     """
-    from huefringe.io import write_json
-
     opts = {**DEFAULTS, **dict(calibration.get("phase_error") or {})}
     degree = int(calibration.get("plane_smooth_degree") or 3)
     kw = {"bins": int(opts["bins"]), "iterations": int(opts["iterations"]), "smooth_bins": float(opts["smooth_bins"])}
