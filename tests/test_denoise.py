@@ -82,9 +82,10 @@ def test_uncertain_pixels_follow_their_neighbours_and_invalid_ones_are_ignored()
     assert denoise_phase(np.full((5, 5), 0.7, np.float32), np.full((5, 5), 0.1), lone)[2, 2] == np.float32(0.7)
 
 
-def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w):
+def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, r2, rfirst, cfirst):
     """The adaptive pass pixel by pixel, its definition (float32, rings in order, each pixel's
-    neighbours added row by row, column by column, stopping once the weights reach the target)."""
+    neighbours added row by row, column by column, stopping once the weights reach the target),
+    with the uncertainty's sums (``w r2`` and the support) beside it."""
     f32 = np.float32
     two_pi, inv_two_pi, pi = f32(2 * np.pi), f32(1 / (2 * np.pi)), f32(np.pi)
 
@@ -94,6 +95,8 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
     h, w = d.shape
     out = first.copy()
     wout = wfirst.copy()
+    rout = rfirst.copy()
+    cout = cfirst.copy()
     for v in range(h):
         for u in range(w):
             if inv[v, u] <= 0:
@@ -103,7 +106,7 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
                 out[v, u] = first[v, u] if ws >= reject_w else np.nan
                 continue
             m, sf2 = first[v, u], f32(1) / ws
-            acc = wsum = f32(0)
+            acc = wsum = rsum = cnt = f32(0)
             for r in range(max_radius + 1):
                 for dv in range(-r, r + 1):
                     if not 0 <= v + dv < h:
@@ -117,15 +120,18 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
                                 diff = wrapped(f32(d[vv, uu] - d[v, u]))
                                 acc = f32(acc + f32(inv[vv, uu] * diff))
                                 wsum = f32(wsum + inv[vv, uu])
+                                rsum = f32(rsum + f32(inv[vv, uu] * r2[vv, uu]))
+                                cnt = f32(cnt + 1)
                 if r >= radius and wsum >= target_w:
                     break
             if wsum < ws:
                 wsum, val = ws, m
             else:
                 val = f32(d[v, u] + f32(acc / wsum))
+                rout[v, u], cout[v, u] = rsum, cnt
             out[v, u] = val if wsum >= reject_w else np.nan
             wout[v, u] = wsum
-    return out, wout
+    return out, wout, rout, cout
 
 
 def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
@@ -142,15 +148,33 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
     valid = rng.random((h, w)) > 0.1
     dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
     _denoise_weights(d, sigma, valid, dz, s2, inv)
-    first, wfirst = np.empty_like(dz), np.empty_like(dz)
+    first, wfirst, rfirst, cfirst = (np.empty_like(dz) for _ in range(4))
     k2 = np.float32(9.0)
-    _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst)
+    r2 = rng.uniform(0.5, 2.0, (h, w)).astype(np.float32)
+    _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst, r2, rfirst, cfirst, True)
+    plain, wplain = np.empty_like(dz), np.empty_like(dz)
+    none = np.empty((1, 1), np.float32)
+    _denoise_kernel(dz, s2, inv, 1, k2, plain, wplain, none, none, none, False)
+    assert np.array_equal(plain.view(np.uint32), first.view(np.uint32))  # the sums change nothing
+    assert np.array_equal(wplain.view(np.uint32), wfirst.view(np.uint32))
+    ok = inv > 0
+    assert cfirst[ok].max() == 9 and cfirst[ok].min() >= 1 and np.all(cfirst[~ok] == 0)
     for max_radius, target, reject in ((4, 0.0008, 0.002), (6, 0.0005, 0.001), (2, 0.0009, 0.0)):
         tw, rw = np.float32(1 / target**2), np.float32(1 / reject**2 if reject else 0.0)
-        got, got_w = np.empty_like(dz), np.empty_like(dz)
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w)
-        want, want_w = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw)
+        got, got_w, got_r, got_c = (np.empty_like(dz) for _ in range(4))
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, r2, rfirst, cfirst, got_r,
+                       got_c, True)
+        want, want_w, want_r, want_c = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, r2,
+                                                          rfirst, cfirst)
         assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))  # the final weight sums too
+        assert np.array_equal(got_r.view(np.uint32), want_r.view(np.uint32))  # and the uncertainty's sums
+        assert np.array_equal(got_c, want_c)
+        assert got_c[ok].max() > 9  # windows grew
+        bare, bare_w = np.empty_like(dz), np.empty_like(dz)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, none, none, none,
+                       none, False)
+        assert np.array_equal(bare.view(np.uint32), got.view(np.uint32))
+        assert np.array_equal(bare_w.view(np.uint32), got_w.view(np.uint32))
         grown = (inv > 0) & (wfirst < tw)
         assert grown.sum() > 50  # the pass has work to do
         assert np.array_equal(got.view(np.uint32), want.view(np.uint32))

@@ -352,3 +352,70 @@ def test_interpolation_bins_pick_the_local_error() -> None:
                      noise_rad=np.full((1, 2), 0.01, np.float32), stats={"repeats": 1})
     e = uncertainty.interpolation_bins(table, bins=12)[0, 0]
     assert e[6] > 1e-4 and e[0] < 1e-5 and e[3] < 1e-5  # bin 6 = [pi, 7 pi / 6): the curved stretch
+
+
+def test_filter_variance_with_ratio_is_ratio_sum_over_weight_sum_squared() -> None:
+    """Pixels weighted by one sigma but noisier (or quieter) by a factor r: the filtered phase's
+    variance over 400 draws is sum(w r) / (sum w)^2 (``ratio_sum``), not 1 / sum w; with the
+    adaptive window too, whose support the filter reports."""
+    from huefringe.perframe import effective_weight_sum
+
+    rng = np.random.default_rng(11)
+    h, w = 40, 50
+    sigma = rng.uniform(0.004, 0.012, (h, w))
+    r2 = np.where(np.arange(w)[None, :] % 10 < 5, 0.5, 2.0) * np.ones((h, w))  # varies within every window
+    truth = np.where(np.arange(w)[None, :] < 25, 0.3, 1.3) * np.ones((h, w))
+    valid = np.ones((h, w), bool)
+    kw = {"max_radius": 6, "target_sigma": 0.0015}
+    draws, weff, support = [], [], None
+    for _ in range(400):
+        ws, rs, sp = (np.zeros((h, w), np.float32) for _ in range(3))
+        noisy = truth + sigma * np.sqrt(r2) * rng.standard_normal((h, w))
+        draws.append(denoise_phase(noisy, sigma, valid, radius=2, weight_sum=ws, ratio=r2.astype(np.float32),
+                                   ratio_sum=rs, support=sp, **kw))
+        weff.append(effective_weight_sum(ws, rs))
+        support = sp if support is None else np.maximum(support, sp)
+    var_mc = np.var(np.array(draws, np.float64), axis=0)
+    pred = 1.0 / np.mean(np.array(weff, np.float64), axis=0)
+    inner = np.zeros((h, w), bool)
+    inner[6:-6, 6:19] = inner[6:-6, 31:-6] = True  # away from the borders and the step
+    ratio = var_mc[inner] / pred[inner]
+    assert abs(np.median(ratio) - 1.0) < 0.06, np.median(ratio)
+    assert support[inner].max() > 25  # the adaptive window grew past 5 x 5
+
+
+@pytest.mark.parametrize("adaptive", [False, True])
+def test_step_budget_with_adaptive_support_matches_monte_carlo(adaptive: bool) -> None:
+    """The sigma-adaptive filter averages far more than its 5 x 5 first window: with the filter's
+    own support maps the budget's independent part per frame matches the step's spread over 300
+    draws (and the fixed-window count would under-predict it, which this also checks)."""
+    from huefringe import metrology
+
+    rng = np.random.default_rng(5)
+    h, w = 64, 62
+    truth = np.zeros((h, w))
+    truth[18:46, 13:47] = 1.0
+    sigma = rng.uniform(0.004, 0.012, (h, w))
+    valid = np.ones((h, w), bool)
+    a = np.ones((h, w), np.float32)
+    b = np.zeros((h, w), np.float32)
+    bud = _budget_identity((h, w))
+    spec = _specimen()
+    kw = {"max_radius": 6, "target_sigma": 0.0012} if adaptive else {}
+    vals, preds, fixed = [], [], []
+    for k in range(300):
+        noisy = truth + sigma * rng.standard_normal((h, w))
+        ws, sp = np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
+        z = np.asarray(denoise_phase(noisy, sigma, valid, radius=2, weight_sum=ws, support=sp, **kw), np.float32)
+        u = uncertainty.height_uncertainty(z, ws, valid, a, b, bud)
+        vals.append(metrology.evaluate_session([z], spec, 0.2, range_mm=6.0)["steps"][0]["mean_mm"])
+        if k < 5:
+            args = ([z], [u], spec, 0.2, a, b, bud)
+            preds.append(uncertainty.step_budget(*args, edge_exclusion=1 / 3, denoise_radius=2,
+                                                 supports=[sp])[0]["independent_per_frame_mm"])
+            fixed.append(uncertainty.step_budget(*args, edge_exclusion=1 / 3,
+                                                 denoise_radius=2)[0]["independent_per_frame_mm"])
+    sd = float(np.std(vals, ddof=1))
+    assert 0.85 < sd / np.mean(preds) < 1.15, sd / np.mean(preds)
+    if adaptive:
+        assert sd / np.mean(fixed) > 1.2  # what the fixed-window count got wrong (1.27 here)

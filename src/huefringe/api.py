@@ -46,6 +46,9 @@ class Measurement:
     uncertainty: NDArray[np.float32] | None = None
     """``(F, H, W)`` standard uncertainty of the heights (mm, NaN where the height is NaN;
     :mod:`huefringe.uncertainty`), as ``uncertainty/frame_NNNN.tiff``."""
+    support: NDArray[np.uint16] | None = None
+    """``(F, H, W)`` number of raw pixels the phase filter averaged into each height (0 where
+    NaN), as ``support/frame_NNNN.tiff``."""
     config: dict[str, Any] = field(default_factory=dict)
     """The configuration used (packaged defaults with ``config`` over them)."""
 
@@ -94,11 +97,13 @@ def measure(session: str | os.PathLike[str] | Session,
     frames = s.frame_ids if frames is None else list(frames)
     heights = np.empty((len(frames), s.height, s.width), np.float32)
     u = np.empty_like(heights)
+    support = np.empty(heights.shape, np.uint16)
     stats = []
-    for i, (_, h, _, _, st, u_map) in enumerate(frame_results(s, tables["object"], cal, frames, hue_model, measurement,
-                                                              map_frames=set())):
+    for i, (_, h, _, _, st, u_map, sup) in enumerate(frame_results(s, tables["object"], cal, frames, hue_model,
+                                                                   measurement, map_frames=set())):
         heights[i] = h  # copied: the kernel reuses its buffers
         u[i] = u_map
+        support[i] = np.rint(sup)
         stats.append(st)
     return Measurement(session=s, frames=frames, heights=heights, valid=np.isfinite(heights), calibration=cal,
-                       tables=tables, stats=stats, config=cfg, uncertainty=u)
+                       tables=tables, stats=stats, config=cfg, uncertainty=u, support=support)

@@ -74,7 +74,8 @@ from numpy.typing import NDArray
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
-from huefringe.perframe import _hue_noise_kernel, capture_noise, sensor_model, shadow_mask, sigma_from_slope
+from huefringe.perframe import (_hue_noise_kernel, capture_noise, effective_weight_sum, noise_ratio2, sensor_model,
+                                shadow_mask, sigma_from_slope)
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
@@ -149,8 +150,12 @@ class Prepared:
     budget: PixelBudget | None = None
     """Session inputs of the per-pixel height uncertainty (:func:`huefringe.uncertainty.pixel_budget`)."""
     sensor: NDArray[np.float32] | None = None
-    """The table's shot + read noise model (``perframe.sensor_model``): with it each frame's own
-    hue noise (``perframe.frame_hue_noise``) replaces ``noise`` in the denoise weights."""
+    """The table's shot + read noise model (``perframe.sensor_model``) when ``own_noise``: with it
+    each frame's own hue noise (``perframe.frame_hue_noise``) replaces ``noise`` in the denoise
+    weights."""
+    u_sensor: NDArray[np.float32] | None = None
+    """The same model for the uncertainty alone (without ``own_noise``): the filter then sums
+    ``w (own / pooled)^2`` beside its weights (``perframe.noise_ratio2``)."""
 
     @property
     def nbytes(self) -> int:
@@ -272,7 +277,9 @@ def prepare(
     if getattr(cal, "phase_error", None) is not None:
         prep.phase_error = np.ascontiguousarray(cal.phase_error, dtype=np.float64)
     prep.budget = pixel_budget(table, cal)
-    prep.sensor = sensor_model(table) if own_noise else None  # measure_frame's own_noise
+    model = sensor_model(table)
+    prep.sensor = model if own_noise else None  # measure_frame's own_noise
+    prep.u_sensor = None if own_noise else model
     prep.stats = {
         "table_invalid_fraction": float(np.mean(~np.asarray(table.valid, bool))),
         "shadow_fraction": float(shadow_arr.mean()),
@@ -959,6 +966,9 @@ class FrameMaps:
     uncertainty: NDArray[np.float32] | None = None
     """Standard uncertainty of the height in mm, NaN where the height is NaN
     (``want_uncertainty``; :func:`huefringe.uncertainty.height_uncertainty`)."""
+    support: NDArray[np.float32] | None = None
+    """Pixels the filter averaged into each height, 0 where NaN (``want_uncertainty``;
+    ``perframe.FrameResult.support``)."""
 
 
 def _check_frame(prep: Prepared, rgb: NDArray[Any]) -> tuple[NDArray[Any], float]:
@@ -1032,23 +1042,35 @@ def frame_maps(
         prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, prep.phase_error, height, valid, dphi, weights,
         phase, hue,
     )
-    sumw = None
+    ratio = None
+    if want_uncertainty and prep.u_sensor is not None:  # this frame's own noise, for u alone (as measure_frame)
+        own = np.empty((h, w), dtype=np.float64)
+        _hue_noise_kernel(a, np.float32(scale), prep.gains, hsi, prep.u_sensor, prep.noise, own)
+        ratio = noise_ratio2(own, prep.noise)
+    sumw = rsum = support = None
     if denoise:
-        sumw = np.empty((h, w), dtype=np.float32) if want_uncertainty else None
+        if want_uncertainty:
+            sumw, support = np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.float32)
+            rsum = np.empty((h, w), dtype=np.float32) if ratio is not None else None
         smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k),
-                                  weight_sum=sumw, **adaptive_kwargs(denoise_adaptive))
+                                  weight_sum=sumw, ratio=ratio, ratio_sum=rsum, support=support,
+                                  **adaptive_kwargs(denoise_adaptive))
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     elif want_uncertainty:  # no filter: the weights path, heights from the unfiltered dz
         smooth, sumw = weights[0], weights[2]
+        rsum = sumw * ratio if ratio is not None else None
+        support = (sumw > 0).astype(np.float32)
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     u_map = None
     if want_uncertainty:
         if prep.budget is None:
             raise ValueError("the prepared calibration has no uncertainty budget (kernel.prepare sets it)")
-        u_map = edge_floor(height, valid, height_uncertainty(smooth, sumw, valid, prep.a, prep.b, prep.budget))
+        weff = effective_weight_sum(sumw, rsum) if rsum is not None else sumw
+        u_map = edge_floor(height, valid, height_uncertainty(smooth, weff, valid, prep.a, prep.b, prep.budget))
+        support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
               "guess_far": int(n_far)}
-    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map)
+    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map, support)
 
 
 def frame_to_height(

@@ -31,7 +31,9 @@ __all__ = [
     "FrameResult",
     "capture_noise",
     "clipped_mask",
+    "effective_weight_sum",
     "frame_hue_noise",
+    "noise_ratio2",
     "frame_stats",
     "measure_frame",
     "phase_sigma",
@@ -109,6 +111,9 @@ class FrameResult:
     stats: dict[str, Any] = field(default_factory=dict)
     uncertainty: NDArray[np.float32] | None = None
     """Standard uncertainty of the height (mm), NaN where the height is NaN (:mod:`huefringe.uncertainty`)."""
+    support: NDArray[np.float32] | None = None
+    """Number of pixels the phase filter averaged into each height (1 without the filter; 0 where
+    the height is NaN): what a step's mean shares between neighbours (:func:`~huefringe.uncertainty.step_budget`)."""
 
 
 def measure_frame(
@@ -177,23 +182,33 @@ def measure_frame(
         valid &= ~shadow
     dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
     un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
-    noise = frame_hue_noise(table, rgb, white_gains(white), hue_model) if own_noise else None  # this frame's signal
-    sigma = phase_sigma(table, slope, noise=noise)
+    # this frame's own-signal hue noise: in the weights with own_noise, else in the uncertainty only
+    own = frame_hue_noise(table, rgb, white_gains(white), hue_model) if own_noise or sensor_model(table) is not None \
+        else None
+    sigma = phase_sigma(table, slope, noise=own if own_noise else None)
+    ratio = noise_ratio2(own, capture_noise(table)) if own is not None and not own_noise else None
     if predistortion is not None:
         sigma = sigma * np.abs(predistortion.decode_slope(emitted))
     sumw = np.zeros(valid.shape, np.float32)
+    rsum = np.zeros(valid.shape, np.float32)
+    support = np.zeros(valid.shape, np.float32)
     if denoise_radius > 0:
-        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius, weight_sum=sumw,
+        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius, weight_sum=sumw, ratio=ratio,
+                                ratio_sum=rsum if ratio is not None else None, support=support,
                                 **adaptive_kwargs(denoise_adaptive))
     else:  # one pixel's weight 1 / sigma^2, in the filter's float32 arithmetic
         sumw = denoise_weight_sums(un.dphi, sigma, valid)
+        rsum = sumw * ratio if ratio is not None else rsum
+        support = (sumw > 0).astype(np.float32)
     height = cal.height(un.dphi)
     valid &= np.isfinite(height)
     height = np.where(valid, height, np.nan).astype(np.float32)
     if budget is None:
         budget = pixel_budget(table, cal)
-    u_map = edge_floor(height, valid, height_uncertainty(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b,
+    weff = effective_weight_sum(sumw, rsum) if ratio is not None else sumw
+    u_map = edge_floor(height, valid, height_uncertainty(np.asarray(un.dphi, np.float32), weff, valid, cal.a, cal.b,
                                                          budget))
+    support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
     stats = frame_stats(
         valid, height, un.flags,
         clipped_fraction=float(clipped.mean()),
@@ -203,7 +218,7 @@ def measure_frame(
         hue_model=hue_model, unwrap_mode=unwrap_mode, below_reference_mm=below_reference_mm,
     )
     return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats,
-                       u_map)
+                       u_map, support)
 
 
 def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Mapping[str, NDArray[np.bool_]], *,
@@ -420,6 +435,34 @@ def _median_keys(keys, n):  # pragma: no cover - numba
 
 
 # --------------------------------------------------------------------------- sensor noise
+
+
+#: Bounds of :func:`noise_ratio2` (a pixel's own noise variance is never taken as more than 1000
+#: times below or above the pooled one: keeps the filter's float32 sums finite).
+_RATIO2_BOUNDS = (1e-6, 1e6)
+
+
+def noise_ratio2(own: NDArray[np.floating], pooled: NDArray[np.floating]) -> NDArray[np.float32]:
+    """``(own / pooled)^2`` per pixel, float32, clipped to ``[1e-6, 1e6]``: how much the frame's
+    own-signal noise variance (:func:`frame_hue_noise`) differs from the pooled one that weights
+    the phase filter (:func:`capture_noise`). The filter sums ``w`` times it
+    (:func:`huefringe.phase.denoise_phase`'s ``ratio``), so that the uncertainty follows the
+    frame's signal while the weights, and so the heights, do not."""
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        r = (np.asarray(own, np.float64) / np.asarray(pooled, np.float64)) ** 2
+    return np.ascontiguousarray(np.clip(np.nan_to_num(r, nan=1.0), *_RATIO2_BOUNDS), np.float32)
+
+
+def effective_weight_sum(weight_sum: NDArray[np.float32], ratio_sum: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The weight sum whose inverse is the filtered phase's actual variance:
+    ``(sum w)^2 / sum(w ratio)`` (``sum w^2 sigma_true^2 / (sum w)^2 = 1 / this`` with
+    ``w = 1 / sigma^2``); 0 where no weight. Float32, the same arithmetic for the reference chain
+    and the kernel."""
+    w = np.asarray(weight_sum, np.float32)
+    r = np.asarray(ratio_sum, np.float32)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = w * (w / r)
+    return np.where(r > 0, out, np.float32(0.0)).astype(np.float32)
 
 
 def sensor_model(table: HueTable) -> NDArray[np.float32] | None:

@@ -206,16 +206,42 @@ def _denoise_row(dj, di, sj2, si2, inv, k2, acc, wsum):  # pragma: no cover - co
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _denoise_kernel(d, s2, inv, radius, k2, out, wout):  # pragma: no cover - compiled
+def _denoise_row_u(dj, di, sj2, si2, inv, rj, k2, acc, wsum, rsum, cnt):  # pragma: no cover - compiled
+    """:func:`_denoise_row` that also sums, over the accepted neighbours, ``w r`` (``r``: the
+    ratio of a pixel's own-signal noise variance to the one in its weight) and their count."""
+    two_pi = np.float32(2.0 * np.pi)
+    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
+    pi = np.float32(np.pi)
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    for u in range(dj.size):
+        diff = dj[u] - di[u]
+        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)  # to [-pi, pi)
+        keep = diff * diff <= k2 * (si2[u] + sj2[u])
+        wj = inv[u] if keep else zero
+        acc[u] += wj * diff
+        wsum[u] += wj
+        rsum[u] += wj * rj[u]
+        cnt[u] += one if keep & (inv[u] > zero) else zero
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _denoise_kernel(d, s2, inv, radius, k2, out, wout, r2, rout, cout, full):  # pragma: no cover - compiled
     """Row by row, window offset by window offset (``dv`` then ``du``, the same order for every
     pixel); ``inv = 0`` marks invalid pixels, which then add nothing. ``wout``: each pixel's sum
-    of accepted weights (its filtered variance is ``1 / wout``; 0 where not valid)."""
+    of accepted weights (its filtered variance is ``1 / wout``; 0 where not valid). With
+    ``full``, also ``rout`` (the sum of ``w r2`` over the accepted neighbours) and ``cout``
+    (their number, the pixel's support); the phase and ``wout`` are the same bits either way."""
     h, w = d.shape
     acc = np.empty(w, np.float32)
     wsum = np.empty(w, np.float32)
+    rsum = np.empty(w, np.float32)
+    cnt = np.empty(w, np.float32)
     for v in range(h):
         acc[:] = 0.0
         wsum[:] = 0.0
+        rsum[:] = 0.0
+        cnt[:] = 0.0
         for dv in range(-radius, radius + 1):
             vv = v + dv
             if vv < 0 or vv >= h:
@@ -223,15 +249,27 @@ def _denoise_kernel(d, s2, inv, radius, k2, out, wout):  # pragma: no cover - co
             for du in range(-radius, radius + 1):
                 u0 = max(0, -du)
                 u1 = min(w, w - du)
-                _denoise_row(d[vv, u0 + du : u1 + du], d[v, u0:u1], s2[vv, u0 + du : u1 + du], s2[v, u0:u1],
-                             inv[vv, u0 + du : u1 + du], k2, acc[u0:u1], wsum[u0:u1])
+                if full:
+                    _denoise_row_u(d[vv, u0 + du : u1 + du], d[v, u0:u1], s2[vv, u0 + du : u1 + du], s2[v, u0:u1],
+                                   inv[vv, u0 + du : u1 + du], r2[vv, u0 + du : u1 + du], k2, acc[u0:u1],
+                                   wsum[u0:u1], rsum[u0:u1], cnt[u0:u1])
+                else:
+                    _denoise_row(d[vv, u0 + du : u1 + du], d[v, u0:u1], s2[vv, u0 + du : u1 + du], s2[v, u0:u1],
+                                 inv[vv, u0 + du : u1 + du], k2, acc[u0:u1], wsum[u0:u1])
         for u in range(w):
-            out[v, u] = d[v, u] + acc[u] / wsum[u] if inv[v, u] > 0 else np.float32(np.nan)
-            wout[v, u] = wsum[u] if inv[v, u] > 0 else np.float32(0.0)
+            ok = inv[v, u] > 0
+            out[v, u] = d[v, u] + acc[u] / wsum[u] if ok else np.float32(np.nan)
+            wout[v, u] = wsum[u] if ok else np.float32(0.0)
+        if full:
+            for u in range(w):
+                ok = inv[v, u] > 0
+                rout[v, u] = rsum[u] if ok else np.float32(0.0)
+                cout[v, u] = cnt[u] if ok else np.float32(0.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout):  # pragma: no cover
+def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
+                   r2, rfirst, cfirst, rout, cout, full):
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
@@ -239,7 +277,9 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     (``diff^2 <= k2 (s_j^2 + 1 / wfirst)``): a noisy pixel is judged by its better estimate, so
     a step stays a step. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
     save them). ``wout`` receives each pixel's final sum of accepted weights (0 where not
-    valid). Float32, fixed visiting order: the result depends only on the inputs.
+    valid). Float32, fixed visiting order: the result depends only on the inputs. With ``full``,
+    ``rout`` and ``cout`` receive the final sums of ``w r2`` and the final support (number of
+    accepted neighbours), from ``rfirst`` and ``cfirst`` where the first pass stands.
 
     The pixels of a row that need the pass go through it together, one window offset at a time
     across all of them (SIMD over the pixels), each leaving the list once its weights reach the
@@ -260,8 +300,16 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     xg = np.empty(w, np.float32)  # scratch: the gathered neighbours
     ig = np.empty(w, np.float32)
     sg = np.empty(w, np.float32)
+    pr = np.empty(w, np.float32)  # (full) running sums of w r2 and support
+    pc = np.empty(w, np.float32)
+    rg = np.empty(w, np.float32)
+    one = np.float32(1.0)
     for v in range(h):
         n = 0
+        if full:
+            for u in range(w):
+                rout[v, u] = rfirst[v, u]
+                cout[v, u] = cfirst[v, u]
         for u in range(w):
             out[v, u] = first[v, u]
             wout[v, u] = wfirst[v, u]
@@ -282,6 +330,8 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
             pdc[q] = d[v, u]
             pacc[q] = 0.0
             pw[q] = 0.0
+            pr[q] = 0.0
+            pc[q] = 0.0
         for r in range(0, max_radius + 1):
             for dv in range(-r, r + 1):
                 vv = v + dv
@@ -300,6 +350,9 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         xg[q] = d[vv, uc]
                         ig[q] = inv[vv, uc] if inb else zero
                         sg[q] = s2[vv, uc]
+                    if full:
+                        for q in range(n):
+                            rg[q] = r2[vv, min(max(pu[q] + du, 0), w - 1)]
                     # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to sums
                     # that start at +0 and so are never -0: bit for bit as skipping it
                     for q in range(n):
@@ -312,6 +365,14 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
                         pacc[q] += iv * diff if keep else zero
                         pw[q] += iv if keep else zero
+                    if full:  # the same test again, for the uncertainty's sums
+                        for q in range(n):
+                            iv = ig[q]
+                            dm = xg[q] - pm[q]
+                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            pr[q] += iv * rg[q] if keep else zero
+                            pc[q] += one if keep else zero
                     du += step if step > 0 else 1
             if r >= radius or r == max_radius:
                 # a pixel stops once its weights reach the target (or at the last ring): its
@@ -328,6 +389,9 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                             val = pm[q]
                         else:
                             val = pdc[q] + pacc[q] / wsum
+                            if full:
+                                rout[v, u] = pr[q]
+                                cout[v, u] = pc[q]
                         out[v, u] = val if wsum >= reject_w else nan
                         wout[v, u] = wsum
                         continue
@@ -337,6 +401,8 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                     pdc[keep_n] = pdc[q]
                     pacc[keep_n] = pacc[q]
                     pw[keep_n] = pw[q]
+                    pr[keep_n] = pr[q]
+                    pc[keep_n] = pc[q]
                     keep_n += 1
                 n = keep_n
                 if n == 0:
@@ -345,7 +411,9 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
 
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
                   *, radius: int = 2, k: float = 3.0, max_radius: int = 0, target_sigma: float = 0.0,
-                  reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+                  reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None,
+                  ratio: NDArray[np.float32] | None = None, ratio_sum: NDArray[np.float32] | None = None,
+                  support: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """Edge-preserving, uncertainty-weighted local mean of a phase map.
 
     Each valid pixel becomes the inverse-variance weighted mean of the valid pixels in its
@@ -375,6 +443,15 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         Receives each pixel's sum of the weights ``1 / sigma^2`` of the neighbours it averaged
         (0 where not valid): the filtered phase's variance from independent pixel noise is
         exactly ``1 / weight_sum`` (:mod:`huefringe.uncertainty`).
+    ratio, ratio_sum : float32 ndarray, optional
+        When the pixels' actual noise variance is ``ratio`` times the ``sigma^2`` that weights
+        them (e.g. the frame's own-signal noise against the pooled one), ``ratio_sum`` receives
+        each pixel's ``sum w ratio``: the filtered phase's variance is then
+        ``ratio_sum / weight_sum^2`` (``sum w^2 sigma_true^2 / (sum w)^2``).
+    support : float32 ndarray, optional
+        Receives the number of pixels each pixel averaged (itself included; 0 where not valid):
+        its final window's accepted neighbours, which the adaptive pass may grow far beyond the
+        ``(2 radius + 1)^2`` window.
 
     Returns
     -------
@@ -395,7 +472,8 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     dz, s2, inv = (np.empty(d.shape, np.float32) for _ in range(3))
     _denoise_weights(d, s, valid, dz, s2, inv)
     return denoise_weighted(dz, s2, inv, radius=radius, k=k, max_radius=max_radius, target_sigma=target_sigma,
-                            reject_sigma=reject_sigma, weight_sum=weight_sum)
+                            reject_sigma=reject_sigma, weight_sum=weight_sum, ratio=ratio, ratio_sum=ratio_sum,
+                            support=support)
 
 
 def denoise_weight_sums(dphi: NDArray[np.floating], sigma: NDArray[np.floating],
@@ -413,32 +491,49 @@ def denoise_weight_sums(dphi: NDArray[np.floating], sigma: NDArray[np.floating],
 
 def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDArray[np.float32], *,
                      radius: int = 2, k: float = 3.0, max_radius: int = 0, target_sigma: float = 0.0,
-                     reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+                     reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None,
+                     ratio: NDArray[np.float32] | None = None, ratio_sum: NDArray[np.float32] | None = None,
+                     support: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """:func:`denoise_phase` on its prepared float32 inputs (for callers that compute them on
     the fly, like the fused kernel): ``ok = valid & finite(dphi) & finite(sigma) & sigma > 0``,
     ``dz = ok ? dphi : 0``, ``s2 = float32(clip(ok ? sigma : 1, 1e-9, 1e9)) ** 2`` and
     ``inv = ok ? 1 / s2 : 0``. Returns the filtered phase, NaN where ``inv == 0``;
-    ``weight_sum`` (float32, C-contiguous, optional) receives the sums of the weights used.
+    ``weight_sum``, ``ratio_sum`` and ``support`` (float32, C-contiguous, optional) receive the
+    sums of the weights used, of the weights times ``ratio`` and the number of pixels averaged
+    (:func:`denoise_phase`). The phase and ``weight_sum`` do not depend on whether the other
+    two are asked for.
     """
     arrays = [np.ascontiguousarray(x, dtype=np.float32) for x in (dz, s2, inv)]
     if not arrays[0].shape == arrays[1].shape == arrays[2].shape or arrays[0].ndim != 2:
         raise ValueError("dz, s2 and inv must be 2-D arrays of the same shape")
     out = np.empty(arrays[0].shape, np.float32)
-    if weight_sum is not None and (weight_sum.shape != out.shape or weight_sum.dtype != np.float32
-                                   or not weight_sum.flags.c_contiguous):
-        raise ValueError("weight_sum must be a C-contiguous float32 array of the phase's shape")
-    wsum = np.empty(arrays[0].shape, np.float32)
-    _denoise_kernel(*arrays, int(radius), np.float32(float(k) ** 2), out, wsum)
+    for name, x in (("weight_sum", weight_sum), ("ratio_sum", ratio_sum), ("support", support)):
+        if x is not None and (x.shape != out.shape or x.dtype != np.float32 or not x.flags.c_contiguous):
+            raise ValueError(f"{name} must be a C-contiguous float32 array of the phase's shape")
+    full = ratio_sum is not None or support is not None
+    if ratio_sum is not None and ratio is None:
+        raise ValueError("ratio_sum needs ratio")
+    r2 = (np.ascontiguousarray(ratio, np.float32) if ratio is not None else np.ones(out.shape, np.float32)) \
+        if full else np.empty((1, 1), np.float32)
+    if r2.shape != out.shape and full:
+        raise ValueError(f"ratio has shape {r2.shape}, the phase {out.shape}")
+    wsum = np.empty(out.shape, np.float32)
+    rsum = np.empty(out.shape if full else (1, 1), np.float32)
+    cnt = np.empty(out.shape if full else (1, 1), np.float32)
+    _denoise_kernel(*arrays, int(radius), np.float32(float(k) ** 2), out, wsum, r2, rsum, cnt, full)
     if (max_radius > radius and target_sigma > 0) or reject_sigma > 0:
         final = np.empty_like(out)
         wfinal = weight_sum if weight_sum is not None else np.empty_like(wsum)
+        rfinal = ratio_sum if ratio_sum is not None else np.empty_like(rsum)
+        cfinal = support if support is not None else np.empty_like(cnt)
         target_w = np.float32(1.0 / target_sigma**2) if target_sigma > 0 else np.float32(0.0)
         reject_w = np.float32(1.0 / reject_sigma**2) if reject_sigma > 0 else np.float32(0.0)
         _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), np.float32(float(k) ** 2),
-                       target_w, reject_w, final, wfinal)
+                       target_w, reject_w, final, wfinal, r2, rsum, cnt, rfinal, cfinal, full)
         return final
-    if weight_sum is not None:
-        weight_sum[...] = wsum
+    for dst, src in ((weight_sum, wsum), (ratio_sum, rsum), (support, cnt)):
+        if dst is not None:
+            dst[...] = src
     return out
 
 

@@ -247,7 +247,7 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
                    measurement: Mapping[str, Any], calibration: Mapping[str, Any],
                    heights: Sequence[str], qa: Sequence[str], phases: Sequence[str] = (),
                    hues: Sequence[str] = (), map_frames: Sequence[int] | None = None,
-                   uncertainties: Sequence[str] = ()) -> None:
+                   uncertainties: Sequence[str] = (), supports: Sequence[str] = ()) -> None:
     """Measure a batch of frames: height TIFF and QA JSON per frame, phase and hue maps of some.
 
     Parameters
@@ -262,6 +262,10 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
     uncertainties : sequence of str
         One standard-uncertainty TIFF (mm, NaN where the height is NaN;
         :mod:`huefringe.uncertainty`) per frame of ``frames``, or none.
+    supports : sequence of str
+        One uint16 TIFF per frame (with ``uncertainties``): how many raw pixels the phase filter
+        averaged into each height (0 where the height is NaN), which the step budget needs
+        (:func:`huefringe.uncertainty.step_budget`).
 
     The coloured point clouds are written from the height TIFFs by :func:`cloud_frames`, a stage
     (and workflow job) of its own.
@@ -279,14 +283,18 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         raise ValueError(f"measure_frames: map frames {sorted(set(maps) - set(frames))} are not in the batch")
     if uncertainties and len(uncertainties) != len(frames):
         raise ValueError(f"measure_frames: {len(frames)} frames, {len(uncertainties)} uncertainty maps")
+    if supports and len(supports) != len(uncertainties):
+        raise ValueError(f"measure_frames: {len(uncertainties)} uncertainty maps, {len(supports)} support maps")
     s = load_session(session)
     results = frame_results(s, HueTable.load(table), PlaneCalibration.load(model), frames, hue_model, measurement,
                             set(maps), want_uncertainty=bool(uncertainties))
-    for i, (n, height, phase, hue, stats, u_map) in enumerate(results):
+    for i, (n, height, phase, hue, stats, u_map, support) in enumerate(results):
         path = s.frames[n]
         write_tiff(heights[i], height)
         if uncertainties:
             write_tiff(uncertainties[i], u_map)
+        if supports:
+            write_tiff(supports[i], np.rint(support).astype(np.uint16))
         if n in maps:
             write_tiff(maps[n][0], phase)
             write_tiff(maps[n][1], hue)
@@ -297,14 +305,15 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
 
 def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequence[int], hue_model: str,
                   measurement: Mapping[str, Any], map_frames: set[int] | None = None, want_uncertainty: bool = True):
-    """Measure frames of a session one by one: yields ``(frame, height, phase, hue, stats, uncertainty)``.
+    """Measure frames of a session one by one: yields ``(frame, height, phase, hue, stats, uncertainty, support)``.
 
     The loop of :func:`measure_frames` (which writes what it yields) and of :func:`huefringe.measure`
     (which keeps it): the fused kernel with ``measurement.kernel`` and reference-relative
     unwrapping, :func:`~huefringe.perframe.measure_frame` otherwise. ``phase`` and ``hue`` are
     those of the frames in ``map_frames`` (default: all; None from the kernel for the others).
     ``uncertainty`` is the height's standard uncertainty map (mm, :mod:`huefringe.uncertainty`;
-    None from the kernel with ``want_uncertainty=False``).
+    None from the kernel with ``want_uncertainty=False``), ``support`` the number of pixels the
+    phase filter averaged into each height (float32, 0 where NaN; None alike).
     After either chain, ``measurement.edge_jump_mm`` > 0 invalidates the mixed pixels of step edges
     (:func:`~huefringe.perframe.step_edge_mask`; ``stats["edge_fraction"]``), so the kernel and
     :func:`~huefringe.perframe.measure_frame` stay identical to each other.
@@ -336,7 +345,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                                           hue_undefined_fraction=m.counts["hue_undefined"] / px,
                                           table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
                                           hue_model=hue_model)
-            height, phase, hue, u_map = m.height, m.phase, m.hue, m.uncertainty
+            height, phase, hue, u_map, support = m.height, m.phase, m.hue, m.uncertainty, m.support
         else:
             budget = pixel_budget(t, cal) if budget is None else budget
             res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
@@ -345,6 +354,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                                 denoise_adaptive=measurement.get("denoise_adaptive"), budget=budget,
                                 own_noise=bool(measurement.get("own_noise", False)))
             height, phase, hue, stats, u_map = res.height, res.phase, res.hue, res.stats, res.uncertainty
+            support = res.support
         jump = float(measurement.get("edge_jump_mm", 0.0) or 0.0)
         if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
             edge = step_edge_mask(height, jump)
@@ -353,12 +363,14 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                 phase = np.where(edge, np.float32(np.nan), phase).astype(np.float32)
             if u_map is not None:
                 u_map = np.where(edge, np.float32(np.nan), u_map).astype(np.float32)
+            if support is not None:
+                support = np.where(edge, np.float32(0.0), support).astype(np.float32)
             stats = dict(stats)
             stats["edge_fraction"] = float(edge.mean())
             stats["valid_fraction"] = float(np.count_nonzero(np.isfinite(height)) / height.size)
             stats["median_height_mm"] = float(np.nanmedian(height)) if np.isfinite(height).any() else None
         _refuse_bad_frame(path, stats, measurement)
-        yield n, height, phase, hue, stats, u_map
+        yield n, height, phase, hue, stats, u_map, support
 
 
 def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], clouds: Sequence[str],
@@ -547,12 +559,15 @@ def render(session: str, mesh: str, height: str, phase: str, render: Mapping[str
 def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline: Sequence[str], planes: str, tables: str,
                      cross_section: str, render: str, height_map: str, accuracy: Sequence[str],
                      config: Mapping[str, Any], json: str, html: str, profile: str, per_frame: str,
-                     uncertainties: Sequence[str] = (), model: str = "", object_table: str = "") -> None:
+                     uncertainties: Sequence[str] = (), model: str = "", object_table: str = "",
+                     supports: Sequence[str] = ()) -> None:
     """Step-height metrology of every frame: report.json (results contract) and report.html.
 
     With ``uncertainties`` (one map per height map), the phase-to-height ``model`` and the
     ``object_table``, each step also gets ``u_mm``, ``U_mm``, its ISO 14253-1 ``conformance``
-    and its ``uncertainty_budget`` (:func:`add_step_uncertainty`).
+    and its ``uncertainty_budget`` (:func:`add_step_uncertainty`); ``supports`` (the filter's
+    support maps, one per frame) give the budget each pixel's actual support (without them:
+    the fixed window's).
     """
     import json as jsonlib
 
@@ -580,7 +595,8 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
     if uncertainties:
         add_step_uncertainty(method, _TiffMaps(heights), _TiffMaps(uncertainties), spec, s.pixel_pitch_mm,
                              PlaneCalibration.load(model), HueTable.load(object_table), edge_exclusion=edge,
-                             denoise_radius=int(config["measurement"]["denoise_radius"]))
+                             denoise_radius=int(config["measurement"]["denoise_radius"]),
+                             supports=_TiffMaps(supports) if supports else None)
     base = evaluate(baseline, method="three-step-phase-shift") if baseline else None
     plane_stats = jsonlib.loads(Path(planes).read_text())
     table_stats = jsonlib.loads(Path(tables).read_text())
@@ -674,7 +690,8 @@ def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_
 
 def add_step_uncertainty(method: dict[str, Any], heights: Sequence[NDArray[np.floating]],
                          uncertainties: Sequence[NDArray[np.floating]], specimen: Mapping[str, Any], pitch_mm: float,
-                         cal: PlaneCalibration, table: HueTable, *, edge_exclusion: float, denoise_radius: int) -> None:
+                         cal: PlaneCalibration, table: HueTable, *, edge_exclusion: float, denoise_radius: int,
+                         supports: Sequence[NDArray[np.floating]] | None = None) -> None:
     """Add ``u_mm``, ``U_mm`` (k = 2), ``conformance`` and ``uncertainty_budget`` to each step of an
     :func:`huefringe.metrology.evaluate_session` block, and ``verdict_with_uncertainty`` to the block.
 
@@ -686,7 +703,7 @@ def add_step_uncertainty(method: dict[str, Any], heights: Sequence[NDArray[np.fl
     if len(uncertainties) != len(heights):
         raise ValueError(f"{len(heights)} height maps but {len(uncertainties)} uncertainty maps")
     budgets = unc.step_budget(heights, uncertainties, specimen, pitch_mm, cal.a, cal.b, unc.pixel_budget(table, cal),
-                              edge_exclusion=edge_exclusion, denoise_radius=denoise_radius)
+                              edge_exclusion=edge_exclusion, denoise_radius=denoise_radius, supports=supports)
     tol = float(method["tolerance_mm"])
     for step, bud in zip(method["steps"], budgets, strict=True):
         step["u_mm"] = bud["u_mm"]
@@ -716,7 +733,8 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
 
     The same stages, in the same order, as the workflow's ``hue_table``, ``plane_calibration``,
     ``measure_frames``, ``cloud_frames`` (and ``baseline_frames``) jobs; for scripts, benchmarks and tests. Returns the
-    output paths by kind (``heights``, ``clouds``, ``phases``, ``hues``, ``qa``, optionally
+    output paths by kind (``heights``, ``clouds``, ``phases``, ``hues``, ``qa``, ``uncertainties``,
+    ``supports``, optionally
     ``baseline``) and the loaded ``session``.
     """
     out = Path(out)
@@ -733,11 +751,11 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
     paths: dict[str, Any] = {
         k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
         for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"),
-                       ("uncertainties", "tiff"))
+                       ("uncertainties", "tiff"), ("supports", "tiff"))
     }
     measure_frames(str(session), frames, str(out / "table_object.json"), str(out / "model.npz"), model,
                    config["measurement"], cal, heights=paths["heights"], phases=paths["phases"], hues=paths["hues"],
-                   qa=paths["qa"], uncertainties=paths["uncertainties"])
+                   qa=paths["qa"], uncertainties=paths["uncertainties"], supports=paths["supports"])
     cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"],
                  uncertainties=paths["uncertainties"])
     if baseline:

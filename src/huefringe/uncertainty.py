@@ -515,6 +515,22 @@ def _neighbour_counts(valid: NDArray[np.bool_], radius: int) -> NDArray[np.float
     return np.rint(ndimage.uniform_filter(valid.astype(np.float64), n, mode="constant") * n * n)
 
 
+def _spread(v: NDArray[np.integer], u: NDArray[np.integer], c: NDArray[np.floating], n: NDArray[np.floating],
+            shape: tuple[int, ...]) -> NDArray[np.float64]:
+    """Weights of the raw pixels in ``sum_i c_i f_i``, the ``f_i`` (at ``(v_i, u_i)``) each the mean of
+    the ``n_i`` raw pixels of a square about it (side ``sqrt(n_i)``, rounded to odd, clipped to the
+    image): every ``c_i`` spread evenly over its square (box sums by a 2-D difference array)."""
+    h, w = shape[:2]
+    r = np.maximum(np.rint((np.sqrt(np.maximum(n, 1.0)) - 1.0) / 2.0), 0).astype(np.int64)
+    v0, v1 = np.clip(v - r, 0, h), np.clip(v + r + 1, 0, h)
+    u0, u1 = np.clip(u - r, 0, w), np.clip(u + r + 1, 0, w)
+    val = np.asarray(c, np.float64) / ((v1 - v0) * (u1 - u0))
+    d = np.zeros((h + 1) * (w + 1))
+    for vv, uu, sign in ((v0, u0, 1.0), (v0, u1, -1.0), (v1, u0, -1.0), (v1, u1, 1.0)):
+        d += np.bincount(vv * (w + 1) + uu, weights=sign * val, minlength=d.size)
+    return np.cumsum(np.cumsum(d.reshape(h + 1, w + 1), axis=0), axis=1)[:h, :w]
+
+
 def step_budget(
     heights: Sequence[NDArray[np.floating]],
     uncertainties: Sequence[NDArray[np.floating]],
@@ -526,16 +542,23 @@ def step_budget(
     *,
     edge_exclusion: float,
     denoise_radius: int,
+    supports: Sequence[NDArray[np.floating]] | None = None,
 ) -> list[dict[str, Any]]:
     """Standard uncertainty of each step's mean height over the frames, term by term.
 
     A step height is ``mean_T(z) - mean_T(plane)``, the plane fitted over the base boxes B
     (:func:`huefringe.metrology.step_height`). Per frame and term:
 
-    - independent and pixel terms: a filtered pixel shares its raw pixels with the ``n_i``
-      valid pixels of its window, so a mean over a region has variance
-      ``sum_i c_i^2 u_i^2 n_i`` (``c_i = 1/N`` on T; on B the plane's weights, which give
-      ``mean_T(plane)``); ``N / mean(n_i)`` is the effective number of independent pixels;
+    - independent and pixel terms: a filtered pixel ``i`` averages ``n_i`` raw pixels (its
+      support: ``supports``, the filter's own count, which the sigma-adaptive window grows;
+      without it the valid pixels of the fixed ``(2 denoise_radius + 1)^2`` window), taken as a
+      square of side ``sqrt(n_i)`` about it, each raw pixel of variance ``u_j^2 n_j``. A linear
+      combination ``sum_i c_i f_i`` (``c_i = 1/N`` on T; on B the plane's weights, which give
+      ``mean_T(plane)``) is then ``sum_j a_j x_j`` with ``a_j`` the ``c_i / n_i`` of the squares
+      that hold ``j`` (:func:`_spread`), of variance ``sum_j a_j^2 u_j^2 n_j``: well inside a
+      large region ``sum_i c_i^2 u_i^2 n_i``, less where the squares reach past its border (a
+      small box, a wide window). ``N / mean(n_i)`` is reported as the effective number of
+      independent pixels;
     - correlated terms: fully correlated within T and within B, independent between them:
       ``mean_T(u)^2 + mean_B(u)^2``.
 
@@ -548,11 +571,18 @@ def step_budget(
     shape = np.shape(heights[0])
     base_boxes = [metrology.check_box(bx, shape, f"base_roi[{i}]") for i, bx in enumerate(base)]
     rows: dict[int, dict[str, list[float]]] = {k: {t: [] for t in (*TERMS, "base_plane", "n_eff")} for k in range(len(steps))}
-    for z, u in zip(heights, uncertainties, strict=True):
+    if supports is not None and len(supports) != len(heights):
+        raise ValueError(f"{len(heights)} height maps but {len(supports)} support maps")
+    for f, (z, u) in enumerate(zip(heights, uncertainties, strict=True)):
         z = np.asarray(z, np.float64)
         valid = np.isfinite(z) & np.isfinite(u)
         parts = split_terms(u, z, a, b, budget)
-        ncount = _neighbour_counts(valid, denoise_radius)
+        if supports is None:
+            ncount = _neighbour_counts(valid, denoise_radius)
+        else:
+            ncount = np.maximum(np.asarray(supports[f], np.float64), 1.0)
+            if ncount.shape != shape:
+                raise ValueError(f"support map {f} has shape {ncount.shape}, the heights {shape}")
         bmask = np.zeros(shape, bool)
         for u0, v0, u1, v1 in base_boxes:
             bmask[v0:v1, u0:u1] = True
@@ -571,14 +601,18 @@ def step_budget(
             cb = xbar @ pinv  # weights of the base pixels in mean_T(plane)
             n_t = ncount[tmask]
             rows[k]["n_eff"].append(float(nt / n_t.mean()))
+            # each raw pixel's weight in mean_T(z) and in mean_T(plane)
+            a_top = _spread(vt, ut, np.full(nt, 1.0 / nt), n_t, shape)
+            a_base = _spread(vb, ub, cb, ncount[bmask], shape)
             plane_var = 0.0
             for term in TERMS:
                 p = parts[term]
                 if GROUPS[term] == "correlated":
                     var = np.mean(p[tmask]) ** 2 + np.mean(p[bmask]) ** 2
                 else:
-                    vtop = float(np.sum(p[tmask] ** 2 * n_t)) / nt**2
-                    vbase = float(np.sum(cb**2 * p[bmask] ** 2 * ncount[bmask]))
+                    raw = np.where(valid, p * p * ncount, 0.0)  # a raw pixel's variance: u^2 times its support
+                    vtop = float(np.sum(a_top**2 * raw))
+                    vbase = float(np.sum(a_base**2 * raw))
                     var = vtop + vbase
                     plane_var += vbase
                 rows[k][term].append(float(var))

@@ -68,6 +68,7 @@ def frame_outputs(sid, frames):
         "hues": [R(sid, "hue", f"{fname(n)}.tiff") for n in frames],
         "qa": [R(sid, "qa", "frames", f"{fname(n)}.json") for n in frames],
         "uncertainties": [R(sid, "uncertainty", f"{fname(n)}.tiff") for n in frames],
+        "supports": [R(sid, "support", f"{fname(n)}.tiff") for n in frames],
     }
 
 
@@ -84,7 +85,7 @@ def measure_outputs(sid, frames):
     out = {
         k: v
         for k, v in frame_outputs(sid, frames).items()
-        if k in ("heights", "qa", "uncertainties")
+        if k in ("heights", "qa", "uncertainties", "supports")
     }
     maps = [n for n in frames if n in set(map_frames(sid))]
     if maps:

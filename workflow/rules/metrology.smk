@@ -9,6 +9,7 @@ rule metrology:
         uncertainties=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)[
             "uncertainties"
         ],
+        supports=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["supports"],
         model=R("{sid}", "calib", "phase_to_height.npz"),
         object_table=R("{sid}", "calib", "table_object.json"),
         baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
