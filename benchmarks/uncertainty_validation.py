@@ -1,6 +1,6 @@
 """Does the predicted height uncertainty hold? Coverage and step ratios on bench presets.
 
-Usage: ./run python benchmarks/uncertainty_validation.py [--frames 5] [--presets demo flat dental]
+Usage: ./run python benchmarks/uncertainty_validation.py [--frames 5] [--presets demo flat dental ...]
 
 For each preset the bench writes a session, the whole chain measures it (the uncertainty maps
 from the kernel's pass), and against the bench's ground truth it prints: the fraction of the
@@ -20,11 +20,13 @@ from pathlib import Path
 import numpy as np
 import tifffile
 import yaml
+from scipy import ndimage
 
 from huefringe import bench, metrology, stages, uncertainty
 from huefringe.settings import load_config
 from huefringe.huetable import HueTable
 from huefringe.height import PlaneCalibration
+from huefringe.session import read_rgb
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -32,10 +34,11 @@ REPO = Path(__file__).resolve().parents[1]
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=5)
-    ap.add_argument("--presets", nargs="+", default=["demo", "flat", "dental"])
+    ap.add_argument("--presets", nargs="+", default=["demo", "flat", "dental", "plain_gauge", "photo_relief"])
     args = ap.parse_args()
     cfg = load_config(REPO / "config.yaml")
-    print(f"{'preset':8} {'|e|<=2u':>8} {'rms e mm':>9} {'rms u mm':>9} {'median u mm':>11}  steps: std / independent u")
+    print(f"{'preset':8} {'|e|<=2u':>8} {'rms e mm':>9} {'rms u mm':>9} {'median u mm':>11}  coverage by zone; "
+          "steps: std / independent u")
     with tempfile.TemporaryDirectory() as tmp:
         for preset in args.presets:
             bcfg = copy.deepcopy(bench.load_bench_config(bench.preset_path(preset)))
@@ -49,8 +52,24 @@ def main() -> None:
             us = [tifffile.imread(u) for u in p["uncertainties"]]
             errs = [h.astype(np.float64) - tifffile.imread(s.ground_truth[n]) for h, n in zip(hs, s.frame_ids, strict=True)]
             rel = uncertainty.reliability(np.concatenate([e.ravel() for e in errs]), np.concatenate([u.ravel() for u in us]))
+            # where the misses are: near a height edge of the truth, near a reflectance edge of the
+            # white image (lens blur mixes colours there), or elsewhere
+            truth = tifffile.imread(s.ground_truth[s.frame_ids[0]]).astype(np.float64)
+            white = np.asarray(read_rgb(s.object_white), np.float64)
+            white = white.mean(axis=-1) if white.ndim == 3 else white
+            jump = ndimage.maximum_filter(truth, 7) - ndimage.minimum_filter(truth, 7) > 0.1
+            lw = np.log(np.maximum(white / max(white.max(), 1e-9), 1e-3))
+            texture = (ndimage.maximum_filter(lw, 7) - ndimage.minimum_filter(lw, 7) > np.log(1.5)) & ~jump
+            zones = {"edge": jump, "texture": texture, "rest": ~jump & ~texture}
+            cov = {}
+            for name, m in zones.items():
+                e = np.concatenate([x[m] for x in errs])
+                uu = np.concatenate([x[m] for x in us])
+                ok = np.isfinite(e) & np.isfinite(uu)
+                cov[name] = (float(np.mean(np.abs(e[ok]) <= 2 * uu[ok])) if ok.any() else float("nan"), int(ok.sum()))
             line = (f"{preset:8} {rel['coverage_2u']:8.3f} {rel['rms_error_mm']:9.4f} {rel['rms_u_mm']:9.4f} "
-                    f"{rel['median_u_mm']:11.4f}")
+                    f"{rel['median_u_mm']:11.4f}  " + " ".join(f"{k} {v[0]:.3f} ({v[1] / len(errs):.0f} px)"
+                                                         for k, v in cov.items()))
             if s.specimen:
                 method = metrology.evaluate_session(hs, s.specimen, s.pixel_pitch_mm,
                                                     range_mm=max(s.planes_mm) - min(s.planes_mm),
@@ -59,7 +78,8 @@ def main() -> None:
                                               PlaneCalibration.load(str(out / "model.npz")),
                                               HueTable.load(out / "table_object.json"),
                                               edge_exclusion=cfg["metrology"]["edge_exclusion"],
-                                              denoise_radius=cfg["measurement"]["denoise_radius"])
+                                              denoise_radius=cfg["measurement"]["denoise_radius"],
+                                              supports=[tifffile.imread(x) for x in p["supports"]])
                 parts = []
                 for st in method["steps"]:
                     ind = st["uncertainty_budget"]["independent_per_frame_mm"]
