@@ -371,21 +371,41 @@ EDGE_SIGNIFICANCE = np.float32(2.0)
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _edge_floor_kernel(height, valid, u):  # pragma: no cover - numba
     """In place: ``u = s`` where ``s > EDGE_SIGNIFICANCE u``, ``s`` the rms residual (``n - 3`` degrees of freedom) of the
-    valid heights of the 3 x 3 window about their least-squares plane (at least 5 pixels)."""
+    valid heights of the 3 x 3 window about their least-squares plane (at least 5 pixels). A pixel counts as valid
+    where ``valid`` holds and its height is finite (both callers: the height is NaN exactly where not valid)."""
     h, w = height.shape
+    if h < 3 or w < 3:
+        return
     zero = np.float32(0.0)
     sixth = np.float32(1.0 / 6.0)
     ninth = np.float32(1.0 / 9.0)
-    todo = np.zeros(w, np.bool_)
-    rrow = np.zeros(w, np.float32)
+    nan32 = np.float32(np.nan)
+    ring = np.empty((3, w), np.float32)  # the window's three rows, NaN where not valid
+    rrow = np.empty(w, np.float32)
+    part = np.empty(w, np.int64)
+    good = np.zeros(3, np.int64)  # valid pixels of each ring row
+    for j in range(2):
+        hj, mj, rj = height[j], valid[j], ring[j]
+        g = 0
+        for x in range(w):
+            hv = hj[x] if mj[x] else nan32
+            rj[x] = hv
+            g += np.int32(hv == hv)
+        good[j] = g
     for v in range(1, h - 1):
-        # full windows (the common case): x, y in {-1, 0, 1}, sum x^2 = sum y^2 = 6, the plane's
-        # residual sum of squares in closed form; branch-free, so that LLVM vectorises the row
-        h0, h1, h2 = height[v - 1], height[v], height[v + 1]
-        m0, m1, m2 = valid[v - 1], valid[v], valid[v + 1]
+        h0, h1, h2 = ring[(v - 1) % 3], ring[v % 3], ring[(v + 1) % 3]
+        hn, mn = height[v + 1], valid[v + 1]
+        g = 0
+        for x in range(w):
+            hv = hn[x] if mn[x] else nan32
+            h2[x] = hv
+            g += np.int32(hv == hv)
+        good[(v + 1) % 3] = g
         uv = u[v]
+        # full windows (the common case): x, y in {-1, 0, 1}, sum x^2 = sum y^2 = 6, the plane's
+        # residual sum of squares in closed form. Branch-free, so that LLVM vectorises the row; a
+        # window with an invalid pixel gives NaN, which raises nothing and marks it for below.
         for x in range(1, w - 1):
-            full = (m0[x - 1] & m0[x] & m0[x + 1]) & (m1[x - 1] & m1[x] & m1[x + 1]) & (m2[x - 1] & m2[x] & m2[x + 1])
             hc = h1[x]
             za = h0[x - 1] - hc
             zb = h0[x] - hc
@@ -400,60 +420,76 @@ def _edge_floor_kernel(height, valid, u):  # pragma: no cover - numba
             syh = (zf + zg + zh) - (za + zb + zc)
             shh = ((za * za + zb * zb) + (zc * zc + zd * zd)) + ((ze * ze + zf * zf) + (zg * zg + zh * zh))
             ss = shh - sh * sh * ninth - (sxh * sxh + syh * syh) * sixth
-            r = np.sqrt(max(ss, zero) * sixth)
-            rrow[x] = r if full else zero
-            todo[x] = m1[x] & (not full)
+            ss = zero if ss < zero else ss  # keeps NaN
+            r = np.sqrt(ss * sixth)
+            rrow[x] = r
+            ux = uv[x]
+            uv[x] = r if r > EDGE_SIGNIFICANCE * ux else ux  # NaN (not valid) stays NaN
+        # windows with invalid pixels around a valid centre (rows with any): listed
+        # (branch-free), then the general least squares
+        if good[0] + good[1] + good[2] == 3 * w:
+            continue
+        n = 0
         for x in range(1, w - 1):
-            uv[x] = rrow[x] if rrow[x] > EDGE_SIGNIFICANCE * uv[x] else uv[x]  # NaN (not valid) stays NaN
-        for x in range(1, w - 1):  # windows with invalid pixels: the general least squares
-            if not todo[x]:
-                continue
-            n = zero
-            sx = zero
-            sy = zero
-            sxx = zero
-            syy = zero
-            sxy = zero
-            sh = zero
-            sxh = zero
-            syh = zero
-            shh = zero
-            hc = height[v, x]
-            for dv in range(-1, 2):
-                for du in range(-1, 2):
-                    m = valid[v + dv, x + du]
-                    z = height[v + dv, x + du] - hc if m else zero
-                    wgt = np.float32(1.0) if m else zero
-                    fx = np.float32(du) * wgt
-                    fy = np.float32(dv) * wgt
-                    n += wgt
-                    sx += fx
-                    sy += fy
-                    sxx += fx * du
-                    syy += fy * dv
-                    sxy += fx * dv
-                    sh += z
-                    sxh += fx * z
-                    syh += fy * z
-                    shh += z * z
-            # normal equations of z = c + gx x + gy y, by Cramer's rule
-            a11, a12, a13, a22, a23, a33 = n, sx, sy, sxx, sxy, syy
-            c11 = a22 * a33 - a23 * a23
-            c12 = a13 * a23 - a12 * a33
-            c13 = a12 * a23 - a13 * a22
-            det = a11 * c11 + a12 * c12 + a13 * c13
-            if n < np.float32(5.0) or det <= np.float32(1e-3):
-                continue
-            c22 = a11 * a33 - a13 * a13
-            c23 = a12 * a13 - a11 * a23
-            c33 = a11 * a22 - a12 * a12
-            b0 = (c11 * sh + c12 * sxh + c13 * syh) / det
-            b1 = (c12 * sh + c22 * sxh + c23 * syh) / det
-            b2 = (c13 * sh + c23 * sxh + c33 * syh) / det
-            ss = shh - (b0 * sh + b1 * sxh + b2 * syh)
-            s2 = max(ss, zero) / (n - np.float32(3.0))
-            r = np.float32(np.sqrt(s2))
-            u[v, x] = r if r > EDGE_SIGNIFICANCE * u[v, x] else u[v, x]
+            part[n] = x
+            n += (rrow[x] != rrow[x]) & (h1[x] == h1[x])
+        for i in range(n):
+            x = part[i]
+            _edge_partial(h0, h1, h2, x, uv)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _edge_partial(h0, h1, h2, x, uv):  # pragma: no cover - numba
+    """The general least-squares residual of one window with invalid (NaN) pixels; raises ``uv[x]``."""
+    zero = np.float32(0.0)
+    n = zero
+    sx = zero
+    sy = zero
+    sxx = zero
+    syy = zero
+    sxy = zero
+    sh = zero
+    sxh = zero
+    syh = zero
+    shh = zero
+    hc = h1[x]
+    for dv in range(-1, 2):
+        row = h0 if dv == -1 else (h1 if dv == 0 else h2)
+        for du in range(-1, 2):
+            hv = row[x + du]
+            m = hv == hv
+            z = hv - hc if m else zero
+            wgt = np.float32(1.0) if m else zero
+            fx = np.float32(du) * wgt
+            fy = np.float32(dv) * wgt
+            n += wgt
+            sx += fx
+            sy += fy
+            sxx += fx * du
+            syy += fy * dv
+            sxy += fx * dv
+            sh += z
+            sxh += fx * z
+            syh += fy * z
+            shh += z * z
+    # normal equations of z = c + gx x + gy y, by Cramer's rule
+    a11, a12, a13, a22, a23, a33 = n, sx, sy, sxx, sxy, syy
+    c11 = a22 * a33 - a23 * a23
+    c12 = a13 * a23 - a12 * a33
+    c13 = a12 * a23 - a13 * a22
+    det = a11 * c11 + a12 * c12 + a13 * c13
+    if n < np.float32(5.0) or det <= np.float32(1e-3):
+        return
+    c22 = a11 * a33 - a13 * a13
+    c23 = a12 * a13 - a11 * a23
+    c33 = a11 * a22 - a12 * a12
+    b0 = (c11 * sh + c12 * sxh + c13 * syh) / det
+    b1 = (c12 * sh + c22 * sxh + c23 * syh) / det
+    b2 = (c13 * sh + c23 * sxh + c33 * syh) / det
+    ss = shh - (b0 * sh + b1 * sxh + b2 * syh)
+    s2 = max(ss, zero) / (n - np.float32(3.0))
+    r = np.float32(np.sqrt(s2))
+    uv[x] = r if r > EDGE_SIGNIFICANCE * uv[x] else uv[x]
 
 
 def edge_floor(height: NDArray[np.float32], valid: NDArray[np.bool_], u: NDArray[np.float32]) -> NDArray[np.float32]:
