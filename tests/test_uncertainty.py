@@ -338,6 +338,72 @@ def test_edge_floor_analytic() -> None:
     assert np.isnan(out2[9, 13])
 
 
+def _edge_floor_brute(height: np.ndarray, valid: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """The edge floor's definition, one window at a time: the rms residual (n - 3 degrees of
+    freedom) of the valid heights of each interior 3 x 3 window about their least-squares plane
+    (np.linalg.lstsq, float64; at least 5 pixels) replaces u where it exceeds 2 u."""
+    out = u.astype(np.float64).copy()
+    yy, xx = np.mgrid[-1:2, -1:2]
+    design = np.column_stack([np.ones(9), xx.ravel(), yy.ravel()])
+    h, w = height.shape
+    for v in range(1, h - 1):
+        for x in range(1, w - 1):
+            m = valid[v - 1 : v + 2, x - 1 : x + 2].ravel()
+            if not valid[v, x] or m.sum() < 5:
+                continue
+            z = height[v - 1 : v + 2, x - 1 : x + 2].ravel()[m].astype(np.float64)
+            coef = np.linalg.lstsq(design[m], z, rcond=None)[0]
+            s = np.sqrt(np.sum((z - design[m] @ coef) ** 2) / (m.sum() - 3))
+            if s > 2.0 * out[v, x]:
+                out[v, x] = s
+    return out
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("garbage", [False, True])
+def test_edge_floor_matches_brute_force(seed: int, garbage: bool) -> None:
+    """Random maps (tilted planes up to 10 mm, steps, noise, holes: single pixels, blobs touching
+    the image border, a sparse region where windows have fewer than 5 valid pixels) against the
+    per-window least squares: u agrees to float32 rounding where both are finite, NaN at the
+    same pixels; border rows and columns are left alone. ``garbage``: the invalid pixels hold
+    finite heights, which must not count."""
+    rng = np.random.default_rng(seed)
+    h, w = 40, 57
+    v, x = np.mgrid[0:h, 0:w].astype(np.float64)
+    z = rng.uniform(0, 10) + rng.uniform(-0.05, 0.05) * x + rng.uniform(-0.05, 0.05) * v
+    z += np.where(x > rng.uniform(10, 45), rng.uniform(0.05, 2.0), 0.0)  # a step along v
+    z += np.where(v + 0.3 * x > rng.uniform(15, 30), rng.uniform(-1.0, 1.0), 0.0)  # an oblique one
+    z += 1e-3 * rng.standard_normal((h, w))
+    valid = rng.random((h, w)) > 0.08
+    valid[:6, -9:] = False  # a blob in the corner
+    valid[h // 2 - 3 : h // 2 + 3, :4] = False  # on the left border
+    valid[25:35, 30:40] &= rng.random((10, 10)) > 0.6  # sparse: windows with < 5 valid pixels
+    height = np.where(valid, z, rng.uniform(-50, 50, (h, w)) if garbage else np.nan).astype(np.float32)
+    u = np.where(valid, rng.uniform(0.5e-3, 3e-3, (h, w)), np.nan).astype(np.float32)
+    ref = _edge_floor_brute(height, valid, u)
+    out = uncertainty.edge_floor(height, valid, u.copy())
+    assert out.dtype == np.float32
+    np.testing.assert_array_equal(np.isnan(out), np.isnan(ref))
+    np.testing.assert_array_equal(out[[0, -1]], u[[0, -1]])
+    np.testing.assert_array_equal(out[:, [0, -1]], u[:, [0, -1]])
+    # a residual within rounding of the 2 u threshold may fall either side of it: not compared
+    raised = ref > u
+    s_ratio = np.where(raised, ref, 0.0) / (2.0 * u)
+    ok = np.isfinite(ref) & ~((s_ratio > 1 - 1e-4) & (s_ratio < 1 + 1e-4))
+    assert ok.sum() > 0.85 * np.isfinite(ref).sum()
+    assert 0.05 < np.mean(raised[ok]) < 0.6  # the case exercises the floor, not only u
+    rel = np.abs(out[ok].astype(np.float64) - ref[ok]) / ref[ok]
+    assert rel.max() <= 1e-4
+    # the partial windows (an invalid neighbour) are among the raised ones
+    m = valid.astype(np.uint8)
+    counts = sum(np.roll(np.roll(m, dv, 0), du, 1) for dv in (-1, 0, 1) for du in (-1, 0, 1))
+    inner = np.zeros((h, w), bool)
+    inner[1:-1, 1:-1] = True
+    partial = inner & valid & (counts >= 5) & (counts < 9)
+    assert np.sum(partial & raised) > 10
+    assert np.sum(inner & valid & (counts < 5)) > 3  # and some windows too sparse to fit
+
+
 def test_interpolation_bins_pick_the_local_error() -> None:
     """A table whose hue curve is straight except one curved stretch: the pixel's bins hold
     the chord error there and zero elsewhere, and the uncertainty pass picks the bin of the
