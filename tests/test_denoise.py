@@ -179,3 +179,36 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
         assert grown.sum() > 50  # the pass has work to do
         assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
         assert not np.array_equal(got[grown], first[grown])  # and it changed those pixels
+
+
+def test_first_pass_sums_are_the_exact_sums_where_nothing_was_rejected() -> None:
+    """The fixed window's ``sum w r2`` and support from box sums (``_first_pass_sums``) against
+    the exact accumulation beside the weights (``_denoise_kernel`` with ``full``): equal to float
+    rounding wherever the window took every valid neighbour, and near a step (where it rejected
+    some) the support is the number of equal-weight pixels that give its weight sum: the
+    accepted count when the weights are equal."""
+    from huefringe.phase import _denoise_kernel, _denoise_weights, _first_pass_sums
+
+    rng = np.random.default_rng(3)
+    h, w = 40, 57
+    for equal in (False, True):
+        sigma = np.full((h, w), 0.01) if equal else rng.uniform(0.005, 0.02, (h, w))
+        d = rng.normal(0, 1, (h, w)) * sigma + 0.3
+        d[:, 30:] += 1.0  # a step: rejected neighbours beside it
+        valid = rng.random((h, w)) > 0.1
+        dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
+        _denoise_weights(d, sigma, valid, dz, s2, inv)
+        r2 = rng.uniform(0.5, 2.0, (h, w)).astype(np.float32)
+        out, ws, rs, cn = (np.empty_like(dz) for _ in range(4))
+        _denoise_kernel(dz, s2, inv, 2, np.float32(9.0), out, ws, r2, rs, cn, True)
+        got_r, got_c = _first_pass_sums(inv, r2, 2, ws)
+        box_n = np.array([[np.count_nonzero(inv[max(v - 2, 0):v + 3, max(u - 2, 0):u + 3]) for u in range(w)]
+                          for v in range(h)])
+        took_all = (inv > 0) & (cn == box_n)
+        assert took_all.mean() > 0.7 and (~took_all & (inv > 0)).sum() > 50
+        np.testing.assert_allclose(got_r[took_all], rs[took_all], rtol=2e-6)
+        np.testing.assert_allclose(got_c[took_all], cn[took_all], rtol=2e-6)
+        assert np.all(got_r[inv == 0] == 0) and np.all(got_c[inv == 0] == 0)
+        if equal:
+            rej = ~took_all & (inv > 0)
+            assert np.max(np.abs(got_c[rej] - cn[rej])) < 1e-3

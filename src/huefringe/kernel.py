@@ -74,7 +74,7 @@ from numpy.typing import NDArray
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
-from huefringe.perframe import (_hue_noise_kernel, capture_noise, effective_weight_sum, noise_ratio2, sensor_model,
+from huefringe.perframe import (_hue_noise_kernel, capture_noise, noise_ratio2, sensor_model,
                                 shadow_mask, sigma_from_slope)
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
@@ -1065,8 +1065,8 @@ def frame_maps(
     if want_uncertainty:
         if prep.budget is None:
             raise ValueError("the prepared calibration has no uncertainty budget (kernel.prepare sets it)")
-        weff = effective_weight_sum(sumw, rsum) if rsum is not None else sumw
-        u_map = edge_floor(height, valid, height_uncertainty(smooth, weff, valid, prep.a, prep.b, prep.budget))
+        u_map = edge_floor(height, valid, height_uncertainty(smooth, sumw, valid, prep.a, prep.b, prep.budget,
+                                                             ratio_sum=rsum))
         support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
               "guess_far": int(n_far)}

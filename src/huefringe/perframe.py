@@ -205,9 +205,8 @@ def measure_frame(
     height = np.where(valid, height, np.nan).astype(np.float32)
     if budget is None:
         budget = pixel_budget(table, cal)
-    weff = effective_weight_sum(sumw, rsum) if ratio is not None else sumw
-    u_map = edge_floor(height, valid, height_uncertainty(np.asarray(un.dphi, np.float32), weff, valid, cal.a, cal.b,
-                                                         budget))
+    u_map = edge_floor(height, valid, height_uncertainty(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b,
+                                                         budget, ratio_sum=rsum if ratio is not None else None))
     support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
     stats = frame_stats(
         valid, height, un.flags,
@@ -448,9 +447,21 @@ def noise_ratio2(own: NDArray[np.floating], pooled: NDArray[np.floating]) -> NDA
     the phase filter (:func:`capture_noise`). The filter sums ``w`` times it
     (:func:`huefringe.phase.denoise_phase`'s ``ratio``), so that the uncertainty follows the
     frame's signal while the weights, and so the heights, do not."""
-    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
-        r = (np.asarray(own, np.float64) / np.asarray(pooled, np.float64)) ** 2
-    return np.ascontiguousarray(np.clip(np.nan_to_num(r, nan=1.0), *_RATIO2_BOUNDS), np.float32)
+    o = np.ascontiguousarray(own, np.float64)
+    out = np.empty(o.shape, np.float32)
+    _ratio2_kernel(o.reshape(-1), np.ascontiguousarray(pooled, np.float64).reshape(-1), _RATIO2_BOUNDS[0],
+                   _RATIO2_BOUNDS[1], out.reshape(-1))
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _ratio2_kernel(own, pooled, lo, hi, out):  # pragma: no cover - compiled
+    """:func:`noise_ratio2`'s loop (NaN -> 1, then clipped)."""
+    for i in range(own.size):
+        r = own[i] / pooled[i]
+        r = r * r
+        r = r if r == r else 1.0
+        out[i] = np.float32(min(max(r, lo), hi))
 
 
 def effective_weight_sum(weight_sum: NDArray[np.float32], ratio_sum: NDArray[np.float32]) -> NDArray[np.float32]:

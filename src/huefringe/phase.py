@@ -268,6 +268,73 @@ def _denoise_kernel(d, s2, inv, radius, k2, out, wout, r2, rout, cout, full):  #
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _window_sums(inv, r2, radius, wsum, rsum, cnt):  # pragma: no cover - compiled
+    """:func:`_first_pass_sums`' loop: running box sums of ``w``, ``w r2`` and the valid pixels
+    (float64 column sums slid down the rows, then along each row), scaled by ``wsum / sum w``."""
+    h, w = inv.shape
+    cw = np.zeros(w, np.float64)
+    cr = np.zeros(w, np.float64)
+    cn = np.zeros(w, np.float64)
+    for v in range(min(radius, h)):  # rows 0 .. radius - 1 of the first window
+        for u in range(w):
+            iv = np.float64(inv[v, u])
+            cw[u] += iv
+            cr[u] += iv * r2[v, u]
+            cn[u] += 1.0 if iv > 0 else 0.0
+    for v in range(h):
+        add = v + radius
+        if add < h:
+            for u in range(w):
+                iv = np.float64(inv[add, u])
+                cw[u] += iv
+                cr[u] += iv * r2[add, u]
+                cn[u] += 1.0 if iv > 0 else 0.0
+        sub = v - radius - 1
+        if sub >= 0:
+            for u in range(w):
+                iv = np.float64(inv[sub, u])
+                cw[u] -= iv
+                cr[u] -= iv * r2[sub, u]
+                cn[u] -= 1.0 if iv > 0 else 0.0
+        bw = 0.0
+        br = 0.0
+        bn = 0.0
+        for u in range(min(radius, w)):
+            bw += cw[u]
+            br += cr[u]
+            bn += cn[u]
+        for u in range(w):
+            if u + radius < w:
+                bw += cw[u + radius]
+                br += cr[u + radius]
+                bn += cn[u + radius]
+            if u - radius - 1 >= 0:
+                bw -= cw[u - radius - 1]
+                br -= cr[u - radius - 1]
+                bn -= cn[u - radius - 1]
+            ok = (inv[v, u] > 0) & (bw > 0)
+            sc = np.float64(wsum[v, u]) / bw if ok else 0.0
+            rsum[v, u] = np.float32(sc * br)
+            cnt[v, u] = np.float32(sc * bn)
+
+
+def _first_pass_sums(inv: NDArray[np.float32], r2: NDArray[np.float32], radius: int,
+                     wsum: NDArray[np.float32]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """``sum w r2`` and the support of the fixed window from its accepted weights ``wsum`` and
+    box sums over the whole window: ``wsum`` times the window's weighted mean of ``r2``,
+    ``sum(w r2) / sum(w)``, and ``wsum`` over the window's mean weight, ``n / sum(w)`` (the
+    number of equal-weight pixels that would give ``wsum``). Exact (to float rounding) where the
+    window took every valid neighbour, which is almost everywhere (the step budgets' central
+    boxes included); where it rejected some (steps, outliers) the means are those of the whole
+    window. A fraction of the cost of summing them beside the weights (:func:`_denoise_kernel`
+    with ``full``, the exact definition; tests compare the two)."""
+    rsum = np.empty(inv.shape, np.float32)
+    cnt = np.empty(inv.shape, np.float32)
+    _window_sums(inv, r2, int(radius), wsum, rsum, cnt)
+    return rsum, cnt
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
                    r2, rfirst, cfirst, rout, cout, full):
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
@@ -350,29 +417,34 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         xg[q] = d[vv, uc]
                         ig[q] = inv[vv, uc] if inb else zero
                         sg[q] = s2[vv, uc]
-                    if full:
+                    if full:  # the same, with the uncertainty's sums beside the weights
                         for q in range(n):
                             rg[q] = r2[vv, min(max(pu[q] + du, 0), w - 1)]
-                    # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to sums
-                    # that start at +0 and so are never -0: bit for bit as skipping it
-                    for q in range(n):
-                        x = xg[q]
-                        iv = ig[q]
-                        dm = x - pm[q]
-                        dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                        keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
-                        diff = x - pdc[q]
-                        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                        pacc[q] += iv * diff if keep else zero
-                        pw[q] += iv if keep else zero
-                    if full:  # the same test again, for the uncertainty's sums
                         for q in range(n):
+                            x = xg[q]
                             iv = ig[q]
-                            dm = xg[q] - pm[q]
+                            dm = x - pm[q]
                             dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
                             keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            diff = x - pdc[q]
+                            diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                            pacc[q] += iv * diff if keep else zero
+                            pw[q] += iv if keep else zero
                             pr[q] += iv * rg[q] if keep else zero
                             pc[q] += one if keep else zero
+                    else:
+                        # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to
+                        # sums that start at +0 and so are never -0: bit for bit as skipping it
+                        for q in range(n):
+                            x = xg[q]
+                            iv = ig[q]
+                            dm = x - pm[q]
+                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            diff = x - pdc[q]
+                            diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                            pacc[q] += iv * diff if keep else zero
+                            pw[q] += iv if keep else zero
                     du += step if step > 0 else 1
             if r >= radius or r == max_radius:
                 # a pixel stops once its weights reach the target (or at the last ring): its
@@ -518,9 +590,10 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
     if r2.shape != out.shape and full:
         raise ValueError(f"ratio has shape {r2.shape}, the phase {out.shape}")
     wsum = np.empty(out.shape, np.float32)
-    rsum = np.empty(out.shape if full else (1, 1), np.float32)
-    cnt = np.empty(out.shape if full else (1, 1), np.float32)
-    _denoise_kernel(*arrays, int(radius), np.float32(float(k) ** 2), out, wsum, r2, rsum, cnt, full)
+    none = np.empty((1, 1), np.float32)
+    k2 = np.float32(float(k) ** 2)
+    _denoise_kernel(*arrays, int(radius), k2, out, wsum, none, none, none, False)
+    rsum, cnt = _first_pass_sums(arrays[2], r2, int(radius), wsum) if full else (none, none)
     if (max_radius > radius and target_sigma > 0) or reject_sigma > 0:
         final = np.empty_like(out)
         wfinal = weight_sum if weight_sum is not None else np.empty_like(wsum)

@@ -283,9 +283,10 @@ def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.fl
 # per frame (called identically by perframe.measure_frame and kernel.frame_maps)
 # --------------------------------------------------------------------------------------------
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut, phi_ref, out):  # pragma: no cover
+def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut, phi_ref, out, rsum):  # pragma: no cover
     """Branch-free rows (LLVM vectorises them); NaN where not valid or without weight. The
-    interpolation error is that of the phase bin of ``phi_ref + dphi`` (``bins``, ``lut``)."""
+    interpolation error is that of the phase bin of ``phi_ref + dphi`` (``bins``, ``lut``). The
+    noise variance is ``rsum / sumw^2`` (``rsum = sumw``: ``1 / sumw``, bit for bit)."""
     h, w = dphi.shape
     nb = bins.shape[2]
     kf = np.float32(nb)
@@ -300,6 +301,7 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
     for v in range(h):
         dv = dphi[v]
         sv = sumw[v]
+        rv = rsum[v]
         okv = valid[v]
         av = a[v]
         bv = b[v]
@@ -308,7 +310,7 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
         pr = phi_ref[v]
         ov = out[v]
         for u in range(w):  # each pixel's bin (vectorised) ...
-            ok = okv[u] & (sv[u] > zero)
+            ok = okv[u] & (sv[u] * (sv[u] / rv[u]) > zero)
             d = dv[u] if ok else zero
             t = (pr[u] + d) * to_bin
             t = t - kf * np.floor(t / kf)
@@ -316,7 +318,7 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
         for u in range(w):  # ... its gather alone (scalar), so that the loops around it vectorise
             t4row[u] = lut[bv_[u, kbrow[u]]]
         for u in range(w):
-            sw = sv[u]
+            sw = sv[u] * (sv[u] / rv[u])  # the effective weight sum (sum w)^2 / sum(w r)
             ok = okv[u] & (sw > zero)
             d = dv[u] if ok else zero
             sw = sw if ok else one
@@ -334,7 +336,8 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
 
 def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], valid: NDArray[np.bool_],
                        a: NDArray[np.float32], b: NDArray[np.float32], budget: PixelBudget,
-                       out: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+                       out: NDArray[np.float32] | None = None,
+                       ratio_sum: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """Combined standard uncertainty (mm) of each pixel's height; NaN where not ``valid``.
 
     Parameters
@@ -350,6 +353,10 @@ def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], val
         The height model.
     budget : PixelBudget
         From :func:`pixel_budget`.
+    ratio_sum : float32 (H, W), optional
+        The filter's ``sum w r`` (:func:`huefringe.phase.denoise_phase`'s ``ratio_sum``), when the
+        pixels' noise variance is ``r`` times the one that weighted them: the filtered phase's
+        variance is then ``ratio_sum / sumw^2``.
     """
     if out is None:
         out = np.empty(np.shape(dphi), np.float32)
@@ -358,10 +365,11 @@ def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], val
         phi_ref = np.zeros(np.shape(dphi), np.float32)
     else:
         bins, phi_ref = budget.interp_bins, budget.phi_ref
-    _uncertainty_kernel(np.ascontiguousarray(dphi, np.float32), np.ascontiguousarray(sumw, np.float32),
+    sw = np.ascontiguousarray(sumw, np.float32)
+    _uncertainty_kernel(np.ascontiguousarray(dphi, np.float32), sw,
                         np.ascontiguousarray(valid, bool), np.ascontiguousarray(a, np.float32),
                         np.ascontiguousarray(b, np.float32), budget.terms, np.float32(budget.table_factor), bins,
-                        _INTERP_LUT, phi_ref, out)
+                        _INTERP_LUT, phi_ref, out, sw if ratio_sum is None else np.ascontiguousarray(ratio_sum, np.float32))
     return out
 
 
