@@ -20,15 +20,17 @@ correlated     ``reference``: the z = 0 plane's smoothed       neither (shared b
 With the height's sensitivity ``G = dh/ddphi = a / (a + b dphi)^2`` and the parameter
 sensitivities ``J = (dh/da, dh/db) = -(dphi, dphi^2) / (a + b dphi)^2``:
 
-    u_noise = G / sqrt(sum w)          sum of the filter's weights w = 1/sigma^2 it used
+    u_noise = G sqrt(sum w r) / sum w  the filter's weights w = 1/sigma^2 it used (pooled
+                                       noise), r = own-signal / pooled noise variance
     u_table = u_noise sqrt(f_table)    f_table = smoothed entry variance / one capture's
     u_interp = G u_interp_rad          rms linear-interpolation error of the pixel's table in
                                        the code-phase bin of its own phase (12 bins)
     u_ref = G u_ref_rad                smoothed-reference error (fit noise + unmodelled misfit)
     u_model = sqrt(J C J^T)            C = covariance of (a, b) from the planes' errors
 
-The frame's hue noise (behind ``w``) comes from its own RGB signal through a shot + read noise
-model fitted on the hue bands' repeats (:func:`huefringe.perframe.frame_hue_noise`). After the
+The frame's hue noise (behind ``r``) comes from its own RGB signal through a shot + read noise
+model fitted on the hue bands' repeats (:func:`huefringe.perframe.frame_hue_noise`); the weights
+stay the table's pooled noise, so that the heights do not depend on it. After the
 root sum of squares, :func:`edge_floor` raises mixed pixels (steps, shadow borders) to the local
 scatter of the heights about their 3 x 3 plane.
 
