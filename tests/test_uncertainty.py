@@ -485,3 +485,56 @@ def test_step_budget_with_adaptive_support_matches_monte_carlo(adaptive: bool) -
     assert 0.85 < sd / np.mean(preds) < 1.15, sd / np.mean(preds)
     if adaptive:
         assert sd / np.mean(fixed) > 1.2  # what the fixed-window count got wrong (1.27 here)
+
+
+def test_step_budget_crops_and_threads_change_nothing() -> None:
+    """The per-frame budget on crops, with the base plane's three coefficient spreads, equals
+    its direct definition (each step's raw-pixel weights spread over the whole image), and two
+    worker threads give the same numbers as one."""
+    from huefringe import metrology
+
+    rng = np.random.default_rng(9)
+    h, w = 64, 62
+    spec = _specimen()
+    a = np.ones((h, w), np.float32)
+    b = np.full((h, w), 0.01, np.float32)
+    bud = uncertainty.PixelBudget(rng.uniform(0, 1e-3, (5, h, w)).astype(np.float32), 0.1)
+    zs, us, sps = [], [], []
+    for _ in range(3):
+        z = np.zeros((h, w))
+        z[18:46, 13:47] = 1.0
+        z = (z + rng.normal(0, 0.003, (h, w))).astype(np.float32)
+        z[rng.random((h, w)) < 0.05] = np.nan
+        zs.append(z)
+        us.append(np.where(np.isfinite(z), rng.uniform(0.002, 0.004, (h, w)), np.nan).astype(np.float32))
+        sps.append(rng.choice([9, 25, 49, 121], (h, w)).astype(np.float32))
+    kw = {"edge_exclusion": 1 / 3, "denoise_radius": 2, "supports": sps}
+    one = uncertainty.step_budget(zs, us, spec, 0.2, a, b, bud, **kw)
+    two = uncertainty.step_budget(zs, us, spec, 0.2, a, b, bud, workers=2, **kw)
+    assert one == two
+    # the direct definition, frame by frame
+    base, steps, _ = metrology._specimen_parts(spec)
+    want = []
+    for z, u, sp in zip(zs, us, sps, strict=True):
+        z = z.astype(np.float64)
+        valid = np.isfinite(z) & np.isfinite(u)
+        parts = uncertainty.split_terms(u, z, a, b, bud)
+        n = np.maximum(sp.astype(np.float64), 1.0)
+        bmask = np.zeros((h, w), bool)
+        for u0, v0, u1, v1 in base:
+            bmask[v0:v1, u0:u1] = True
+        bmask &= valid
+        vb, ub = np.nonzero(bmask)
+        pinv = np.linalg.pinv(np.column_stack([np.ones(vb.size), ub * 0.2, vb * 0.2]))
+        box = metrology.central_box(steps[0]["roi"], 1 / 3)
+        tmask = np.zeros((h, w), bool)
+        tmask[box[1] : box[3], box[0] : box[2]] = True
+        tmask &= valid
+        vt, ut = np.nonzero(tmask)
+        cb = np.array([1.0, ut.mean() * 0.2, vt.mean() * 0.2]) @ pinv
+        a_top = uncertainty._spread(vt, ut, np.full(vt.size, 1.0 / vt.size), n[tmask], (h, w))
+        a_base = uncertainty._spread(vb, ub, cb, n[bmask], (h, w))
+        raw = np.where(valid, parts["noise"] ** 2 * n, 0.0)
+        want.append(float(np.sum(a_top**2 * raw) + np.sum(a_base**2 * raw)))
+    got = one[0]["independent_per_frame_mm"] ** 2
+    assert got == pytest.approx(np.mean(want), rel=1e-9)

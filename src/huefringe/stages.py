@@ -560,14 +560,14 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
                      cross_section: str, render: str, height_map: str, accuracy: Sequence[str],
                      config: Mapping[str, Any], json: str, html: str, profile: str, per_frame: str,
                      uncertainties: Sequence[str] = (), model: str = "", object_table: str = "",
-                     supports: Sequence[str] = ()) -> None:
+                     supports: Sequence[str] = (), threads: int = 1) -> None:
     """Step-height metrology of every frame: report.json (results contract) and report.html.
 
     With ``uncertainties`` (one map per height map), the phase-to-height ``model`` and the
     ``object_table``, each step also gets ``u_mm``, ``U_mm``, its ISO 14253-1 ``conformance``
     and its ``uncertainty_budget`` (:func:`add_step_uncertainty`); ``supports`` (the filter's
     support maps, one per frame) give the budget each pixel's actual support (without them:
-    the fixed window's).
+    the fixed window's). ``threads``: frames whose step budgets are computed at once.
     """
     import json as jsonlib
 
@@ -596,7 +596,7 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
         add_step_uncertainty(method, _TiffMaps(heights), _TiffMaps(uncertainties), spec, s.pixel_pitch_mm,
                              PlaneCalibration.load(model), HueTable.load(object_table), edge_exclusion=edge,
                              denoise_radius=int(config["measurement"]["denoise_radius"]),
-                             supports=_TiffMaps(supports) if supports else None)
+                             supports=_TiffMaps(supports) if supports else None, workers=threads)
     base = evaluate(baseline, method="three-step-phase-shift") if baseline else None
     plane_stats = jsonlib.loads(Path(planes).read_text())
     table_stats = jsonlib.loads(Path(tables).read_text())
@@ -691,7 +691,7 @@ def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_
 def add_step_uncertainty(method: dict[str, Any], heights: Sequence[NDArray[np.floating]],
                          uncertainties: Sequence[NDArray[np.floating]], specimen: Mapping[str, Any], pitch_mm: float,
                          cal: PlaneCalibration, table: HueTable, *, edge_exclusion: float, denoise_radius: int,
-                         supports: Sequence[NDArray[np.floating]] | None = None) -> None:
+                         supports: Sequence[NDArray[np.floating]] | None = None, workers: int = 1) -> None:
     """Add ``u_mm``, ``U_mm`` (k = 2), ``conformance`` and ``uncertainty_budget`` to each step of an
     :func:`huefringe.metrology.evaluate_session` block, and ``verdict_with_uncertainty`` to the block.
 
@@ -703,7 +703,8 @@ def add_step_uncertainty(method: dict[str, Any], heights: Sequence[NDArray[np.fl
     if len(uncertainties) != len(heights):
         raise ValueError(f"{len(heights)} height maps but {len(uncertainties)} uncertainty maps")
     budgets = unc.step_budget(heights, uncertainties, specimen, pitch_mm, cal.a, cal.b, unc.pixel_budget(table, cal),
-                              edge_exclusion=edge_exclusion, denoise_radius=denoise_radius, supports=supports)
+                              edge_exclusion=edge_exclusion, denoise_radius=denoise_radius, supports=supports,
+                              workers=workers)
     tol = float(method["tolerance_mm"])
     for step, bud in zip(method["steps"], budgets, strict=True):
         step["u_mm"] = bud["u_mm"]
@@ -773,8 +774,9 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
 def stage_kwargs(func: Callable[..., None], smk: Any, **extra: Any) -> dict[str, Any]:
     """The keyword arguments of stage ``func`` from a Snakemake job's named inputs, params and outputs.
 
-    Wildcards are passed when the stage takes them (``sid``, ``batch`` are structural); every
-    named input, param and output (and ``extra``) must be a parameter of the stage.
+    Wildcards are passed when the stage takes them (``sid``, ``batch`` are structural), and so are
+    the job's ``threads`` (the cores Snakemake gave it); every named input, param and output (and
+    ``extra``) must be a parameter of the stage.
 
     Raises
     ------
@@ -786,6 +788,8 @@ def stage_kwargs(func: Callable[..., None], smk: Any, **extra: Any) -> dict[str,
 
     accepted = inspect.signature(func).parameters
     kwargs: dict[str, Any] = {k: v for k, v in smk.wildcards.items() if k in accepted}
+    if "threads" in accepted and getattr(smk, "threads", None):
+        kwargs["threads"] = int(smk.threads)
     for source in (smk.input, smk.params, smk.output):
         for key, value in source.items():
             kwargs[key] = value

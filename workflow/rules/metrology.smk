@@ -46,7 +46,7 @@ rule metrology:
         "logs/{sid}/metrology.log",
     conda:
         "../envs/huefringe.yaml"
-    threads: 1
+    threads: 2  # the step budgets of two frames at once (fewer when --cores is 1)
     resources:
         mem_mb=2000,
         runtime=10,
