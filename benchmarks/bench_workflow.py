@@ -198,6 +198,14 @@ def io_floor(frames: list[Path], out: Path, cores: int, rounds: int = 2) -> dict
     return {"ms_per_frame": 1e3 * best, "fps": cores / best, "cores": cores}
 
 
+def _job_seconds(log: Path) -> float:
+    """The stage's own time from its job log (``... done in X s``), 0 when absent."""
+    import re
+
+    m = re.findall(r"done in ([0-9.]+) s", log.read_text(errors="replace"))
+    return float(m[-1]) if m else 0.0
+
+
 def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str, float]:
     """Per-frame milliseconds of each stage of a measurement job and of a cloud job (one core)."""
     import cv2
@@ -223,7 +231,8 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
     rgb = colour_bytes(_check_colours(white, white.shape[:2]).reshape(-1, 3))
     buf = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))
     out = Path(tempfile.mkdtemp(prefix="hf-stages-"))
-    names = ("decode", "kernel", "filter", "flags+stats", "height tiff", "qa json", "cloud ply")
+    names = ("decode", "kernel", "filter", "uncertainty", "flags+stats", "height tiff", "u+support tiff", "qa json",
+             "cloud ply")
     times: dict[str, list[float]] = {k: [] for k in names}
     for k, n in enumerate(sorted(s.frames)[:frames]):
         c = [time.perf_counter()]
@@ -234,6 +243,11 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
         m = kernel.frame_maps(prep, codes, denoise_radius=m_cfg["denoise_radius"], want_dphi=True, out=buf,
                               denoise_adaptive=m_cfg.get("denoise_adaptive"))  # as stages.frame_results
         t_filter = time.perf_counter() - c[-1] - (c[-1] - c[-2])  # kernel with the filter minus without
+        t0 = time.perf_counter()
+        mu = kernel.frame_maps(prep, codes, denoise_radius=m_cfg["denoise_radius"], want_dphi=True, out=buf,
+                               denoise_adaptive=m_cfg.get("denoise_adaptive"), want_uncertainty=True)
+        t_unc = time.perf_counter() - t0 - (t_filter + c[2] - c[1])  # with the map minus without
+        m = mu
         c.append(time.perf_counter())
         px = m.valid.size
         qa = dict(clipped_fraction=m.counts["clipped"] / px, hue_undefined_fraction=m.counts["hue_undefined"] / px,
@@ -246,12 +260,17 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
         c.append(time.perf_counter())
         write_tiff(out / f"h{k}.tiff", m.height)
         c.append(time.perf_counter())
+        if m.uncertainty is not None:
+            write_tiff(out / f"u{k}.tiff", m.uncertainty)
+        if getattr(m, "support", None) is not None:
+            write_tiff(out / f"s{k}.tiff", np.rint(m.support).astype(np.uint16))
+        c.append(time.perf_counter())
         write_json(out / f"q{k}.json", {"frame": n, **st})
         c.append(time.perf_counter())
         write_height_cloud(out / f"c{k}.ply", read_tiff(out / f"h{k}.tiff"), s.pixel_pitch_mm, colours=rgb)
         c.append(time.perf_counter())
         d = [b - a for a, b in zip(c, c[1:])]
-        for name, x in zip(names, [d[0], d[1], t_filter, d[3], d[4], d[5], d[6]]):
+        for name, x in zip(names, [d[0], d[1], t_filter, t_unc, d[3], d[4], d[5], d[6], d[7]]):
             times[name].append(x)
     shutil.rmtree(out, ignore_errors=True)
     return {k: 1e3 * statistics.median(v) for k, v in times.items()}
@@ -310,12 +329,17 @@ def main(argv: list[str] | None = None) -> int:
                               a.cores, logs / "snakemake_heights.log")
             r = run_snakemake(wf, wf / "config.yaml", [], a.cores, logs / "snakemake_rest.log")
             jobs = len(list((wf / "logs" / sid).glob("measure_*.log")))
-            run = {"frames": n, "calibration": c, "heights": h, "rest": r, "floor": floor, "measure_jobs": jobs}
+            job_s = {kind_: sum(_job_seconds(x) for x in (wf / "logs" / sid).glob(f"{kind_}*.log"))
+                     for kind_ in ("measure", "cloud", "metrology", "mesh", "render")}
+            run = {"frames": n, "calibration": c, "heights": h, "rest": r, "floor": floor, "measure_jobs": jobs,
+                   "job_seconds": job_s}
             kres["runs"][n] = run
             print(f"  {n:5d} frames: calibration {c['seconds']:.1f} s; heights {h['seconds']:.1f} s ({jobs} jobs), "
                   f"rest of the default targets {r['seconds']:.1f} s; I/O floor {floor['fps']:.0f} frames/s "
                   f"({floor['ms_per_frame']:.1f} ms/frame/core); peak per job {max(h['peak_job_mb'], r['peak_job_mb']):.0f} MB, "
                   f"tree {max(h['peak_tree_mb'], r['peak_tree_mb']):.0f} MB")
+            print("         job time in the stages (s, summed over jobs): "
+                  + ", ".join(f"{k} {v:.1f}" for k, v in job_s.items()))
         for n1, n2 in zip(sizes, sizes[1:]):
             r1, r2 = kres["runs"][n1], kres["runs"][n2]
             floor = statistics.mean([r1["floor"]["fps"], r2["floor"]["fps"]])
@@ -334,8 +358,9 @@ def main(argv: list[str] | None = None) -> int:
                                             yaml.safe_load((a.work / f"{kind}-n{mid}" / "session" / "session.yaml").read_text())["id"])
         st = kres["stages_ms"]
         job = sum(v for k, v in st.items() if k != "cloud ply")
+        io_ms = st["decode"] + st["height tiff"] + st.get("u+support tiff", 0.0)
         print(f"  per frame, one core (ms): " + ", ".join(f"{k} {v:.1f}" for k, v in st.items()) +
-              f"; measurement job {job:.1f} = {st['decode'] + st['height tiff']:.1f} I/O + {job - st['decode'] - st['height tiff']:.1f} compute")
+              f"; measurement job {job:.1f} = {io_ms:.1f} I/O + {job - io_ms:.1f} compute")
         res["kinds"][kind] = kres
     res["peak_job_mb"] = max(r[k]["peak_job_mb"] for kr in res["kinds"].values() for r in kr["runs"].values()
                              for k in ("heights", "rest"))

@@ -82,10 +82,10 @@ def test_uncertain_pixels_follow_their_neighbours_and_invalid_ones_are_ignored()
     assert denoise_phase(np.full((5, 5), 0.7, np.float32), np.full((5, 5), 0.1), lone)[2, 2] == np.float32(0.7)
 
 
-def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, r2, rfirst, cfirst):
+def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w):
     """The adaptive pass pixel by pixel, its definition (float32, rings in order, each pixel's
     neighbours added row by row, column by column, stopping once the weights reach the target),
-    with the uncertainty's sums (``w r2`` and the support) beside it."""
+    and each pixel's final window half side."""
     f32 = np.float32
     two_pi, inv_two_pi, pi = f32(2 * np.pi), f32(1 / (2 * np.pi)), f32(np.pi)
 
@@ -95,8 +95,7 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
     h, w = d.shape
     out = first.copy()
     wout = wfirst.copy()
-    rout = rfirst.copy()
-    cout = cfirst.copy()
+    rad = np.where(inv > 0, radius, radius).astype(np.float32)
     for v in range(h):
         for u in range(w):
             if inv[v, u] <= 0:
@@ -106,7 +105,8 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
                 out[v, u] = first[v, u] if ws >= reject_w else np.nan
                 continue
             m, sf2 = first[v, u], f32(1) / ws
-            acc = wsum = rsum = cnt = f32(0)
+            acc = wsum = f32(0)
+            rr = radius
             for r in range(max_radius + 1):
                 for dv in range(-r, r + 1):
                     if not 0 <= v + dv < h:
@@ -120,18 +120,17 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
                                 diff = wrapped(f32(d[vv, uu] - d[v, u]))
                                 acc = f32(acc + f32(inv[vv, uu] * diff))
                                 wsum = f32(wsum + inv[vv, uu])
-                                rsum = f32(rsum + f32(inv[vv, uu] * r2[vv, uu]))
-                                cnt = f32(cnt + 1)
+                rr = r
                 if r >= radius and wsum >= target_w:
                     break
             if wsum < ws:
                 wsum, val = ws, m
             else:
                 val = f32(d[v, u] + f32(acc / wsum))
-                rout[v, u], cout[v, u] = rsum, cnt
+                rad[v, u] = rr
             out[v, u] = val if wsum >= reject_w else np.nan
             wout[v, u] = wsum
-    return out, wout, rout, cout
+    return out, wout, rad
 
 
 def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
@@ -161,18 +160,14 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
     assert cfirst[ok].max() == 9 and cfirst[ok].min() >= 1 and np.all(cfirst[~ok] == 0)
     for max_radius, target, reject in ((4, 0.0008, 0.002), (6, 0.0005, 0.001), (2, 0.0009, 0.0)):
         tw, rw = np.float32(1 / target**2), np.float32(1 / reject**2 if reject else 0.0)
-        got, got_w, got_r, got_c = (np.empty_like(dz) for _ in range(4))
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, r2, rfirst, cfirst, got_r,
-                       got_c, True)
-        want, want_w, want_r, want_c = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, r2,
-                                                          rfirst, cfirst)
+        got, got_w, got_rad = (np.empty_like(dz) for _ in range(3))
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, got_rad, True)
+        want, want_w, want_rad = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw)
         assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))  # the final weight sums too
-        assert np.array_equal(got_r.view(np.uint32), want_r.view(np.uint32))  # and the uncertainty's sums
-        assert np.array_equal(got_c, want_c)
-        assert got_c[ok].max() > 9  # windows grew
+        assert np.array_equal(got_rad[ok], want_rad[ok])  # and each pixel's final window
+        assert got_rad[ok].max() > 1  # windows grew
         bare, bare_w = np.empty_like(dz), np.empty_like(dz)
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, none, none, none,
-                       none, False)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, False)
         assert np.array_equal(bare.view(np.uint32), got.view(np.uint32))
         assert np.array_equal(bare_w.view(np.uint32), got_w.view(np.uint32))
         grown = (inv > 0) & (wfirst < tw)
@@ -182,12 +177,12 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
 
 
 def test_first_pass_sums_are_the_exact_sums_where_nothing_was_rejected() -> None:
-    """The fixed window's ``sum w r2`` and support from box sums (``_first_pass_sums``) against
+    """The fixed window's ``sum w r2`` and support from box sums (``window_sums``) against
     the exact accumulation beside the weights (``_denoise_kernel`` with ``full``): equal to float
     rounding wherever the window took every valid neighbour, and near a step (where it rejected
     some) the support is the number of equal-weight pixels that give its weight sum: the
     accepted count when the weights are equal."""
-    from huefringe.phase import _denoise_kernel, _denoise_weights, _first_pass_sums
+    from huefringe.phase import _denoise_kernel, _denoise_weights, window_sums
 
     rng = np.random.default_rng(3)
     h, w = 40, 57
@@ -201,7 +196,7 @@ def test_first_pass_sums_are_the_exact_sums_where_nothing_was_rejected() -> None
         r2 = rng.uniform(0.5, 2.0, (h, w)).astype(np.float32)
         out, ws, rs, cn = (np.empty_like(dz) for _ in range(4))
         _denoise_kernel(dz, s2, inv, 2, np.float32(9.0), out, ws, r2, rs, cn, True)
-        got_r, got_c = _first_pass_sums(inv, r2, 2, ws)
+        got_r, got_c = window_sums(inv, r2, 2, ws)
         box_n = np.array([[np.count_nonzero(inv[max(v - 2, 0):v + 3, max(u - 2, 0):u + 3]) for u in range(w)]
                           for v in range(h)])
         took_all = (inv > 0) & (cn == box_n)

@@ -269,8 +269,9 @@ def _denoise_kernel(d, s2, inv, radius, k2, out, wout, r2, rout, cout, full):  #
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _window_sums(inv, r2, radius, wsum, rsum, cnt):  # pragma: no cover - compiled
-    """:func:`_first_pass_sums`' loop: running box sums of ``w``, ``w r2`` and the valid pixels
-    (float64 column sums slid down the rows, then along each row), scaled by ``wsum / sum w``."""
+    """:func:`window_sums` for one half side ``radius``: running box sums of ``w``, ``w r2`` and the
+    valid pixels (float64 column sums slid down the rows, then along each row), scaled by
+    ``wsum / sum w``."""
     h, w = inv.shape
     cw = np.zeros(w, np.float64)
     cr = np.zeros(w, np.float64)
@@ -318,25 +319,72 @@ def _window_sums(inv, r2, radius, wsum, rsum, cnt):  # pragma: no cover - compil
             cnt[v, u] = np.float32(sc * bn)
 
 
-def _first_pass_sums(inv: NDArray[np.float32], r2: NDArray[np.float32], radius: int,
-                     wsum: NDArray[np.float32]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
-    """``sum w r2`` and the support of the fixed window from its accepted weights ``wsum`` and
-    box sums over the whole window: ``wsum`` times the window's weighted mean of ``r2``,
-    ``sum(w r2) / sum(w)``, and ``wsum`` over the window's mean weight, ``n / sum(w)`` (the
-    number of equal-weight pixels that would give ``wsum``). Exact (to float rounding) where the
-    window took every valid neighbour, which is almost everywhere (the step budgets' central
-    boxes included); where it rejected some (steps, outliers) the means are those of the whole
-    window. A fraction of the cost of summing them beside the weights (:func:`_denoise_kernel`
-    with ``full``, the exact definition; tests compare the two)."""
+@njit(cache=True, nogil=True, error_model="numpy")
+def _box_sums(inv, r2, rad, radius, wsum, rsum, cnt):  # pragma: no cover - compiled
+    """:func:`window_sums` where the window grew past ``radius`` (``rad > radius``): summed-area
+    tables (float64) of ``w``, ``w r2`` and the valid pixels, then the box of half side ``rad``
+    (clipped to the image), scaled by ``wsum / sum w``."""
+    h, w = inv.shape
+    sw = np.zeros((h + 1, w + 1))
+    sr = np.zeros((h + 1, w + 1))
+    sn = np.zeros((h + 1, w + 1))
+    for v in range(h):
+        aw = 0.0
+        ar = 0.0
+        an = 0.0
+        for u in range(w):
+            iv = np.float64(inv[v, u])
+            aw += iv
+            ar += iv * r2[v, u]
+            an += 1.0 if iv > 0 else 0.0
+            sw[v + 1, u + 1] = sw[v, u + 1] + aw
+            sr[v + 1, u + 1] = sr[v, u + 1] + ar
+            sn[v + 1, u + 1] = sn[v, u + 1] + an
+    for v in range(h):
+        for u in range(w):
+            r = np.int64(rad[v, u])
+            if r <= radius or inv[v, u] <= 0:
+                continue
+            v0 = max(v - r, 0)
+            v1 = min(v + r + 1, h)
+            u0 = max(u - r, 0)
+            u1 = min(u + r + 1, w)
+            bw = sw[v1, u1] - sw[v0, u1] - sw[v1, u0] + sw[v0, u0]
+            br = sr[v1, u1] - sr[v0, u1] - sr[v1, u0] + sr[v0, u0]
+            bn = sn[v1, u1] - sn[v0, u1] - sn[v1, u0] + sn[v0, u0]
+            sc = np.float64(wsum[v, u]) / bw if bw > 0 else 0.0
+            rsum[v, u] = np.float32(sc * br)
+            cnt[v, u] = np.float32(sc * bn)
+
+
+def window_sums(inv: NDArray[np.float32], r2: NDArray[np.float32], rad: NDArray[np.floating] | int,
+                wsum: NDArray[np.float32]) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """``sum w r2`` and the support of each pixel's filter window from its accepted weights
+    ``wsum`` and box sums over the whole window (half side ``rad``, per pixel or one for all):
+    ``wsum`` times the window's weighted mean of ``r2``, ``sum(w r2) / sum(w)``, and ``wsum``
+    over the window's mean weight, ``n / sum(w)`` (the number of equal-weight pixels that would
+    give ``wsum``). Exact (to float rounding) where the window took every valid neighbour, which
+    is almost everywhere (the step budgets' central boxes included); where it rejected some
+    (steps, outliers) the means are those of the whole window. Summed-area tables: about 1.5 ms
+    at 640 x 480, where summing them beside the weights cost 2-3 ms in the fixed window and 8 ms
+    in the adaptive pass (:func:`_denoise_kernel` with ``full`` is that exact definition; tests
+    compare the two)."""
     rsum = np.empty(inv.shape, np.float32)
     cnt = np.empty(inv.shape, np.float32)
-    _window_sums(inv, r2, int(radius), wsum, rsum, cnt)
+    if np.ndim(rad) == 0:
+        _window_sums(inv, r2, int(rad), wsum, rsum, cnt)
+        return rsum, cnt
+    rmap = np.ascontiguousarray(rad, np.float32)
+    base = int(rmap.min()) if rmap.size else 0
+    _window_sums(inv, r2, base, wsum, rsum, cnt)  # every pixel at the smallest half side (running sums) ...
+    if rmap.size and rmap.max() > base:
+        _box_sums(inv, r2, rmap, base, wsum, rsum, cnt)  # ... the grown windows again, from summed-area tables
     return rsum, cnt
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
-                   r2, rfirst, cfirst, rout, cout, full):
+                   rad, full):
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
@@ -345,8 +393,8 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     a step stays a step. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
     save them). ``wout`` receives each pixel's final sum of accepted weights (0 where not
     valid). Float32, fixed visiting order: the result depends only on the inputs. With ``full``,
-    ``rout`` and ``cout`` receive the final sums of ``w r2`` and the final support (number of
-    accepted neighbours), from ``rfirst`` and ``cfirst`` where the first pass stands.
+    ``rad`` receives each pixel's final window half side (``radius`` where the first pass stands),
+    for :func:`window_sums`.
 
     The pixels of a row that need the pass go through it together, one window offset at a time
     across all of them (SIMD over the pixels), each leaving the list once its weights reach the
@@ -367,16 +415,11 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     xg = np.empty(w, np.float32)  # scratch: the gathered neighbours
     ig = np.empty(w, np.float32)
     sg = np.empty(w, np.float32)
-    pr = np.empty(w, np.float32)  # (full) running sums of w r2 and support
-    pc = np.empty(w, np.float32)
-    rg = np.empty(w, np.float32)
-    one = np.float32(1.0)
     for v in range(h):
         n = 0
         if full:
             for u in range(w):
-                rout[v, u] = rfirst[v, u]
-                cout[v, u] = cfirst[v, u]
+                rad[v, u] = radius
         for u in range(w):
             out[v, u] = first[v, u]
             wout[v, u] = wfirst[v, u]
@@ -397,8 +440,6 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
             pdc[q] = d[v, u]
             pacc[q] = 0.0
             pw[q] = 0.0
-            pr[q] = 0.0
-            pc[q] = 0.0
         for r in range(0, max_radius + 1):
             for dv in range(-r, r + 1):
                 vv = v + dv
@@ -417,34 +458,18 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         xg[q] = d[vv, uc]
                         ig[q] = inv[vv, uc] if inb else zero
                         sg[q] = s2[vv, uc]
-                    if full:  # the same, with the uncertainty's sums beside the weights
-                        for q in range(n):
-                            rg[q] = r2[vv, min(max(pu[q] + du, 0), w - 1)]
-                        for q in range(n):
-                            x = xg[q]
-                            iv = ig[q]
-                            dm = x - pm[q]
-                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
-                            diff = x - pdc[q]
-                            diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                            pacc[q] += iv * diff if keep else zero
-                            pw[q] += iv if keep else zero
-                            pr[q] += iv * rg[q] if keep else zero
-                            pc[q] += one if keep else zero
-                    else:
-                        # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to
-                        # sums that start at +0 and so are never -0: bit for bit as skipping it
-                        for q in range(n):
-                            x = xg[q]
-                            iv = ig[q]
-                            dm = x - pm[q]
-                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
-                            diff = x - pdc[q]
-                            diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                            pacc[q] += iv * diff if keep else zero
-                            pw[q] += iv if keep else zero
+                    # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to
+                    # sums that start at +0 and so are never -0: bit for bit as skipping it
+                    for q in range(n):
+                        x = xg[q]
+                        iv = ig[q]
+                        dm = x - pm[q]
+                        dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                        keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                        diff = x - pdc[q]
+                        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                        pacc[q] += iv * diff if keep else zero
+                        pw[q] += iv if keep else zero
                     du += step if step > 0 else 1
             if r >= radius or r == max_radius:
                 # a pixel stops once its weights reach the target (or at the last ring): its
@@ -462,8 +487,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         else:
                             val = pdc[q] + pacc[q] / wsum
                             if full:
-                                rout[v, u] = pr[q]
-                                cout[v, u] = pc[q]
+                                rad[v, u] = r
                         out[v, u] = val if wsum >= reject_w else nan
                         wout[v, u] = wsum
                         continue
@@ -473,8 +497,6 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                     pdc[keep_n] = pdc[q]
                     pacc[keep_n] = pacc[q]
                     pw[keep_n] = pw[q]
-                    pr[keep_n] = pr[q]
-                    pc[keep_n] = pc[q]
                     keep_n += 1
                 n = keep_n
                 if n == 0:
@@ -593,20 +615,24 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
     none = np.empty((1, 1), np.float32)
     k2 = np.float32(float(k) ** 2)
     _denoise_kernel(*arrays, int(radius), k2, out, wsum, none, none, none, False)
-    rsum, cnt = _first_pass_sums(arrays[2], r2, int(radius), wsum) if full else (none, none)
     if (max_radius > radius and target_sigma > 0) or reject_sigma > 0:
         final = np.empty_like(out)
         wfinal = weight_sum if weight_sum is not None else np.empty_like(wsum)
-        rfinal = ratio_sum if ratio_sum is not None else np.empty_like(rsum)
-        cfinal = support if support is not None else np.empty_like(cnt)
         target_w = np.float32(1.0 / target_sigma**2) if target_sigma > 0 else np.float32(0.0)
         reject_w = np.float32(1.0 / reject_sigma**2) if reject_sigma > 0 else np.float32(0.0)
-        _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), np.float32(float(k) ** 2),
-                       target_w, reject_w, final, wfinal, r2, rsum, cnt, rfinal, cfinal, full)
-        return final
-    for dst, src in ((weight_sum, wsum), (ratio_sum, rsum), (support, cnt)):
-        if dst is not None:
-            dst[...] = src
+        rad = np.empty(out.shape if full else (1, 1), np.float32)
+        _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), k2, target_w, reject_w, final,
+                       wfinal, rad, full)
+        out, wsum = final, wfinal
+    else:
+        rad = np.float32(radius)
+        if weight_sum is not None:
+            weight_sum[...] = wsum
+    if full:
+        rsum, cnt = window_sums(arrays[2], r2, rad, wsum)
+        for dst, src in ((ratio_sum, rsum), (support, cnt)):
+            if dst is not None:
+                dst[...] = src
     return out
 
 
