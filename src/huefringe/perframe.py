@@ -467,8 +467,8 @@ def _ratio2_kernel(own, pooled, lo, hi, out):  # pragma: no cover - compiled
 def effective_weight_sum(weight_sum: NDArray[np.float32], ratio_sum: NDArray[np.float32]) -> NDArray[np.float32]:
     """The weight sum whose inverse is the filtered phase's actual variance:
     ``(sum w)^2 / sum(w ratio)`` (``sum w^2 sigma_true^2 / (sum w)^2 = 1 / this`` with
-    ``w = 1 / sigma^2``); 0 where no weight. Float32, the same arithmetic for the reference chain
-    and the kernel."""
+    ``w = 1 / sigma^2``); 0 where no weight. For callers of the filter: the uncertainty takes
+    the same ratio inside :func:`~huefringe.uncertainty.height_uncertainty` (``ratio_sum=``)."""
     w = np.asarray(weight_sum, np.float32)
     r = np.asarray(ratio_sum, np.float32)
     with np.errstate(divide="ignore", invalid="ignore"):
