@@ -64,20 +64,25 @@ def _specimen() -> dict:
             "steps": [{"name": "a", "nominal_mm": 1.0, "roi": [15, 20, 45, 44]}]}
 
 
+def _step_scene(rng: np.random.Generator, sigma_lo: float, sigma_hi: float) -> tuple:
+    """The Monte-Carlo step scene: a 1 mm block on a 64 x 62 plane (``_specimen``'s boxes), per-pixel
+    sigma uniform in ``[sigma_lo, sigma_hi]``, every pixel valid, the identity height model
+    ``h = dphi`` and a budget with no calibration terms."""
+    h, w = 64, 62
+    truth = np.zeros((h, w))
+    truth[18:46, 13:47] = 1.0
+    sigma = rng.uniform(sigma_lo, sigma_hi, (h, w))
+    return (truth, sigma, np.ones((h, w), bool), np.ones((h, w), np.float32), np.zeros((h, w), np.float32),
+            _budget_identity((h, w)), _specimen())
+
+
 @pytest.mark.parametrize("radius", [0, 2])
 def test_step_budget_independent_part_matches_monte_carlo(radius: int) -> None:
     """Std of a filtered step height over 300 draws = the budget's independent part per frame
     (top mean with the filter's effective number of pixels, and the base plane at the top)."""
     rng = np.random.default_rng(3)
-    h, w = 64, 62
-    truth = np.zeros((h, w))
-    truth[18:46, 13:47] = 1.0
-    sigma = rng.uniform(0.01, 0.03, (h, w))
-    valid = np.ones((h, w), bool)
-    a = np.ones((h, w), np.float32)
-    b = np.zeros((h, w), np.float32)
-    bud = _budget_identity((h, w))
-    spec = _specimen()
+    truth, sigma, valid, a, b, bud, spec = _step_scene(rng, 0.01, 0.03)
+    h, w = truth.shape
     from huefringe import metrology
 
     vals, preds = [], []
@@ -424,8 +429,6 @@ def test_filter_variance_with_ratio_is_ratio_sum_over_weight_sum_squared() -> No
     """Pixels weighted by one sigma but noisier (or quieter) by a factor r: the filtered phase's
     variance over 400 draws is sum(w r) / (sum w)^2 (``ratio_sum``), not 1 / sum w; with the
     adaptive window too, whose support the filter reports."""
-    from huefringe.perframe import effective_weight_sum
-
     rng = np.random.default_rng(11)
     h, w = 40, 50
     sigma = rng.uniform(0.004, 0.012, (h, w))
@@ -439,7 +442,7 @@ def test_filter_variance_with_ratio_is_ratio_sum_over_weight_sum_squared() -> No
         noisy = truth + sigma * np.sqrt(r2) * rng.standard_normal((h, w))
         draws.append(denoise_phase(noisy, sigma, valid, radius=2, weight_sum=ws, ratio=r2.astype(np.float32),
                                    ratio_sum=rs, support=sp, **kw))
-        weff.append(effective_weight_sum(ws, rs))
+        weff.append(ws.astype(np.float64) ** 2 / rs)  # (sum w)^2 / sum(w r)
         support = sp if support is None else np.maximum(support, sp)
     var_mc = np.var(np.array(draws, np.float64), axis=0)
     pred = 1.0 / np.mean(np.array(weff, np.float64), axis=0)
@@ -458,15 +461,8 @@ def test_step_budget_with_adaptive_support_matches_monte_carlo(adaptive: bool) -
     from huefringe import metrology
 
     rng = np.random.default_rng(5)
-    h, w = 64, 62
-    truth = np.zeros((h, w))
-    truth[18:46, 13:47] = 1.0
-    sigma = rng.uniform(0.004, 0.012, (h, w))
-    valid = np.ones((h, w), bool)
-    a = np.ones((h, w), np.float32)
-    b = np.zeros((h, w), np.float32)
-    bud = _budget_identity((h, w))
-    spec = _specimen()
+    truth, sigma, valid, a, b, bud, spec = _step_scene(rng, 0.004, 0.012)
+    h, w = truth.shape
     kw = {"max_radius": 6, "target_sigma": 0.0012} if adaptive else {}
     vals, preds, fixed = [], [], []
     for k in range(300):

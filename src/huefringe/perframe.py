@@ -31,7 +31,6 @@ __all__ = [
     "FrameResult",
     "capture_noise",
     "clipped_mask",
-    "effective_weight_sum",
     "frame_hue_noise",
     "noise_ratio2",
     "frame_stats",
@@ -462,18 +461,6 @@ def _ratio2_kernel(own, pooled, lo, hi, out):  # pragma: no cover - compiled
         r = r * r
         r = r if r == r else 1.0
         out[i] = np.float32(min(max(r, lo), hi))
-
-
-def effective_weight_sum(weight_sum: NDArray[np.float32], ratio_sum: NDArray[np.float32]) -> NDArray[np.float32]:
-    """The weight sum whose inverse is the filtered phase's actual variance:
-    ``(sum w)^2 / sum(w ratio)`` (``sum w^2 sigma_true^2 / (sum w)^2 = 1 / this`` with
-    ``w = 1 / sigma^2``); 0 where no weight. For callers of the filter: the uncertainty takes
-    the same ratio inside :func:`~huefringe.uncertainty.height_uncertainty` (``ratio_sum=``)."""
-    w = np.asarray(weight_sum, np.float32)
-    r = np.asarray(ratio_sum, np.float32)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        out = w * (w / r)
-    return np.where(r > 0, out, np.float32(0.0)).astype(np.float32)
 
 
 def sensor_model(table: HueTable) -> NDArray[np.float32] | None:

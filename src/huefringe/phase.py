@@ -506,9 +506,10 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         each pixel's ``sum w ratio``: the filtered phase's variance is then
         ``ratio_sum / weight_sum^2`` (``sum w^2 sigma_true^2 / (sum w)^2``).
     support : float32 ndarray, optional
-        Receives the number of pixels each pixel averaged (itself included; 0 where not valid):
-        its final window's accepted neighbours, which the adaptive pass may grow far beyond the
-        ``(2 radius + 1)^2`` window.
+        Receives the number of pixels each pixel averaged (itself included; 0 where not valid),
+        counted in equal-weight pixels over its final window (:func:`window_sums`): the window's
+        accepted neighbours where none was rejected, and the adaptive pass may grow it far
+        beyond ``(2 radius + 1)^2``.
 
     Returns
     -------
@@ -575,7 +576,6 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
     if r2.shape != out.shape and full:
         raise ValueError(f"ratio has shape {r2.shape}, the phase {out.shape}")
     wsum = np.empty(out.shape, np.float32)
-    none = np.empty((1, 1), np.float32)
     k2 = np.float32(float(k) ** 2)
     _denoise_kernel(*arrays, int(radius), k2, out, wsum)
     if (max_radius > radius and target_sigma > 0) or reject_sigma > 0:

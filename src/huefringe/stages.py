@@ -700,8 +700,6 @@ def add_step_uncertainty(method: dict[str, Any], heights: Sequence[NDArray[np.fl
     """
     from huefringe import uncertainty as unc
 
-    if len(uncertainties) != len(heights):
-        raise ValueError(f"{len(heights)} height maps but {len(uncertainties)} uncertainty maps")
     budgets = unc.step_budget(heights, uncertainties, specimen, pitch_mm, cal.a, cal.b, unc.pixel_budget(table, cal),
                               edge_exclusion=edge_exclusion, denoise_radius=denoise_radius, supports=supports,
                               workers=workers)

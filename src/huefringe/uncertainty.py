@@ -722,20 +722,22 @@ def step_budget(
     """
     from huefringe import metrology
 
-    base, steps, _ = metrology._specimen_parts(specimen)
-    shape = np.shape(heights[0])
-    base_boxes = [metrology.check_box(bx, shape, f"base_roi[{i}]") for i, bx in enumerate(base)]
-    rows: dict[int, dict[str, list[float]]] = {k: {t: [] for t in (*TERMS, "base_plane", "n_eff")} for k in range(len(steps))}
-    if supports is not None and len(supports) != len(heights):
-        raise ValueError(f"{len(heights)} height maps but {len(supports)} support maps")
-    step_boxes = [metrology.central_box(metrology.check_box(s["roi"], shape, str(s["name"])), edge_exclusion)
-                  for s in steps]
     if len(uncertainties) != len(heights):
         raise ValueError(f"{len(heights)} height maps but {len(uncertainties)} uncertainty maps")
+    if supports is not None and len(supports) != len(heights):
+        raise ValueError(f"{len(heights)} height maps but {len(supports)} support maps")
+    base, steps, _ = metrology._specimen_parts(specimen)
+    shape = np.shape(a)  # the model's: no map is read before the frames' own turn
+    base_boxes = [metrology.check_box(bx, shape, f"base_roi[{i}]") for i, bx in enumerate(base)]
+    step_boxes = [metrology.central_box(metrology.check_box(s["roi"], shape, str(s["name"])), edge_exclusion)
+                  for s in steps]
+    rows: dict[int, dict[str, list[float]]] = {k: {t: [] for t in (*TERMS, "base_plane", "n_eff")} for k in range(len(steps))}
 
     def frame(f: int) -> list[dict[str, float]]:
         z = np.asarray(heights[f], np.float64)  # taken here: lazy sequences read one frame per task
         u = np.asarray(uncertainties[f])
+        if z.shape != shape or u.shape != shape:
+            raise ValueError(f"frame {f}: height {z.shape} and uncertainty {u.shape} maps, the model {shape}")
         valid = np.isfinite(z) & np.isfinite(u)
         if supports is None:
             ncount = _neighbour_counts(valid, denoise_radius)
