@@ -483,15 +483,21 @@ def test_step_budget_with_adaptive_support_matches_monte_carlo(adaptive: bool) -
         assert sd / np.mean(fixed) > 1.2  # what the fixed-window count got wrong (1.27 here)
 
 
-def test_step_budget_crops_and_threads_change_nothing() -> None:
+@pytest.mark.parametrize("base_roi", [None, [[2, 2, 30, 14], [33, 2, 60, 14], [2, 50, 60, 62]]],
+                         ids=["apart", "touching"])
+def test_step_budget_crops_and_threads_change_nothing(base_roi: list | None) -> None:
     """The per-frame budget on crops, with the base plane's three coefficient spreads, equals
     its direct definition (each step's raw-pixel weights spread over the whole image), and two
-    worker threads give the same numbers as one."""
+    worker threads give the same numbers as one; base boxes whose grown crops meet share one
+    crop (``touching``: the first two), those apart get one each."""
     from huefringe import metrology
 
     rng = np.random.default_rng(9)
     h, w = 64, 62
     spec = _specimen()
+    if base_roi is not None:
+        spec["base_roi"] = base_roi
+        assert len(uncertainty._groups([tuple(b) for b in base_roi], 6, (h, w))) == 2
     a = np.ones((h, w), np.float32)
     b = np.full((h, w), 0.01, np.float32)
     bud = uncertainty.PixelBudget(rng.uniform(0, 1e-3, (5, h, w)).astype(np.float32), 0.1)

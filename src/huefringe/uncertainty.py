@@ -583,20 +583,49 @@ def _neighbour_counts(valid: NDArray[np.bool_], radius: int) -> NDArray[np.float
     return np.rint(ndimage.uniform_filter(valid.astype(np.float64), n, mode="constant") * n * n)
 
 
+@numba.njit(cache=True, nogil=True)
+def _spread_kernel(v, u, r, c, h, w, out):  # pragma: no cover - numba
+    """:func:`_spread` of ``k`` weight rows ``c`` (k, N) over the same squares: the four corners
+    of each square into a 2-D difference array ``out`` (k, h + 1, w + 1), then its running sums
+    down the rows and along them."""
+    for i in range(v.size):
+        v0 = max(v[i] - r[i], 0)
+        v1 = min(v[i] + r[i] + 1, h)
+        u0 = max(u[i] - r[i], 0)
+        u1 = min(u[i] + r[i] + 1, w)
+        area = np.float64((v1 - v0) * (u1 - u0))
+        for k in range(c.shape[0]):
+            val = c[k, i] / area
+            out[k, v0, u0] += val
+            out[k, v0, u1] -= val
+            out[k, v1, u0] -= val
+            out[k, v1, u1] += val
+    for k in range(c.shape[0]):
+        for y in range(1, h + 1):
+            for x in range(w + 1):
+                out[k, y, x] += out[k, y - 1, x]
+        for y in range(h + 1):
+            for x in range(1, w + 1):
+                out[k, y, x] += out[k, y, x - 1]
+
+
 def _spread(v: NDArray[np.integer], u: NDArray[np.integer], c: NDArray[np.floating], n: NDArray[np.floating],
             shape: tuple[int, ...]) -> NDArray[np.float64]:
     """Weights of the raw pixels in ``sum_i c_i f_i``, the ``f_i`` (at ``(v_i, u_i)``) each the mean of
     the ``n_i`` raw pixels of a square about it (side ``sqrt(n_i)``, rounded to odd, clipped to the
-    image): every ``c_i`` spread evenly over its square (box sums by a 2-D difference array)."""
+    image): every ``c_i`` spread evenly over its square (box sums by a 2-D difference array,
+    compiled). ``c`` may also be ``(k, N)``: ``k`` weight rows over the same squares, giving
+    ``(k, H, W)``."""
     h, w = shape[:2]
     r = np.maximum(np.rint((np.sqrt(np.maximum(n, 1.0)) - 1.0) / 2.0), 0).astype(np.int64)
-    v0, v1 = np.clip(v - r, 0, h), np.clip(v + r + 1, 0, h)
-    u0, u1 = np.clip(u - r, 0, w), np.clip(u + r + 1, 0, w)
-    val = np.asarray(c, np.float64) / ((v1 - v0) * (u1 - u0))
-    d = np.zeros((h + 1) * (w + 1))
-    for vv, uu, sign in ((v0, u0, 1.0), (v0, u1, -1.0), (v1, u0, -1.0), (v1, u1, 1.0)):
-        d += np.bincount(vv * (w + 1) + uu, weights=sign * val, minlength=d.size)
-    return np.cumsum(np.cumsum(d.reshape(h + 1, w + 1), axis=0), axis=1)[:h, :w]
+    cc = np.asarray(c, np.float64)
+    rows = np.ascontiguousarray(cc.reshape(-1, cc.shape[-1]) if cc.ndim else np.full((1, r.size), float(cc)))
+    if rows.shape[1] != r.size:
+        rows = np.ascontiguousarray(np.broadcast_to(rows, (rows.shape[0], r.size)))
+    out = np.zeros((rows.shape[0], h + 1, w + 1))
+    _spread_kernel(np.ascontiguousarray(v, np.int64), np.ascontiguousarray(u, np.int64), r, rows, h, w, out)
+    res = out[:, :h, :w]
+    return res[0] if cc.ndim <= 1 else res
 
 
 def _crop(boxes: Sequence[tuple[int, int, int, int]], halo: int, shape: tuple[int, ...]) -> tuple[slice, slice]:
@@ -608,20 +637,56 @@ def _crop(boxes: Sequence[tuple[int, int, int, int]], halo: int, shape: tuple[in
     return slice(v0, v1), slice(u0, u1)
 
 
+def _groups(boxes: Sequence[tuple[int, int, int, int]], halo: int, shape: tuple[int, ...]) -> list[tuple[slice, slice]]:
+    """Crops (:func:`_crop`) of the boxes grown by ``halo``, boxes whose grown rectangles meet
+    sharing one crop: a pixel's spread square never leaves its box's crop, so the spreads of
+    the groups are independent (and the crops hold no pixel far from every box)."""
+    groups = [[bx] for bx in boxes]
+    merged = True
+    while merged:
+        merged = False
+        for i in range(len(groups)):
+            for j in range(i + 1, len(groups)):
+                ri, rj = _crop(groups[i], halo, shape), _crop(groups[j], halo, shape)
+                if ri[0].start < rj[0].stop and rj[0].start < ri[0].stop and ri[1].start < rj[1].stop \
+                        and rj[1].start < ri[1].stop:
+                    groups[i] += groups.pop(j)
+                    merged = True
+                    break
+            if merged:
+                break
+    return [_crop(g, halo, shape) for g in groups]
+
+
 def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: NDArray[np.bool_],
                       ncount: NDArray[np.float64], base_boxes: Sequence[tuple[int, int, int, int]],
                       step_boxes: Sequence[tuple[int, int, int, int]], pitch_mm: float, a: NDArray[np.floating],
                       b: NDArray[np.floating], budget: PixelBudget) -> list[dict[str, float]]:
     """One frame's variance of each step's height, term by term (:func:`step_budget`).
 
-    Only the pixels the step budget reaches are visited: the terms are split on the boxes grown
-    by the largest support's half side, the raw-pixel weights of the tops spread on their own
-    crops and those of the base plane once per frame, as the three spreads of the plane's
-    coefficients (``mean_T(plane) = xbar . coef``, linear in ``xbar``), so that each step's base
-    variance is the quadratic form ``xbar^T M xbar`` of ``M_kl = sum_j A_k A_l raw_j``.
+    Only the pixels the step budget reaches are visited: the terms are split on crops, the
+    boxes grown by the largest support's half side (:func:`_groups`: one per top, one per
+    group of base boxes), the raw-pixel weights of the tops spread on their own crops and those
+    of the base plane once per frame, as the three spreads of the plane's coefficients
+    (``mean_T(plane) = xbar . coef``, linear in ``xbar``), so that each step's base variance is
+    the quadratic form ``xbar^T M xbar`` of ``M_kl = sum_j A_k A_l raw_j``.
     """
     shape = z.shape
     halo = int(np.rint((np.sqrt(float(np.max(ncount))) - 1.0) / 2.0)) + 1
+    spread_terms = [t for t in TERMS if GROUPS[t] != "correlated"]
+    corr_terms = [t for t in TERMS if GROUPS[t] == "correlated"]
+
+    def terms_at(sl: tuple[Any, ...]) -> dict[str, NDArray[np.float64]]:
+        """:func:`split_terms` of the pixels of a crop."""
+        sub = PixelBudget(budget.terms[(slice(None), *sl)], budget.table_factor,
+                          None if budget.interp_bins is None else budget.interp_bins[sl],
+                          None if budget.phi_ref is None else budget.phi_ref[sl])
+        return split_terms(np.asarray(u)[sl], z[sl], np.asarray(a)[sl], np.asarray(b)[sl], sub)
+
+    def raw_of(parts: dict[str, NDArray[np.float64]], sl: tuple[slice, slice]) -> dict[str, NDArray[np.float64]]:
+        """u^2 times the support of the spread terms on a crop (0 where not valid)."""
+        return {t: np.where(valid[sl], parts[t] ** 2 * ncount[sl], 0.0) for t in spread_terms}
+
     bmask = np.zeros(shape, bool)
     for u0, v0, u1, v1 in base_boxes:
         bmask[v0:v1, u0:u1] = True
@@ -629,52 +694,45 @@ def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: ND
     vb, ub = np.nonzero(bmask)
     xb = np.column_stack([np.ones(vb.size), ub * pitch_mm, vb * pitch_mm])
     pinv = np.linalg.pinv(xb)  # (3, NB): plane coefficients from the base heights
-    # the terms, on the pixels within reach only
-    reach = np.zeros(shape, bool)
-    for u0, v0, u1, v1 in (*base_boxes, *step_boxes):
-        reach[max(v0 - halo, 0) : v1 + halo, max(u0 - halo, 0) : u1 + halo] = True
-    reach &= valid
-    idx = np.nonzero(reach)
-    sub = PixelBudget(budget.terms[(slice(None), *idx)], budget.table_factor,
-                      None if budget.interp_bins is None else budget.interp_bins[idx],
-                      None if budget.phi_ref is None else budget.phi_ref[idx])
-    flat = split_terms(np.asarray(u)[idx], z[idx], np.asarray(a)[idx], np.asarray(b)[idx], sub)
-    parts = {}
-    for term, vals in flat.items():
-        full = np.zeros(shape)
-        full[idx] = vals
-        parts[term] = full
-    spread_terms = [t for t in TERMS if GROUPS[t] != "correlated"]
-    raw = {t: parts[t] ** 2 * ncount for t in spread_terms}  # u^2 times the support (0 out of reach)
-    # the base plane: the spreads of its three coefficients, once
-    bsl = _crop(base_boxes, halo, shape)
-    off = np.array([bsl[0].start, bsl[1].start])
-    crop_shape = (bsl[0].stop - bsl[0].start, bsl[1].stop - bsl[1].start)
-    nb = ncount[bmask]
-    coef = np.stack([_spread(vb - off[0], ub - off[1], pinv[k], nb, crop_shape).ravel() for k in range(3)])
-    touched = np.any(coef != 0.0, axis=0)
-    coef = coef[:, touched]
-    quad = {t: (coef * raw[t][bsl].ravel()[touched]) @ coef.T for t in spread_terms}
+    nb = ncount[vb, ub]
+    base_corr: dict[str, list[NDArray[np.float64]]] = {t: [] for t in corr_terms}
+    # the base plane: the spreads of its three coefficients, once, on each group's crop
+    quad = {t: np.zeros((3, 3)) for t in spread_terms}
+    for gsl in _groups(base_boxes, halo, shape):
+        inside = (vb >= gsl[0].start) & (vb < gsl[0].stop) & (ub >= gsl[1].start) & (ub < gsl[1].stop)
+        crop_shape = (gsl[0].stop - gsl[0].start, gsl[1].stop - gsl[1].start)
+        coef = _spread(vb[inside] - gsl[0].start, ub[inside] - gsl[1].start, pinv[:, inside], nb[inside],
+                       crop_shape).reshape(3, -1)
+        touched = np.any(coef != 0.0, axis=0)
+        coef = coef[:, touched]
+        parts = terms_at(gsl)
+        raw = raw_of(parts, gsl)
+        for t in spread_terms:
+            quad[t] += (coef * raw[t].ravel()[touched]) @ coef.T
+        for t in corr_terms:
+            base_corr[t].append(parts[t][bmask[gsl]])
+    base_mean = {t: np.mean(np.concatenate(base_corr[t])) for t in corr_terms}
     out = []
     for box in step_boxes:
-        tmask = np.zeros(shape, bool)
-        tmask[box[1] : box[3], box[0] : box[2]] = True
-        tmask &= valid
+        tsl = _crop([box], halo, shape)
+        off = (tsl[0].start, tsl[1].start)
+        tmask = np.zeros((tsl[0].stop - off[0], tsl[1].stop - off[1]), bool)
+        tmask[box[1] - off[0] : box[3] - off[0], box[0] - off[1] : box[2] - off[1]] = True
+        tmask &= valid[tsl]
         vt, ut = np.nonzero(tmask)
         nt = vt.size
-        xbar = np.array([1.0, ut.mean() * pitch_mm, vt.mean() * pitch_mm])
-        n_t = ncount[tmask]
-        tsl = _crop([box], halo, shape)
-        a_top = _spread(vt - tsl[0].start, ut - tsl[1].start, np.full(nt, 1.0 / nt), n_t,
-                        (tsl[0].stop - tsl[0].start, tsl[1].stop - tsl[1].start))
+        xbar = np.array([1.0, (ut + off[1]).mean() * pitch_mm, (vt + off[0]).mean() * pitch_mm])
+        n_t = ncount[tsl][tmask]
+        a_top = _spread(vt, ut, np.full(nt, 1.0 / nt), n_t, tmask.shape)
+        parts = terms_at(tsl)
+        raw = raw_of(parts, tsl)
         row: dict[str, float] = {"n_eff": float(nt / n_t.mean())}
         plane_var = 0.0
         for term in TERMS:
-            p = parts[term]
             if GROUPS[term] == "correlated":
-                var = np.mean(p[tmask]) ** 2 + np.mean(p[bmask]) ** 2
+                var = np.mean(parts[term][tmask]) ** 2 + base_mean[term] ** 2
             else:
-                vtop = float(np.sum(a_top**2 * raw[term][tsl]))
+                vtop = float(np.sum(a_top**2 * raw[term]))
                 vbase = float(xbar @ quad[term] @ xbar)
                 var = vtop + vbase
                 plane_var += vbase
