@@ -213,3 +213,27 @@ def test_extra_float_properties_are_read_back_and_leave_the_rest_alone(tmp_path)
     with pytest.raises(ValueError, match="property name"):
         cloud.write_points(tmp_path / "bad.ply", np.zeros((2, 3)), scalars={"x": np.zeros(2)})
     assert not (tmp_path / "bad.ply").exists()
+
+
+@pytest.mark.parametrize("dtype", [np.float32, np.float64])
+def test_packed_height_cloud_is_the_gathered_one_byte_for_byte(tmp_path, dtype):
+    """The compiled packing of write_height_cloud gives the bytes of write_points on the gathered
+    points, colours and scalars (float32 and float64 heights, image and per-pixel code colours,
+    two scalars, an all-NaN map)."""
+    h, white = scene(11)
+    h = h.astype(dtype)
+    rng = np.random.default_rng(11)
+    s1 = rng.random(h.shape).astype(np.float32)
+    s2 = rng.random(h.shape)  # float64: written as float32
+    pts, pix = cloud.height_to_points(h, PITCH)
+    codes = cloud.colour_bytes(white.reshape(-1, 3))
+    cloud.write_points(tmp_path / "ref.ply", pts, codes[pix],
+                       scalars={"sigma_mm": s1.reshape(-1)[pix], "other": s2.reshape(-1)[pix].astype(np.float32)})
+    for colours in (white, codes):
+        n = cloud.write_height_cloud(tmp_path / "ours.ply", h, PITCH, colours=colours, scalars={"sigma_mm": s1, "other": s2})
+        assert n == pix.size
+        assert (tmp_path / "ours.ply").read_bytes() == (tmp_path / "ref.ply").read_bytes()
+    empty = np.full(h.shape, np.nan, dtype)
+    assert cloud.write_height_cloud(tmp_path / "empty.ply", empty, PITCH, colours=white) == 0
+    cloud.write_points(tmp_path / "empty_ref.ply", np.zeros((0, 3)), np.zeros((0, 3), np.uint8))
+    assert (tmp_path / "empty.ply").read_bytes() == (tmp_path / "empty_ref.ply").read_bytes()
