@@ -18,6 +18,9 @@ own (``--directory``) with a config listing only that session:
 3. ``rest``         the rest of the default target set (``snakemake --cores N`` with no
    target: point clouds, the compensated pattern, mesh, renders, metrology report).
 
+Before the first size of each kind, a 4-frame session goes through the whole default target set
+once, uncounted, so that numba's on-disk cache is filled and no timed job compiles a kernel.
+
 Marginal frames/s between two sizes N1 < N2 = (N2 - N1) / (t(N2) - t(N1)), so that Snakemake's
 start-up, the jobs' start-up and the first frame's mesh and renders cancel: ``heights`` for
 the height maps, ``heights + rest`` for the default target set. Each is printed beside the
@@ -267,13 +270,50 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
         c.append(time.perf_counter())
         write_json(out / f"q{k}.json", {"frame": n, **st})
         c.append(time.perf_counter())
-        write_height_cloud(out / f"c{k}.ply", read_tiff(out / f"h{k}.tiff"), s.pixel_pitch_mm, colours=rgb)
+        write_height_cloud(out / f"c{k}.ply", read_tiff(out / f"h{k}.tiff"), s.pixel_pitch_mm, colours=rgb,
+                           scalars={"sigma_mm": read_tiff(out / f"u{k}.tiff")} if m.uncertainty is not None else None)
         c.append(time.perf_counter())
         d = [b - a for a, b in zip(c, c[1:])]
         for name, x in zip(names, [d[0], d[1], t_filter, t_unc, d[3], d[4], d[5], d[6], d[7]]):
             times[name].append(x)
     shutil.rmtree(out, ignore_errors=True)
     return {k: 1e3 * statistics.median(v) for k, v in times.items()}
+
+
+def metrology_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str, float]:
+    """Per-frame milliseconds of the metrology job's two passes over the frames (one thread):
+    the step heights (:func:`huefringe.metrology.evaluate_session`, TIFFs read) and the step
+    uncertainty budget (:func:`huefringe.uncertainty.step_budget` with the support maps)."""
+    import numpy as np
+
+    from huefringe import metrology, uncertainty
+    from huefringe.height import PlaneCalibration
+    from huefringe.huetable import HueTable
+    from huefringe.io import read_tiff
+    from huefringe.session import load_session
+
+    s = load_session(session)
+    m_cfg = load_config(REPO / "config.yaml")
+    edge = float(m_cfg["metrology"]["edge_exclusion"])
+    paths = {k: sorted((results / k).glob("frame_*.tiff"))[:frames] for k in ("height", "uncertainty", "support")}
+    n = len(paths["height"])
+    cal = PlaneCalibration.load(results / "calib" / "phase_to_height.npz")
+    bud = uncertainty.pixel_budget(HueTable.load(results / "calib" / "table_object.json"), cal)
+    maps = {k: [read_tiff(p) for p in v] for k, v in paths.items()}
+    kw = {"edge_exclusion": edge, "denoise_radius": int(m_cfg["measurement"]["denoise_radius"])}
+    spans = []
+    for frames_ in (paths["height"][:2], paths["height"]):  # the first round warms the caches (imports, numba)
+        t = time.perf_counter()
+        metrology.evaluate_session((read_tiff(p) for p in frames_), s.specimen, s.pixel_pitch_mm,
+                                   range_mm=max(s.planes_mm) - min(s.planes_mm), edge_exclusion=edge)
+        t_eval = (time.perf_counter() - t) / len(frames_)
+        k = len(frames_)
+        t = time.perf_counter()
+        uncertainty.step_budget(maps["height"][:k], maps["uncertainty"][:k], s.specimen, s.pixel_pitch_mm, cal.a, cal.b,
+                                bud, supports=[np.asarray(x, np.float32) for x in maps["support"][:k]], **kw)
+        spans.append((t_eval, (time.perf_counter() - t) / k))
+    t_eval, t_budget = spans[-1]
+    return {"step heights": 1e3 * t_eval, "step budget": 1e3 * t_budget}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -309,6 +349,19 @@ def main(argv: list[str] | None = None) -> int:
         full, t_session, reused = write_session(bcfg, a.work / f"session-{kind}")
         print(f"\n[{kind}] session of {sizes[-1]} frames: {'reused' if reused else f'written in {t_session:.1f} s'}")
         kres: dict[str, Any] = {"runs": {}}
+        # warm-up, not counted: a 4-frame session through the whole default target set, so that
+        # every job finds numba's on-disk cache filled (on a fresh checkout the first measurement
+        # jobs would otherwise compile the kernels, about 5 s each, inside the smallest session's time)
+        warm = sub_session(full, min(4, sizes[0]), a.work / f"{kind}-warmup" / "session")
+        wwf = a.work / f"{kind}-warmup" / "workflow"
+        shutil.rmtree(wwf, ignore_errors=True)
+        wwf.mkdir(parents=True)
+        wcfg = copy.deepcopy(base)
+        wcfg["sessions"] = [str(warm)]
+        wcfg.pop("bench_sessions", None)
+        (wwf / "config.yaml").write_text(yaml.safe_dump(wcfg, sort_keys=False))
+        w = run_snakemake(wwf, wwf / "config.yaml", [], a.cores, a.work / f"{kind}-warmup" / "snakemake.log")
+        print(f"  warm-up (4 frames, whole default set, not counted): {w['seconds']:.1f} s")
         for n in sizes:
             session = sub_session(full, n, a.work / f"{kind}-n{n}" / "session")
             sid = yaml.safe_load((session / "session.yaml").read_text())["id"]
@@ -356,11 +409,16 @@ def main(argv: list[str] | None = None) -> int:
         kres["stages_ms"] = stage_breakdown(a.work / f"{kind}-n{mid}" / "session",
                                             a.work / f"{kind}-n{mid}" / "workflow" / "results" /
                                             yaml.safe_load((a.work / f"{kind}-n{mid}" / "session" / "session.yaml").read_text())["id"])
+        kres["metrology_ms"] = metrology_breakdown(a.work / f"{kind}-n{mid}" / "session",
+                                                   a.work / f"{kind}-n{mid}" / "workflow" / "results" /
+                                                   yaml.safe_load((a.work / f"{kind}-n{mid}" / "session" / "session.yaml").read_text())["id"])
         st = kres["stages_ms"]
         job = sum(v for k, v in st.items() if k != "cloud ply")
         io_ms = st["decode"] + st["height tiff"] + st.get("u+support tiff", 0.0)
         print(f"  per frame, one core (ms): " + ", ".join(f"{k} {v:.1f}" for k, v in st.items()) +
               f"; measurement job {job:.1f} = {io_ms:.1f} I/O + {job - io_ms:.1f} compute")
+        print("  metrology job per frame, one thread (ms): "
+              + ", ".join(f"{k} {v:.1f}" for k, v in kres["metrology_ms"].items()))
         res["kinds"][kind] = kres
     res["peak_job_mb"] = max(r[k]["peak_job_mb"] for kr in res["kinds"].values() for r in kr["runs"].values()
                              for k in ("heights", "rest"))
