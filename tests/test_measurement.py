@@ -119,6 +119,39 @@ def test_kernel_stage_equals_reference_stage(tmp_path: Path) -> None:
             assert Path(a).read_bytes() == Path(b).read_bytes(), (key, a)
 
 
+@pytest.mark.parametrize("jump", [0.25, 0.1, 0.0])
+def test_remove_step_edges_equals_the_numpy_definition(jump: float) -> None:
+    """The compiled edge removal gives np.where(step_edge_mask(...)) of every map and the
+    statistics np.nanmedian and np.isfinite give, value for value (NaN, inf, an even and an odd
+    count of valid pixels, an all-NaN map)."""
+    import numpy as np
+
+    from huefringe.perframe import remove_step_edges, step_edge_mask
+
+    rng = np.random.default_rng(3)
+    for shape in ((48, 64), (47, 63)):
+        h = rng.normal(0.0, 0.2, shape).astype(np.float32)
+        h[10:30, 20:40] += 1.0
+        h[rng.random(shape) < 0.1] = np.nan
+        h[5, 5] = np.inf
+        phase = rng.random(shape).astype(np.float32)
+        u = rng.random(shape).astype(np.float32)
+        sup = rng.integers(1, 50, shape).astype(np.float32)
+        got_h, (got_p, got_none, got_u), (got_s,), st = remove_step_edges(h, jump, nan_maps=(phase, None, u),
+                                                                          zero_maps=(sup,))
+        edge = step_edge_mask(h, jump)
+        want_h = np.where(edge, np.float32(np.nan), h)
+        assert got_none is None
+        for got, want in ((got_h, want_h), (got_p, np.where(edge, np.float32(np.nan), phase)),
+                          (got_u, np.where(edge, np.float32(np.nan), u)), (got_s, np.where(edge, np.float32(0.0), sup))):
+            assert got.dtype == np.float32 and np.array_equal(got, want, equal_nan=True)
+        assert st["edge_fraction"] == float(edge.mean())
+        assert st["valid_fraction"] == float(np.count_nonzero(np.isfinite(want_h)) / want_h.size)
+        assert st["median_height_mm"] == float(np.nanmedian(want_h))
+    empty = np.full((8, 8), np.nan, np.float32)
+    assert remove_step_edges(empty, jump)[3] == {"edge_fraction": 0.0, "valid_fraction": 0.0, "median_height_mm": None}
+
+
 def test_step_edge_mask_marks_both_sides_of_a_jump_only() -> None:
     """Mixed pixels at a step: both pixels of a 4-neighbour pair differing by more than jump_mm;
     a smooth slope below it and NaN neighbours are left alone; 0 switches it off."""

@@ -9,7 +9,7 @@ shares its compiled pieces (:func:`sigma_from_slope`, :func:`capture_noise`,
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -88,6 +88,88 @@ def step_edge_mask(height: NDArray[np.floating], jump_mm: float) -> NDArray[np.b
     out[1:, :] |= dy
     out[:-1, :] |= dy
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _edge_kernel(h, jump, edge):  # pragma: no cover - numba
+    """:func:`step_edge_mask` into ``edge`` (float32 differences, NaN compares False); returns the
+    number of pixels marked."""
+    rows, cols = h.shape
+    n = 0
+    for v in range(rows):
+        for u in range(cols):
+            z = h[v, u]
+            e = False
+            if u > 0:
+                e |= abs(z - h[v, u - 1]) > jump
+            if u + 1 < cols:
+                e |= abs(h[v, u + 1] - z) > jump
+            if v > 0:
+                e |= abs(z - h[v - 1, u]) > jump
+            if v + 1 < rows:
+                e |= abs(h[v + 1, u] - z) > jump
+            edge[v, u] = e
+            n += e
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
+def _masked(x, edge, fill, out):  # pragma: no cover - numba
+    """``out = where(edge, fill, x)``."""
+    for v in range(x.shape[0]):
+        for u in range(x.shape[1]):
+            out[v, u] = fill if edge[v, u] else x[v, u]
+
+
+@numba.njit(cache=True, nogil=True)
+def _finite_keys(z, keys):  # pragma: no cover - numba
+    """The values of float32 ``z`` that are not NaN as order-preserving uint32 keys (for
+    :func:`_median_keys`, as ``np.nanmedian`` takes them); returns their number and that of the
+    finite ones."""
+    zb = z.reshape(-1).view(np.uint32)
+    zf = z.reshape(-1)
+    n = 0
+    n_finite = 0
+    for i in range(zf.size):
+        b = zb[i]
+        x = zf[i]
+        keys[n] = b ^ (np.uint32(0xFFFFFFFF) if b >> np.uint32(31) else np.uint32(0x80000000))
+        n += x == x
+        n_finite += x - x == 0
+    return n, n_finite
+
+
+def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: Sequence[NDArray[np.float32] | None] = (),
+                      zero_maps: Sequence[NDArray[np.float32] | None] = ()) -> tuple[Any, ...]:
+    """Invalidate the mixed pixels of step edges (:func:`step_edge_mask`) in a height map and the
+    maps that go with it, in compiled passes: what ``measurement.edge_jump_mm`` does per frame.
+
+    Returns ``(height, nan_maps, zero_maps, stats)``: new float32 arrays (NaN on the edge pixels;
+    0 in ``zero_maps``; None stays None) and the frame statistics that change, ``edge_fraction``,
+    ``valid_fraction`` (finite heights) and ``median_height_mm`` (NumPy's ``nanmedian`` of the
+    new heights, None when none is left), equal to ``np.where(step_edge_mask(...), ...)`` and
+    ``np.nanmedian`` value for value (tested) at about a sixth of their cost.
+    """
+    h = np.ascontiguousarray(height, np.float32)
+    edge = np.empty(h.shape, bool)
+    n_edge = _edge_kernel(h, np.float32(jump_mm), edge) if jump_mm > 0 else 0
+    if jump_mm <= 0:
+        edge[...] = False
+
+    def masked(x: NDArray[np.float32] | None, fill: float) -> NDArray[np.float32] | None:
+        if x is None:
+            return None
+        out = np.empty(np.shape(x), np.float32)
+        _masked(np.ascontiguousarray(x, np.float32), edge, np.float32(fill), out)
+        return out
+
+    hz = masked(h, np.nan)
+    keys = np.empty(hz.size, np.uint32)
+    n, n_finite = (int(x) for x in _finite_keys(hz, keys))
+    stats = {"edge_fraction": float(n_edge / h.size) if h.size else 0.0,
+             "valid_fraction": float(n_finite / h.size) if h.size else 0.0,
+             "median_height_mm": float(_median_keys(keys, n)) if n_finite else None}
+    return hz, [masked(x, np.nan) for x in nan_maps], [masked(x, 0.0) for x in zero_maps], stats
 
 
 def clipped_mask(rgb: NDArray[np.floating], bit_depth: int) -> NDArray[np.bool_]:

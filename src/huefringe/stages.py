@@ -28,7 +28,7 @@ from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, 
 from huefringe.huetable import HueTable, HueTableError, build_table
 from huefringe import phase_error
 from huefringe.io import read_tiff, write_json, write_tiff
-from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, shadow_mask, step_edge_mask
+from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
 from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
 from huefringe.uncertainty import pixel_budget
@@ -357,18 +357,9 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             support = res.support
         jump = float(measurement.get("edge_jump_mm", 0.0) or 0.0)
         if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
-            edge = step_edge_mask(height, jump)
-            height = np.where(edge, np.float32(np.nan), height).astype(np.float32)
-            if phase is not None:
-                phase = np.where(edge, np.float32(np.nan), phase).astype(np.float32)
-            if u_map is not None:
-                u_map = np.where(edge, np.float32(np.nan), u_map).astype(np.float32)
-            if support is not None:
-                support = np.where(edge, np.float32(0.0), support).astype(np.float32)
-            stats = dict(stats)
-            stats["edge_fraction"] = float(edge.mean())
-            stats["valid_fraction"] = float(np.count_nonzero(np.isfinite(height)) / height.size)
-            stats["median_height_mm"] = float(np.nanmedian(height)) if np.isfinite(height).any() else None
+            height, (phase, u_map), (support,), changed = remove_step_edges(height, jump, nan_maps=(phase, u_map),
+                                                                            zero_maps=(support,))
+            stats = {**stats, **changed}
         _refuse_bad_frame(path, stats, measurement)
         yield n, height, phase, hue, stats, u_map, support
 
