@@ -15,11 +15,14 @@ from __future__ import annotations
 import os
 from collections.abc import Mapping
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numba
 import numpy as np
-import open3d as o3d
 from numpy.typing import ArrayLike, NDArray
+
+if TYPE_CHECKING:  # Open3D is imported where a cloud object is made: writing PLY from maps does not need it
+    import open3d as o3d
 
 from huefringe.io import atomic_path
 
@@ -110,6 +113,8 @@ def height_to_cloud(
     >>> np.asarray(pcd.points)[0].tolist()
     [0.5, 0.0, 1.5]
     """
+    import open3d as o3d
+
     points, pixel = height_to_points(height, pitch_mm)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     if colours is not None:
