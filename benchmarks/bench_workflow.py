@@ -234,8 +234,9 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
     rgb = colour_bytes(_check_colours(white, white.shape[:2]).reshape(-1, 3))
     buf = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))
     out = Path(tempfile.mkdtemp(prefix="hf-stages-"))
-    names = ("decode", "kernel", "filter", "uncertainty", "flags+stats", "height tiff", "u+support tiff", "qa json",
-             "cloud ply")
+    names = ("decode", "kernel", "filter", "uncertainty", "flags+stats", "step edges", "height tiff", "u+support tiff",
+             "qa json", "cloud ply")
+    jump = float(m_cfg.get("edge_jump_mm", 0.0) or 0.0)
     times: dict[str, list[float]] = {k: [] for k in names}
     for k, n in enumerate(sorted(s.frames)[:frames]):
         c = [time.perf_counter()]
@@ -261,6 +262,13 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
             st = perframe.frame_stats(m.valid, m.height, unwrap(m.dphi, m.valid, "reference").flags,
                                       unwrap_mode="reference", **qa)
         c.append(time.perf_counter())
+        if jump > 0 and hasattr(perframe, "remove_step_edges"):  # as stages.frame_results
+            perframe.remove_step_edges(m.height, jump, nan_maps=(m.uncertainty,), zero_maps=(m.support,))
+        elif jump > 0:
+            e = perframe.step_edge_mask(m.height, jump)
+            [np.where(e, np.float32(np.nan), x) for x in (m.height, m.uncertainty)] + [np.where(e, 0.0, m.support)]
+            np.nanmedian(np.where(e, np.float32(np.nan), m.height))
+        c.append(time.perf_counter())
         write_tiff(out / f"h{k}.tiff", m.height)
         c.append(time.perf_counter())
         if m.uncertainty is not None:
@@ -274,7 +282,7 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
                            scalars={"sigma_mm": read_tiff(out / f"u{k}.tiff")} if m.uncertainty is not None else None)
         c.append(time.perf_counter())
         d = [b - a for a, b in zip(c, c[1:])]
-        for name, x in zip(names, [d[0], d[1], t_filter, t_unc, d[3], d[4], d[5], d[6], d[7]]):
+        for name, x in zip(names, [d[0], d[1], t_filter, t_unc, d[3], d[4], d[5], d[6], d[7], d[8]], strict=True):
             times[name].append(x)
     shutil.rmtree(out, ignore_errors=True)
     return {k: 1e3 * statistics.median(v) for k, v in times.items()}

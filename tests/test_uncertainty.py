@@ -500,7 +500,9 @@ def test_step_budget_crops_and_threads_change_nothing(base_roi: list | None) -> 
         assert len(uncertainty._groups([tuple(b) for b in base_roi], 6, (h, w))) == 2
     a = np.ones((h, w), np.float32)
     b = np.full((h, w), 0.01, np.float32)
-    bud = uncertainty.PixelBudget(rng.uniform(0, 1e-3, (5, h, w)).astype(np.float32), 0.1)
+    bud = uncertainty.PixelBudget(rng.uniform(0, 1e-3, (5, h, w)).astype(np.float32), 0.1,
+                                  rng.integers(0, 256, (h, w, uncertainty.INTERP_BINS)).astype(np.uint8),
+                                  rng.uniform(0, 2 * np.pi, (h, w)).astype(np.float32))
     zs, us, sps = [], [], []
     for _ in range(3):
         z = np.zeros((h, w))
@@ -536,7 +538,17 @@ def test_step_budget_crops_and_threads_change_nothing(base_roi: list | None) -> 
         cb = np.array([1.0, ut.mean() * 0.2, vt.mean() * 0.2]) @ pinv
         a_top = uncertainty._spread(vt, ut, np.full(vt.size, 1.0 / vt.size), n[tmask], (h, w))
         a_base = uncertainty._spread(vb, ub, cb, n[bmask], (h, w))
-        raw = np.where(valid, parts["noise"] ** 2 * n, 0.0)
-        want.append(float(np.sum(a_top**2 * raw) + np.sum(a_base**2 * raw)))
-    got = one[0]["independent_per_frame_mm"] ** 2
-    assert got == pytest.approx(np.mean(want), rel=1e-9)
+        row = {}
+        for term in uncertainty.TERMS:
+            if uncertainty.GROUPS[term] == "correlated":
+                row[term] = np.mean(parts[term][tmask]) ** 2 + np.mean(parts[term][bmask]) ** 2
+            else:
+                raw = np.where(valid, parts[term] ** 2 * n, 0.0)
+                row[term] = float(np.sum(a_top**2 * raw) + np.sum(a_base**2 * raw))
+        want.append(row)
+    assert one[0]["independent_per_frame_mm"] ** 2 == pytest.approx(np.mean([r["noise"] for r in want]), rel=1e-9)
+    for term in uncertainty.TERMS:  # every term, the interpolation's phase bins included
+        scale = len(zs) if uncertainty.GROUPS[term] == "independent" else 1
+        got = one[0]["terms_mm"][term] ** 2 * scale
+        assert got == pytest.approx(np.mean([r[term] for r in want]), rel=1e-9), term
+        assert got > 0, term

@@ -658,34 +658,116 @@ def _groups(boxes: Sequence[tuple[int, int, int, int]], halo: int, shape: tuple[
     return [_crop(g, halo, shape) for g in groups]
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _crop_budget(z, u, valid, ncount, a, b, terms, f_table, has_bins, bins, phi_ref, lut, r0, c0, wts, mask,
+                 m_out, c_out):  # pragma: no cover - numba
+    """:func:`split_terms` of each valid pixel of the crop at ``(r0, c0)`` (the shape of
+    ``wts``), in one pass: ``m_out[t, k, l] += sum_j wts_k wts_l raw_t`` for the spread terms
+    (noise, table, interpolation; ``raw = term^2 ncount``) and ``c_out[t] += term`` for the
+    correlated ones (reference, model) over ``mask``; returns the pixels of ``mask`` counted.
+    The same float64 operations as :func:`split_terms` (and :func:`_interp_of`'s float32 bin)."""
+    kk = wts.shape[0]
+    nbins = bins.shape[2]
+    scale = np.float32(nbins / (2.0 * np.pi))
+    fk = np.float32(nbins)
+    big = np.float32(3.4028234663852886e38)
+    root_f = np.sqrt(f_table)
+    n_mask = 0
+    raw = np.empty(3)
+    for y in range(wts.shape[1]):
+        v = r0 + y
+        for x in range(wts.shape[2]):
+            uu = c0 + x
+            if not valid[v, uu]:
+                continue
+            h = z[v, uu]
+            av = np.float64(a[v, uu])
+            bv = np.float64(b[v, uu])
+            d = av * h / (1.0 - bv * h)
+            den = av + bv * d
+            g = np.abs(av) / den**2
+            ja = -d / den**2
+            jb = ja * d
+            if has_bins:
+                d32 = np.float32(d)
+                if d32 != d32:
+                    d32 = np.float32(0.0)
+                elif d32 > big:
+                    d32 = big
+                elif d32 < -big:
+                    d32 = -big
+                t = (phi_ref[v, uu] + d32) * scale
+                t = t - fk * np.floor(t / fk)
+                kb = min(np.int64(t), nbins - 1)
+                e_interp = np.float64(lut[bins[v, uu, kb]])
+            else:
+                e_interp = np.float64(terms[4, v, uu])
+            interp = g * e_interp
+            ref = g * np.float64(terms[0, v, uu])
+            t1 = np.float64(terms[1, v, uu])
+            t2 = np.float64(terms[2, v, uu])
+            t3 = np.float64(terms[3, v, uu])
+            model = np.sqrt(max(ja * ja * t1 + 2 * ja * jb * t2 + jb * jb * t3, 0.0))
+            uv = np.float64(u[v, uu])
+            rest = uv**2 - interp**2 - ref**2 - model**2
+            noise = np.sqrt(max(rest, 0.0) / (1.0 + f_table))
+            table = noise * root_f
+            n = ncount[v, uu]
+            raw[0] = noise**2 * n
+            raw[1] = table**2 * n
+            raw[2] = interp**2 * n
+            for k in range(kk):
+                wk = wts[k, y, x]
+                if wk == 0.0:
+                    continue
+                for l in range(kk):
+                    wkl = wk * wts[l, y, x]
+                    for q in range(3):
+                        m_out[q, k, l] += wkl * raw[q]
+            if mask[y, x]:
+                c_out[0] += ref
+                c_out[1] += model
+                n_mask += 1
+    return n_mask
+
+
+#: the order of :func:`_crop_budget`'s outputs
+_SPREAD_TERMS = ("noise", "table", "interpolation")
+_CORR_TERMS = ("reference", "model")
+assert {GROUPS[t] for t in _CORR_TERMS} == {"correlated"} and set(_SPREAD_TERMS) | set(_CORR_TERMS) == set(TERMS)
+assert all(GROUPS[t] != "correlated" for t in _SPREAD_TERMS)
+
+
 def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: NDArray[np.bool_],
                       ncount: NDArray[np.float64], base_boxes: Sequence[tuple[int, int, int, int]],
                       step_boxes: Sequence[tuple[int, int, int, int]], pitch_mm: float, a: NDArray[np.floating],
                       b: NDArray[np.floating], budget: PixelBudget) -> list[dict[str, float]]:
     """One frame's variance of each step's height, term by term (:func:`step_budget`).
 
-    Only the pixels the step budget reaches are visited: the terms are split on crops, the
-    boxes grown by the largest support's half side (:func:`_groups`: one per top, one per
-    group of base boxes), the raw-pixel weights of the tops spread on their own crops and those
-    of the base plane once per frame, as the three spreads of the plane's coefficients
-    (``mean_T(plane) = xbar . coef``, linear in ``xbar``), so that each step's base variance is
-    the quadratic form ``xbar^T M xbar`` of ``M_kl = sum_j A_k A_l raw_j``.
+    Only the pixels the step budget reaches are visited: the boxes grown by the largest
+    support's half side (:func:`_groups`: a crop per top, one per group of base boxes). The
+    raw-pixel weights of each top are spread on its crop and those of the base plane once per
+    frame, as the three spreads of the plane's coefficients (``mean_T(plane) = xbar . coef``,
+    linear in ``xbar``), so that each step's base variance is the quadratic form
+    ``xbar^T M xbar`` of ``M_kl = sum_j A_k A_l raw_j``; the terms of each pixel
+    (:func:`split_terms`) and these sums are taken in one compiled pass per crop
+    (:func:`_crop_budget`).
     """
     shape = z.shape
     halo = int(np.rint((np.sqrt(float(np.max(ncount))) - 1.0) / 2.0)) + 1
-    spread_terms = [t for t in TERMS if GROUPS[t] != "correlated"]
-    corr_terms = [t for t in TERMS if GROUPS[t] == "correlated"]
+    has_bins = budget.interp_bins is not None and budget.phi_ref is not None
+    bins = budget.interp_bins if has_bins else np.zeros((1, 1, 1), np.uint8)
+    phi_ref = np.ascontiguousarray(budget.phi_ref, np.float32) if has_bins else np.zeros((1, 1), np.float32)
+    terms = np.ascontiguousarray(budget.terms, np.float32)
+    a32, b32 = np.ascontiguousarray(a), np.ascontiguousarray(b)
+    u_c = np.ascontiguousarray(u)
 
-    def terms_at(sl: tuple[Any, ...]) -> dict[str, NDArray[np.float64]]:
-        """:func:`split_terms` of the pixels of a crop."""
-        sub = PixelBudget(budget.terms[(slice(None), *sl)], budget.table_factor,
-                          None if budget.interp_bins is None else budget.interp_bins[sl],
-                          None if budget.phi_ref is None else budget.phi_ref[sl])
-        return split_terms(np.asarray(u)[sl], z[sl], np.asarray(a)[sl], np.asarray(b)[sl], sub)
-
-    def raw_of(parts: dict[str, NDArray[np.float64]], sl: tuple[slice, slice]) -> dict[str, NDArray[np.float64]]:
-        """u^2 times the support of the spread terms on a crop (0 where not valid)."""
-        return {t: np.where(valid[sl], parts[t] ** 2 * ncount[sl], 0.0) for t in spread_terms}
+    def crop_sums(sl: tuple[slice, slice], wts: NDArray[np.float64], mask: NDArray[np.bool_]):
+        m = np.zeros((3, wts.shape[0], wts.shape[0]))
+        c = np.zeros(2)
+        n = _crop_budget(z, u_c, valid, ncount, a32, b32, terms, float(budget.table_factor), has_bins, bins, phi_ref,
+                         _INTERP_LUT, sl[0].start, sl[1].start, np.ascontiguousarray(wts), mask, m, c)
+        return m, c, n
 
     bmask = np.zeros(shape, bool)
     for u0, v0, u1, v1 in base_boxes:
@@ -695,23 +777,19 @@ def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: ND
     xb = np.column_stack([np.ones(vb.size), ub * pitch_mm, vb * pitch_mm])
     pinv = np.linalg.pinv(xb)  # (3, NB): plane coefficients from the base heights
     nb = ncount[vb, ub]
-    base_corr: dict[str, list[NDArray[np.float64]]] = {t: [] for t in corr_terms}
     # the base plane: the spreads of its three coefficients, once, on each group's crop
-    quad = {t: np.zeros((3, 3)) for t in spread_terms}
+    quad = np.zeros((3, 3, 3))
+    base_sum = np.zeros(2)
+    base_n = 0
     for gsl in _groups(base_boxes, halo, shape):
         inside = (vb >= gsl[0].start) & (vb < gsl[0].stop) & (ub >= gsl[1].start) & (ub < gsl[1].stop)
         crop_shape = (gsl[0].stop - gsl[0].start, gsl[1].stop - gsl[1].start)
-        coef = _spread(vb[inside] - gsl[0].start, ub[inside] - gsl[1].start, pinv[:, inside], nb[inside],
-                       crop_shape).reshape(3, -1)
-        touched = np.any(coef != 0.0, axis=0)
-        coef = coef[:, touched]
-        parts = terms_at(gsl)
-        raw = raw_of(parts, gsl)
-        for t in spread_terms:
-            quad[t] += (coef * raw[t].ravel()[touched]) @ coef.T
-        for t in corr_terms:
-            base_corr[t].append(parts[t][bmask[gsl]])
-    base_mean = {t: np.mean(np.concatenate(base_corr[t])) for t in corr_terms}
+        coef = _spread(vb[inside] - gsl[0].start, ub[inside] - gsl[1].start, pinv[:, inside], nb[inside], crop_shape)
+        m, c, n = crop_sums(gsl, coef, np.ascontiguousarray(bmask[gsl]))
+        quad += m
+        base_sum += c
+        base_n += n
+    base_mean = base_sum / max(base_n, 1)
     out = []
     for box in step_boxes:
         tsl = _crop([box], halo, shape)
@@ -724,21 +802,19 @@ def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: ND
         xbar = np.array([1.0, (ut + off[1]).mean() * pitch_mm, (vt + off[0]).mean() * pitch_mm])
         n_t = ncount[tsl][tmask]
         a_top = _spread(vt, ut, np.full(nt, 1.0 / nt), n_t, tmask.shape)
-        parts = terms_at(tsl)
-        raw = raw_of(parts, tsl)
+        m, c, n = crop_sums(tsl, a_top[None], tmask)
+        top_mean = c / max(n, 1)
         row: dict[str, float] = {"n_eff": float(nt / n_t.mean())}
         plane_var = 0.0
-        for term in TERMS:
-            if GROUPS[term] == "correlated":
-                var = np.mean(parts[term][tmask]) ** 2 + base_mean[term] ** 2
-            else:
-                vtop = float(np.sum(a_top**2 * raw[term]))
-                vbase = float(xbar @ quad[term] @ xbar)
-                var = vtop + vbase
-                plane_var += vbase
-            row[term] = float(var)
+        for q, term in enumerate(_SPREAD_TERMS):
+            vtop = float(m[q, 0, 0])
+            vbase = float(xbar @ quad[q] @ xbar)
+            row[term] = vtop + vbase
+            plane_var += vbase
+        for q, term in enumerate(_CORR_TERMS):
+            row[term] = float(top_mean[q] ** 2 + base_mean[q] ** 2)
         row["base_plane"] = plane_var
-        out.append(row)
+        out.append({k: row[k] for k in ("n_eff", *TERMS, "base_plane")})
     return out
 
 
