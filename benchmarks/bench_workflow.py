@@ -118,18 +118,20 @@ class TreeMemory:
 
 
 def bench_config(width: int, height: int, frames: int, bands: int, repeats: int,
-                 predistorted: bool = True) -> dict[str, Any]:
+                 predistorted: bool = True, phase_shift: bool = False) -> dict[str, Any]:
     from huefringe import bench
 
     cfg = copy.deepcopy(bench.load_bench_config(bench.preset_path("demo")))
     pitch = 80.0 / width  # keep the demo's 80 mm wide field (its blocks fit) and 12 mm period
     cfg["session"].update(width=width, height=height, pixel_pitch_mm=pitch, period_px=12.0 / pitch, hue_bands=bands,
                           repeats=repeats, frames=frames, ground_truth=False, id=f"wf-bench-{width}x{height}")
-    cfg["phase_shift"]["enabled"] = False
+    cfg["phase_shift"]["enabled"] = bool(phase_shift)  # the three-step baseline's captures (3 more PNGs a frame)
     cfg["camera"].update(supersample=1, motion_blur_subframes=1)
     cfg["projector"]["compensation"]["enabled"] = bool(predistorted)
     if not predistorted:
         cfg["session"]["id"] += "-plain"
+    if phase_shift:
+        cfg["session"]["id"] += "-ps"
     return cfg
 
 
@@ -170,11 +172,18 @@ def sub_session(full: Path, n: int, where: Path) -> Path:
             (where / item.name).symlink_to(item.resolve())
     (where / "object").mkdir()
     for item in (full / "object").iterdir():
-        if item.name != "frames":
+        if item.name not in ("frames", "phase_shift"):
             (where / "object" / item.name).symlink_to(item.resolve())
     (where / "object" / "frames").mkdir()
-    for f in sorted((full / "object" / "frames").iterdir())[:n]:
+    kept = sorted((full / "object" / "frames").iterdir())[:n]
+    for f in kept:
         (where / "object" / "frames" / f.name).symlink_to(f.resolve())
+    if (full / "object" / "phase_shift").is_dir():  # the three captures of the kept frames only
+        (where / "object" / "phase_shift").mkdir()
+        stems = {f.stem for f in kept}
+        for f in sorted((full / "object" / "phase_shift").iterdir()):
+            if f.stem.rsplit("_s", 1)[0] in stems:
+                (where / "object" / "phase_shift" / f.name).symlink_to(f.resolve())
     doc = yaml.safe_load((full / "session.yaml").read_text())
     doc["id"] = f"{doc['id']}-n{n}"
     (where / "session.yaml").write_text(yaml.safe_dump(doc, sort_keys=False))
@@ -284,8 +293,22 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
         d = [b - a for a, b in zip(c, c[1:])]
         for name, x in zip(names, [d[0], d[1], t_filter, t_unc, d[3], d[4], d[5], d[6], d[7], d[8]], strict=True):
             times[name].append(x)
+    res = {k: 1e3 * statistics.median(v) for k, v in times.items()}
+    if s.phase_shift:  # a baseline job's frame: stages.baseline_frames on a batch, per frame
+        from huefringe import stages
+
+        batch = sorted(s.frames)[:frames]
+        stages.baseline_frames(str(session), batch[:1], str(results / "calib" / "phase_to_height.npz"),
+                               str(results / "calib" / "table_object.json"), m_cfg, [str(out / "b.tiff")],
+                               [str(out / "b.json")])  # warm-up
+        t0 = time.perf_counter()
+        stages.baseline_frames(str(session), batch, str(results / "calib" / "phase_to_height.npz"),
+                               str(results / "calib" / "table_object.json"), m_cfg,
+                               [str(out / f"b{k}.tiff") for k in range(len(batch))],
+                               [str(out / f"b{k}.json") for k in range(len(batch))])
+        res["baseline frame"] = 1e3 * (time.perf_counter() - t0) / len(batch)
     shutil.rmtree(out, ignore_errors=True)
-    return {k: 1e3 * statistics.median(v) for k, v in times.items()}
+    return res
 
 
 def metrology_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str, float]:
@@ -336,6 +359,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--work", type=Path, default=None, help="keep (and reuse) the sessions here")
     ap.add_argument("--quick", action="store_true", help="smoke mode: 4 and 8 pre-distorted frames at 160 x 120, 32 bands")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--phase-shift", action="store_true",
+                    help="sessions with the three-step captures: the default set then holds the baseline jobs")
     a = ap.parse_args(argv)
     if a.quick:
         a.sizes, a.kinds, a.width, a.height, a.bands = "4,8", "predistorted", 160, 120, 32
@@ -353,27 +378,29 @@ def main(argv: list[str] | None = None) -> int:
                            "machine_cores": os.cpu_count(), "kinds": {}}
     base = load_config(REPO / "config.yaml")
     for kind in kinds:
-        bcfg = bench_config(a.width, a.height, sizes[-1], a.bands, a.repeats, predistorted=kind == "predistorted")
-        full, t_session, reused = write_session(bcfg, a.work / f"session-{kind}")
+        bcfg = bench_config(a.width, a.height, sizes[-1], a.bands, a.repeats, predistorted=kind == "predistorted",
+                            phase_shift=a.phase_shift)
+        full, t_session, reused = write_session(bcfg, a.work / f"session-{kind}{'-ps' if a.phase_shift else ''}")
         print(f"\n[{kind}] session of {sizes[-1]} frames: {'reused' if reused else f'written in {t_session:.1f} s'}")
         kres: dict[str, Any] = {"runs": {}}
         # warm-up, not counted: a 4-frame session through the whole default target set, so that
         # every job finds numba's on-disk cache filled (on a fresh checkout the first measurement
         # jobs would otherwise compile the kernels, about 5 s each, inside the smallest session's time)
-        warm = sub_session(full, min(4, sizes[0]), a.work / f"{kind}-warmup" / "session")
-        wwf = a.work / f"{kind}-warmup" / "workflow"
+        tag = f"{kind}-ps" if a.phase_shift else kind  # work folders of this kind of session
+        warm = sub_session(full, min(4, sizes[0]), a.work / f"{tag}-warmup" / "session")
+        wwf = a.work / f"{tag}-warmup" / "workflow"
         shutil.rmtree(wwf, ignore_errors=True)
         wwf.mkdir(parents=True)
         wcfg = copy.deepcopy(base)
         wcfg["sessions"] = [str(warm)]
         wcfg.pop("bench_sessions", None)
         (wwf / "config.yaml").write_text(yaml.safe_dump(wcfg, sort_keys=False))
-        w = run_snakemake(wwf, wwf / "config.yaml", [], a.cores, a.work / f"{kind}-warmup" / "snakemake.log")
+        w = run_snakemake(wwf, wwf / "config.yaml", [], a.cores, a.work / f"{tag}-warmup" / "snakemake.log")
         print(f"  warm-up (4 frames, whole default set, not counted): {w['seconds']:.1f} s")
         for n in sizes:
-            session = sub_session(full, n, a.work / f"{kind}-n{n}" / "session")
+            session = sub_session(full, n, a.work / f"{tag}-n{n}" / "session")
             sid = yaml.safe_load((session / "session.yaml").read_text())["id"]
-            wf = a.work / f"{kind}-n{n}" / "workflow"
+            wf = a.work / f"{tag}-n{n}" / "workflow"
             shutil.rmtree(wf, ignore_errors=True)
             wf.mkdir(parents=True)
             wcfg = copy.deepcopy(base)
@@ -382,7 +409,7 @@ def main(argv: list[str] | None = None) -> int:
             wcfg["results_dir"] = "results"
             (wf / "config.yaml").write_text(yaml.safe_dump(wcfg, sort_keys=False))
             calib = Path("results") / sid / "calib"
-            logs = a.work / f"{kind}-n{n}"
+            logs = a.work / f"{tag}-n{n}"
             c = run_snakemake(wf, wf / "config.yaml", [str(calib / "table_object.json"), str(calib / "phase_to_height.npz")],
                               a.cores, logs / "snakemake_calibration.log")
             floor = io_floor(sorted((session / "object" / "frames").iterdir())[:100], a.work / "floor", a.cores)
@@ -391,7 +418,7 @@ def main(argv: list[str] | None = None) -> int:
             r = run_snakemake(wf, wf / "config.yaml", [], a.cores, logs / "snakemake_rest.log")
             jobs = len(list((wf / "logs" / sid).glob("measure_*.log")))
             job_s = {kind_: sum(_job_seconds(x) for x in (wf / "logs" / sid).glob(f"{kind_}*.log"))
-                     for kind_ in ("measure", "cloud", "metrology", "mesh", "render")}
+                     for kind_ in ("measure", "cloud", "baseline", "metrology", "mesh", "render")}
             run = {"frames": n, "calibration": c, "heights": h, "rest": r, "floor": floor, "measure_jobs": jobs,
                    "job_seconds": job_s}
             kres["runs"][n] = run
@@ -414,14 +441,14 @@ def main(argv: list[str] | None = None) -> int:
                   f"floor ({floor:.0f}; target >= {TARGET_HEIGHTS_VS_FLOOR}); default targets {m['default_fps']:.1f} frames/s = "
                   f"{m['default_vs_floor']:.2f} (target >= {TARGET_DEFAULT_VS_FLOOR})")
         mid = sizes[len(sizes) // 2]
-        kres["stages_ms"] = stage_breakdown(a.work / f"{kind}-n{mid}" / "session",
-                                            a.work / f"{kind}-n{mid}" / "workflow" / "results" /
-                                            yaml.safe_load((a.work / f"{kind}-n{mid}" / "session" / "session.yaml").read_text())["id"])
-        kres["metrology_ms"] = metrology_breakdown(a.work / f"{kind}-n{mid}" / "session",
-                                                   a.work / f"{kind}-n{mid}" / "workflow" / "results" /
-                                                   yaml.safe_load((a.work / f"{kind}-n{mid}" / "session" / "session.yaml").read_text())["id"])
+        kres["stages_ms"] = stage_breakdown(a.work / f"{tag}-n{mid}" / "session",
+                                            a.work / f"{tag}-n{mid}" / "workflow" / "results" /
+                                            yaml.safe_load((a.work / f"{tag}-n{mid}" / "session" / "session.yaml").read_text())["id"])
+        kres["metrology_ms"] = metrology_breakdown(a.work / f"{tag}-n{mid}" / "session",
+                                                   a.work / f"{tag}-n{mid}" / "workflow" / "results" /
+                                                   yaml.safe_load((a.work / f"{tag}-n{mid}" / "session" / "session.yaml").read_text())["id"])
         st = kres["stages_ms"]
-        job = sum(v for k, v in st.items() if k != "cloud ply")
+        job = sum(v for k, v in st.items() if k not in ("cloud ply", "baseline frame"))
         io_ms = st["decode"] + st["height tiff"] + st.get("u+support tiff", 0.0)
         print(f"  per frame, one core (ms): " + ", ".join(f"{k} {v:.1f}" for k, v in st.items()) +
               f"; measurement job {job:.1f} = {io_ms:.1f} I/O + {job - io_ms:.1f} compute")

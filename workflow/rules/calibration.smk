@@ -93,6 +93,7 @@ rule compensation:
         ),
     log:
         "logs/{sid}/compensation.log",
+    priority: 10  # its cross-section figure is in the metrology report: see rule metrology
     conda:
         "../envs/huefringe.yaml"
     threads: 1

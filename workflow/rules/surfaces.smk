@@ -12,6 +12,7 @@ rule mesh:
         stats=R("{sid}", "mesh", "frame_{frame}.stats.json"),
     log:
         "logs/{sid}/mesh_{frame}.log",
+    priority: 10  # the metrology report's path (mesh -> render -> metrology) first: see rule metrology
     conda:
         "../envs/huefringe.yaml"
     threads: 1
@@ -48,6 +49,7 @@ rule render:
         uncertainty_map=R("{sid}", "renders", "frame_{frame}_uncertainty.png"),
     log:
         "logs/{sid}/render_{frame}.log",
+    priority: 10
     conda:
         "../envs/huefringe.yaml"
     threads: 1
