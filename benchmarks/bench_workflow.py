@@ -190,6 +190,18 @@ def sub_session(full: Path, n: int, where: Path) -> Path:
     return where
 
 
+def workflow_folder(where: Path, session: Path, base: dict[str, Any]) -> Path:
+    """A fresh workflow folder whose ``config.yaml`` is ``base`` listing only ``session``."""
+    shutil.rmtree(where, ignore_errors=True)
+    where.mkdir(parents=True)
+    cfg = copy.deepcopy(base)
+    cfg["sessions"] = [str(session)]
+    cfg.pop("bench_sessions", None)
+    cfg["results_dir"] = "results"
+    (where / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    return where
+
+
 def io_floor(frames: list[Path], out: Path, cores: int, rounds: int = 2) -> dict[str, Any]:
     """PNG decode + uncompressed float32 TIFF write per frame, one core (best of ``rounds``)."""
     import cv2
@@ -388,26 +400,13 @@ def main(argv: list[str] | None = None) -> int:
         # jobs would otherwise compile the kernels, about 5 s each, inside the smallest session's time)
         tag = f"{kind}-ps" if a.phase_shift else kind  # work folders of this kind of session
         warm = sub_session(full, min(4, sizes[0]), a.work / f"{tag}-warmup" / "session")
-        wwf = a.work / f"{tag}-warmup" / "workflow"
-        shutil.rmtree(wwf, ignore_errors=True)
-        wwf.mkdir(parents=True)
-        wcfg = copy.deepcopy(base)
-        wcfg["sessions"] = [str(warm)]
-        wcfg.pop("bench_sessions", None)
-        (wwf / "config.yaml").write_text(yaml.safe_dump(wcfg, sort_keys=False))
+        wwf = workflow_folder(a.work / f"{tag}-warmup" / "workflow", warm, base)
         w = run_snakemake(wwf, wwf / "config.yaml", [], a.cores, a.work / f"{tag}-warmup" / "snakemake.log")
         print(f"  warm-up (4 frames, whole default set, not counted): {w['seconds']:.1f} s")
         for n in sizes:
             session = sub_session(full, n, a.work / f"{tag}-n{n}" / "session")
             sid = yaml.safe_load((session / "session.yaml").read_text())["id"]
-            wf = a.work / f"{tag}-n{n}" / "workflow"
-            shutil.rmtree(wf, ignore_errors=True)
-            wf.mkdir(parents=True)
-            wcfg = copy.deepcopy(base)
-            wcfg["sessions"] = [str(session)]
-            wcfg.pop("bench_sessions", None)
-            wcfg["results_dir"] = "results"
-            (wf / "config.yaml").write_text(yaml.safe_dump(wcfg, sort_keys=False))
+            wf = workflow_folder(a.work / f"{tag}-n{n}" / "workflow", session, base)
             calib = Path("results") / sid / "calib"
             logs = a.work / f"{tag}-n{n}"
             c = run_snakemake(wf, wf / "config.yaml", [str(calib / "table_object.json"), str(calib / "phase_to_height.npz")],
