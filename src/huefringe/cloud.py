@@ -1,4 +1,4 @@
-"""Coloured point clouds from height maps (Open3D clouds; PLY files packed in one compiled pass and written at once).
+"""Coloured point clouds from height maps (Open3D clouds; PLY files packed by compiled passes and written at once).
 
 A height map is a float32 ``(H, W)`` array of heights in mm, NaN where invalid, on the camera's
 pixel grid. With the telecentric geometry of the capture-session spec every valid pixel

@@ -148,13 +148,16 @@ def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: 
     0 in ``zero_maps``; None stays None) and the frame statistics that change, ``edge_fraction``,
     ``valid_fraction`` (finite heights) and ``median_height_mm`` (NumPy's ``nanmedian`` of the
     new heights, None when none is left), equal to ``np.where(step_edge_mask(...), ...)`` and
-    ``np.nanmedian`` value for value (tested) at about a sixth of their cost.
+    ``np.nanmedian`` value for value (tested) at about a quarter of their cost (1.8 against 7.1 ms
+    on a 640 x 480 frame).
     """
     h = np.ascontiguousarray(height, np.float32)
     edge = np.empty(h.shape, bool)
-    n_edge = _edge_kernel(h, np.float32(jump_mm), edge) if jump_mm > 0 else 0
-    if jump_mm <= 0:
+    if jump_mm > 0:
+        n_edge = _edge_kernel(h, np.float32(jump_mm), edge)
+    else:  # as step_edge_mask: 0 switches it off
         edge[...] = False
+        n_edge = 0
 
     def masked(x: NDArray[np.float32] | None, fill: float) -> NDArray[np.float32] | None:
         if x is None:

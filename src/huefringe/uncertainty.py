@@ -638,9 +638,9 @@ def _crop(boxes: Sequence[tuple[int, int, int, int]], halo: int, shape: tuple[in
 
 
 def _groups(boxes: Sequence[tuple[int, int, int, int]], halo: int, shape: tuple[int, ...]) -> list[tuple[slice, slice]]:
-    """Crops (:func:`_crop`) of the boxes grown by ``halo``, boxes whose grown rectangles meet
-    sharing one crop: a pixel's spread square never leaves its box's crop, so the spreads of
-    the groups are independent (and the crops hold no pixel far from every box)."""
+    """Crops (:func:`_crop`) of the boxes grown by ``halo``, merged until no two crops meet (a
+    group's crop is the bounding box of its boxes, grown): a pixel's spread square never leaves
+    its box's crop, so the spreads of the groups are independent."""
     groups = [[bx] for bx in boxes]
     merged = True
     while merged:
