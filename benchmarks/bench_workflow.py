@@ -339,7 +339,6 @@ def metrology_breakdown(session: Path, results: Path, frames: int = 40) -> dict[
     m_cfg = load_config(REPO / "config.yaml")
     edge = float(m_cfg["metrology"]["edge_exclusion"])
     paths = {k: sorted((results / k).glob("frame_*.tiff"))[:frames] for k in ("height", "uncertainty", "support")}
-    n = len(paths["height"])
     cal = PlaneCalibration.load(results / "calib" / "phase_to_height.npz")
     bud = uncertainty.pixel_budget(HueTable.load(results / "calib" / "table_object.json"), cal)
     maps = {k: [read_tiff(p) for p in v] for k, v in paths.items()}
@@ -439,13 +438,10 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  marginal {n1} -> {n2} frames: heights {m['heights_fps']:.1f} frames/s = {m['heights_vs_floor']:.2f} of the "
                   f"floor ({floor:.0f}; target >= {TARGET_HEIGHTS_VS_FLOOR}); default targets {m['default_fps']:.1f} frames/s = "
                   f"{m['default_vs_floor']:.2f} (target >= {TARGET_DEFAULT_VS_FLOOR})")
-        mid = sizes[len(sizes) // 2]
-        kres["stages_ms"] = stage_breakdown(a.work / f"{tag}-n{mid}" / "session",
-                                            a.work / f"{tag}-n{mid}" / "workflow" / "results" /
-                                            yaml.safe_load((a.work / f"{tag}-n{mid}" / "session" / "session.yaml").read_text())["id"])
-        kres["metrology_ms"] = metrology_breakdown(a.work / f"{tag}-n{mid}" / "session",
-                                                   a.work / f"{tag}-n{mid}" / "workflow" / "results" /
-                                                   yaml.safe_load((a.work / f"{tag}-n{mid}" / "session" / "session.yaml").read_text())["id"])
+        mid = a.work / f"{tag}-n{sizes[len(sizes) // 2]}"  # the middle size's session and results
+        mid_results = mid / "workflow" / "results" / yaml.safe_load((mid / "session" / "session.yaml").read_text())["id"]
+        kres["stages_ms"] = stage_breakdown(mid / "session", mid_results)
+        kres["metrology_ms"] = metrology_breakdown(mid / "session", mid_results)
         st = kres["stages_ms"]
         job = sum(v for k, v in st.items() if k not in ("cloud ply", "baseline frame"))
         io_ms = st["decode"] + st["height tiff"] + st.get("u+support tiff", 0.0)

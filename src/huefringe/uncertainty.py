@@ -619,13 +619,11 @@ def _spread(v: NDArray[np.integer], u: NDArray[np.integer], c: NDArray[np.floati
     h, w = shape[:2]
     r = np.maximum(np.rint((np.sqrt(np.maximum(n, 1.0)) - 1.0) / 2.0), 0).astype(np.int64)
     cc = np.asarray(c, np.float64)
-    rows = np.ascontiguousarray(cc.reshape(-1, cc.shape[-1]) if cc.ndim else np.full((1, r.size), float(cc)))
-    if rows.shape[1] != r.size:
-        rows = np.ascontiguousarray(np.broadcast_to(rows, (rows.shape[0], r.size)))
+    rows = np.ascontiguousarray(cc.reshape(-1, r.size))
     out = np.zeros((rows.shape[0], h + 1, w + 1))
     _spread_kernel(np.ascontiguousarray(v, np.int64), np.ascontiguousarray(u, np.int64), r, rows, h, w, out)
     res = out[:, :h, :w]
-    return res[0] if cc.ndim <= 1 else res
+    return res[0] if cc.ndim == 1 else res
 
 
 def _crop(boxes: Sequence[tuple[int, int, int, int]], halo: int, shape: tuple[int, ...]) -> tuple[slice, slice]:
@@ -881,7 +879,7 @@ def step_budget(
                 raise ValueError(f"support map {f} has shape {ncount.shape}, the heights {shape}")
         return _frame_step_terms(z, u, valid, ncount, base_boxes, step_boxes, pitch_mm, a, b, budget)
 
-    if workers > 1 and len(heights) > 1:  # NumPy releases the GIL in the array work: x1.55 on 2 threads
+    if workers > 1 and len(heights) > 1:  # the compiled passes and NumPy's array work release the GIL
         from concurrent.futures import ThreadPoolExecutor
 
         with ThreadPoolExecutor(int(workers)) as pool:
