@@ -81,7 +81,8 @@ def test_no_import_circle() -> None:
 
 
 @pytest.mark.parametrize("module", ["colour", "phase", "height", "huetable", "compensation", "perframe", "kernel",
-                                    "mesh", "cloud", "metrology", "render", "session", "io", "patterns"])
+                                    "mesh", "cloud", "metrology", "render", "session", "io", "patterns",
+                                    "camera"])
 def test_measuring_modules_do_not_reach_the_bench(module: str) -> None:
     g = import_graph()
     seen, todo = set(), [f"huefringe.{module}"]
