@@ -39,6 +39,6 @@ if [ ! -x "$venv/bin/uv" ]; then
   "$venv/bin/python" -m pip install -q --disable-pip-version-check "uv>=0.4,<1"
 fi
 log "installing huefringe and its pinned dependencies"
-VIRTUAL_ENV="$venv" "$venv/bin/uv" pip install -q --python "$venv/bin/python" --compile-bytecode -e "$here[test]"
+VIRTUAL_ENV="$venv" "$venv/bin/uv" pip install -q --python "$venv/bin/python" --compile-bytecode -e "$here[test,docs]"
 echo "$key" > "$stamp"
 log "done"

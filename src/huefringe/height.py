@@ -62,7 +62,7 @@ class PlaneCalibration:
             return (dphi / (self.a + self.b * dphi)).astype(np.float32)
 
     def unambiguous_range_mm(self) -> tuple[float, float]:
-        """Heights reachable with |dphi| < pi (reference-relative unwrapping): the worst pixel."""
+        """Heights reachable with ``|dphi|`` < pi (reference-relative unwrapping): the worst pixel."""
         lo = self.height(np.full(self.a.shape, -np.pi, np.float32))
         hi = self.height(np.full(self.a.shape, np.pi, np.float32))
         both = np.stack([lo, hi])

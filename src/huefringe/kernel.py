@@ -2,7 +2,7 @@
 
 :func:`prepare` lays out, once per session, everything a frame needs (white-balance gains of the
 object white, the object's hue table, the pixel mask, the reference phase and the per-pixel
-height model); :func:`frame_to_height` then takes each frame, row by row, through compiled passes:
+height model); :func:`frame_to_height` then takes each frame, row by row, through compiled passes::
 
     white balance -> hexcone or HSI hue           (_colour_row, vectorised)
     -> guessed table line, prefetched one row ahead

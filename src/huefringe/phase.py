@@ -4,7 +4,7 @@ Two ways to unwrap the object's phase are offered:
 
 ``reference``
     The phase difference to the reference plane, wrapped to (-pi, pi], *is* the answer when the
-    object stays within the unambiguous depth (|dphi| < pi everywhere). No spatial unwrapping,
+    object stays within the unambiguous depth (``|dphi|`` < pi everywhere). No spatial unwrapping,
     so isolated regions and steps are measured independently and exactly.
 ``spatial``
     Quality-guided spatial unwrapping of the wrapped difference with scikit-image's
@@ -68,7 +68,7 @@ class Unwrapped:
     dphi: NDArray[np.float32]
     """Unwrapped phase difference (NaN where invalid)."""
     flags: dict[str, NDArray[np.bool_]] = field(default_factory=dict)
-    """Pixel flags: ``isolated`` (region whose 2 pi offset is assumed), ``near_wrap`` (|dphi|
+    """Pixel flags: ``isolated`` (region whose 2 pi offset is assumed), ``near_wrap`` (``|dphi|``
     close to pi), ``wrap_edge`` (neighbours differ by more than pi before wrapping: the surface
     crosses the unambiguous range)."""
 

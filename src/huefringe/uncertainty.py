@@ -4,21 +4,21 @@ The height of a pixel is ``h = dphi / (a + b dphi)`` with ``dphi = phi - phi_ref
 Its standard uncertainty combines five terms (``docs/uncertainty.md`` has the formulas and their
 sizes on the demo), kept in three groups because they average differently:
 
-=============  ==============================================  ==================================
-group          terms                                           averages over
-=============  ==============================================  ==================================
-independent    ``noise``: sensor (shot + read) noise of the    pixels (by the effective number of
-               frame through the hue, the table slope and the  independent pixels) and frames
+=============  =================================================  ==================================
+group          terms                                              averages over
+=============  =================================================  ==================================
+independent    ``noise``: sensor (shot + read) noise of the       pixels (by the effective number of
+               frame through the hue, the table slope and the     independent pixels) and frames
                phase filter (``1 / sum w``)
-pixel          ``table``: noise of the smoothed table entries; pixels, not frames (the table is
-               ``interpolation``: linear interpolation          the same for every frame)
+pixel          ``table``: noise of the smoothed table entries;    pixels, not frames (the table is
+               ``interpolation``: linear interpolation            the same for every frame)
                between bands
-correlated     ``reference``: the z = 0 plane's smoothed       neither (shared by the pixels of a
-               phase; ``model``: the (a, b) fit of the planes  region and by every frame)
-=============  ==============================================  ==================================
+correlated     ``reference``: the z = 0 plane's smoothed          neither (shared by the pixels of a
+               phase; ``model``: the (a, b) fit of the planes     region and by every frame)
+=============  =================================================  ==================================
 
 With the height's sensitivity ``G = dh/ddphi = a / (a + b dphi)^2`` and the parameter
-sensitivities ``J = (dh/da, dh/db) = -(dphi, dphi^2) / (a + b dphi)^2``:
+sensitivities ``J = (dh/da, dh/db) = -(dphi, dphi^2) / (a + b dphi)^2``::
 
     u_noise = G sqrt(sum w r) / sum w  the filter's weights w = 1/sigma^2 it used (pooled
                                        noise), r = own-signal / pooled noise variance

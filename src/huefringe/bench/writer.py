@@ -179,7 +179,7 @@ def rig_summary(cfg: dict[str, Any], bench: Bench | None = None) -> dict[str, An
     """Derived geometry of a configuration (for the report and the sanity checks).
 
     Returns the projector pose, triangulation angles across the field, the fringe period, the
-    largest |dphi| of the scene at rest plus the vibration amplitude and of the highest plane.
+    largest ``|dphi|`` of the scene at rest plus the vibration amplitude and of the highest plane.
     """
     bench = bench if bench is not None else Bench(cfg)
     rig = bench.rig
