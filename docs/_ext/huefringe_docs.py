@@ -86,9 +86,9 @@ def yaml_comments(path: Path) -> dict[str, str]:
         dotted = ".".join(s[1] for s in stack)
         rest = k["rest"]
         # a trailing comment: " # text" outside quotes (the documented files quote no " # ")
-        m = re.search(r"\s#\s?(.*)$", rest)
-        if m and rest.count('"', 0, m.start()) % 2 == 0:
-            out[dotted] = m[1].strip()
+        m = next((m for m in re.finditer(r"\s#", rest) if rest.count('"', 0, m.start()) % 2 == 0), None)
+        if m:
+            out[dotted] = rest[m.end():].strip()
             last = (dotted, indent)
         else:
             last = None
