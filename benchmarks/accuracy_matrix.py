@@ -156,6 +156,23 @@ def _camera_variant(vname: str) -> tuple[dict | None, str]:
     return None, f"{vname}: SKIPPED, no camera.{missing[0]} in this build's config (the method's camera corrections)"
 
 
+_LENS_KEYS = ("model", "matrix", "distortion", "plate_pose")
+
+
+def _without_lens_block(session: Path, where: Path) -> Path:
+    """A view of ``session`` whose session.yaml lacks the camera block's lens keys (the session
+    itself is not touched: its folders are linked): what a reader that ignores the lens sees."""
+    where.mkdir(parents=True, exist_ok=True)
+    meta = yaml.safe_load((session / "session.yaml").read_text(encoding="utf-8"))
+    for key in _LENS_KEYS:
+        meta["camera"].pop(key, None)
+    for p in session.iterdir():
+        if p.name != "session.yaml" and not (where / p.name).exists():
+            (where / p.name).symlink_to(p.resolve())
+    (where / "session.yaml").write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
+    return where
+
+
 def _with_camera(fn, kwargs: dict, config: dict) -> dict:
     """Pass the config's ``camera`` section to a stage that takes one (the camera corrections)."""
     if "camera" in config and "camera" in inspect.signature(fn).parameters:
@@ -306,9 +323,16 @@ def cameras(args: argparse.Namespace) -> None:
                 try:
                     paths = measure(session, tdir, root / slug / vslug, config)
                 except SessionError as exc:
-                    print(f"| {name} | {kind} | {vname}: SKIPPED, this build's reader refuses the session "
-                          f"({str(exc).splitlines()[0][-120:]}) | - | - | - | - | - | - |", flush=True)
-                    break
+                    if vname != "lens model ignored":
+                        print(f"| {name} | {kind} | {vname}: SKIPPED, this build's reader refuses the session "
+                              f"({str(exc).splitlines()[0][-100:]}) | - | - | - | - | - | - |", flush=True)
+                        continue
+                    # this build has no lens model: read the session as if its lens block were absent
+                    view = _without_lens_block(session, root / slug / "session-without-lens-block")
+                    label = f"{vname} (this build: session read without its lens block)"
+                    ttab = tables / "without-lens-block"
+                    ttab.mkdir(parents=True, exist_ok=True)
+                    paths = measure(view, ttab, root / slug / "without-lens-block", config)
                 r = score(paths)
                 xy = xy_corner_error(paths, config)
                 steps = (f"{r['step_worst_um']:.1f} | {r['step_mean_pct']:.2f}" if "step_worst_um" in r else "- | -")
