@@ -1,6 +1,7 @@
 """Accuracy on a harder bench: every case through the whole chain, each correction on and off.
 
 Usage: ./run python benchmarks/accuracy_matrix.py [--cases NAME ...] [--tuning] [--variants NAME ...] [--keep DIR]
+       ./run python benchmarks/accuracy_matrix.py --cameras [--keep DIR]   (the camera cases, docs/accuracy-cameras.md)
 
 Each case is a bench preset plus overrides (plain and pre-distorted projection, periods 20-64 px,
 defocus 0.5-2 camera px, 64/96/256 bands x 1-3 repeats, per-channel gamma 1.8-2.5, crosstalk,
@@ -13,12 +14,23 @@ scores), averaged over the frames; ``coverage`` is the valid fraction of the pix
 ground truth is defined (lit, unshadowed); gauge-block cases also print the worst step error
 (um) and the mean |step error| (%) from ``metrology.evaluate_session``. About 10 min on a
 shared 2-core machine (6.2 min tuning, 4.3 min hold-outs at load 6-9).
+
+The camera cases (``--cameras``, issue 23: single-chip Bayer, lateral chromatic aberration,
+radial distortion, a pinhole camera at 300 mm) run their own variants, ``CAMERA_VARIANTS``: the
+method's correction on and off through the config keys ``camera.chromatic_registration`` and
+``camera.lens_model``. A variant whose key this build's config does not have is run as the
+chain is (the correction is then absent, i.e. "off") or skipped with a note ("on"); a session
+whose camera block this build's reader refuses is skipped with the reader's message. Sessions
+with ``ground_truth/xy`` also score X, Y at the field's corners: the 95th percentile of the
+distance between the true plate point and the method's X, Y (``huefringe.camera.CameraModel``
+where the build has it, else ``u * pitch``) over four 24 x 24 px corner patches.
 """
 
 from __future__ import annotations
 
 import argparse
 import copy
+import inspect
 import json
 import tempfile
 import time
@@ -29,17 +41,19 @@ import tifffile
 import yaml
 
 from huefringe import bench, metrology, stages
+from huefringe.session import SessionError
 from huefringe.settings import load_config
 from huefringe.height import accuracy
 
 REPO = Path(__file__).resolve().parents[1]
 
 
-def _case(preset: str, holdout: bool = False, **over: dict) -> dict:
+def _case(preset: str, holdout: bool = False, variants: tuple[str, ...] | None = None, **over: dict) -> dict:
     cfg = copy.deepcopy(bench.load_bench_config(bench.preset_path(preset)))
     for section, values in over.items():
         cfg[section].update(values)
-    return {"cfg": cfg, "holdout": holdout}
+    cfg = bench.validate_bench_config(cfg)
+    return {"cfg": cfg, "holdout": holdout, "variants": variants}
 
 
 CASES = {
@@ -64,6 +78,45 @@ CASES = {
                                           projector={"compensation": {"enabled": True}}),
 }
 
+_REG = ("registration off", "registration on")
+_LENS = ("lens model ignored", "lens model used")
+_CA = {"lateral_ca_px": [0.5, -0.5], "supersample": 2}
+_DIST = {"distortion": [4e-6, 0.0, 0.0, 0.0, 0.0], "supersample": 2}  # telecentric, mm about the centre: 2 px at the corners
+#: issue 23: the cameras labs own (``--cameras``); each case runs its own variants
+CAMERA_CASES = {
+    # tuning set
+    "bayer RGGB edge-aware p48": _case("bayer_gauge", variants=("all on",)),
+    "bayer RGGB bilinear p48": _case("bayer_gauge", variants=("all on",),
+                                     camera={"sensor": {"kind": "bayer", "pattern": "RGGB", "demosaic": "bilinear"}}),
+    "gauge p48 2x2 sub-samples (no CA)": _case("plain_gauge", variants=_REG, camera={"supersample": 2}),
+    "gauge CA 0.5 px p48": _case("plain_gauge", variants=_REG, camera=_CA),
+    "gauge distortion 2 px p48": _case("plain_gauge", variants=_LENS, camera=_DIST),
+    "pinhole 300 mm p48": _case("pinhole_gauge", variants=_LENS),
+    # hold-out: only scores
+    "bayer GRBG edge-aware p64 8bit": _case("bayer_gauge", True, variants=("all on",),
+                                            session={"period_px": 64, "bit_depth": 8, "seed": 23},
+                                            camera={"sensor": {"kind": "bayer", "pattern": "GRBG", "demosaic": "edge_aware"}}),
+    "gauge CA 0.3/0.2 px p40 8bit": _case("plain_gauge", True, variants=_REG,
+                                          session={"period_px": 40, "bit_depth": 8, "seed": 31},
+                                          camera={"lateral_ca_px": [-0.3, 0.2], "supersample": 2}),
+    "gauge CA 0.6 px p64": _case("plain_gauge", True, variants=_REG, session={"period_px": 64, "seed": 32},
+                                 camera={"lateral_ca_px": [0.6, -0.6], "supersample": 2}),
+    "gauge distortion 4 px p40 + CA 0.4": _case("plain_gauge", True, variants=_LENS + _REG,
+                                                session={"period_px": 40, "seed": 33},
+                                                camera={"distortion": [-8e-6, 0.0, 1e-5, -1e-5, 0.0],
+                                                        "lateral_ca_px": [0.4, -0.3], "supersample": 2}),
+    "pinhole 300 mm p64 strong distortion bayer": _case(
+        "pinhole_gauge", True, variants=_LENS, session={"period_px": 64, "seed": 34},
+        camera={"distortion": [-0.35, 0.15, 2e-4, -1e-4, 0.0], "sensor": {"kind": "bayer", "pattern": "BGGR"}}),
+}
+#: the correction switches of the camera cases (the keys come with the method's camera corrections)
+CAMERA_VARIANTS = {
+    "registration off": {"camera": {"chromatic_registration": False}},
+    "registration on": {"camera": {"chromatic_registration": True}},
+    "lens model ignored": {"camera": {"lens_model": False}},
+    "lens model used": {"camera": {"lens_model": True}},
+}
+
 #: name -> changes to config.yaml's calibration / measurement sections
 VARIANTS = {
     "all on": {},
@@ -86,6 +139,76 @@ def _config(variant: dict) -> dict:
         for k, v in values.items():
             cfg[section][k] = {**cfg[section].get(k, {}), **v} if isinstance(v, dict) else v
     return cfg
+
+
+def _camera_variant(vname: str) -> tuple[dict | None, str]:
+    """The config of a camera variant and its row label; ``None`` if this build cannot run it."""
+    if vname in VARIANTS:
+        return _config(VARIANTS[vname]), vname
+    change = CAMERA_VARIANTS[vname]["camera"]
+    base = load_config(REPO / "config.yaml")
+    have = base.get("camera", {})
+    missing = [k for k in change if k not in have]
+    if not missing:
+        return _config(CAMERA_VARIANTS[vname]), vname
+    if not any(change[k] for k in missing):  # the build has no such correction: its chain is "off"
+        return base, f"{vname} (no camera.{missing[0]} in this build: its chain as is)"
+    return None, f"{vname}: SKIPPED, no camera.{missing[0]} in this build's config (the method's camera corrections)"
+
+
+_LENS_KEYS = ("model", "matrix", "distortion", "plate_pose")
+
+
+def _without_lens_block(session: Path, where: Path) -> Path:
+    """A view of ``session`` whose session.yaml lacks the camera block's lens keys (the session
+    itself is not touched: its folders are linked): what a reader that ignores the lens sees."""
+    where.mkdir(parents=True, exist_ok=True)
+    meta = yaml.safe_load((session / "session.yaml").read_text(encoding="utf-8"))
+    for key in _LENS_KEYS:
+        meta["camera"].pop(key, None)
+    for p in session.iterdir():
+        if p.name != "session.yaml" and not (where / p.name).exists():
+            (where / p.name).symlink_to(p.resolve())
+    (where / "session.yaml").write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
+    return where
+
+
+def _with_camera(fn, kwargs: dict, config: dict) -> dict:
+    """Pass the config's ``camera`` section to a stage that takes one (the camera corrections)."""
+    if "camera" in config and "camera" in inspect.signature(fn).parameters:
+        kwargs["camera"] = config["camera"]
+    return kwargs
+
+
+def xy_corner_error(paths: dict, config: dict) -> float | None:
+    """95th percentile (mm) of |(X, Y) - truth| over four 24 x 24 px corner patches, or None
+    without ``ground_truth/xy``. X, Y from the measured heights by ``huefringe.camera.CameraModel``
+    (``camera.lens_model`` as configured) where the build has it, else ``u * pitch, v * pitch``."""
+    s = paths["session"]
+    errs = []
+    try:
+        from huefringe.camera import CameraModel  # the method's X, Y (cammethod)
+    except ImportError:
+        CameraModel = None
+    for n, hpath in zip(s.frame_ids, paths["heights"], strict=True):
+        truth = s.root / "ground_truth" / "xy" / f"frame_{n:04d}.tiff"
+        if not truth.is_file():
+            return None
+        gt = tifffile.imread(truth)
+        h = tifffile.imread(hpath)
+        if CameraModel is not None:
+            model = CameraModel.from_meta(s.meta, lens_model=bool(config.get("camera", {}).get("lens_model", True)))
+            x, y = model.xy(h)
+        else:
+            v, u = np.mgrid[0:h.shape[0], 0:h.shape[1]].astype(np.float64)
+            x, y = u * s.pixel_pitch_mm, v * s.pixel_pitch_mm
+        d = np.hypot(x - gt[..., 0], y - gt[..., 1])
+        d[~np.isfinite(h)] = np.nan
+        c = 24
+        for patch in (d[:c, :c], d[:c, -c:], d[-c:, :c], d[-c:, -c:]):
+            errs.append(patch[np.isfinite(patch)])
+    allv = np.concatenate(errs)
+    return float(np.percentile(allv, 95)) if allv.size else float("nan")
 
 
 def score(paths: dict) -> dict:
@@ -113,15 +236,19 @@ def measure(session: Path, tables: Path, out: Path, config: dict) -> dict:
     model, cal = config["hue_model"], config["calibration"]
     for which in ("reference", "object"):
         if not (tables / f"table_{which}.json").exists():
-            stages.hue_table(str(session), which, model, cal, table=str(tables / f"table_{which}.json"),
-                             stats=str(tables / f"table_{which}.stats.json"))
+            stages.hue_table(str(session), which, model, cal,
+                             **_with_camera(stages.hue_table, {"table": str(tables / f"table_{which}.json"),
+                                                               "stats": str(tables / f"table_{which}.stats.json")}, config))
     stages.plane_calibration(str(session), str(tables / "table_reference.json"), model, cal,
-                             model=str(out / "model.npz"), stats=str(out / "planes.json"),
-                             phase_error_summary=str(out / "phase_error.json"))
+                             **_with_camera(stages.plane_calibration, {
+                                 "model": str(out / "model.npz"), "stats": str(out / "planes.json"),
+                                 "phase_error_summary": str(out / "phase_error.json")}, config))
     heights = [str(out / f"frame_{n:04d}.tiff") for n in s.frame_ids]
     stages.measure_frames(str(session), s.frame_ids, str(tables / "table_object.json"), str(out / "model.npz"), model,
-                          config["measurement"], cal, heights=heights, qa=[h.replace(".tiff", ".json") for h in heights],
-                          map_frames=[])
+                          config["measurement"], cal,
+                          **_with_camera(stages.measure_frames, {
+                              "heights": heights, "qa": [h.replace(".tiff", ".json") for h in heights],
+                              "map_frames": []}, config))
     return {"session": s, "heights": heights}
 
 
@@ -131,7 +258,11 @@ def main() -> None:
     ap.add_argument("--tuning", action="store_true", help="the tuning cases only (no hold-out)")
     ap.add_argument("--variants", nargs="*", default=list(VARIANTS))
     ap.add_argument("--keep", type=Path, default=None, help="write sessions and results here, reuse sessions found there")
+    ap.add_argument("--cameras", action="store_true", help="the camera cases (issue 23) instead of the method's")
     args = ap.parse_args()
+    if args.cameras:
+        cameras(args)
+        return
     cases = [c for c in args.cases if not (args.tuning and CASES[c]["holdout"])]
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
@@ -159,6 +290,54 @@ def main() -> None:
                 steps = (f"{r['step_worst_um']:.1f} | {r['step_mean_pct']:.2f}" if "step_worst_um" in r else "- | -")
                 print(f"| {name} | {'hold-out' if case['holdout'] else 'tuning'} | {name_v} | {r['median_abs_mm']:.4f} | "
                       f"{r['p95_abs_mm']:.4f} | {r['coverage']:.3f} | {steps} |", flush=True)
+            print(f"<!-- {name}: {time.perf_counter() - t0:.0f} s so far -->", flush=True)
+    print(f"\n{time.perf_counter() - t0:.0f} s")
+
+
+def cameras(args: argparse.Namespace) -> None:
+    """The camera cases: each with its own variants (``CAMERA_CASES``)."""
+    names = [c for c in CAMERA_CASES if c in args.cases or args.cases == list(CASES)]
+    names = [c for c in names if not (args.tuning and CAMERA_CASES[c]["holdout"])]
+    t0 = time.perf_counter()
+    with tempfile.TemporaryDirectory() as tmp:
+        root = args.keep or Path(tmp)
+        print("| case | set | variant | median mm | p95 mm | coverage | worst step um | mean step % | corner XY p95 mm |")
+        print("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: |")
+        for name in names:
+            case = CAMERA_CASES[name]
+            slug = "cam-" + "".join(c if c.isalnum() else "-" for c in name)
+            session = root / slug / "session"
+            if not (session / "session.yaml").exists():
+                bench.write_session(case["cfg"], session)
+            tables = root / slug / "tables"
+            tables.mkdir(parents=True, exist_ok=True)
+            kind = "hold-out" if case["holdout"] else "tuning"
+            for vname in case["variants"]:
+                config, label = _camera_variant(vname)
+                if config is None:
+                    print(f"| {name} | {kind} | {label} | - | - | - | - | - | - |", flush=True)
+                    continue
+                vslug = "".join(c if c.isalnum() else "-" for c in label)[:60]
+                tdir = tables / vslug if "camera" in config else tables
+                tdir.mkdir(parents=True, exist_ok=True)
+                try:
+                    paths = measure(session, tdir, root / slug / vslug, config)
+                except SessionError as exc:
+                    if vname != "lens model ignored":
+                        print(f"| {name} | {kind} | {vname}: SKIPPED, this build's reader refuses the session "
+                              f"({str(exc).splitlines()[0][-100:]}) | - | - | - | - | - | - |", flush=True)
+                        continue
+                    # this build has no lens model: read the session as if its lens block were absent
+                    view = _without_lens_block(session, root / slug / "session-without-lens-block")
+                    label = f"{vname} (this build: session read without its lens block)"
+                    ttab = tables / "without-lens-block"
+                    ttab.mkdir(parents=True, exist_ok=True)
+                    paths = measure(view, ttab, root / slug / "without-lens-block", config)
+                r = score(paths)
+                xy = xy_corner_error(paths, config)
+                steps = (f"{r['step_worst_um']:.1f} | {r['step_mean_pct']:.2f}" if "step_worst_um" in r else "- | -")
+                print(f"| {name} | {kind} | {label} | {r['median_abs_mm']:.4f} | {r['p95_abs_mm']:.4f} | "
+                      f"{r['coverage']:.3f} | {steps} | {'-' if xy is None else f'{xy:.3f}'} |", flush=True)
             print(f"<!-- {name}: {time.perf_counter() - t0:.0f} s so far -->", flush=True)
     print(f"\n{time.perf_counter() - t0:.0f} s")
 

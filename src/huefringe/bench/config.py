@@ -208,6 +208,7 @@ def _check_semantics(cfg: dict[str, Any], source: str | Path) -> None:
     top = max(max(s["planes_mm"]), 0.0)
     if proj["height_mm"] <= top + 1.0:
         raise BenchConfigError(source, "projector.height_mm must be well above the highest plane")
+    _check_camera(cfg, source, top)
     blocks = cfg["scene"].get("blocks")
     if isinstance(blocks, list):
         names = [b["name"] for b in blocks]
@@ -217,6 +218,28 @@ def _check_semantics(cfg: dict[str, Any], source: str | Path) -> None:
             x0, y0, x1, y1 = b["rect_mm"]
             if not (x1 > x0 and y1 > y0):
                 raise BenchConfigError(source, f"scene.blocks.{i}.rect_mm must satisfy x1 > x0 and y1 > y0")
+
+
+def _check_camera(cfg: dict[str, Any], source: str | Path, top_mm: float) -> None:
+    """The camera keys of issue 23 (sensor, lens) that the schema cannot check."""
+    cam, s = cfg["camera"], cfg["session"]
+    sensor = cam.get("sensor") or {}
+    if sensor.get("kind") == "bayer" and (int(s["width"]) % 2 or int(s["height"]) % 2):
+        raise BenchConfigError(source, f"camera.sensor: a Bayer sensor needs an even width and height, "
+                                       f"got {s['width']} x {s['height']}")
+    model = cam.get("model", "telecentric")
+    wd = cam.get("working_distance_mm")
+    if model == "pinhole":
+        if wd is None:
+            raise BenchConfigError(source, "camera.model: pinhole needs camera.working_distance_mm")
+        if float(wd) <= top_mm + 10.0:
+            raise BenchConfigError(source, "camera.working_distance_mm must be well above the highest plane")
+    elif wd is not None:
+        raise BenchConfigError(source, "camera.working_distance_mm is only meaningful with camera.model: pinhole")
+    dist = cam.get("distortion")
+    if dist is not None and len(dist) not in (4, 5, 8, 12, 14):
+        raise BenchConfigError(source, f"camera.distortion: OpenCV takes 4, 5, 8, 12 or 14 coefficients "
+                                       f"(k1, k2, p1, p2[, k3 ...]), got {len(dist)}")
 
 
 def sweep_config(config: dict[str, Any], period_px: float) -> dict[str, Any]:

@@ -9,7 +9,10 @@ Per colour channel ``k`` (R, G, B):
    towards the projector (0 in cast shadows: shadowed points get only the ambient ``a_k``);
 4. the camera records ``alpha_k (I_ko + b_k)`` (eq. 8) after a Gaussian lens blur, mixes its
    channels with a 3x3 crosstalk matrix, adds shot noise (Gaussian, variance from a full well in
-   electrons) and read noise (DN), clips and quantises to 8 or 16 bits.
+   electrons) and read noise (DN), clips and quantises to 8 or 16 bits. A single-chip Bayer
+   sensor (``camera.sensor.kind: bayer``) keeps one colour per photosite before the noise (the
+   crosstalk row times the sensitivity is then the colour filter's spectral response of that
+   photosite), and the camera delivers the demosaiced RGB (:func:`huefringe.camera.demosaic`).
 
 The phase-shift sinusoids are pre-compensated with the user's *estimate* of the projector gamma
 (``I ** (1 / gamma_hat)``); every other pattern is projected as is.
@@ -27,6 +30,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import gaussian_filter1d
 
 from huefringe import patterns
+from huefringe.camera import demosaic, mosaic
 
 __all__ = ["Pattern", "Rig", "camera_response", "dmd_levels", "emitted_rgb", "rgb3"]
 
@@ -102,6 +106,9 @@ class Rig:
     plate_reflectance: NDArray[np.float64]
     lambertian: bool
     shadows: bool
+    #: single-chip sensor: Bayer pattern in sensor order (None = three-chip) and the demosaic
+    cfa_pattern: str | None = None
+    demosaic_method: str = "edge_aware"
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any]) -> Rig:
@@ -114,6 +121,8 @@ class Rig:
             gamma_est = gamma * (1.0 + float(ps["gamma_error"]))
         pix = p["pixel_mm"]
         y = p["y_mm"] if p["y_mm"] is not None else 0.5 * (s["height"] - 1) * s["pixel_pitch_mm"]
+        sensor = c.get("sensor") or {"kind": "three_chip"}
+        bayer = sensor["kind"] == "bayer"
         return cls(
             period_mm=float(s["period_px"]) * float(s["pixel_pitch_mm"]),
             projector_x_mm=float(p["x_mm"]),
@@ -137,6 +146,8 @@ class Rig:
             plate_reflectance=rgb3(surf["plate_reflectance"]),
             lambertian=bool(surf["lambertian"]),
             shadows=bool(surf["shadows"]),
+            cfa_pattern=str(sensor.get("pattern", "RGGB")) if bayer else None,
+            demosaic_method=str(sensor.get("demosaic", "edge_aware")),
         )
 
     @property
@@ -293,7 +304,7 @@ def camera_response(
     Returns
     -------
     ndarray
-        ``uint8`` or ``uint16`` RGB image at the rig's bit depth.
+        ``uint8`` or ``uint16`` RGB image at the rig's bit depth (a Bayer sensor's: demosaiced).
     """
     x = np.asarray(radiance, dtype=np.float32)
     if not blurred:
@@ -302,6 +313,8 @@ def camera_response(
     gain = rig.crosstalk * rig.sensitivity[None, :]
     affine = np.concatenate([gain, (gain @ rig.stray)[:, None]], axis=1).astype(np.float32)
     x = cv2.transform(np.ascontiguousarray(x), affine)
+    if rig.cfa_pattern is not None:  # one colour per photosite: the colour filter's response
+        x = mosaic(x, rig.cfa_pattern)
     if rng is not None and (rig.full_well_e is not None or rig.read_noise_dn > 0.0):
         read_var = np.float32((rig.read_noise_dn / rig.max_dn) ** 2)
         if rig.full_well_e is not None:
@@ -310,4 +323,7 @@ def camera_response(
             std = np.sqrt(read_var)
         x = x + std * rng.standard_normal(x.shape, dtype=np.float32)
     dn = np.rint(np.clip(x, 0.0, 1.0) * np.float32(rig.max_dn))
-    return dn.astype(np.uint8 if rig.bit_depth == 8 else np.uint16)
+    out = dn.astype(np.uint8 if rig.bit_depth == 8 else np.uint16)
+    if rig.cfa_pattern is not None:
+        return demosaic(out, rig.cfa_pattern, rig.demosaic_method)
+    return out

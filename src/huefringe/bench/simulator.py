@@ -9,6 +9,13 @@ phase-shift captures at ``t_n + s / phase_shift.frame_rate_hz``; with ``camera.e
 and ``motion_blur_subframes > 1`` a capture averages that many sub-exposures spread over the
 exposure centred on its instant. White, hue bands and the reference planes are taken with the
 object at rest.
+
+Camera lens (:mod:`.lens`, only with ``camera.model``, ``camera.distortion`` or
+``camera.lateral_ca_px``): the scene is shaded as before on a plate grid (a margin wider than
+the image by what the lens shows beyond it), then every camera (sub-)sample takes the light of
+the plate point its ray meets (per colour channel for chromatic aberration; the pinhole's rays
+cast against the surface's height field), by bilinear interpolation of the plate grid, before
+the lens blur and the sensor.
 """
 
 from __future__ import annotations
@@ -20,8 +27,10 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.ndimage import map_coordinates
 
 from .geometry import Grid, cast_shadow_mask, lambert_from_parts, lambert_parts, projector_ray_x0
+from .lens import Lens
 from .radiometry import Pattern, Rig, camera_response, emitted_rgb, lens_blur
 from .scenes import Scene, SceneSample, build_scene
 
@@ -40,6 +49,8 @@ class Surface:
     reflectance: NDArray[np.float32]  # (rows, cols, 3)
     #: height-independent shading terms, shared by surfaces that differ by a vertical shift
     cache: dict[str, Any] = field(default_factory=dict)
+    #: what the camera's lens makes of this very surface (its sampling maps), never shared
+    view: dict[str, Any] = field(default_factory=dict)
 
 
 @dataclass
@@ -77,7 +88,17 @@ class Bench:
         s = cfg["session"]
         self.grid = Grid(int(s["width"]), int(s["height"]), float(s["pixel_pitch_mm"]), int(cfg["camera"]["supersample"]))
         self.scene = scene if scene is not None else build_scene(cfg)
-        self._xf, self._yf = self.grid.mesh(fine=True)
+        self.lens = Lens.from_config(cfg)
+        self.margin_px = 0
+        if self.lens is None:
+            self._xf, self._yf = self.grid.mesh(fine=True)
+        else:
+            self.margin_px = self._lens_margin()
+            m = self.margin_px
+            plate = Grid(self.grid.width + 2 * m, self.grid.height + 2 * m, self.grid.pitch_mm, self.grid.supersample)
+            xf, yf = plate.mesh(fine=True)
+            self._xf, self._yf = xf - m * plate.pitch_mm, yf - m * plate.pitch_mm
+        self._ideal: dict[tuple[int, bool], tuple[F64, F64]] = {}
         self._xc, self._yc = self.grid.mesh(fine=False)
         self._rest_fine: SceneSample | None = None
         self._rest_coarse: SceneSample | None = None
@@ -157,8 +178,28 @@ class Bench:
         return Surface(np.full(x.shape, float(z_mm)), zero, zero, refl, self._plate_cache)
 
     def ground_truth(self, t: float | None) -> NDArray[np.float32]:
-        """True height (mm, float32) at every pixel centre at time ``t``."""
+        """True height (mm, float32) at every pixel centre at time ``t``.
+
+        With a lens: the height of the point the pixel centre's (G) ray meets (:meth:`view_truth`).
+        """
+        if self.lens is not None:
+            return self.view_truth(t)[0]
         return self.object_surface(t, fine=False).height.astype(np.float32)
+
+    def view_truth(self, t: float | None) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+        """Height (H, W) and plate ``X, Y`` (H, W, 2), mm, of the point each pixel centre sees.
+
+        The G channel's ray through the pixel centre; NaN where it leaves the simulated plate.
+        Without a lens: ``u * pitch``, ``v * pitch`` and :meth:`ground_truth`.
+        """
+        if self.lens is None:
+            xc, yc = self.grid.mesh(fine=False)
+            return self.ground_truth(t), np.stack([xc, yc], axis=-1).astype(np.float32)
+        surf = self.object_surface(t, fine=True)
+        x, y, h = self._cast(surf, 1, fine=False)
+        off = self._off_plate(x, y)
+        h, x, y = (np.where(off, np.nan, a) for a in (h, x, y))
+        return h.astype(np.float32), np.stack([x, y], axis=-1).astype(np.float32)
 
     # ---------------------------------------------------------------- light
     def lighting(self, surf: Surface) -> Lighting:
@@ -187,7 +228,86 @@ class Bench:
         em = light.irradiance[..., None] * emitted_rgb(pattern, light.x0, self.rig)
         em += self.rig.ambient.astype(np.float32)
         em *= surf.reflectance
-        return self.grid.downsample(em)
+        return self.to_camera(em, surf)
+
+    # ---------------------------------------------------------------- lens
+    def _lens_margin(self) -> int:
+        """Plate-grid margin (camera px) that holds every point the lens shows beyond the image."""
+        assert self.lens is not None
+        w, h = self.grid.width, self.grid.height
+        u = np.concatenate([np.arange(w), np.arange(w), np.zeros(h), np.full(h, w - 1.0)]).astype(np.float64)
+        v = np.concatenate([np.zeros(w), np.full(w, h - 1.0), np.arange(h), np.arange(h)]).astype(np.float64)
+        over = 0.0
+        for k in (0, 1, 2):
+            ui, vi = self.lens.ideal_pixels(u, v, k)
+            over = max(over, float(np.max(-ui)), float(np.max(ui - (w - 1))), float(np.max(-vi)), float(np.max(vi - (h - 1))))
+        return int(np.ceil(max(over, 0.0))) + 3
+
+    def _ideal_samples(self, channel: int, fine: bool) -> tuple[F64, F64]:
+        """Undistorted image coordinates of the camera's (sub-)samples of one channel."""
+        key = (channel if self.lens is not None and self.lens.ca_scale(channel) != 1.0 else 1, fine)
+        if key not in self._ideal:
+            assert self.lens is not None
+            n = self.grid.supersample if fine else 1
+            off = (np.arange(n) + 0.5) / n - 0.5
+            us = (np.arange(self.grid.width)[:, None] + off[None, :]).ravel()
+            vs = (np.arange(self.grid.height)[:, None] + off[None, :]).ravel()
+            uu, vv = np.meshgrid(us, vs)
+            self._ideal[key] = self.lens.ideal_pixels(uu, vv, key[0])
+        return self._ideal[key]
+
+    def _plate_index(self, x: F64, y: F64) -> tuple[F64, F64]:
+        """Fractional (row, column) of plate positions on the fine plate grid."""
+        n, p, m = self.grid.supersample, self.grid.pitch_mm, self.margin_px
+        return (y / p + m + 0.5) * n - 0.5, (x / p + m + 0.5) * n - 0.5
+
+    def _off_plate(self, x: F64, y: F64) -> NDArray[np.bool_]:
+        r, c = self._plate_index(x, y)
+        rows, cols = self._xf.shape
+        return ~((r >= 0) & (r <= rows - 1) & (c >= 0) & (c <= cols - 1) & np.isfinite(r) & np.isfinite(c))
+
+    def _cast(self, surf: Surface, channel: int, fine: bool) -> tuple[F64, F64, F64]:
+        """Plate ``(X, Y, h)`` met by the rays of one channel's (sub-)samples on a fine surface."""
+        assert self.lens is not None
+        ui, vi = self._ideal_samples(channel, fine)
+        hmap = surf.height
+
+        def height_at(x: F64, y: F64) -> F64:
+            r, c = self._plate_index(x, y)
+            return map_coordinates(hmap, [r, c], order=1, mode="nearest")
+
+        lo, hi = float(hmap.min()), float(hmap.max())
+        return self.lens.cast(ui, vi, height_at, (lo, hi), 0.5 * self.grid.fine_pitch_mm)
+
+    def _sampling(self, surf: Surface) -> list[tuple[F64, F64]]:
+        """Per channel, the fine plate-grid (row, column) each camera sub-sample takes its light from."""
+        if "maps" not in surf.view:
+            maps: dict[float, tuple[F64, F64]] = {}
+            out = []
+            for k in range(3):
+                sc = self.lens.ca_scale(k) if self.lens is not None else 1.0
+                if sc not in maps:
+                    x, y, _ = self._cast(surf, k, fine=True)
+                    maps[sc] = self._plate_index(x, y)
+                out.append(maps[sc])
+            surf.view["maps"] = out
+        return surf.view["maps"]
+
+    def to_camera(self, fine_img: NDArray[np.floating], surf: Surface) -> NDArray[np.float32]:
+        """A fine-grid image of ``surf`` (``(rows, cols, 3)``) as the camera's pixels receive it.
+
+        Without a lens: the box average (:meth:`Grid.downsample`). With one: each sub-sample
+        takes channel ``k`` from the plate point its channel-``k`` ray meets (bilinear), then
+        the box average.
+        """
+        if self.lens is None:
+            return self.grid.downsample(fine_img)
+        a = np.asarray(fine_img, dtype=np.float32)
+        maps = self._sampling(surf)
+        out = np.empty(maps[1][0].shape + (a.shape[2],), np.float32)
+        for k in range(a.shape[2]):
+            out[..., k] = map_coordinates(a[..., k], maps[k], order=1, mode="nearest")
+        return self.grid.downsample(out)
 
     # ---------------------------------------------------------------- captures
     def capture(
@@ -234,8 +354,8 @@ class Bench:
         surf = self.plate_surface(plane_z) if plane_z is not None else self.object_surface(None)
         light = self.lighting(surf)
         sig = self.rig.lens_blur_sigma_px
-        lit = lens_blur(self.grid.downsample(surf.reflectance * light.irradiance[..., None]), sig)
-        amb = lens_blur(self.grid.downsample(surf.reflectance * self.rig.ambient), sig)
+        lit = lens_blur(self.to_camera(surf.reflectance * light.irradiance[..., None], surf), sig)
+        amb = lens_blur(self.to_camera(surf.reflectance * self.rig.ambient, surf), sig)
         rig = self.rig
 
         def capture(pattern: Pattern, rng: np.random.Generator | None) -> NDArray[np.uint8] | NDArray[np.uint16]:

@@ -16,6 +16,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import tifffile
 import yaml
 from numpy.typing import NDArray
 from scipy.ndimage import binary_dilation
@@ -58,12 +59,24 @@ def specimen_document(cfg: dict[str, Any], bench: Bench | None = None) -> dict[s
 
     surf = bench.object_surface(None)
     light = bench.lighting(surf)
-    shadow = bench.grid.downsample(light.shadow.astype(np.float32)) > 0.0
-    blocked = np.zeros((h, w), bool)
     blocks = gauge_blocks(cfg)
-    for b in blocks:
-        u0, v0, u1, v1 = box(b.rect_mm)
-        blocked[v0:v1, u0:u1] = True
+    if bench.lens is not None:
+        # the boxes as the image shows them: where the pixels' rays meet the block tops and base
+        _, xy = bench.view_truth(None)
+
+        def box(rect: Sequence[float]) -> tuple[int, int, int, int]:  # noqa: F811 - the lens's boxes
+            return _inscribed_box(_seen_inside(xy, rect))
+
+        shadow = bench.to_camera(np.repeat(light.shadow[..., None].astype(np.float32), 3, axis=2), surf)[..., 1] > 0.0
+        blocked = np.zeros((h, w), bool)
+        for b in blocks:
+            blocked |= _seen_inside(xy, b.rect_mm)
+    else:
+        shadow = bench.grid.downsample(light.shadow.astype(np.float32)) > 0.0
+        blocked = np.zeros((h, w), bool)
+        for b in blocks:
+            u0, v0, u1, v1 = box(b.rect_mm)
+            blocked[v0:v1, u0:u1] = True
     struct = np.ones((2 * m + 1, 2 * m + 1), bool) if m > 0 else np.ones((1, 1), bool)
     bad_shadow = binary_dilation(shadow, struct)
     bad_base = binary_dilation(blocked, struct) | bad_shadow
@@ -105,6 +118,33 @@ def specimen_document(cfg: dict[str, Any], bench: Bench | None = None) -> dict[s
     }
 
 
+def _seen_inside(xy: NDArray[np.float32], rect: Sequence[float]) -> NDArray[np.bool_]:
+    """Pixels whose centres see a plate point inside ``rect`` = ``[x0, y0, x1, y1)`` (mm)."""
+    x, y = xy[..., 0], xy[..., 1]
+    with np.errstate(invalid="ignore"):
+        return (x >= rect[0]) & (x < rect[2]) & (y >= rect[1]) & (y < rect[3])
+
+
+def _inscribed_box(mask: NDArray[np.bool_]) -> tuple[int, int, int, int]:
+    """An axis-aligned box ``(u0, v0, u1, v1)`` inside a convex-ish mask (a lens's image of a
+    rectangle): the rows that are at least half full, clipped to the columns all of them hold,
+    then the rows all of those columns hold."""
+    rows = mask.sum(axis=1)
+    if not rows.any():
+        return 0, 0, 0, 0
+    vs = np.flatnonzero(rows >= 0.5 * rows.max())
+    sub = mask[vs]
+    first = np.argmax(sub, axis=1)
+    last = sub.shape[1] - np.argmax(sub[:, ::-1], axis=1)
+    u0, u1 = int(first.max()), int(last.min())
+    if u1 <= u0:
+        return 0, 0, 0, 0
+    cols = mask[:, u0:u1]
+    top = np.argmax(cols, axis=0)
+    bottom = cols.shape[0] - np.argmax(cols[::-1], axis=0)
+    return u0, int(top.max()), u1, int(bottom.min())
+
+
 def session_document(cfg: dict[str, Any], bench: Bench | None = None) -> dict[str, Any]:
     """The content of ``session.yaml`` for a configuration, keys in the spec's order."""
     s = cfg["session"]
@@ -125,6 +165,9 @@ def session_document(cfg: dict[str, Any], bench: Bench | None = None) -> dict[st
         },
         "planes_mm": [float(z) for z in s["planes_mm"]],
     }
+    bench = bench if bench is not None else Bench(cfg)
+    if bench.lens is not None:  # the lens model as a lab's checkerboard calibration gives it
+        doc["camera"].update(bench.lens.session_camera())
     spec = specimen_document(cfg, bench)
     if spec is not None:
         doc["specimen"] = spec
@@ -148,8 +191,14 @@ def provenance_document(cfg: dict[str, Any]) -> dict[str, Any]:
     if s.get("operator"):
         out["operator"] = str(s["operator"])
     proj, cam = cfg.get("projector", {}), cfg.get("camera", {})
+    sensor = cam.get("sensor") or {}
+    kind = "colour camera"
+    if sensor.get("kind") == "bayer":
+        kind = f"single-chip {sensor.get('pattern', 'RGGB')} Bayer colour camera, {sensor.get('demosaic', 'edge_aware')} demosaic"
+    if cam.get("model") == "pinhole":
+        kind += f", pinhole lens at {float(cam['working_distance_mm']):g} mm"
     out["instrument"] = (f"huefringe virtual bench {__version__} (simulated {proj.get('dmd_bits', 8)}-bit projector, "
-                         f"{int(s['width'])}x{int(s['height'])} {int(s['bit_depth'])}-bit colour camera)")
+                         f"{int(s['width'])}x{int(s['height'])} {int(s['bit_depth'])}-bit {kind})")
     out["simulated"] = True
     out["notes"] = "written by huefringe.bench from a bench configuration (virtual rig, no physical capture)"
     return out
@@ -322,7 +371,16 @@ def _jobs(cfg: dict[str, Any], bench: Bench, root: Path) -> list[Job]:
     if s["ground_truth"]:
         for n in range(frames):
             rel = f"ground_truth/frames/frame_{n:04d}.tiff"
-            jobs.append((rel, lambda rel=rel, n=n: write_tiff(root / rel, bench.ground_truth(bench.frame_time(n)))))
+            if bench.lens is None:
+                jobs.append((rel, lambda rel=rel, n=n: write_tiff(root / rel, bench.ground_truth(bench.frame_time(n)))))
+            else:  # with a lens also the plate X, Y each pixel sees (bench-only extension)
+                def truth(rel: str = rel, n: int = n) -> None:
+                    h, xy = bench.view_truth(bench.frame_time(n))
+                    write_tiff(root / rel, h)
+                    with atomic_path(root / f"ground_truth/xy/frame_{n:04d}.tiff") as tmp:
+                        tifffile.imwrite(tmp, xy, photometric="minisblack", planarconfig="contig", software=False)
+
+                jobs.append((rel, truth))
 
         def write_provenance() -> None:
             motion = [dict(zip(("dx_mm", "dz_mm"), bench.motion(bench.frame_time(n)), strict=True)) for n in range(frames)]
