@@ -265,6 +265,7 @@ def _semantic_problems(meta: dict[str, Any], yaml_path: Path) -> list[Problem]:
             problems.append(Problem(yaml_path, f"at provenance/captured_at: {when!r} is not an ISO 8601 date or "
                                                "date-time (e.g. 2026-11-30 or 2026-11-30T14:05:00Z)"))
     w, h = meta["camera"]["width"], meta["camera"]["height"]
+    problems += _camera_problems(meta["camera"], yaml_path)
     planes = [float(z) for z in meta["planes_mm"]]
     keys = [f"{z:.3f}" for z in planes]
     if len(set(keys)) != len(keys):
@@ -291,6 +292,54 @@ def _semantic_problems(meta: dict[str, Any], yaml_path: Path) -> list[Problem]:
         names = [s["name"] for s in spec["steps"]]
         if len(set(names)) != len(names):
             problems.append(Problem(yaml_path, f"specimen step names repeat: {names}"))
+    return problems
+
+
+def _camera_problems(cam: dict[str, Any], yaml_path: Path) -> list[Problem]:
+    """The lens block of the ``camera`` extension (docs/design.md, "the camera block"): what the
+    schema cannot say (finite values, the matrix's last row, the distortion's length, what a
+    pinhole camera needs)."""
+    problems = []
+    kind = cam.get("model", "telecentric")
+
+    def bad(key: str, text: str) -> None:
+        problems.append(Problem(yaml_path, f"at camera/{key}: {text}"))
+
+    for key in ("pixel_pitch_mm", "matrix", "distortion", "plate_pose"):
+        val = cam.get(key)
+        if val is None:
+            continue
+        vals = [val] if key == "pixel_pitch_mm" else (
+            [*val["rvec"], *val["tvec"]] if key == "plate_pose" else np.ravel(np.asarray(val, np.float64)).tolist())
+        if not all(np.isfinite(float(x)) for x in vals):
+            bad(key, "holds a value that is not finite (nan or inf)")
+    k = cam.get("matrix")
+    if k is not None:
+        m = np.asarray(k, np.float64)
+        if m.shape != (3, 3):
+            bad("matrix", f"must be 3 x 3 (OpenCV camera matrix), got shape {m.shape}")
+        elif np.all(np.isfinite(m)):
+            if not np.array_equal(m[2], [0.0, 0.0, 1.0]):
+                bad("matrix", f"last row must be [0, 0, 1], got {m[2].tolist()}")
+            if not (m[0, 0] > 0 and m[1, 1] > 0):
+                bad("matrix", f"focal lengths fx = {m[0, 0]:g}, fy = {m[1, 1]:g} px must be positive")
+            if m[1, 0] != 0:
+                bad("matrix", "must be upper triangular [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+    d = cam.get("distortion")
+    if d is not None and len(d) not in (4, 5, 8, 12, 14):
+        bad("distortion", f"OpenCV distortion coefficients come as 4, 5, 8, 12 or 14 values "
+                          f"(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tx, ty]]]]), got {len(d)}")
+    if kind == "pinhole":
+        for key, what in (("matrix", "the camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (cv2.calibrateCamera)"),
+                          ("plate_pose", "the plate's pose {rvec: [..], tvec: [..]} in camera coordinates, mm "
+                                         "(cv2.solvePnP of a board lying on the plate)")):
+            if cam.get(key) is None:
+                bad(key, f"missing: a pinhole camera (camera/model: pinhole) needs {what}")
+        pose = cam.get("plate_pose")
+        if pose is not None and not problems and float(np.linalg.norm(pose["tvec"])) == 0.0:
+            bad("plate_pose", "tvec is zero: the plate cannot pass through the camera centre")
+    elif cam.get("plate_pose") is not None:
+        bad("plate_pose", "only a pinhole camera (camera/model: pinhole) has a plate pose")
     return problems
 
 
