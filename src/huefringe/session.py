@@ -75,6 +75,9 @@ class Session:
     ground_truth: dict[int, Path] = field(default_factory=dict)
     predistortion: Predistortion | None = None
     """Extension: the pre-distortion the planes and frames were projected with (``predistortion.csv``)."""
+    ground_truth_xy: dict[int, Path] = field(default_factory=dict)
+    """Extension (bench sessions): the true X, Y of each pixel, ``ground_truth/xy/frame_NNNN.tiff``,
+    float32 (H, W, 2) in mm, NaN where unseen."""
 
     @property
     def id(self) -> str:
@@ -137,7 +140,8 @@ class Session:
     def input_files(self) -> list[Path]:
         """Every file of the session, session.yaml and ground truth included, sorted."""
         extra = [self.predistortion.path] if self.predistortion is not None else []
-        return sorted([self.root / "session.yaml", *self.all_images(), *self.ground_truth.values(), *extra])
+        return sorted([self.root / "session.yaml", *self.all_images(), *self.ground_truth.values(),
+                       *self.ground_truth_xy.values(), *extra])
 
 
 @dataclass(frozen=True)
@@ -580,6 +584,17 @@ def _collect(root: Path, meta: dict[str, Any], problems: list[Problem]) -> Sessi
                 problems.append(Problem(p, "ground truth for no frame of the session"))
             else:
                 ground_truth[int(m.group(1))] = p
+    ground_truth_xy: dict[int, Path] = {}
+    xy_dir = root / "ground_truth" / "xy"
+    if xy_dir.is_dir():
+        for p in sorted(xy_dir.iterdir()):
+            if p.name.startswith(".") or p.suffix.lower() not in (".tif", ".tiff"):
+                continue
+            m = _FRAME_RE.match(p.stem)
+            if not m or int(m.group(1)) not in frames:
+                problems.append(Problem(p, "X/Y ground truth for no frame of the session"))
+            else:
+                ground_truth_xy[int(m.group(1))] = p
     predistortion = None
     if (root / "predistortion.csv").exists():
         try:
@@ -600,6 +615,7 @@ def _collect(root: Path, meta: dict[str, Any], problems: list[Problem]) -> Sessi
         phase_shift=phase_shift,
         ground_truth=ground_truth,
         predistortion=predistortion,
+        ground_truth_xy=ground_truth_xy,
     )
 
 
@@ -635,6 +651,15 @@ def _image_problems(session: Session, deep: bool) -> list[Problem]:
             continue
         if tuple(shape) != (h, w) or np.dtype(dtype) != np.float32:
             problems.append(Problem(p, f"ground truth must be float32 {h} x {w}, got {dtype} {tuple(shape)}"))
+    for idx, p in session.ground_truth_xy.items():
+        try:
+            with tifffile.TiffFile(p) as tif:
+                shape, dtype = tif.series[0].shape, tif.series[0].dtype
+        except Exception as exc:
+            problems.append(Problem(p, f"cannot read X/Y ground truth TIFF ({exc})"))
+            continue
+        if tuple(shape) != (h, w, 2) or np.dtype(dtype) != np.float32:
+            problems.append(Problem(p, f"X/Y ground truth must be float32 {h} x {w} x 2, got {dtype} {tuple(shape)}"))
     return problems
 
 
