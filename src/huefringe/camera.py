@@ -416,8 +416,8 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
 class ChannelRegistration:
     """Resample R and B onto G: undo a radial magnification ``1 + s`` about ``centre``.
 
-    ``registered_c(x) = observed_c(centre + (1 + s_c) (x - centre))``, bicubic
-    (``cv2.remap``, ``INTER_CUBIC``, replicated border), on the sensor codes themselves so that
+    ``registered_c(x) = observed_c(centre + (1 + s_c) (x - centre))``, Lanczos
+    (``cv2.remap``, ``INTER_LANCZOS4``, replicated border), on the sensor codes themselves so that
     both per-frame chains (the NumPy reference and the numba kernel) read the same image.
     """
 
@@ -442,12 +442,16 @@ class ChannelRegistration:
         out = np.array(image, copy=True, order="C")
         maps = self._maps(out.shape[:2])
         for c, (mx, my) in zip((0, 2), maps, strict=True):
-            out[..., c] = cv2.remap(np.ascontiguousarray(image[..., c]), mx, my, cv2.INTER_CUBIC,
+            out[..., c] = cv2.remap(np.ascontiguousarray(image[..., c]), mx, my, _INTERP,
                                     borderMode=cv2.BORDER_REPLICATE)
         return out
 
 
 _REMAPS: dict[Any, Any] = {}
+# Lanczos (8 x 8) rather than bicubic: on the demo scene at 640 x 480 with 0.5 / 0.4 px at the
+# corners the registered median height error is 1.08 x the clean one with Lanczos, 1.31 x with
+# bicubic (whose smoothing of the fringe ramps costs more than the sub-pixel shift it undoes)
+_INTERP = cv2.INTER_LANCZOS4
 
 
 class CaptureReader:
