@@ -169,3 +169,31 @@ def test_bad_camera_block_is_refused_naming_the_key(tmp_path: Path, cam: dict, w
     assert "session.yaml" in text
     for w in words:
         assert w in text, text
+
+
+def test_xy_ground_truth_is_read_checked_and_scored(tmp_path: Path) -> None:
+    """ground_truth/xy/frame_NNNN.tiff (float32 (H, W, 2)) is part of the session, a wrong shape
+    is refused naming the file, and xy_accuracy scores all pixels and the corners."""
+    import tifffile
+
+    from huefringe.height import xy_accuracy
+    from huefringe.session import load_session
+
+    root = make_session(tmp_path / "s")  # 32 x 24
+    gt = root / "ground_truth" / "xy"
+    gt.mkdir(parents=True)
+    v, u = np.mgrid[0:24, 0:32].astype(np.float32)
+    truth = np.stack([u * 0.2, v * 0.2], -1).astype(np.float32)
+    truth[0, 0] = np.nan
+    tifffile.imwrite(gt / "frame_0000.tiff", truth)
+    s = load_session(root)
+    assert set(s.ground_truth_xy) == {0} and gt / "frame_0000.tiff" in s.input_files()
+    x, y = CameraModel.from_meta(s.meta).xy(np.zeros((24, 32), np.float32))
+    x[23, 31] += 0.03  # a corner pixel off by 30 um
+    a = xy_accuracy(x, y, truth)
+    assert a["pixels"] == 24 * 32 - 1 and abs(a["max_mm"] - 0.03) < 1e-6 and abs(a["corner_max_mm"] - 0.03) < 1e-6
+    assert 0 < a["corner_pixels"] < 40
+    tifffile.imwrite(gt / "frame_0001.tiff", truth[..., 0])
+    with pytest.raises(SessionError) as err:
+        load_session(root)
+    assert "frame_0001.tiff" in str(err.value) and "x 2" in str(err.value)

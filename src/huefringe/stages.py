@@ -560,12 +560,17 @@ def xy_block(s: Session, model: CameraModel, heights: Sequence[str]) -> dict[str
         if n not in s.ground_truth_xy:
             continue
         x, y = model.xy(read_tiff(p))
-        a = xy_accuracy(x, y, read_tiff(s.ground_truth_xy[n]))
+        a: dict[str, Any] = {k: (None if np.isnan(v) else v) for k, v in
+                             xy_accuracy(x, y, read_tiff(s.ground_truth_xy[n])).items()}  # JSON: no NaN
         a["frame"] = n
         per.append(a)
     keys = [k for k in per[0] if k != "frame"] if per else []
-    return {"model": model.kind if not model.plain else "telecentric (u * pitch)",
-            "summary": {k: float(np.nanmean([f[k] for f in per])) for k in keys}, "per_frame": per}
+    summary = {}
+    for k in keys:
+        vals = [f[k] for f in per if f[k] is not None]
+        summary[k] = float(np.mean(vals)) if vals else None
+    return {"model": model.kind if not model.plain else "telecentric (u * pitch)", "summary": summary,
+            "per_frame": per}
 
 
 # ------------------------------------------------ workflow/rules/surfaces.smk
