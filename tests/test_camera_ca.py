@@ -174,3 +174,23 @@ def test_cloud_points_carry_the_lens_models_x_y(tmp_path: Path) -> None:
                               np.array([-0.15, 0.08, 0.0, 0.0, 0.0]))
     vv, uu = np.divmod(pix, 320)
     assert np.max(np.abs(uv.reshape(-1, 2) - np.column_stack([uu, vv]))) < 1e-5
+
+
+def test_mesh_vertices_move_to_the_lens_models_x_y() -> None:
+    """place_vertices (last, after sigma and cleaning) puts every grid vertex at model.xy of its pixel."""
+    from huefringe import mesh as meshing
+
+    model = CameraModel.from_meta(PIN)
+    h = _seen_plane(model, np.array([1.0, 0.002, 0.001])).astype(np.float32)
+    h[100:110, 40:60] = np.nan
+    m = meshing.height_to_mesh(h, 0.43, jump_mm=1.0)
+    v, u = meshing.vertex_pixels(m)
+    sigma = np.random.default_rng(0).random(h.shape).astype(np.float32)
+    meshing.attach_sigma(m, sigma)
+    meshing.place_vertices(m, model.xy_at)
+    x, y = model.xy(h)
+    np.testing.assert_allclose(m.vertices[:, 0], x[v, u], atol=1e-9)
+    np.testing.assert_allclose(m.vertices[:, 1], y[v, u], atol=1e-9)
+    np.testing.assert_array_equal(m.vertices[:, 2], h[v, u])
+    np.testing.assert_array_equal(m.vertex_attributes["sigma_mm"], sigma[v, u])
+    assert m.metadata["xy"] == "lens model"

@@ -13,7 +13,7 @@ at (1, 1).
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import cv2
@@ -170,6 +170,7 @@ class CameraModel:
     distortion: NDArray[np.float64] | None = None
     rvec: NDArray[np.float64] | None = None
     tvec: NDArray[np.float64] | None = None
+    _grid_cache: list[Any] = field(default_factory=list, repr=False, compare=False)
 
     @classmethod
     def from_meta(cls, meta: Mapping[str, Any], *, lens_model: bool = True) -> CameraModel:
@@ -269,18 +270,19 @@ class CameraModel:
         return x, y
 
     def _grid(self) -> tuple[Any, ...]:
-        key = id(self)
-        if key not in _GRIDS:
+        """Per-pixel X, Y (telecentric) or rays (pinhole), computed once per model (0.3 s for
+        640 x 480 pinhole pixels: the iterative undistortion), then 3 ms per height map."""
+        if not self._grid_cache:
             v, u = np.mgrid[0:self.height, 0:self.width].astype(np.float64)
             if self.plain:
-                _GRIDS[key] = (u * self.pitch_mm, v * self.pitch_mm)
+                grid: tuple[Any, ...] = (u * self.pitch_mm, v * self.pitch_mm)
             elif self.kind == "telecentric":
                 uu, vv = self._rays(u, v)
-                _GRIDS[key] = (uu * self.pitch_mm, vv * self.pitch_mm)
+                grid = (uu * self.pitch_mm, vv * self.pitch_mm)
             else:
-                _GRIDS[key] = self._rays(u, v)
-            _GRID_OWNERS[key] = self
-        return _GRIDS[key]
+                grid = self._rays(u, v)
+            self._grid_cache.append(grid)
+        return self._grid_cache[0]
 
     def box_mm(self, box: Sequence[float], h: float = 0.0) -> list[float]:
         """A pixel box ``[u0, v0, u1, v1)`` as ``[X0, Y0, X1, Y1]`` in mm: its corners seen at
@@ -298,8 +300,6 @@ class CameraModel:
         return float(x.min()), float(x.max()), float(y.min()), float(y.max())
 
 
-_GRIDS: dict[int, tuple[Any, ...]] = {}
-_GRID_OWNERS: dict[int, CameraModel] = {}  # keeps the ids above alive
 
 
 # --------------------------------------------------------------------------- lateral chromatic aberration
