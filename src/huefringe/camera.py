@@ -373,6 +373,9 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
         k = np.empty((h, w))
         k[:, 1:-1] = np.angle(zg[:, 2:] * np.conj(zg[:, :-2])) / 2.0
         k[:, 0], k[:, -1] = k[:, 1], k[:, -2]
+        kv = np.zeros((h, w))  # fringes not quite vertical: the radial model's v displacement shows too
+        kv[1:-1] = np.angle(zg[2:] * np.conj(zg[:-2])) / 2.0
+        lever = k * (u[None, :] - cx) + kv * (np.arange(h, dtype=np.float64)[:, None] - cy)
         amp = np.abs(zg)
         ok = np.zeros((h, w), bool)
         ok[4:h - 4, margin:w - margin] = True
@@ -389,7 +392,7 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
             # nuisance: d0 and the fringe-periodic phase error (harmonic leakage through the filter,
             # gamma, crosstalk), cos/sin of n phi_G, n = 1..3; then the magnification regressor
             a = np.column_stack([np.ones(dd.size)] + [f(n * pg) for n in (1, 2, 3) for f in (np.cos, np.sin)]
-                                + [-k[ok] * (u[None, :] - cx).repeat(h, 0)[ok]])
+                                + [-lever[ok]])
             ata, atb = (a * wt[:, None]).T @ a, (a * wt[:, None]).T @ dd
             nn = np.linalg.solve(ata[:-1, :-1], np.column_stack([ata[:-1, -1], atb[:-1]]))
             acc[name][0] += ata[-1, -1] - ata[-1, :-1] @ nn[:, 0]  # Schur complement: the scale alone
