@@ -88,7 +88,11 @@ def test_registration_lowers_the_height_error(gauge: Path, aberrated) -> None:
     target, _, _ = aberrated
     clean, cov_clean = _median_error(api.measure(gauge, _cfg(False)))
     off, _ = _median_error(api.measure(target, _cfg(False)))
-    on, cov_on = _median_error(api.measure(target, _cfg("auto")))
+    m_on = api.measure(target, _cfg("auto"))
+    on, cov_on = _median_error(m_on)
+    assert m_on.camera_record["chromatic_registration"]["applied"] and m_on.camera.plain
+    np.testing.assert_array_equal(m_on.xy(0)[0][np.isfinite(m_on.height(0))],
+                                  (np.arange(320) * m_on.session.pixel_pitch_mm)[None, :].repeat(240, 0)[np.isfinite(m_on.height(0))])
     assert off > 2.5 * clean  # the aberration matters
     assert on < 0.5 * off
     assert on < 1.2 * clean

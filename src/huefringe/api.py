@@ -21,7 +21,7 @@ from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
 from huefringe.session import Session, load_session
 from huefringe.settings import load_config
-from huefringe.camera import corrections
+from huefringe.camera import CameraModel, corrections
 from huefringe.stages import frame_results, session_camera_record, session_hue_table, session_plane_calibration
 
 __all__ = ["Measurement", "measure"]
@@ -52,10 +52,20 @@ class Measurement:
     NaN), as ``support/frame_NNNN.tiff``."""
     config: dict[str, Any] = field(default_factory=dict)
     """The configuration used (packaged defaults with ``config`` over them)."""
+    camera: CameraModel | None = None
+    """The X, Y model (the session's ``camera`` block, or telecentric with ``camera.lens_model: false``)."""
+    camera_record: dict[str, Any] = field(default_factory=dict)
+    """What ``calib/camera.json`` would hold: the X, Y model and the channel registration."""
 
     def height(self, frame: int) -> NDArray[np.float32]:
         """The height map of frame number ``frame``."""
         return self.heights[self.frames.index(frame)]
+
+    def xy(self, frame: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """X, Y (mm) of every pixel of frame ``frame`` at its own height (NaN where invalid):
+        :meth:`huefringe.camera.CameraModel.xy`."""
+        model = self.camera or CameraModel.from_meta(self.session.meta)
+        return model.xy(self.height(frame))
 
 
 def measure(session: str | os.PathLike[str] | Session,
@@ -93,7 +103,8 @@ def measure(session: str | os.PathLike[str] | Session,
     cfg = load_config(config)
     s = session if isinstance(session, Session) else load_session(Path(session))
     hue_model, calibration, measurement = cfg["hue_model"], cfg["calibration"], cfg["measurement"]
-    reader = corrections(session_camera_record(s, cfg.get("camera", {}), calibration), s.meta)[1]
+    record = session_camera_record(s, cfg.get("camera", {}), calibration)
+    model, reader = corrections(record, s.meta)
     tables = {w: session_hue_table(s, w, hue_model, calibration, reader=reader) for w in ("reference", "object")}
     cal = session_plane_calibration(s, tables["reference"], hue_model, calibration, reader=reader)
     frames = s.frame_ids if frames is None else list(frames)
@@ -108,4 +119,5 @@ def measure(session: str | os.PathLike[str] | Session,
         support[i] = np.rint(sup)
         stats.append(st)
     return Measurement(session=s, frames=frames, heights=heights, valid=np.isfinite(heights), calibration=cal,
-                       tables=tables, stats=stats, config=cfg, uncertainty=u, support=support)
+                       tables=tables, stats=stats, config=cfg, uncertainty=u, support=support, camera=model,
+                       camera_record=record)
