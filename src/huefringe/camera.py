@@ -335,7 +335,7 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
     analytic signal) gives ``wrap(phi_c - phi_G) = d0 - k (u) s (u - cx)`` with ``k`` the local
     fringe frequency (rad/px, from G): ``d0`` and a fringe-periodic error (three harmonics of
     ``phi_G``, one set per plane) and ``s`` by least squares, weighted by the
-    fringe amplitude, one period at each image side left out. The phases are local (a Gabor
+    fringe amplitude, 1.5 periods at each image side left out (the filter's half-width). The phases are local (a Gabor
     filter along u, :func:`_quadrature`), so the fringe period may vary over the field.
 
     Parameters
@@ -361,7 +361,7 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
     cx, cy = float(centre[0]), float(centre[1])
     wb = np.maximum(np.asarray(white, np.float64), 1e-3)
     h, w = wb.shape[:2]
-    margin = int(np.ceil(period_px))
+    margin = int(np.ceil(1.5 * period_px))  # the filter's half-width: no reflected sample in the window
     u = np.arange(w, dtype=np.float64)
     rows: dict[str, list[tuple[float, float, int]]] = {"R": [], "B": []}
     acc = {c: [0.0, 0.0] for c in "RB"}  # sums over planes of the centred normal equations (own d0 per plane)
