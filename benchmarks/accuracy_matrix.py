@@ -129,8 +129,16 @@ VARIANTS = {
     "round 1 (sharp table, no edge mask)": {"calibration": {"phase_error": {"enabled": True, "smooth_bins": 1.5}},
                                             "measurement": {"edge_jump_mm": 0.0}},
 }
-#: variants measured on some cases only (the adaptive filter acts on weak signal: the photo reliefs)
-ONLY = {"adaptive filter off": "photo"}
+VARIANTS.update({
+    # camera corrections (docs/design.md, the camera block): registration of lateral chromatic
+    # aberration, and X, Y from the session's lens model; "off" = not estimated / telecentric u * pitch
+    "chromatic registration off": {"camera": {"chromatic_registration": False}},
+    "lens model off": {"camera": {"lens_model": False}},
+})
+#: variants measured on some cases only, by words of the case name (the adaptive filter acts on
+#: weak signal: the photo reliefs; the camera corrections on the cases with such a camera)
+ONLY = {"adaptive filter off": ("photo",), "chromatic registration off": ("CA", "chromatic", "lateral"),
+        "lens model off": ("pinhole", "distortion", "lens")}
 
 
 def _config(variant: dict) -> dict:
@@ -213,12 +221,16 @@ def xy_corner_error(paths: dict, config: dict) -> float | None:
 
 def score(paths: dict) -> dict:
     s = paths["session"]
+    lens = stages.session_corrections(s, paths["camera"])[0]
     maps = [tifffile.imread(h) for h in paths["heights"]]
     accs = [accuracy(m, tifffile.imread(s.ground_truth[n])) for n, m in zip(s.frame_ids, maps, strict=True)]
     out = {k: float(np.mean([a[k] for a in accs])) for k in ("median_abs_mm", "p95_abs_mm", "coverage")}
+    if s.ground_truth_xy:  # X, Y of the cloud points against the bench's truth, at the field's corners
+        out["xy_corner_max_mm"] = stages.xy_block(s, lens, paths["heights"])["summary"]["corner_max_mm"]
     if s.specimen is not None:
         try:
-            ev = metrology.evaluate_session(maps, s.specimen, s.pixel_pitch_mm, range_mm=max(s.planes_mm) - min(s.planes_mm))
+            ev = metrology.evaluate_session(maps, s.specimen, s.pixel_pitch_mm, range_mm=max(s.planes_mm) - min(s.planes_mm),
+                                            camera=lens)
         except metrology.MetrologyError as exc:
             print(f"  (steps not evaluated: {exc})")
             return out
@@ -234,22 +246,23 @@ def measure(session: Path, tables: Path, out: Path, config: dict) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     s = stages.load_session(session)
     model, cal = config["hue_model"], config["calibration"]
+    cam = str(out / "camera.json")
+    stages.camera_calibration(str(session), config["camera"], cal, record=cam)
+    # the tables depend on the channel registration: one set per registration setting
+    tables = tables / f"registration-{config['camera']['chromatic_registration']}"
+    tables.mkdir(parents=True, exist_ok=True)
     for which in ("reference", "object"):
         if not (tables / f"table_{which}.json").exists():
-            stages.hue_table(str(session), which, model, cal,
-                             **_with_camera(stages.hue_table, {"table": str(tables / f"table_{which}.json"),
-                                                               "stats": str(tables / f"table_{which}.stats.json")}, config))
+            stages.hue_table(str(session), which, model, cal, table=str(tables / f"table_{which}.json"),
+                             stats=str(tables / f"table_{which}.stats.json"), camera_json=cam)
     stages.plane_calibration(str(session), str(tables / "table_reference.json"), model, cal,
-                             **_with_camera(stages.plane_calibration, {
-                                 "model": str(out / "model.npz"), "stats": str(out / "planes.json"),
-                                 "phase_error_summary": str(out / "phase_error.json")}, config))
+                             model=str(out / "model.npz"), stats=str(out / "planes.json"),
+                             phase_error_summary=str(out / "phase_error.json"), camera_json=cam)
     heights = [str(out / f"frame_{n:04d}.tiff") for n in s.frame_ids]
     stages.measure_frames(str(session), s.frame_ids, str(tables / "table_object.json"), str(out / "model.npz"), model,
-                          config["measurement"], cal,
-                          **_with_camera(stages.measure_frames, {
-                              "heights": heights, "qa": [h.replace(".tiff", ".json") for h in heights],
-                              "map_frames": []}, config))
-    return {"session": s, "heights": heights}
+                          config["measurement"], cal, heights=heights, qa=[h.replace(".tiff", ".json") for h in heights],
+                          map_frames=[], camera_json=cam)
+    return {"session": s, "heights": heights, "camera": cam}
 
 
 def main() -> None:
@@ -278,7 +291,7 @@ def main() -> None:
             tables = root / slug / "tables"
             tables.mkdir(parents=True, exist_ok=True)
             for vname in args.variants:
-                if vname in ONLY and ONLY[vname] not in name:
+                if vname in ONLY and not any(word in name for word in ONLY[vname]):
                     continue
                 out = root / slug / "".join(c if c.isalnum() else "-" for c in vname)
                 r = score(measure(session, tables, out, _config(VARIANTS[vname])))
@@ -288,6 +301,8 @@ def main() -> None:
                 else:
                     name_v = vname
                 steps = (f"{r['step_worst_um']:.1f} | {r['step_mean_pct']:.2f}" if "step_worst_um" in r else "- | -")
+                if "xy_corner_max_mm" in r:
+                    steps += f" (X, Y at the corners: max {r['xy_corner_max_mm']:.3f} mm)"
                 print(f"| {name} | {'hold-out' if case['holdout'] else 'tuning'} | {name_v} | {r['median_abs_mm']:.4f} | "
                       f"{r['p95_abs_mm']:.4f} | {r['coverage']:.3f} | {steps} |", flush=True)
             print(f"<!-- {name}: {time.perf_counter() - t0:.0f} s so far -->", flush=True)

@@ -21,7 +21,8 @@ from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
 from huefringe.session import Session, load_session
 from huefringe.settings import load_config
-from huefringe.stages import frame_results, session_hue_table, session_plane_calibration
+from huefringe.camera import CameraModel, corrections
+from huefringe.stages import frame_results, session_camera_record, session_hue_table, session_plane_calibration
 
 __all__ = ["Measurement", "measure"]
 
@@ -51,10 +52,20 @@ class Measurement:
     NaN), as ``support/frame_NNNN.tiff``."""
     config: dict[str, Any] = field(default_factory=dict)
     """The configuration used (packaged defaults with ``config`` over them)."""
+    camera: CameraModel | None = None
+    """The X, Y model (the session's ``camera`` block, or telecentric with ``camera.lens_model: false``)."""
+    camera_record: dict[str, Any] = field(default_factory=dict)
+    """What ``calib/camera.json`` would hold: the X, Y model and the channel registration."""
 
     def height(self, frame: int) -> NDArray[np.float32]:
         """The height map of frame number ``frame``."""
         return self.heights[self.frames.index(frame)]
+
+    def xy(self, frame: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """X, Y (mm) of every pixel of frame ``frame`` at its own height (NaN where invalid):
+        :meth:`huefringe.camera.CameraModel.xy`."""
+        model = self.camera or CameraModel.from_meta(self.session.meta)
+        return model.xy(self.height(frame))
 
 
 def measure(session: str | os.PathLike[str] | Session,
@@ -68,8 +79,8 @@ def measure(session: str | os.PathLike[str] | Session,
         A ``capture-session/1`` folder (validated first; errors name the file).
     config : mapping or path to a YAML file, optional
         Overrides of the packaged defaults (``src/huefringe/defaults.yaml``), key by key, in the
-        workflow's configuration format; only ``hue_model``, ``calibration`` and ``measurement``
-        are read.
+        workflow's configuration format; only ``hue_model``, ``calibration``, ``measurement``
+        and ``camera`` (the channel registration) are read.
     frames : sequence of int, optional
         Frame numbers to measure; default all.
 
@@ -92,18 +103,21 @@ def measure(session: str | os.PathLike[str] | Session,
     cfg = load_config(config)
     s = session if isinstance(session, Session) else load_session(Path(session))
     hue_model, calibration, measurement = cfg["hue_model"], cfg["calibration"], cfg["measurement"]
-    tables = {w: session_hue_table(s, w, hue_model, calibration) for w in ("reference", "object")}
-    cal = session_plane_calibration(s, tables["reference"], hue_model, calibration)
+    record = session_camera_record(s, cfg.get("camera", {}), calibration)
+    model, reader = corrections(record, s.meta)
+    tables = {w: session_hue_table(s, w, hue_model, calibration, reader=reader) for w in ("reference", "object")}
+    cal = session_plane_calibration(s, tables["reference"], hue_model, calibration, reader=reader)
     frames = s.frame_ids if frames is None else list(frames)
     heights = np.empty((len(frames), s.height, s.width), np.float32)
     u = np.empty_like(heights)
     support = np.empty(heights.shape, np.uint16)
     stats = []
     for i, (_, h, _, _, st, u_map, sup) in enumerate(frame_results(s, tables["object"], cal, frames, hue_model,
-                                                                   measurement, map_frames=set())):
+                                                                   measurement, map_frames=set(), reader=reader)):
         heights[i] = h  # copied: the kernel reuses its buffers
         u[i] = u_map
         support[i] = np.rint(sup)
         stats.append(st)
     return Measurement(session=s, frames=frames, heights=heights, valid=np.isfinite(heights), calibration=cal,
-                       tables=tables, stats=stats, config=cfg, uncertainty=u, support=support)
+                       tables=tables, stats=stats, config=cfg, uncertainty=u, support=support, camera=model,
+                       camera_record=record)

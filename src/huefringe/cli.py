@@ -25,6 +25,13 @@ def _cmd_check(args: argparse.Namespace) -> int:
         extras.append(f"ground truth for {len(s.ground_truth)} frames")
     if s.specimen:
         extras.append(f"specimen with {len(s.specimen['steps'])} steps")
+    cam = s.meta["camera"]
+    if cam.get("model") == "pinhole":
+        extras.append(f"pinhole camera (fx {cam['matrix'][0][0]:g} px, plate at {cam['plate_pose']['tvec'][2]:g} mm)")
+    if cam.get("distortion") and any(cam["distortion"]):
+        extras.append(f"lens distortion ({len(cam['distortion'])} coefficients)")
+    if s.ground_truth_xy:
+        extras.append(f"X/Y ground truth for {len(s.ground_truth_xy)} frames")
     print(
         f"OK: session '{s.id}' at {s.root}: {s.width} x {s.height} px, {s.bit_depth}-bit, "
         f"pitch {s.pixel_pitch_mm} mm, period {s.period_px:g} px, {s.hue_bands} bands x {s.repeats} repeats, "

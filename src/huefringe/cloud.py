@@ -55,7 +55,8 @@ def _check_colours(colours: ArrayLike, shape: tuple[int, int]) -> NDArray[np.flo
     return np.clip(c.astype(np.float64), 0.0, 1.0)
 
 
-def height_to_points(height: ArrayLike, pitch_mm: float) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
+def height_to_points(height: ArrayLike, pitch_mm: float,
+                     xy: tuple[ArrayLike, ArrayLike] | None = None) -> tuple[NDArray[np.float64], NDArray[np.intp]]:
     """Valid pixels of a height map as 3-D points in mm.
 
     Parameters
@@ -64,6 +65,9 @@ def height_to_points(height: ArrayLike, pitch_mm: float) -> tuple[NDArray[np.flo
         Height in mm, NaN (or inf) where invalid.
     pitch_mm : float
         Pixel pitch in mm (object-side, telecentric).
+    xy : (X, Y) maps, optional
+        X, Y in mm of every pixel (:meth:`huefringe.camera.CameraModel.xy` of ``height``: a
+        pinhole camera sees each pixel at its own height); default ``u * pitch``, ``v * pitch``.
 
     Returns
     -------
@@ -76,16 +80,28 @@ def height_to_points(height: ArrayLike, pitch_mm: float) -> tuple[NDArray[np.flo
     pixel = np.flatnonzero(np.isfinite(h))
     v, u = np.divmod(pixel, h.shape[1])
     points = np.empty((pixel.size, 3), dtype=np.float64)
-    points[:, 0] = u * float(pitch_mm)
-    points[:, 1] = v * float(pitch_mm)
+    if xy is None:
+        points[:, 0] = u * float(pitch_mm)
+        points[:, 1] = v * float(pitch_mm)
+    else:
+        points[:, 0] = _xy_map(xy[0], h.shape).ravel()[pixel]
+        points[:, 1] = _xy_map(xy[1], h.shape).ravel()[pixel]
     points[:, 2] = h.ravel()[pixel]
     return points, pixel
+
+
+def _xy_map(m: ArrayLike, shape: tuple[int, ...]) -> NDArray[np.float64]:
+    a = np.ascontiguousarray(m, np.float64)
+    if a.shape != shape:
+        raise ValueError(f"X/Y map {a.shape} does not match the height map {shape}")
+    return a
 
 
 def height_to_cloud(
     height: ArrayLike,
     pitch_mm: float,
     colours: ArrayLike | None = None,
+    xy: tuple[ArrayLike, ArrayLike] | None = None,
 ) -> o3d.geometry.PointCloud:
     """Point cloud of the valid pixels of a height map, optionally coloured.
 
@@ -99,6 +115,8 @@ def height_to_cloud(
         Per-pixel RGB, float in [0, 1] (e.g. the object's white image from
         :func:`huefringe.session.read_rgb`); ``uint8``/``uint16`` images are rescaled and a
         grey ``(H, W)`` image is accepted. Only the valid pixels' colours are kept.
+    xy : (X, Y) maps, optional
+        As in :func:`height_to_points`.
 
     Returns
     -------
@@ -115,7 +133,7 @@ def height_to_cloud(
     """
     import open3d as o3d
 
-    points, pixel = height_to_points(height, pitch_mm)
+    points, pixel = height_to_points(height, pitch_mm, xy)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     if colours is not None:
         shape = np.shape(height)
@@ -251,6 +269,23 @@ def _fill_xyz(rec, height, pitch, pixel):  # pragma: no cover - numba
 
 
 @numba.njit(cache=True, nogil=True)
+def _fill_xyz_maps(rec, height, x, y, pixel):  # pragma: no cover - numba
+    """As :func:`_fill_xyz` with X, Y taken from the maps ``x``, ``y``."""
+    h, w = height.shape
+    n = 0
+    for v in range(h):
+        for u in range(w):
+            z = height[v, u]
+            if np.isfinite(z):
+                rec[n].f0 = x[v, u]
+                rec[n].f1 = y[v, u]
+                rec[n].f2 = z
+                pixel[n] = v * w + u
+                n += 1
+    return n
+
+
+@numba.njit(cache=True, nogil=True)
 def _fill_rgb(rec, rgb, pixel):  # pragma: no cover - numba
     for i in range(pixel.size):
         p = pixel[i]
@@ -272,6 +307,7 @@ def write_height_cloud(
     colours: ArrayLike | None = None,
     *,
     scalars: Mapping[str, ArrayLike] | None = None,
+    xy: tuple[ArrayLike, ArrayLike] | None = None,
 ) -> int:
     """Write the point cloud of a height map (:func:`height_to_cloud`) as PLY, without Open3D.
 
@@ -294,6 +330,9 @@ def write_height_cloud(
         of frames that share the white image).
     scalars : mapping of str to array_like, shape (H, W), optional
         Per-pixel float maps written as extra vertex properties (valid pixels only).
+    xy : (X, Y) maps, optional
+        X, Y of every pixel in mm (:meth:`huefringe.camera.CameraModel.xy`); default
+        ``u * pitch_mm``, ``v * pitch_mm``.
 
     Returns
     -------
@@ -328,7 +367,11 @@ def write_height_cloud(
     z = h if h.dtype in (np.float32, np.float64) else h.astype(np.float64)
     rec = np.empty(shape[0] * shape[1], dtype)
     pixel = np.empty(rec.size, np.int64)
-    n = _fill_xyz(rec.view(_view(dtype, ["x", "y", "z"])), np.ascontiguousarray(z), float(pitch_mm), pixel)
+    if xy is None:
+        n = _fill_xyz(rec.view(_view(dtype, ["x", "y", "z"])), np.ascontiguousarray(z), float(pitch_mm), pixel)
+    else:
+        n = _fill_xyz_maps(rec.view(_view(dtype, ["x", "y", "z"])), np.ascontiguousarray(z),
+                           _xy_map(xy[0], shape), _xy_map(xy[1], shape), pixel)
     rec, pixel = rec[:n], pixel[:n]
     if rgb is not None:
         _fill_rgb(rec.view(_view(dtype, ["red", "green", "blue"])), rgb, pixel)

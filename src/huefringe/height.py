@@ -369,3 +369,43 @@ def accuracy(height: NDArray[np.floating], truth: NDArray[np.floating],
         "coverage": float(both.sum() / max(n, 1)),
         "pixels": n,
     }
+
+
+def xy_accuracy(x: NDArray[np.floating], y: NDArray[np.floating], truth_xy: NDArray[np.floating],
+                corner_fraction: float = 0.9) -> dict[str, float]:
+    """X, Y error of a measured cloud against ground truth (mm).
+
+    Parameters
+    ----------
+    x, y : (H, W) float
+        The measured X, Y of every pixel (:meth:`huefringe.camera.CameraModel.xy` of the measured
+        height; NaN where there is no height).
+    truth_xy : (H, W, 2) float
+        The true X, Y of each pixel's surface point (the bench's ``ground_truth/xy/frame_NNNN.tiff``),
+        NaN where unseen.
+    corner_fraction : float
+        The "corners" are the pixels at least this fraction of the corner radius from the image
+        centre (the field's four corner regions).
+
+    Returns
+    -------
+    dict
+        ``rms_mm``, ``p95_mm``, ``max_mm`` of the distance ``|(X, Y) - truth|`` over the pixels
+        where both are finite, the same over the corners (``corner_*``), and ``pixels`` /
+        ``corner_pixels`` (how many were scored).
+    """
+    truth = np.asarray(truth_xy, np.float64)
+    h, w = truth.shape[:2]
+    d = np.hypot(np.asarray(x, np.float64) - truth[..., 0], np.asarray(y, np.float64) - truth[..., 1])
+    ok = np.isfinite(d)
+    vv, uu = np.mgrid[0:h, 0:w]
+    r = np.hypot(uu - (w - 1) / 2.0, vv - (h - 1) / 2.0)
+    corner = ok & (r >= corner_fraction * r.max())
+    out: dict[str, float] = {}
+    for prefix, m in (("", ok), ("corner_", corner)):
+        e = d[m]
+        out[f"{prefix}rms_mm"] = float(np.sqrt(np.mean(e**2))) if e.size else float("nan")
+        out[f"{prefix}p95_mm"] = float(np.percentile(e, 95)) if e.size else float("nan")
+        out[f"{prefix}max_mm"] = float(e.max()) if e.size else float("nan")
+        out[f"{prefix}pixels"] = int(e.size)
+    return out

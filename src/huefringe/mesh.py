@@ -37,6 +37,7 @@ Examples
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 import os
 from pathlib import Path
 from typing import Any, Literal
@@ -160,6 +161,9 @@ def height_to_mesh(
 ) -> trimesh.Trimesh:
     """Triangulate the valid pixels of a height map without bridging jumps or holes.
 
+    Vertices sit at ``(u * pitch, v * pitch, height)``; :func:`place_vertices` then moves them to
+    a lens model's X, Y (after the pixel-based steps: cleaning, ``sigma_mm``).
+
     Parameters
     ----------
     height : array_like, shape (H, W), float
@@ -242,6 +246,27 @@ def height_to_mesh(
     mesh.metadata.update(
         pitch_mm=float(pitch_mm), jump_mm=float(jump_mm), noise_mm=used_noise, grid_shape=(int(H), int(W))
     )
+    return mesh
+
+
+def place_vertices(mesh: trimesh.Trimesh, xy_at: Callable[..., tuple[NDArray[np.float64], NDArray[np.float64]]],
+                   pitch_mm: float | None = None) -> trimesh.Trimesh:
+    """Move a mesh's vertices from ``(u * pitch, v * pitch, Z)`` to a lens model's X, Y, in place.
+
+    ``xy_at(u, v, h)`` is :meth:`huefringe.camera.CameraModel.xy_at`; every vertex (on the pixel
+    grid or, after :func:`decimate`, between pixels) goes to the X, Y its pixel coordinates see at
+    its own height Z. Do this last: :func:`attach_sigma` and :func:`vertex_pixels` read pixels
+    from ``u * pitch``. ``metadata["xy"]`` becomes ``"lens model"``.
+    """
+    if pitch_mm is None:
+        pitch_mm = mesh.metadata.get("pitch_mm")
+        if pitch_mm is None:
+            raise ValueError("pitch_mm not given and not in mesh.metadata")
+    verts = np.array(mesh.vertices, dtype=np.float64)
+    x, y = xy_at(verts[:, 0] / float(pitch_mm), verts[:, 1] / float(pitch_mm), verts[:, 2])
+    verts[:, 0], verts[:, 1] = x, y
+    mesh.vertices = verts
+    mesh.metadata["xy"] = "lens model"
     return mesh
 
 

@@ -53,6 +53,11 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from huefringe.camera import CameraModel
+
+XY = tuple[NDArray[np.float64], NDArray[np.float64]]
+"""X and Y maps in mm of a height map (:meth:`huefringe.camera.CameraModel.xy`)."""
+
 __all__ = [
     "DEFAULT_EDGE_EXCLUSION",
     "DEFAULT_MIN_COVERAGE",
@@ -229,8 +234,10 @@ def _box_samples(
     name: str,
     min_coverage: float,
     frame: int | None,
+    xy: XY | None = None,
 ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
-    """X, Y (mm) and z (float64) of the valid pixels of a box, after the coverage check."""
+    """X, Y (mm) and z (float64) of the valid pixels of a box, after the coverage check; X, Y
+    from the maps ``xy`` (:meth:`huefringe.camera.CameraModel.xy`) when given, else ``u * pitch``."""
     u0, v0, u1, v1 = box
     sub = z[v0:v1, u0:u1]
     valid = np.isfinite(sub)
@@ -245,6 +252,8 @@ def _box_samples(
             roi=name,
             frame=frame,
         )
+    if xy is not None:
+        return xy[0][v0:v1, u0:u1][valid], xy[1][v0:v1, u0:u1][valid], sub[valid].astype(np.float64)
     vv, uu = np.nonzero(valid)
     x = (uu + u0).astype(np.float64) * pitch_mm
     y = (vv + v0).astype(np.float64) * pitch_mm
@@ -289,8 +298,12 @@ def fit_plane(
     min_coverage: float = DEFAULT_MIN_COVERAGE,
     names: Sequence[str] | None = None,
     frame: int | None = None,
+    xy: XY | None = None,
 ) -> tuple[NDArray[np.float64], float]:
     """Least-squares base plane over the valid pixels of one or more boxes.
+
+    ``xy``: the map's X, Y in mm (:meth:`huefringe.camera.CameraModel.xy` of ``height``; a
+    pinhole camera sees each pixel at its own height); default ``u * pitch_mm``, ``v * pitch_mm``.
 
     Parameters
     ----------
@@ -328,7 +341,7 @@ def fit_plane(
     xs, ys, zs = [], [], []
     for box, label in zip(boxes, labels, strict=True):
         b = check_box(box, z.shape, label)
-        x, y, v = _box_samples(z, b, pitch, name=label, min_coverage=min_coverage, frame=frame)
+        x, y, v = _box_samples(z, b, pitch, name=label, min_coverage=min_coverage, frame=frame, xy=xy)
         xs.append(x)
         ys.append(y)
         zs.append(v)
@@ -353,6 +366,7 @@ def step_height(
     min_coverage: float = DEFAULT_MIN_COVERAGE,
     normal: bool = False,
     frame: int | None = None,
+    xy: XY | None = None,
 ) -> float:
     """Height of a step's top above the base plane, with ISO 5436-1 edge exclusion.
 
@@ -391,7 +405,7 @@ def step_height(
     z = _height_map(height, frame)
     pitch = _check_pitch(pitch_mm)
     box = central_box(check_box(roi, z.shape, name), edge_exclusion)
-    x, y, v = _box_samples(z, box, pitch, name=name, min_coverage=min_coverage, frame=frame)
+    x, y, v = _box_samples(z, box, pitch, name=name, min_coverage=min_coverage, frame=frame, xy=xy)
     d = float(np.mean(v - plane_height(plane, x, y)))
     if normal:
         c = np.asarray(plane, dtype=np.float64).reshape(3)
@@ -408,6 +422,7 @@ def flatness(
     name: str = "step",
     min_coverage: float = DEFAULT_MIN_COVERAGE,
     frame: int | None = None,
+    xy: XY | None = None,
 ) -> dict[str, float]:
     """Areal texture of a levelled top: Sa, Sq, Sp, Sv, Sz (ISO 25178-2), in mm.
 
@@ -435,7 +450,7 @@ def flatness(
     z = _height_map(height, frame)
     pitch = _check_pitch(pitch_mm)
     box = central_box(check_box(roi, z.shape, name), edge_exclusion)
-    x, y, v = _box_samples(z, box, pitch, name=name, min_coverage=min_coverage, frame=frame)
+    x, y, v = _box_samples(z, box, pitch, name=name, min_coverage=min_coverage, frame=frame, xy=xy)
     _, r = _lstsq_plane(x, y, v, name=name, frame=frame)
     sp, sv = float(r.max()), float(-r.min())
     return {
@@ -494,8 +509,12 @@ def evaluate_session(
     edge_exclusion: float = DEFAULT_EDGE_EXCLUSION,
     min_coverage: float = DEFAULT_MIN_COVERAGE,
     normal: bool = False,
+    camera: CameraModel | None = None,
 ) -> dict[str, Any]:
     """Evaluate every step of a specimen on every frame, then across frames.
+
+    ``camera``: X, Y of every frame from :meth:`huefringe.camera.CameraModel.xy` (each pixel at
+    its own height); default (or a plain telecentric model) ``u * pitch_mm``.
 
     Parameters
     ----------
@@ -580,8 +599,10 @@ def evaluate_session(
                 raise MetrologyError(f"height map shape {z.shape} differs from frame 0's {shape}", frame=i)
             yield i, z
 
+    lens = camera is not None and not camera.plain
     for f, z in frames():
-        plane_f, res = fit_plane(z, base_boxes, pitch, min_coverage=min_coverage, frame=f)
+        xy = camera.xy(z) if lens else None  # type: ignore[union-attr]
+        plane_f, res = fit_plane(z, base_boxes, pitch, min_coverage=min_coverage, frame=f, xy=xy)
         plane = np.empty(3)
         plane[:] = plane_f
         planes_l.append(plane)
@@ -592,11 +613,11 @@ def evaluate_session(
             name = str(s["name"])
             pf.append(step_height(
                 z, plane, box, pitch, edge_exclusion,
-                name=name, min_coverage=min_coverage, normal=normal, frame=f,
+                name=name, min_coverage=min_coverage, normal=normal, frame=f, xy=xy,
             ))  # fmt: skip
             cr.append(coverage(z, box))
             ce.append(coverage(z, eval_boxes[k]))
-            fl = flatness(z, box, pitch, edge_exclusion, name=name, min_coverage=min_coverage, frame=f)
+            fl = flatness(z, box, pitch, edge_exclusion, name=name, min_coverage=min_coverage, frame=f, xy=xy)
             fls.append([fl[key] for key in flat_keys])
         per_frame_l.append(pf)
         cov_roi_l.append(cr)

@@ -42,7 +42,7 @@ import json
 import math
 import os
 import platform
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -526,13 +526,20 @@ def _with_rep3(s: Mapping[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _mm_box(box: Sequence[Any] | None, pitch: float | None) -> list[float] | None:
+BoxMM = Callable[[Sequence[Any]], list[float]]
+"""A pixel box ``[u0, v0, u1, v1)`` -> ``[X0, Y0, X1, Y1]`` in mm (a lens model's, e.g. from
+:meth:`huefringe.camera.CameraModel.xy_at` at the plate)."""
+
+
+def _mm_box(box: Sequence[Any] | None, pitch: float | BoxMM | None) -> list[float] | None:
     if box is None or pitch is None:
         return None
+    if callable(pitch):
+        return pitch(box)
     return [float(x) * pitch for x in box]
 
 
-def _flat_rows(report: Mapping[str, Any], pitch: float | None) -> list[dict[str, Any]]:
+def _flat_rows(report: Mapping[str, Any], pitch: float | BoxMM | None) -> list[dict[str, Any]]:
     rows = []
     for s in report.get("steps", []):
         if "flatness" not in s and "coverage" not in s:
@@ -630,7 +637,7 @@ def _figure_entry(key: str, path: str | os.PathLike[str]) -> dict[str, str]:
 
 
 def _context(report: Mapping[str, Any], figures: Mapping[str, str | os.PathLike[str]],
-             provenance: Mapping[str, Any], pixel_pitch_mm: float | None) -> dict[str, Any]:
+             provenance: Mapping[str, Any], pixel_pitch_mm: float | None, box_mm: BoxMM | None = None) -> dict[str, Any]:
     """Everything the templates show, derived from the report (numbers formatted in the templates)."""
     report = _plain(report)
     provenance = _plain(dict(provenance))
@@ -666,9 +673,10 @@ def _context(report: Mapping[str, Any], figures: Mapping[str, str | os.PathLike[
         "budget_terms": _BUDGET_TERMS,
         "zone_class": _ZONE_CLASS,
         "conditions": _conditions(report),
-        "flat_steps": _flat_rows(report, pitch),
+        "flat_steps": _flat_rows(report, box_mm if box_mm is not None and pitch is not None else pitch),
         "pitch": pitch,
-        "base_rois": [{"px": r, "mm": _mm_box(r, pitch)} for r in base.get("rois", [])],
+        "base_rois": [{"px": r, "mm": _mm_box(r, box_mm if box_mm is not None and pitch is not None else pitch)}
+                      for r in base.get("rois", [])],
         "figures": [_figure_entry(k, figures[k]) for k in keys],
         "capture": {k: None for k in ("captured_at", "operator", "instrument", "simulated", "notes")}
                    | dict(provenance.get("capture") or {}),
@@ -682,6 +690,7 @@ def render_report_html(
     provenance: Mapping[str, Any] | None = None,
     *,
     pixel_pitch_mm: float | None = None,
+    box_mm: BoxMM | None = None,
 ) -> str:
     """The HTML text of :func:`write_report_html` (pure: reads only the figure files).
 
@@ -702,6 +711,9 @@ def render_report_html(
         ``capture`` entry (session.yaml ``provenance``) in the header.
     pixel_pitch_mm : float, optional
         The session's pixel pitch: the evaluated boxes are also shown in mm (``X = u * pitch``).
+    box_mm : callable, optional
+        With ``pixel_pitch_mm``: a lens model's box in mm instead of ``u * pitch`` (the session's
+        ``camera`` block, docs/design.md).
 
     Returns
     -------
@@ -715,7 +727,7 @@ def render_report_html(
     ValueError
         A figure file is not a PNG.
     """
-    ctx = _context(report, dict(figures or {}), provenance or {}, pixel_pitch_mm)
+    ctx = _context(report, dict(figures or {}), provenance or {}, pixel_pitch_mm, box_mm)
     text: str = _environment().get_template("report.html.j2").render(ctx)
     return text
 
@@ -727,6 +739,7 @@ def write_report_html(
     provenance: Mapping[str, Any] | None,
     *,
     pixel_pitch_mm: float | None = None,
+    box_mm: BoxMM | None = None,
 ) -> Path:
     """Write the self-contained ``report.html`` atomically.
 
@@ -746,13 +759,15 @@ def write_report_html(
         notice when ``simulated`` is true.
     pixel_pitch_mm : float, optional
         The session's pixel pitch, to show the evaluated boxes in mm as well as in pixels.
+    box_mm : callable, optional
+        A lens model's box in mm (:func:`render_report_html`).
 
     Returns
     -------
     Path
         ``path``.
     """
-    text = render_report_html(report, figures, provenance, pixel_pitch_mm=pixel_pitch_mm)
+    text = render_report_html(report, figures, provenance, pixel_pitch_mm=pixel_pitch_mm, box_mm=box_mm)
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)

@@ -75,6 +75,9 @@ class Session:
     ground_truth: dict[int, Path] = field(default_factory=dict)
     predistortion: Predistortion | None = None
     """Extension: the pre-distortion the planes and frames were projected with (``predistortion.csv``)."""
+    ground_truth_xy: dict[int, Path] = field(default_factory=dict)
+    """Extension (bench sessions): the true X, Y of each pixel, ``ground_truth/xy/frame_NNNN.tiff``,
+    float32 (H, W, 2) in mm, NaN where unseen."""
 
     @property
     def id(self) -> str:
@@ -137,7 +140,8 @@ class Session:
     def input_files(self) -> list[Path]:
         """Every file of the session, session.yaml and ground truth included, sorted."""
         extra = [self.predistortion.path] if self.predistortion is not None else []
-        return sorted([self.root / "session.yaml", *self.all_images(), *self.ground_truth.values(), *extra])
+        return sorted([self.root / "session.yaml", *self.all_images(), *self.ground_truth.values(),
+                       *self.ground_truth_xy.values(), *extra])
 
 
 @dataclass(frozen=True)
@@ -265,6 +269,7 @@ def _semantic_problems(meta: dict[str, Any], yaml_path: Path) -> list[Problem]:
             problems.append(Problem(yaml_path, f"at provenance/captured_at: {when!r} is not an ISO 8601 date or "
                                                "date-time (e.g. 2026-11-30 or 2026-11-30T14:05:00Z)"))
     w, h = meta["camera"]["width"], meta["camera"]["height"]
+    problems += _camera_problems(meta["camera"], yaml_path)
     planes = [float(z) for z in meta["planes_mm"]]
     keys = [f"{z:.3f}" for z in planes]
     if len(set(keys)) != len(keys):
@@ -291,6 +296,54 @@ def _semantic_problems(meta: dict[str, Any], yaml_path: Path) -> list[Problem]:
         names = [s["name"] for s in spec["steps"]]
         if len(set(names)) != len(names):
             problems.append(Problem(yaml_path, f"specimen step names repeat: {names}"))
+    return problems
+
+
+def _camera_problems(cam: dict[str, Any], yaml_path: Path) -> list[Problem]:
+    """The lens block of the ``camera`` extension (docs/design.md, "the camera block"): what the
+    schema cannot say (finite values, the matrix's last row, the distortion's length, what a
+    pinhole camera needs)."""
+    problems = []
+    kind = cam.get("model", "telecentric")
+
+    def bad(key: str, text: str) -> None:
+        problems.append(Problem(yaml_path, f"at camera/{key}: {text}"))
+
+    for key in ("pixel_pitch_mm", "matrix", "distortion", "plate_pose"):
+        val = cam.get(key)
+        if val is None:
+            continue
+        vals = [val] if key == "pixel_pitch_mm" else (
+            [*val["rvec"], *val["tvec"]] if key == "plate_pose" else np.ravel(np.asarray(val, np.float64)).tolist())
+        if not all(np.isfinite(float(x)) for x in vals):
+            bad(key, "holds a value that is not finite (nan or inf)")
+    k = cam.get("matrix")
+    if k is not None:
+        m = np.asarray(k, np.float64)
+        if m.shape != (3, 3):
+            bad("matrix", f"must be 3 x 3 (OpenCV camera matrix), got shape {m.shape}")
+        elif np.all(np.isfinite(m)):
+            if not np.array_equal(m[2], [0.0, 0.0, 1.0]):
+                bad("matrix", f"last row must be [0, 0, 1], got {m[2].tolist()}")
+            if not (m[0, 0] > 0 and m[1, 1] > 0):
+                bad("matrix", f"focal lengths fx = {m[0, 0]:g}, fy = {m[1, 1]:g} px must be positive")
+            if m[1, 0] != 0:
+                bad("matrix", "must be upper triangular [[fx, s, cx], [0, fy, cy], [0, 0, 1]]")
+    d = cam.get("distortion")
+    if d is not None and len(d) not in (4, 5, 8, 12, 14):
+        bad("distortion", f"OpenCV distortion coefficients come as 4, 5, 8, 12 or 14 values "
+                          f"(k1, k2, p1, p2[, k3[, k4, k5, k6[, s1..s4[, tx, ty]]]]), got {len(d)}")
+    if kind == "pinhole":
+        for key, what in (("matrix", "the camera matrix [[fx, 0, cx], [0, fy, cy], [0, 0, 1]] (cv2.calibrateCamera)"),
+                          ("plate_pose", "the plate's pose {rvec: [..], tvec: [..]} in camera coordinates, mm "
+                                         "(cv2.solvePnP of a board lying on the plate)")):
+            if cam.get(key) is None:
+                bad(key, f"missing: a pinhole camera (camera/model: pinhole) needs {what}")
+        pose = cam.get("plate_pose")
+        if pose is not None and not problems and float(np.linalg.norm(pose["tvec"])) == 0.0:
+            bad("plate_pose", "tvec is zero: the plate cannot pass through the camera centre")
+    elif cam.get("plate_pose") is not None:
+        bad("plate_pose", "only a pinhole camera (camera/model: pinhole) has a plate pose")
     return problems
 
 
@@ -531,6 +584,17 @@ def _collect(root: Path, meta: dict[str, Any], problems: list[Problem]) -> Sessi
                 problems.append(Problem(p, "ground truth for no frame of the session"))
             else:
                 ground_truth[int(m.group(1))] = p
+    ground_truth_xy: dict[int, Path] = {}
+    xy_dir = root / "ground_truth" / "xy"
+    if xy_dir.is_dir():
+        for p in sorted(xy_dir.iterdir()):
+            if p.name.startswith(".") or p.suffix.lower() not in (".tif", ".tiff"):
+                continue
+            m = _FRAME_RE.match(p.stem)
+            if not m or int(m.group(1)) not in frames:
+                problems.append(Problem(p, "X/Y ground truth for no frame of the session"))
+            else:
+                ground_truth_xy[int(m.group(1))] = p
     predistortion = None
     if (root / "predistortion.csv").exists():
         try:
@@ -551,6 +615,7 @@ def _collect(root: Path, meta: dict[str, Any], problems: list[Problem]) -> Sessi
         phase_shift=phase_shift,
         ground_truth=ground_truth,
         predistortion=predistortion,
+        ground_truth_xy=ground_truth_xy,
     )
 
 
@@ -586,6 +651,15 @@ def _image_problems(session: Session, deep: bool) -> list[Problem]:
             continue
         if tuple(shape) != (h, w) or np.dtype(dtype) != np.float32:
             problems.append(Problem(p, f"ground truth must be float32 {h} x {w}, got {dtype} {tuple(shape)}"))
+    for idx, p in session.ground_truth_xy.items():
+        try:
+            with tifffile.TiffFile(p) as tif:
+                shape, dtype = tif.series[0].shape, tif.series[0].dtype
+        except Exception as exc:
+            problems.append(Problem(p, f"cannot read X/Y ground truth TIFF ({exc})"))
+            continue
+        if tuple(shape) != (h, w, 2) or np.dtype(dtype) != np.float32:
+            problems.append(Problem(p, f"X/Y ground truth must be float32 {h} x {w} x 2, got {dtype} {tuple(shape)}"))
     return problems
 
 

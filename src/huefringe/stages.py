@@ -22,9 +22,10 @@ import numpy as np
 from numpy.typing import NDArray
 
 from huefringe import kernel
+from huefringe.camera import CameraModel, CaptureReader, camera_record, corrections
 from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
-from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, calibrate_planes, coverage
+from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, calibrate_planes, coverage, xy_accuracy
 from huefringe.huetable import HueTable, HueTableError, build_table
 from huefringe import phase_error
 from huefringe.io import read_tiff, write_json, write_tiff
@@ -48,6 +49,41 @@ def bench_session(config: str, out: str, period_px: float | None = None) -> None
 
 
 # --------------------------------------------- workflow/rules/calibration.smk
+
+
+def camera_calibration(session: str, camera: Mapping[str, Any], calibration: Mapping[str, Any], record: str) -> None:
+    """The camera corrections of a session (``calib/camera.json``): the X, Y model (the session's
+    ``camera`` block, or telecentric with ``camera.lens_model: false``) and the lateral
+    chromatic-aberration estimate from the reference planes, applied as
+    ``camera.chromatic_registration`` decides (:func:`huefringe.camera.camera_record`)."""
+    s = load_session(session)
+    t0 = time.perf_counter()
+    rec = session_camera_record(s, camera, calibration)
+    reg = rec["chromatic_registration"]
+    if "estimate" in reg:
+        est = reg["estimate"]
+        log.info("lateral CA: R %+.2e, B %+.2e (corner %.3f / %.3f px), registration %s", est["scale"]["R"],
+                 est["scale"]["B"], est["corner_displacement_px"]["R"], est["corner_displacement_px"]["B"],
+                 "applied" if reg["applied"] else "not applied")
+    write_json(record, rec)  # no timing in it: the same session and config give the same file
+    log.info("camera corrections estimated in %.2f s", time.perf_counter() - t0)
+
+
+def session_camera_record(s: Session, camera: Mapping[str, Any], calibration: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``calib/camera.json`` record of a session in memory (:func:`camera_calibration` writes it)."""
+    white = read_rgb(s.reference_white)
+    mode = camera.get("chromatic_registration", "auto")
+    planes = [] if mode is False or mode == "false" else [read_rgb(p) for p in s.planes.values()]
+    return camera_record(s.meta, camera, planes, white, shadow=shadow_mask(white, calibration["shadow_fraction"]))
+
+
+def session_corrections(s: Session, camera_json: str | Path | None = "") -> tuple[CameraModel, CaptureReader]:
+    """The X, Y model and capture reader of ``calib/camera.json`` (:func:`camera_calibration`);
+    without one: the session's own lens model and no channel registration."""
+    import json
+
+    record = json.loads(Path(camera_json).read_text()) if camera_json else None
+    return corrections(record, s.meta)
 
 
 def _calibration_opts(calibration: Mapping[str, Any]) -> dict[str, Any]:
@@ -102,11 +138,11 @@ def _refuse_bad_table(folder: Path, stats: Mapping[str, Any], min_valid: float =
 
 
 def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str, Any],
-              table: str, stats: str) -> None:
+              table: str, stats: str, camera_json: str = "") -> None:
     """Build the per-pixel hue table of the reference plate or of the object (streamed)."""
     s = load_session(session)
     t0 = time.perf_counter()
-    built = session_hue_table(s, which, hue_model, calibration)
+    built = session_hue_table(s, which, hue_model, calibration, reader=session_corrections(s, camera_json)[1])
     built.save(table)
     info = dict(built.stats)
     info.update({"which": which, "hue_model": hue_model})
@@ -114,8 +150,10 @@ def hue_table(session: str, which: str, hue_model: str, calibration: Mapping[str
     log.info("%s table built in %.2f s", which, time.perf_counter() - t0)
 
 
-def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mapping[str, Any]) -> HueTable:
-    """The hue table of a session's reference plate or object, in memory (:func:`hue_table` writes it).
+def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mapping[str, Any], *,
+                      reader: CaptureReader | None = None) -> HueTable:
+    """The hue table of a session's reference plate or object, in memory (:func:`hue_table` writes it);
+    the captures read through ``reader`` (the camera corrections; default: as stored).
 
     Raises
     ------
@@ -124,7 +162,8 @@ def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mappi
     """
     bands = s.reference_bands if which == "reference" else s.object_bands
     white_path = s.reference_white if which == "reference" else s.object_white
-    white = read_rgb(white_path)
+    reader = reader or CaptureReader()
+    white = reader.rgb(white_path)
     clipped = float(clipped_mask(white, s.bit_depth).mean())
     limit = float(calibration.get("max_white_clipped_fraction", MAX_WHITE_CLIPPED_FRACTION))
     if clipped > limit:
@@ -133,17 +172,19 @@ def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mappi
             f"{100 * limit:g} %, calibration.max_white_clipped_fraction): white balance needs the unclipped level; "
             "reduce the exposure"
         )
-    built = build_table(bands, white, model=hue_model, progress=False, **_calibration_opts(calibration))
+    built = build_table(bands, white, model=hue_model, progress=False, read=reader.rgb, **_calibration_opts(calibration))
     _refuse_bad_table(s.root / which / "hue", built.stats)
     return built
 
 
-def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapping[str, Any]):
-    white = read_rgb(s.reference_white)
+def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapping[str, Any],
+                  reader: CaptureReader | None = None):
+    reader = reader or CaptureReader()
+    white = reader.rgb(s.reference_white)
     shadow = shadow_mask(white, calibration["shadow_fraction"])
     phases, valid = {}, {}
     for z, path in s.planes.items():
-        hue = hue_of(white_balance(read_rgb(path), white), hue_model, min_saturation=calibration["min_saturation"])
+        hue = hue_of(white_balance(reader.rgb(path), white), hue_model, min_saturation=calibration["min_saturation"])
         phi = table.to_phase(hue)
         if s.predistortion is not None:
             phi = s.predistortion.decode(phi)
@@ -154,13 +195,16 @@ def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapp
 
 def plane_calibration(session: str, table: str, hue_model: str, calibration: Mapping[str, Any],
                       model: str, stats: str, phase_error_table: str | None = None,
-                      phase_error_figure: str | None = None, phase_error_summary: str | None = None) -> None:
+                      phase_error_figure: str | None = None, phase_error_summary: str | None = None,
+                      camera_json: str = "") -> None:
     """Fit the per-pixel phase-to-height model on the calibration planes (after the phase-error
     table, :mod:`huefringe.phase_error`, as ``calibration.phase_error.enabled`` decides; auto: the
     leave-one-plane-out test)."""
-    cal = session_plane_calibration(load_session(session), HueTable.load(table), hue_model, calibration,
+    s = load_session(session)
+    cal = session_plane_calibration(s, HueTable.load(table), hue_model, calibration,
                                     phase_error_table=phase_error_table, phase_error_figure=phase_error_figure,
-                                    phase_error_summary=phase_error_summary)
+                                    phase_error_summary=phase_error_summary,
+                                    reader=session_corrections(s, camera_json)[1])
     cal.save(model)
     info = dict(cal.stats)
     info["hue_model"] = hue_model
@@ -169,7 +213,8 @@ def plane_calibration(session: str, table: str, hue_model: str, calibration: Map
 
 def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibration: Mapping[str, Any], *,
                               phase_error_table: str | None = None, phase_error_figure: str | None = None,
-                              phase_error_summary: str | None = None) -> PlaneCalibration:
+                              phase_error_summary: str | None = None,
+                              reader: CaptureReader | None = None) -> PlaneCalibration:
     """The plane calibration of a session from its reference table, in memory (:func:`plane_calibration` writes it).
 
     The planes' phases are first corrected with the phase-error table learned from them
@@ -182,7 +227,7 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     PlaneCalibrationError
         Naming the plane folder, the plane images and ``session.yaml``.
     """
-    phases, valid = _plane_phases(s, t, hue_model, calibration)
+    phases, valid = _plane_phases(s, t, hue_model, calibration, reader)
     lut = phase_error.from_calibration(phases, valid, calibration, phase_error=phase_error_table,
                                        figure=phase_error_figure, summary=phase_error_summary)
     phases = {z: phase_error.correct(p, None if lut is None else lut.error) for z, p in phases.items()}
@@ -204,7 +249,7 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
 
 
 def compensation(session: str, table: str, model: str, hue_model: str, calibration: Mapping[str, Any],
-                 pattern: str, history: str, cross_section: str, residual_map: str) -> None:
+                 pattern: str, history: str, cross_section: str, residual_map: str, camera_json: str = "") -> None:
     """Pre-distorted projector pattern (paper Fig. 6) and the calibration QA figures (Fig. 7)."""
     from huefringe import compensation as calib
     from huefringe.io import write_png_rgb
@@ -223,8 +268,9 @@ def compensation(session: str, table: str, model: str, hue_model: str, calibrati
     )
     write_png_rgb(pattern, image)
     # QA on the reference plane z = 0: raw hue and corrected phase against the plate's phase model
-    white = read_rgb(s.reference_white)
-    balanced = white_balance(read_rgb(s.planes[0.0]), white)
+    reader = session_corrections(s, camera_json)[1]
+    white = reader.rgb(s.reference_white)
+    balanced = white_balance(reader.rgb(s.planes[0.0]), white)
     hue = hue_of(balanced, hue_model, min_saturation=calibration["min_saturation"])
     phase = t.to_phase(hue)
     if s.predistortion is not None:
@@ -247,7 +293,7 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
                    measurement: Mapping[str, Any], calibration: Mapping[str, Any],
                    heights: Sequence[str], qa: Sequence[str], phases: Sequence[str] = (),
                    hues: Sequence[str] = (), map_frames: Sequence[int] | None = None,
-                   uncertainties: Sequence[str] = (), supports: Sequence[str] = ()) -> None:
+                   uncertainties: Sequence[str] = (), supports: Sequence[str] = (), camera_json: str = "") -> None:
     """Measure a batch of frames: height TIFF and QA JSON per frame, phase and hue maps of some.
 
     Parameters
@@ -287,7 +333,7 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
         raise ValueError(f"measure_frames: {len(uncertainties)} uncertainty maps, {len(supports)} support maps")
     s = load_session(session)
     results = frame_results(s, HueTable.load(table), PlaneCalibration.load(model), frames, hue_model, measurement,
-                            set(maps), want_uncertainty=bool(uncertainties))
+                            set(maps), want_uncertainty=bool(uncertainties), reader=session_corrections(s, camera_json)[1])
     for i, (n, height, phase, hue, stats, u_map, support) in enumerate(results):
         path = s.frames[n]
         write_tiff(heights[i], height)
@@ -304,7 +350,8 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
 
 
 def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequence[int], hue_model: str,
-                  measurement: Mapping[str, Any], map_frames: set[int] | None = None, want_uncertainty: bool = True):
+                  measurement: Mapping[str, Any], map_frames: set[int] | None = None, want_uncertainty: bool = True,
+                  reader: CaptureReader | None = None):
     """Measure frames of a session one by one: yields ``(frame, height, phase, hue, stats, uncertainty, support)``.
 
     The loop of :func:`measure_frames` (which writes what it yields) and of :func:`huefringe.measure`
@@ -319,9 +366,12 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     :func:`~huefringe.perframe.measure_frame` stay identical to each other.
     Each frame is refused (:class:`~huefringe.perframe.FrameError`, naming it) before it is yielded.
     The kernel's arrays are reused from frame to frame: copy what you keep.
+    Every capture is read through ``reader`` (the camera corrections, :class:`~huefringe.camera.CaptureReader`:
+    both chains read the same registered sensor codes); default: as stored.
     """
     maps = set(frames) if map_frames is None else set(map_frames)
-    white = read_rgb(s.object_white)
+    reader = reader or CaptureReader()
+    white = reader.rgb(s.object_white)
     shadow = shadow_mask(white, measurement["shadow_fraction"])
     budget = None
     fast = bool(measurement["kernel"]) and measurement["unwrap"] == "reference"
@@ -336,7 +386,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     for n in frames:
         path = s.frames[n]
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
-            m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"],
+            m = kernel.frame_maps(prep, reader.codes(path), denoise_radius=measurement["denoise_radius"],
                                   denoise_adaptive=measurement.get("denoise_adaptive"),
                                   want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty,
                                   out=buffers)
@@ -348,7 +398,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             height, phase, hue, u_map, support = m.height, m.phase, m.hue, m.uncertainty, m.support
         else:
             budget = pixel_budget(t, cal) if budget is None else budget
-            res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
+            res = measure_frame(reader.rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
                                 denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
                                 denoise_adaptive=measurement.get("denoise_adaptive"), budget=budget,
@@ -365,7 +415,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
 
 
 def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], clouds: Sequence[str],
-                 uncertainties: Sequence[str] = ()) -> None:
+                 uncertainties: Sequence[str] = (), camera_json: str = "") -> None:
     """Coloured point clouds of a batch of measured frames, from their height TIFFs.
 
     Parameters
@@ -382,6 +432,9 @@ def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], cl
         :func:`huefringe.cloud.write_height_cloud` (the bytes Open3D would write).
     uncertainties : sequence of str, optional
         The frames' uncertainty TIFFs: each point then carries a float ``sigma_mm`` property.
+    camera_json : str, optional
+        ``calib/camera.json`` (:func:`camera_calibration`): the X, Y model (each pixel at its own
+        height for a pinhole camera) and the reader of the white image; default: the session's.
 
     Raises
     ------
@@ -394,7 +447,8 @@ def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], cl
     if not len(frames) == len(heights) == len(clouds):
         raise ValueError(f"cloud_frames: {len(frames)} frames, {len(heights)} height maps, {len(clouds)} clouds")
     s = load_session(session)
-    white = read_rgb(s.object_white)
+    model, reader = session_corrections(s, camera_json)
+    white = reader.rgb(s.object_white)
     if uncertainties and len(uncertainties) != len(frames):
         raise ValueError(f"cloud_frames: {len(frames)} frames, {len(uncertainties)} uncertainty maps")
     rgb = colour_bytes(_check_colours(white, white.shape[:2]).reshape(-1, 3))  # once per batch
@@ -403,7 +457,8 @@ def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], cl
         if h.shape != white.shape[:2]:
             raise ValueError(f"{height}: height map {h.shape} does not match the white image {white.shape[:2]}")
         scalars = {"sigma_mm": read_tiff(uncertainties[i])} if uncertainties else None
-        points = write_height_cloud(cloud, h, s.pixel_pitch_mm, colours=rgb, scalars=scalars)
+        xy = None if model.plain else model.xy(h)
+        points = write_height_cloud(cloud, h, s.pixel_pitch_mm, colours=rgb, scalars=scalars, xy=xy)
         log.info("frame %04d: %d points", n, points)
 
 
@@ -422,14 +477,15 @@ def _refuse_bad_frame(path: Path, stats: Mapping[str, Any], measurement: Mapping
 
 def baseline_frames(session: str, frames: Sequence[int], model: str, object_table: str,
                     measurement: Mapping[str, Any], heights: Sequence[str], qa: Sequence[str],
-                    min_modulation: float = 0.1) -> None:
+                    min_modulation: float = 0.1, camera_json: str = "") -> None:
     """Traditional three-step phase shifting through the same plane calibration."""
     s = load_session(session)
     cal = PlaneCalibration.load(model)
-    white = read_rgb(s.object_white)
+    reader = session_corrections(s, camera_json)[1]
+    white = reader.rgb(s.object_white)
     shadow = shadow_mask(white, measurement["shadow_fraction"])
     for i, n in enumerate(frames):
-        imgs = [intensity(read_rgb(p)) for p in s.phase_shift[n]]
+        imgs = [intensity(reader.rgb(p)) for p in s.phase_shift[n]]
         phi, mod = three_step_phase(*imgs)
         valid = (mod > min_modulation) & ~shadow
         un = unwrap(wrap(phi.astype(np.float64) - cal.phi_ref), valid, measurement["unwrap"])
@@ -441,15 +497,21 @@ def baseline_frames(session: str, frames: Sequence[int], model: str, object_tabl
 
 
 def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str], report: str,
-                    measurement: Mapping[str, Any], uncertainties: Sequence[str] = (), reliability: str = "") -> None:
+                    measurement: Mapping[str, Any], uncertainties: Sequence[str] = (), reliability: str = "",
+                    camera_json: str = "") -> None:
     """Height error against the bench's ground truth, for the method and the baseline.
+
+    Where the session holds X/Y ground truth (``ground_truth/xy``), the method's block gains
+    ``xy``: the cloud's X, Y (the lens model of ``camera_json`` at each measured height) against
+    it, per frame and averaged (:func:`huefringe.height.xy_accuracy`).
 
     With ``uncertainties`` the method's block gains ``uncertainty``: the fraction of the valid
     pixels with ``|error| <= 2 u`` (per frame and pooled) and the binned reliability curve
     (:func:`huefringe.uncertainty.reliability`), drawn to ``reliability`` (PNG).
     """
     s = load_session(session)
-    lit = ~shadow_mask(read_rgb(s.object_white), measurement["shadow_fraction"])
+    lens, reader = session_corrections(s, camera_json)
+    lit = ~shadow_mask(reader.rgb(s.object_white), measurement["shadow_fraction"])
 
     def block(paths: Sequence[str], frames: Sequence[int]) -> dict[str, Any]:
         per = []
@@ -483,9 +545,32 @@ def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str
             from huefringe.render import reliability_figure
 
             reliability_figure(pooled, reliability, title=f"{s.id}: observed error against predicted u")
+    if s.ground_truth_xy:
+        out["trapezoidal-hsi"]["xy"] = xy_block(s, lens, heights)
     if baseline:
         out["three-step-phase-shift"] = block(baseline, sorted(s.phase_shift))
     write_json(report, out)
+
+
+def xy_block(s: Session, model: CameraModel, heights: Sequence[str]) -> dict[str, Any]:
+    """X, Y of the measured clouds against the session's X/Y ground truth: per frame and the mean
+    (:func:`huefringe.height.xy_accuracy`; ``model`` the X, Y model the clouds were written with)."""
+    per = []
+    for p, n in zip(heights, s.frame_ids, strict=True):
+        if n not in s.ground_truth_xy:
+            continue
+        x, y = model.xy(read_tiff(p))
+        a: dict[str, Any] = {k: (None if np.isnan(v) else v) for k, v in
+                             xy_accuracy(x, y, read_tiff(s.ground_truth_xy[n])).items()}  # JSON: no NaN
+        a["frame"] = n
+        per.append(a)
+    keys = [k for k in per[0] if k != "frame"] if per else []
+    summary = {}
+    for k in keys:
+        vals = [f[k] for f in per if f[k] is not None]
+        summary[k] = float(np.mean(vals)) if vals else None
+    return {"model": model.kind if not model.plain else "telecentric (u * pitch)", "summary": summary,
+            "per_frame": per}
 
 
 # ------------------------------------------------ workflow/rules/surfaces.smk
@@ -497,19 +582,22 @@ def _height_limits(s: Session) -> tuple[float, float]:
 
 
 def mesh(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str, stats: str,
-         uncertainty: str | None = None) -> None:
+         uncertainty: str | None = None, camera_json: str = "") -> None:
     """Triangle mesh of one height map (no bridging of jumps), cleaned, exported as PLY + STL; the
     PLY's vertices carry ``sigma_mm`` from the uncertainty map (:func:`huefringe.mesh.attach_sigma`)."""
     from huefringe import mesh as meshing
 
     s = load_session(session)
+    model, reader = session_corrections(s, camera_json)
     h = read_tiff(height)
-    m = meshing.height_to_mesh(h, s.pixel_pitch_mm, colours=read_rgb(s.object_white))
+    m = meshing.height_to_mesh(h, s.pixel_pitch_mm, colours=reader.rgb(s.object_white))
     m = meshing.clean_mesh(m, min_island_faces=mesh["min_island_faces"])
     if mesh["decimate_faces"]:
         m = meshing.decimate(m, mesh["decimate_faces"])
     if uncertainty is not None:
         meshing.attach_sigma(m, read_tiff(uncertainty), s.pixel_pitch_mm)
+    if not model.plain:  # last: the steps above find pixels from u * pitch
+        meshing.place_vertices(m, model.xy_at, s.pixel_pitch_mm)
     meshing.export_mesh(m, ply, stl)
     if meshing.stats_path(ply) != Path(stats):
         raise RuntimeError(f"mesh statistics went to {meshing.stats_path(ply)}, the workflow expects {stats}")
@@ -517,7 +605,7 @@ def mesh(session: str, height: str, mesh: Mapping[str, Any], ply: str, stl: str,
 
 def render(session: str, mesh: str, height: str, phase: str, render: Mapping[str, Any], frame: str,
            top: str, oblique1: str, oblique2: str, height_map: str, phase_map: str,
-           uncertainty: str = "", uncertainty_map: str = "") -> None:
+           uncertainty: str = "", uncertainty_map: str = "", camera_json: str = "") -> None:
     """Off-screen renders (top and two oblique views) and the height and phase figures of one frame
     (and, given the frame's ``uncertainty`` TIFF, the uncertainty figure beside the height's)."""
     import trimesh
@@ -527,7 +615,13 @@ def render(session: str, mesh: str, height: str, phase: str, render: Mapping[str
     s = load_session(session)
     size = (int(render["width"]), int(render["height"]))
     clim = _height_limits(s)
-    cams = rendering.camera_for_field((s.width - 1) * s.pixel_pitch_mm, (s.height - 1) * s.pixel_pitch_mm, clim, size=size)
+    model = session_corrections(s, camera_json)[0]
+    if model.plain:
+        cams = rendering.camera_for_field((s.width - 1) * s.pixel_pitch_mm, (s.height - 1) * s.pixel_pitch_mm, clim,
+                                          size=size)
+    else:  # the lens model's field on the plate (the mesh's vertices are in its X, Y)
+        x0, x1, y0, y1 = model.field_mm()
+        cams = rendering.camera_for_field(x1 - x0, y1 - y0, clim, origin=(x0, y0), size=size)
     m = trimesh.load(mesh, process=False, force="mesh")
     out_dir = Path(top).parent
     written = rendering.render_views(m, out_dir, f"frame_{frame}", clim=clim, camera=cams, size=size,
@@ -551,7 +645,7 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
                      cross_section: str, render: str, height_map: str, accuracy: Sequence[str],
                      config: Mapping[str, Any], json: str, html: str, profile: str, per_frame: str,
                      uncertainties: Sequence[str] = (), model: str = "", object_table: str = "",
-                     supports: Sequence[str] = (), threads: int = 1) -> None:
+                     supports: Sequence[str] = (), threads: int = 1, camera_json: str = "") -> None:
     """Step-height metrology of every frame: report.json (results contract) and report.html.
 
     With ``uncertainties`` (one map per height map), the phase-to-height ``model`` and the
@@ -571,13 +665,14 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
         raise ValueError(f"{s.root / 'session.yaml'}: no specimen block, nothing to evaluate")
     range_mm = max(s.planes_mm) - min(s.planes_mm)
     edge = float(config["metrology"]["edge_exclusion"])
+    lens = session_corrections(s, camera_json)[0]
 
     def evaluate(paths: Sequence[str], **kw: Any) -> dict[str, Any]:
         try:
             # a generator: one height map in memory at a time (1000 frames held at once were
             # 1.2 GB, twice over with the profile's list: 2.5 GB peak)
             return metrology.evaluate_session((read_tiff(p) for p in paths), spec, s.pixel_pitch_mm,
-                                              range_mm=range_mm, edge_exclusion=edge, **kw)
+                                              range_mm=range_mm, edge_exclusion=edge, camera=lens, **kw)
         except metrology.MetrologyError as exc:
             where = paths[exc.frame] if exc.frame is not None and exc.frame < len(paths) else s.root / "session.yaml"
             raise metrology.MetrologyError(f"{where}: {exc} (specimen in {s.root / 'session.yaml'})") from exc
@@ -622,7 +717,8 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
     figures = {"profile": Path(profile), "height": Path(height_map), "render": Path(render),
                "per_frame": Path(per_frame), "calibration_qa": Path(cross_section)}
     write_json(json, doc)
-    report.write_report_html(html, doc, figures, provenance, pixel_pitch_mm=s.pixel_pitch_mm)
+    report.write_report_html(html, doc, figures, provenance, pixel_pitch_mm=s.pixel_pitch_mm,
+                             box_mm=None if lens.plain else lens.box_mm)
 
 
 class _TiffMaps(Sequence):
@@ -725,19 +821,23 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
     ``measure_frames``, ``cloud_frames`` (and ``baseline_frames``) jobs; for scripts, benchmarks and tests. Returns the
     output paths by kind (``heights``, ``clouds``, ``phases``, ``hues``, ``qa``, ``uncertainties``,
     ``supports``, optionally
-    ``baseline``) and the loaded ``session``.
+    ``baseline``), the camera record ``camera`` (``camera.json``: X, Y model and channel
+    registration, :func:`camera_calibration`) and the loaded ``session``.
     """
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     s = load_session(session)
     frames = s.frame_ids if frames is None else list(frames)
     model, cal = config["hue_model"], config["calibration"]
+    cam = str(out / "camera.json")
+    camera_calibration(str(session), config.get("camera", {}), cal, record=cam)
     for which in ("reference", "object"):
         hue_table(str(session), which, model, cal, table=str(out / f"table_{which}.json"),
-                  stats=str(out / f"table_{which}.stats.json"))
+                  stats=str(out / f"table_{which}.stats.json"), camera_json=cam)
     plane_calibration(str(session), str(out / "table_reference.json"), model, cal,
                       model=str(out / "model.npz"), stats=str(out / "planes.json"),
-                      phase_error_table=str(out / "phase_error.npz"), phase_error_summary=str(out / "phase_error.json"))
+                      phase_error_table=str(out / "phase_error.npz"), phase_error_summary=str(out / "phase_error.json"),
+                      camera_json=cam)
     paths: dict[str, Any] = {
         k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
         for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"),
@@ -745,15 +845,16 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
     }
     measure_frames(str(session), frames, str(out / "table_object.json"), str(out / "model.npz"), model,
                    config["measurement"], cal, heights=paths["heights"], phases=paths["phases"], hues=paths["hues"],
-                   qa=paths["qa"], uncertainties=paths["uncertainties"], supports=paths["supports"])
+                   qa=paths["qa"], uncertainties=paths["uncertainties"], supports=paths["supports"], camera_json=cam)
     cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"],
-                 uncertainties=paths["uncertainties"])
+                 uncertainties=paths["uncertainties"], camera_json=cam)
     if baseline:
         paths["baseline"] = [str(out / "baseline" / f"frame_{n:04d}.tiff") for n in frames]
         baseline_frames(str(session), frames, str(out / "model.npz"), str(out / "table_object.json"),
                         config["measurement"], heights=paths["baseline"],
-                        qa=[str(out / "baseline" / f"frame_{n:04d}.json") for n in frames])
+                        qa=[str(out / "baseline" / f"frame_{n:04d}.json") for n in frames], camera_json=cam)
     paths["session"] = s
+    paths["camera"] = cam
     return paths
 
 

@@ -1,4 +1,5 @@
-# Session check, per-pixel hue tables, plane calibration and the compensated pattern (paper Fig. 6).
+# Session check, camera corrections (X, Y model, channel registration: calib/camera.json),
+# per-pixel hue tables, plane calibration and the compensated pattern (paper Fig. 6).
 # Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/calibration.smk).
 
 
@@ -21,9 +22,31 @@ rule check_session:
         "../../scripts/check_session.py"
 
 
+rule camera_calibration:
+    input:
+        R("{sid}", "qa", "session_check.json"),  # order only: the session passed its deep check
+    output:
+        record=R("{sid}", "calib", "camera.json"),
+    log:
+        "logs/{sid}/camera_calibration.log",
+    conda:
+        "../envs/huefringe.yaml"
+    threads: 1
+    resources:
+        mem_mb=2000,
+        runtime=10,
+    params:
+        session=session_dir,
+        camera=config["camera"],
+        calibration=config["calibration"],
+    script:
+        "../../scripts/camera_calibration.py"
+
+
 rule hue_table:
     input:
         R("{sid}", "qa", "session_check.json"),  # order only: the session passed its deep check
+        camera_json=R("{sid}", "calib", "camera.json"),
     output:
         R("{sid}", "calib", "table_{which}.npy"),  # written by HueTable.save beside the table
         R("{sid}", "calib", "table_{which}.maps.npz"),
@@ -47,6 +70,7 @@ rule hue_table:
 
 rule plane_calibration:
     input:
+        camera_json=R("{sid}", "calib", "camera.json"),
         table=R("{sid}", "calib", "table_reference.json"),
     output:
         model=R("{sid}", "calib", "phase_to_height.npz"),
@@ -76,6 +100,7 @@ rule plane_calibration:
 
 rule compensation:
     input:
+        camera_json=R("{sid}", "calib", "camera.json"),
         table=R("{sid}", "calib", "table_reference.json"),
         model=R("{sid}", "calib", "phase_to_height.npz"),
     output:

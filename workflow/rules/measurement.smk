@@ -18,6 +18,7 @@ for _sid, _plan in PLANS.items():
             name:
                 f"measure_frames_{_sid.replace('-', '_')}_{_b:03d}"
             input:
+                camera_json=R(_sid, "calib", "camera.json"),
                 table=R(_sid, "calib", "table_object.json"),
                 model=R(_sid, "calib", "phase_to_height.npz"),
             output:
@@ -45,6 +46,7 @@ for _sid, _plan in PLANS.items():
             name:
                 f"cloud_frames_{_sid.replace('-', '_')}_{_b:03d}"
             input:
+                camera_json=R(_sid, "calib", "camera.json"),
                 heights=frame_outputs(_sid, _frames)["heights"],
                 uncertainties=frame_outputs(_sid, _frames)["uncertainties"],
             output:
@@ -70,6 +72,7 @@ for _sid, _plan in PLANS.items():
             name:
                 f"baseline_frames_{_sid.replace('-', '_')}_{_b:03d}"
             input:
+                camera_json=R(_sid, "calib", "camera.json"),
                 model=R(_sid, "calib", "phase_to_height.npz"),
                 object_table=R(_sid, "calib", "table_object.json"),
             output:
@@ -93,6 +96,7 @@ for _sid, _plan in PLANS.items():
 
 rule accuracy_report:
     input:
+        camera_json=R("{sid}", "calib", "camera.json"),
         heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
         baseline=lambda w: baseline_outputs(w.sid, PLANS[w.sid].phase_shift)["heights"],
         uncertainties=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)[

@@ -4,6 +4,7 @@
 
 rule metrology:
     input:
+        camera_json=R("{sid}", "calib", "camera.json"),
         heights=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["heights"],
         qa=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)["qa"],
         uncertainties=lambda w: frame_outputs(w.sid, PLANS[w.sid].frames)[

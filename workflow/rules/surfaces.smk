@@ -4,6 +4,7 @@
 
 rule mesh:
     input:
+        camera_json=R("{sid}", "calib", "camera.json"),
         height=R("{sid}", "height", "frame_{frame}.tiff"),
         uncertainty=R("{sid}", "uncertainty", "frame_{frame}.tiff"),
     output:
@@ -28,6 +29,7 @@ rule mesh:
 
 rule render:
     input:
+        camera_json=R("{sid}", "calib", "camera.json"),
         mesh=R("{sid}", "mesh", "frame_{frame}.ply"),
         height=R("{sid}", "height", "frame_{frame}.tiff"),
         phase=R("{sid}", "phase", "frame_{frame}.tiff"),

@@ -1,0 +1,200 @@
+"""Lateral chromatic aberration: estimated from a session's reference planes, undone by resampling
+R and B of every capture (both per-frame chains read the same registered codes); and X, Y from a
+lens model in the cloud and the metrology."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from bench_helpers import CONFIG, bench_config, write
+from ca_helpers import aberrated_copy, magnify_channels
+from huefringe import api, camera, cloud, metrology
+from huefringe.camera import CameraModel, CaptureReader, ChannelRegistration
+from huefringe.io import read_tiff
+from huefringe.session import load_session, read_rgb, read_rgb_codes
+from huefringe.stages import session_camera_record
+
+
+@pytest.fixture(scope="module")
+def gauge(tmp_path_factory) -> Path:
+    """The demo's gauge blocks (pre-distorted pattern) at 320 x 240, 2 frames, few bands."""
+    cfg = bench_config("demo", width=320, height=240, frames=2, hue_bands=32, repeats=2)
+    return write(cfg, tmp_path_factory.mktemp("ca"))
+
+
+@pytest.fixture(scope="module")
+def aberrated(gauge: Path, tmp_path_factory) -> tuple[Path, float, float]:
+    target = tmp_path_factory.mktemp("ca_ab") / "gauge-ca"
+    sr, sb = aberrated_copy(gauge, target, 0.5, -0.4)
+    return target, sr, sb
+
+
+def _cfg(mode, kernel=True):
+    c = copy.deepcopy(CONFIG)
+    c["camera"] = {"lens_model": True, "chromatic_registration": mode}
+    c["measurement"]["kernel"] = kernel
+    return c
+
+
+def _median_error(m) -> tuple[float, float]:
+    errs = [m.heights[i] - read_tiff(m.session.ground_truth[n]) for i, n in enumerate(m.frames)]
+    e = np.concatenate([x[np.isfinite(x)] for x in errs])
+    return float(np.median(np.abs(e))), float(np.mean(m.valid))
+
+
+def test_estimate_recovers_a_known_magnification(gauge: Path, aberrated) -> None:
+    """R +0.5 px and B -0.4 px at the corners, estimated back within 0.05 px there; the plain
+    session reads below the auto threshold (registration not applied)."""
+    target, sr, sb = aberrated
+    rec = session_camera_record(load_session(target), {"chromatic_registration": "auto"}, CONFIG["calibration"])
+    est = rec["chromatic_registration"]["estimate"]
+    r = est["corner_radius_px"]
+    assert abs(est["scale"]["R"] - sr) * r < 0.05
+    assert abs(est["scale"]["B"] - sb) * r < 0.05
+    assert rec["chromatic_registration"]["applied"]
+    plain = session_camera_record(load_session(gauge), {"chromatic_registration": "auto"}, CONFIG["calibration"])
+    reg = plain["chromatic_registration"]
+    assert max(reg["estimate"]["corner_displacement_px"].values()) < 0.5 * camera.CA_AUTO_THRESHOLD_PX
+    assert not reg["applied"]
+    off = session_camera_record(load_session(gauge), {"chromatic_registration": False}, CONFIG["calibration"])
+    assert "estimate" not in off["chromatic_registration"] and not off["chromatic_registration"]["applied"]
+
+
+def test_registration_undoes_the_magnification_on_codes() -> None:
+    """A smooth colour image magnified and registered back matches itself within a code (8 bit)
+    away from the border, and the registration keeps the sensor dtype."""
+    v, u = np.mgrid[0:240, 0:320].astype(np.float64)
+    img = np.stack([120 + 100 * np.sin(2 * np.pi * (u + k * 13) / 40.0) for k in range(3)], -1)
+    img = np.rint(img).astype(np.uint8)
+    c = (159.5, 119.5)
+    sr, sb = 0.5 / np.hypot(*c), -0.4 / np.hypot(*c)
+    ab = magnify_channels(img, sr, sb, c)
+    back = ChannelRegistration(c, sr, sb).apply(ab)
+    assert back.dtype == np.uint8
+    inner = (slice(8, -8), slice(8, -8))
+    before = np.abs(ab[inner].astype(int) - img[inner]).max()
+    after = np.abs(back[inner].astype(int) - img[inner]).max()
+    assert before >= 4 and after <= 1
+
+
+def test_registration_lowers_the_height_error(gauge: Path, aberrated) -> None:
+    """On the aberrated gauge blocks the registered measurement is close to the clean one and
+    far better than the unregistered one (median |error| vs the bench's ground truth)."""
+    target, _, _ = aberrated
+    clean, cov_clean = _median_error(api.measure(gauge, _cfg(False)))
+    off, _ = _median_error(api.measure(target, _cfg(False)))
+    m_on = api.measure(target, _cfg("auto"))
+    on, cov_on = _median_error(m_on)
+    assert m_on.camera_record["chromatic_registration"]["applied"] and m_on.camera.plain
+    np.testing.assert_array_equal(m_on.xy(0)[0][np.isfinite(m_on.height(0))],
+                                  (np.arange(320) * m_on.session.pixel_pitch_mm)[None, :].repeat(240, 0)[np.isfinite(m_on.height(0))])
+    assert off > 2.5 * clean  # the aberration matters
+    assert on < 0.5 * off
+    assert on < 1.2 * clean
+    assert cov_on > cov_clean - 0.01  # not by dropping pixels
+
+
+def test_both_chains_read_the_same_registered_codes(aberrated) -> None:
+    """With registration the fused kernel and the NumPy reference chain stay bit-identical."""
+    target, _, _ = aberrated
+    fast = api.measure(target, _cfg(True, kernel=True), frames=[0])
+    ref = api.measure(target, _cfg(True, kernel=False), frames=[0])
+    np.testing.assert_array_equal(fast.heights, ref.heights)
+
+
+def test_reader_without_registration_is_the_session_reader(gauge: Path) -> None:
+    s = load_session(gauge)
+    reader = CaptureReader()
+    p = s.frames[0]
+    assert np.array_equal(reader.rgb(p), read_rgb(p)) and reader.rgb(p).dtype == np.float32
+    assert np.array_equal(reader.codes(p), read_rgb_codes(p))
+    reg = CaptureReader(ChannelRegistration((159.5, 119.5), 0.0, 0.0))
+    np.testing.assert_array_equal(reg.codes(p), read_rgb_codes(p))  # zero scale: identity maps
+
+
+# --------------------------------------------------------------------------- X, Y consumers
+
+K = np.array([[700.0, 0.0, 161.0], [0.0, 700.0, 118.0], [0.0, 0.0, 1.0]])
+PIN = {"camera": {"width": 320, "height": 240, "bit_depth": 8, "pixel_pitch_mm": 0.43, "model": "pinhole",
+                  "matrix": K.tolist(), "distortion": [-0.15, 0.08, 0.0, 0.0, 0.0],
+                  "plate_pose": {"rvec": [0.02, 0.01, 0.0], "tvec": [-68.0, -51.0, 300.0]}}}
+
+
+def _seen_plane(model: CameraModel, c: np.ndarray, step: tuple[tuple[slice, slice], float] | None = None):
+    """The height map a pinhole camera sees of ``z = c0 + c1 X + c2 Y`` (fixed point per pixel)."""
+    v, u = np.mgrid[0:240, 0:320].astype(np.float64)
+    h = np.zeros((240, 320))
+    add = np.zeros_like(h)
+    if step is not None:
+        add[step[0]] = step[1]
+    for _ in range(30):
+        x, y = model.xy_at(u, v, h)
+        h = c[0] + c[1] * x + c[2] * y + add
+    return h
+
+
+def test_metrology_fits_the_plane_in_the_lens_models_x_y() -> None:
+    """A tilted plate seen by a pinhole camera: fit_plane with the model's X, Y recovers its
+    coefficients to 1e-9 and a 2 mm step to 1e-9 mm; with u * pitch it does not."""
+    model = CameraModel.from_meta(PIN)
+    c = np.array([0.7, 0.004, -0.003])
+    top = (slice(90, 150), slice(130, 200))
+    h = _seen_plane(model, c, (top, 2.0))
+    base = [[0, 0, 320, 60], [0, 180, 320, 240]]
+    xy = model.xy(h)
+    plane, rms = metrology.fit_plane(h, base, 0.43, xy=xy)
+    np.testing.assert_allclose(plane, c, atol=1e-9)
+    assert rms < 1e-9
+    box = [130, 90, 200, 150]
+    assert abs(metrology.step_height(h, plane, box, 0.43, edge_exclusion=0.2, xy=xy) - 2.0) < 1e-9
+    plane_flat, _ = metrology.fit_plane(h, base, 0.43)
+    assert np.max(np.abs(plane_flat - c)) > 1e-4
+    spec = {"kind": "step_heights", "base_roi": base, "steps": [{"name": "top", "nominal_mm": 2.0, "roi": box}],
+            "tolerance_mm": 0.01}
+    res = metrology.evaluate_session([h.astype(np.float32)], spec, 0.43, range_mm=5.0, camera=model)
+    assert abs(res["steps"][0]["mean_mm"] - 2.0) < 1e-5  # float32 heights
+
+
+def test_cloud_points_carry_the_lens_models_x_y(tmp_path: Path) -> None:
+    """write_height_cloud with xy gives the bytes of write_points on the model's points."""
+    model = CameraModel.from_meta(PIN)
+    h = _seen_plane(model, np.array([1.0, 0.002, 0.001])).astype(np.float32)
+    h[5:9, 10:30] = np.nan
+    xy = model.xy(h)
+    pts, pix = cloud.height_to_points(h, 0.43, xy)
+    np.testing.assert_array_equal(pts[:, 0], xy[0].ravel()[pix])
+    cloud.write_points(tmp_path / "ref.ply", pts)
+    n = cloud.write_height_cloud(tmp_path / "ours.ply", h, 0.43, xy=xy)
+    assert n == pix.size
+    assert (tmp_path / "ours.ply").read_bytes() == (tmp_path / "ref.ply").read_bytes()
+    # projected back through OpenCV, every point lands on its own pixel centre
+    uv, _ = cv2.projectPoints(np.column_stack([pts[:, :2], -pts[:, 2]]).reshape(-1, 1, 3),
+                              np.array([0.02, 0.01, 0.0]), np.array([-68.0, -51.0, 300.0]), K,
+                              np.array([-0.15, 0.08, 0.0, 0.0, 0.0]))
+    vv, uu = np.divmod(pix, 320)
+    assert np.max(np.abs(uv.reshape(-1, 2) - np.column_stack([uu, vv]))) < 1e-5
+
+
+def test_mesh_vertices_move_to_the_lens_models_x_y() -> None:
+    """place_vertices (last, after sigma and cleaning) puts every grid vertex at model.xy of its pixel."""
+    from huefringe import mesh as meshing
+
+    model = CameraModel.from_meta(PIN)
+    h = _seen_plane(model, np.array([1.0, 0.002, 0.001])).astype(np.float32)
+    h[100:110, 40:60] = np.nan
+    m = meshing.height_to_mesh(h, 0.43, jump_mm=1.0)
+    v, u = meshing.vertex_pixels(m)
+    sigma = np.random.default_rng(0).random(h.shape).astype(np.float32)
+    meshing.attach_sigma(m, sigma)
+    meshing.place_vertices(m, model.xy_at)
+    x, y = model.xy(h)
+    np.testing.assert_allclose(m.vertices[:, 0], x[v, u], atol=1e-9)
+    np.testing.assert_allclose(m.vertices[:, 1], y[v, u], atol=1e-9)
+    np.testing.assert_array_equal(m.vertices[:, 2], h[v, u])
+    np.testing.assert_array_equal(m.vertex_attributes["sigma_mm"], sigma[v, u])
+    assert m.metadata["xy"] == "lens model"
