@@ -97,6 +97,12 @@ VARIANTS = {
     "round 1 (sharp table, no edge mask)": {"calibration": {"phase_error": {"enabled": True, "smooth_bins": 1.5}},
                                             "measurement": {"edge_jump_mm": 0.0}},
 }
+VARIANTS.update({
+    "texture blur 0.81 (true)": {"measurement": {"texture_blur_px2": 0.81}},
+    "texture blur 0.81, edge mask off": {"measurement": {"texture_blur_px2": 0.81, "edge_jump_mm": 0.0}},
+    "texture blur 1.2": {"measurement": {"texture_blur_px2": 1.2}},
+    "texture blur 1.6": {"measurement": {"texture_blur_px2": 1.6}},
+})
 #: variants measured on some cases only (the adaptive filter acts on weak signal: the photo reliefs)
 ONLY = {"adaptive filter off": "photo"}
 

@@ -26,7 +26,7 @@ from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, calibrate_planes, coverage
 from huefringe.huetable import HueTable, HueTableError, build_table
-from huefringe import phase_error
+from huefringe import phase_error, texture
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
@@ -333,10 +333,14 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         shadow_fraction = float(shadow.mean())
         del t  # the kernel's pixel-major copy replaces the band-major table
         buffers = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))  # reused frame to frame
+    blur2 = texture_blur_px2(cal, measurement)
     for n in frames:
         path = s.frames[n]
+        # the texture-edge correction (huefringe.texture) once, before either chain: both read it
+        rgb = None if blur2 == 0 else texture.correct(read_rgb(path), white, blur2,
+                                                     clipped=clipped_mask(read_rgb(path), s.bit_depth))
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
-            m = kernel.frame_maps(prep, read_rgb_codes(path), denoise_radius=measurement["denoise_radius"],
+            m = kernel.frame_maps(prep, read_rgb_codes(path) if rgb is None else rgb, denoise_radius=measurement["denoise_radius"],
                                   denoise_adaptive=measurement.get("denoise_adaptive"),
                                   want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty,
                                   out=buffers)
@@ -348,7 +352,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             height, phase, hue, u_map, support = m.height, m.phase, m.hue, m.uncertainty, m.support
         else:
             budget = pixel_budget(t, cal) if budget is None else budget
-            res = measure_frame(read_rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
+            res = measure_frame(read_rgb(path) if rgb is None else rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
                                 denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
                                 denoise_adaptive=measurement.get("denoise_adaptive"), budget=budget,
@@ -362,6 +366,16 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             stats = {**stats, **changed}
         _refuse_bad_frame(path, stats, measurement)
         yield n, height, phase, hue, stats, u_map, support
+
+
+def texture_blur_px2(cal: PlaneCalibration, measurement: Mapping[str, Any]) -> float:
+    """The camera blur variance (px^2) the texture-edge correction uses (:mod:`huefringe.texture`):
+    ``measurement.texture_blur_px2`` when a number (0 = off), the session's own estimate recorded
+    by the plane calibration (``cal.texture_blur_px2``) when ``auto``."""
+    v = measurement.get("texture_blur_px2", 0.0)
+    if v == "auto":
+        return float(cal.texture_blur_px2 or 0.0)
+    return float(v or 0.0)
 
 
 def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], clouds: Sequence[str],
