@@ -98,10 +98,11 @@ VARIANTS = {
                                             "measurement": {"edge_jump_mm": 0.0}},
 }
 VARIANTS.update({
-    "texture blur 0.81 (true)": {"measurement": {"texture_blur_px2": 0.81}},
-    "texture blur 0.81, edge mask off": {"measurement": {"texture_blur_px2": 0.81, "edge_jump_mm": 0.0}},
-    "texture blur 1.2": {"measurement": {"texture_blur_px2": 1.2}},
-    "texture blur 1.6": {"measurement": {"texture_blur_px2": 1.6}},
+    "texture blur 0.81 (true)": {"calibration": {"texture_blur_px2": 0.81}},
+    "texture blur 0.81, edge mask off": {"calibration": {"texture_blur_px2": 0.81}, "measurement": {"edge_jump_mm": 0.0}},
+    "texture blur 1.2": {"calibration": {"texture_blur_px2": 1.2}},
+    "texture blur 1.6": {"calibration": {"texture_blur_px2": 1.6}},
+    "texture correction off": {"calibration": {"texture_blur_px2": 0}},
 })
 #: variants measured on some cases only (the adaptive filter acts on weak signal: the photo reliefs)
 ONLY = {"adaptive filter off": "photo"}
@@ -165,7 +166,7 @@ def measure(session: Path, tables: Path, out: Path, config: dict) -> dict:
                              stats=str(tables / f"table_{which}.stats.json"))
     stages.plane_calibration(str(session), str(tables / "table_reference.json"), model, cal,
                              model=str(out / "model.npz"), stats=str(out / "planes.json"),
-                             phase_error_summary=str(out / "phase_error.json"))
+                             phase_error_summary=str(out / "phase_error.json"), object_table=str(tables / "table_object.json"))
     heights = [str(out / f"frame_{n:04d}.tiff") for n in s.frame_ids]
     us = [h.replace(".tiff", ".u.tiff") for h in heights]
     stages.measure_frames(str(session), s.frame_ids, str(tables / "table_object.json"), str(out / "model.npz"), model,

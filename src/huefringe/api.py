@@ -93,7 +93,7 @@ def measure(session: str | os.PathLike[str] | Session,
     s = session if isinstance(session, Session) else load_session(Path(session))
     hue_model, calibration, measurement = cfg["hue_model"], cfg["calibration"], cfg["measurement"]
     tables = {w: session_hue_table(s, w, hue_model, calibration) for w in ("reference", "object")}
-    cal = session_plane_calibration(s, tables["reference"], hue_model, calibration)
+    cal = session_plane_calibration(s, tables["reference"], hue_model, calibration, object_table=tables["object"])
     frames = s.frame_ids if frames is None else list(frames)
     heights = np.empty((len(frames), s.height, s.width), np.float32)
     u = np.empty_like(heights)

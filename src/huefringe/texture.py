@@ -13,11 +13,10 @@ term); the last term is the same on the white plate and the phase-error table ho
     B'_c = B_c - sigma^2 grad W_c . grad (B_c / W_c)                        (:func:`correct`)
 
 which makes ``B'_c / W_c = F_c`` to first order. ``sigma^2`` is the camera's blur, which a
-session does not record; :func:`estimate_blur` finds it from the session's own object frames:
-the normalised fringe's fine structure ``y - smooth(y)`` is regressed on the predicted lean's
-``x - smooth(x)`` (``y = B/W``, ``x = grad W . grad y / W``) over the textured pixels. The true
-fringe does not follow the texture, so the slope is ``sigma^2``; the central differences of
-``x`` leave out the pixel's own noise, so the noise does not bias it. Pure functions, no I/O.
+session does not record; :func:`blur_from_phases` finds it from the session's own object frames
+measured with and without the correction: the true surface does not follow the texture, so the
+``sigma^2`` that removes the phase's texture-correlated fine structure is the blur
+(``huefringe.stages.session_texture_blur`` runs it). Pure functions, no I/O.
 """
 
 from __future__ import annotations
@@ -29,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-__all__ = ["correct", "estimate_blur", "lean", "white_floor"]
+__all__ = ["blur_from_phases", "correct", "lean", "white_floor"]
 
 #: white level (full scale 1) below which the normalised fringe is not formed (noise, shadow)
 WHITE_FLOOR = 0.02
@@ -85,60 +84,59 @@ def correct(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: 
     return out.astype(np.float32)
 
 
-def estimate_blur(frames: Sequence[NDArray[np.floating]], white: NDArray[np.floating], *,
-                  smooth_px: float = 2.0, min_white: float = 0.04, texture_quantile: float = 0.8,
-                  clip: float = 4.0) -> dict[str, Any]:
-    """The camera's blur variance ``sigma^2`` (px^2) from object frames and the object's white image.
+def _fine(a: NDArray[np.float64], ok: NDArray[np.bool_], smooth_px: float) -> NDArray[np.float64]:
+    """``a`` minus its normalised Gaussian average over the pixels ``ok`` (NaN elsewhere)."""
+    a0 = np.where(ok, a, 0.0)
+    wgt = ndimage.gaussian_filter(ok.astype(np.float64), smooth_px)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = a - ndimage.gaussian_filter(a0, smooth_px) / wgt
+    return np.where(ok & (wgt > 0.2), out, np.nan)
 
-    Per channel and frame, ``y = B / W`` and ``x = grad W . grad y / W`` (:func:`lean` over
-    ``W``); their fine structure (minus a Gaussian of ``smooth_px``) is regressed through the
-    origin, ``y_f = sigma^2 x_f``, over the pixels with ``W >= min_white`` whose ``|x_f|`` is in the
-    top ``1 - texture_quantile`` (the texture edges, where the lean is), with residuals beyond
-    ``clip`` robust standard deviations dropped (one pass).
+
+def blur_from_phases(plain: Sequence[NDArray[np.floating]], unit: Sequence[NDArray[np.floating]], *,
+                     smooth_px: float = 2.0, band: tuple[float, float] = (0.5, 0.9),
+                     max_change_rad: float = 0.5) -> dict[str, Any]:
+    """The camera's blur variance (px^2) from the raw (unfiltered) phase of object frames measured
+    as captured (``plain``) and after :func:`correct` with ``sigma^2 = 1`` (``unit``).
+
+    The correction is linear in ``sigma^2``, so the phase it makes is ``phi_0 + sigma^2 g`` with
+    ``g = unit - plain``; the right ``sigma^2`` leaves a phase without the texture's fine
+    structure, so the fine structure (minus a Gaussian of ``smooth_px``) of ``phi_0`` is
+    ``-sigma^2`` times that of ``g``. The slope is an instrumental-variable estimate between two
+    frames, ``-(sum g_b phi_a + sum g_a phi_b) / (2 sum g_a g_b)`` (the frames share the texture's
+    lean, not their noise, which would bias a plain regression towards 0), over the pixels whose
+    ``|g|`` lies between the ``band`` quantiles: the first-order lean over-predicts at the
+    sharpest edges (there the slope measured falls to 0.1-0.4 of the blur), and the weakest
+    carry no signal. Frames are paired in order (an odd last one pairs with the first).
 
     Returns
     -------
     dict
-        ``sigma2_px2`` (>= 0; 0 when the object has no texture to measure it on), ``samples``
-        (pixels used), ``stderr_px2`` (the slope's standard error), ``per_channel``.
+        ``sigma2_px2`` (>= 0, 0 without usable pixels), ``samples``, ``pairs``.
     """
-    w = white_floor(white)
-    xs: list[list[NDArray[np.float64]]] = [[], [], []]
-    ys: list[list[NDArray[np.float64]]] = [[], [], []]
-    for f in frames:
-        b = np.asarray(f, np.float64)
-        y = b / w
-        x = lean(b, white) / w
-        for c in range(3):
-            ok = np.asarray(white, np.float64)[..., c] >= min_white
-            ok[[0, -1], :] = False
-            ok[:, [0, -1]] = False
-            yf = y[..., c] - ndimage.gaussian_filter(y[..., c], smooth_px)
-            xf = x[..., c] - ndimage.gaussian_filter(x[..., c], smooth_px)
-            xs[c].append(xf[ok])
-            ys[c].append(yf[ok])
-    per_channel = []
-    xa_all, ya_all = [], []
-    for c in range(3):
-        if not xs[c] or not sum(v.size for v in xs[c]):
+    if len(plain) != len(unit) or len(plain) < 2:
+        raise ValueError(f"blur_from_phases: {len(plain)} plain and {len(unit)} corrected phases (two or more pairs needed)")
+    ys, gs = [], []
+    for p, q in zip(plain, unit, strict=True):
+        p = np.asarray(p, np.float64)
+        g = np.asarray(q, np.float64) - p
+        ok = np.isfinite(p) & np.isfinite(g) & (np.abs(g) < max_change_rad)
+        ys.append(_fine(p, ok, smooth_px))
+        gs.append(_fine(g, ok, smooth_px))
+    num = den = 0.0
+    samples = pairs = 0
+    idx = list(range(len(ys)))
+    for a, b in zip(idx[0::2], idx[1::2] + ([idx[0]] if len(idx) % 2 else [])):
+        ok = np.isfinite(ys[a]) & np.isfinite(ys[b]) & np.isfinite(gs[a]) & np.isfinite(gs[b])
+        if ok.sum() < 100:
             continue
-        xa, ya = np.concatenate(xs[c]), np.concatenate(ys[c])
-        if xa.size < 100:
-            continue
-        keep = np.abs(xa) >= np.quantile(np.abs(xa), texture_quantile)
-        xa_all.append(xa[keep])
-        ya_all.append(ya[keep])
-        per_channel.append(float(np.sum(xa[keep] * ya[keep]) / max(np.sum(xa[keep] ** 2), 1e-300)))
-    if not xa_all:
-        return {"sigma2_px2": 0.0, "samples": 0, "stderr_px2": None, "per_channel": per_channel}
-    xa, ya = np.concatenate(xa_all), np.concatenate(ya_all)
-    s = float(np.sum(xa * ya) / max(np.sum(xa**2), 1e-300))
-    r = ya - s * xa
-    mad = 1.4826 * float(np.median(np.abs(r - np.median(r))))
-    if mad > 0:
-        keep = np.abs(r) <= clip * mad
-        xa, ya = xa[keep], ya[keep]
-        s = float(np.sum(xa * ya) / max(np.sum(xa**2), 1e-300))
-    r = ya - s * xa
-    se = float(np.sqrt(np.sum(r**2) / max(xa.size - 1, 1) / max(np.sum(xa**2), 1e-300)))
-    return {"sigma2_px2": max(s, 0.0), "samples": int(xa.size), "stderr_px2": se, "per_channel": per_channel}
+        ga, gb, ya, yb = gs[a][ok], gs[b][ok], ys[a][ok], ys[b][ok]
+        mag = np.abs(ga + gb)
+        lo, hi = np.quantile(mag, band)
+        k = (mag >= lo) & (mag <= hi)
+        num += float(np.sum(gb[k] * ya[k]) + np.sum(ga[k] * yb[k]))
+        den += float(2.0 * np.sum(ga[k] * gb[k]))
+        samples += int(k.sum())
+        pairs += 1
+    s2 = -num / den if den > 0 else 0.0
+    return {"sigma2_px2": max(float(s2), 0.0), "samples": samples, "pairs": pairs}

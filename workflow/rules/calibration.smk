@@ -48,6 +48,7 @@ rule hue_table:
 rule plane_calibration:
     input:
         table=R("{sid}", "calib", "table_reference.json"),
+        object_table=R("{sid}", "calib", "table_object.json"),  # the texture-blur estimate (calibration.texture_blur_px2: auto)
     output:
         model=R("{sid}", "calib", "phase_to_height.npz"),
         stats=R("{sid}", "calib", "planes.json"),
