@@ -106,7 +106,8 @@ def measure(session: str | os.PathLike[str] | Session,
     record = session_camera_record(s, cfg.get("camera", {}), calibration)
     model, reader = corrections(record, s.meta)
     tables = {w: session_hue_table(s, w, hue_model, calibration, reader=reader) for w in ("reference", "object")}
-    cal = session_plane_calibration(s, tables["reference"], hue_model, calibration, reader=reader)
+    cal = session_plane_calibration(s, tables["reference"], hue_model, calibration, reader=reader,
+                                    object_table=tables["object"])
     frames = s.frame_ids if frames is None else list(frames)
     heights = np.empty((len(frames), s.height, s.width), np.float32)
     u = np.empty_like(heights)

@@ -55,6 +55,9 @@ class PlaneCalibration:
     budget: dict[str, NDArray[np.float32]] | None = None
     """Uncertainty inputs (:mod:`huefringe.uncertainty`): ``u_ref_rad`` (the smoothed reference
     phase's standard uncertainty) and ``cov_aa``, ``cov_ab``, ``cov_bb`` (covariance of a, b)."""
+    texture_blur_px2: float | None = None
+    """The camera's blur variance (px^2) estimated from the session's object frames
+    (:func:`huefringe.texture.estimate_blur`) for the texture-edge correction, or None."""
 
     def height(self, dphi: NDArray[np.floating]) -> NDArray[np.float32]:
         """Height in mm from an unwrapped phase difference (NaN stays NaN)."""
@@ -76,6 +79,8 @@ class PlaneCalibration:
                 extra = {f"budget_{k}": v for k, v in (self.budget or {}).items()}
                 if self.phase_error is not None:
                     extra["phase_error"] = np.asarray(self.phase_error, np.float64)
+                if self.texture_blur_px2 is not None:
+                    extra["texture_blur_px2"] = np.float64(self.texture_blur_px2)
                 np.savez(f, phi_ref=self.phi_ref, a=self.a, b=self.b, planes_mm=np.asarray(self.planes_mm), **extra)
 
     @classmethod
@@ -83,7 +88,9 @@ class PlaneCalibration:
         with np.load(path) as z:
             pe = z["phase_error"] if "phase_error" in z.files else None
             budget = {k[len("budget_"):]: z[k] for k in z.files if k.startswith("budget_")} or None
-            return cls(z["phi_ref"], z["a"], z["b"], [float(v) for v in z["planes_mm"]], phase_error=pe, budget=budget)
+            blur = float(z["texture_blur_px2"]) if "texture_blur_px2" in z.files else None
+            return cls(z["phi_ref"], z["a"], z["b"], [float(v) for v in z["planes_mm"]], phase_error=pe, budget=budget,
+                       texture_blur_px2=blur)
 
 
 def _design(shape: tuple[int, int], degree: int, uu: NDArray, vv: NDArray) -> NDArray[np.float64]:

@@ -27,7 +27,7 @@ from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, calibrate_planes, coverage, xy_accuracy
 from huefringe.huetable import HueTable, HueTableError, build_table
-from huefringe import phase_error
+from huefringe import phase_error, texture
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
@@ -196,15 +196,18 @@ def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapp
 def plane_calibration(session: str, table: str, hue_model: str, calibration: Mapping[str, Any],
                       model: str, stats: str, phase_error_table: str | None = None,
                       phase_error_figure: str | None = None, phase_error_summary: str | None = None,
-                      camera_json: str = "") -> None:
+                      camera_json: str = "", object_table: str | None = None) -> None:
     """Fit the per-pixel phase-to-height model on the calibration planes (after the phase-error
     table, :mod:`huefringe.phase_error`, as ``calibration.phase_error.enabled`` decides; auto: the
-    leave-one-plane-out test)."""
+    leave-one-plane-out test), and record the camera blur of the texture-edge correction
+    (``calibration.texture_blur_px2``; ``auto`` estimates it from the object frames with
+    ``object_table``: :func:`session_texture_blur`)."""
     s = load_session(session)
     cal = session_plane_calibration(s, HueTable.load(table), hue_model, calibration,
                                     phase_error_table=phase_error_table, phase_error_figure=phase_error_figure,
                                     phase_error_summary=phase_error_summary,
-                                    reader=session_corrections(s, camera_json)[1])
+                                    reader=session_corrections(s, camera_json)[1],
+                                    object_table=None if object_table is None else HueTable.load(object_table))
     cal.save(model)
     info = dict(cal.stats)
     info["hue_model"] = hue_model
@@ -214,7 +217,8 @@ def plane_calibration(session: str, table: str, hue_model: str, calibration: Map
 def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibration: Mapping[str, Any], *,
                               phase_error_table: str | None = None, phase_error_figure: str | None = None,
                               phase_error_summary: str | None = None,
-                              reader: CaptureReader | None = None) -> PlaneCalibration:
+                              reader: CaptureReader | None = None,
+                              object_table: HueTable | None = None) -> PlaneCalibration:
     """The plane calibration of a session from its reference table, in memory (:func:`plane_calibration` writes it).
 
     The planes' phases are first corrected with the phase-error table learned from them
@@ -241,11 +245,52 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
         ) from exc
     cal.phase_error = None if lut is None else lut.error
     cal.stats["phase_error"] = None if lut is None else lut.stats
+    blur = calibration.get("texture_blur_px2", 0.0)
+    if blur == "auto":  # the camera's blur from the session's own object frames (needs the object table)
+        info = (session_texture_blur(s, object_table, cal, hue_model, calibration) if object_table is not None
+                else {"sigma2_px2": 0.0, "source": "auto, no object table given: off"})
+    else:
+        info = {"sigma2_px2": float(blur or 0.0), "source": "calibration.texture_blur_px2"}
+    cal.texture_blur_px2 = float(info["sigma2_px2"])
+    cal.stats["texture_blur"] = info
     if lut is not None:  # its residual on the planes (reported; not added to u: docs/uncertainty.md)
         from huefringe.uncertainty import phase_error_residual_rad
 
         cal.stats.setdefault("uncertainty", {})["phase_error_residual_u_rad"] = phase_error_residual_rad(lut.stats)
     return cal
+
+
+#: object frames the texture-blur estimate reads (pairs of them)
+TEXTURE_BLUR_FRAMES = 4
+
+
+def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str,
+                         calibration: Mapping[str, Any]) -> dict[str, Any]:
+    """The camera's blur variance (px^2) for the texture-edge correction, from the session's first
+    object frames (up to :data:`TEXTURE_BLUR_FRAMES`, two at least): each frame's raw phase
+    difference (the kernel, no phase filter) as captured and after :func:`huefringe.texture.correct`
+    with ``sigma^2 = 1``, through :func:`huefringe.texture.blur_from_phases`. With one frame the
+    estimate is 0 (off): the instrumental variable needs two.
+
+    Returns the record kept in ``calib/planes.json`` (``texture_blur``): ``sigma2_px2``,
+    ``samples``, ``pairs``, ``frames``, ``source``.
+    """
+    frames = s.frame_ids[:TEXTURE_BLUR_FRAMES]
+    if len(frames) < 2:
+        return {"sigma2_px2": 0.0, "samples": 0, "pairs": 0, "frames": list(frames),
+                "source": "auto: one frame, no estimate (off)"}
+    white = read_rgb(s.object_white)
+    prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=calibration["min_saturation"],
+                          shadow=shadow_mask(white, calibration["shadow_fraction"]), bit_depth=s.bit_depth,
+                          predistortion=s.predistortion)
+    plain, unit = [], []
+    for n in frames:
+        rgb = read_rgb(s.frames[n])
+        for sigma2, out in ((0.0, plain), (1.0, unit)):
+            m = kernel.frame_maps(prep, texture.correct(rgb, white, sigma2), denoise_radius=0, want_dphi=True)
+            out.append(np.where(m.valid, m.dphi, np.nan))
+    est = texture.blur_from_phases(plain, unit)
+    return {**est, "frames": [int(n) for n in frames], "source": "auto: estimated from the object frames"}
 
 
 def compensation(session: str, table: str, model: str, hue_model: str, calibration: Mapping[str, Any],
@@ -383,10 +428,16 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         shadow_fraction = float(shadow.mean())
         del t  # the kernel's pixel-major copy replaces the band-major table
         buffers = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))  # reused frame to frame
+    blur2 = float(cal.texture_blur_px2 or 0.0)  # the plane calibration's (calibration.texture_blur_px2)
     for n in frames:
         path = s.frames[n]
+        # the texture-edge correction (huefringe.texture) once, before either chain: both read it
+        rgb = None
+        if blur2 > 0:
+            raw = reader.rgb(path)
+            rgb = texture.correct(raw, white, blur2, clipped=clipped_mask(raw, s.bit_depth))
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
-            m = kernel.frame_maps(prep, reader.codes(path), denoise_radius=measurement["denoise_radius"],
+            m = kernel.frame_maps(prep, reader.codes(path) if rgb is None else rgb, denoise_radius=measurement["denoise_radius"],
                                   denoise_adaptive=measurement.get("denoise_adaptive"),
                                   want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty,
                                   out=buffers)
@@ -398,7 +449,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             height, phase, hue, u_map, support = m.height, m.phase, m.hue, m.uncertainty, m.support
         else:
             budget = pixel_budget(t, cal) if budget is None else budget
-            res = measure_frame(reader.rgb(path), white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
+            res = measure_frame(reader.rgb(path) if rgb is None else rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
                                 denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
                                 denoise_adaptive=measurement.get("denoise_adaptive"), budget=budget,
@@ -837,7 +888,7 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
     plane_calibration(str(session), str(out / "table_reference.json"), model, cal,
                       model=str(out / "model.npz"), stats=str(out / "planes.json"),
                       phase_error_table=str(out / "phase_error.npz"), phase_error_summary=str(out / "phase_error.json"),
-                      camera_json=cam)
+                      camera_json=cam, object_table=str(out / "table_object.json"))
     paths: dict[str, Any] = {
         k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
         for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"),

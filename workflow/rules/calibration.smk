@@ -72,6 +72,7 @@ rule plane_calibration:
     input:
         camera_json=R("{sid}", "calib", "camera.json"),
         table=R("{sid}", "calib", "table_reference.json"),
+        object_table=R("{sid}", "calib", "table_object.json"),  # the texture-blur estimate (calibration.texture_blur_px2: auto)
     output:
         model=R("{sid}", "calib", "phase_to_height.npz"),
         stats=R("{sid}", "calib", "planes.json"),

@@ -1,0 +1,142 @@
+"""Texture-edge correction: undo what the camera's lens blur does to a fringe after a textured surface.
+
+The camera images ``B_c = G * (R_c F_c)`` (lens blur ``G`` after the surface's reflectance ``R_c``)
+and the object's white image ``W_c = G * R_c``. To first order in the blur's variance ``sigma^2``
+(px^2) the normalised fringe is
+
+    B_c / W_c = F_c + sigma^2 grad ln R_c . grad F_c + (sigma^2 / 2) lap F_c,
+
+so at a reflectance edge each pixel's fringe leans towards its brighter neighbours' (the middle
+term); the last term is the same on the white plate and the phase-error table holds it. Since
+``grad ln W_c ~ grad ln R_c``, the capture is corrected, per channel, as
+
+    B'_c = B_c - sigma^2 grad W_c . grad (B_c / W_c)                        (:func:`correct`)
+
+which makes ``B'_c / W_c = F_c`` to first order. ``sigma^2`` is the camera's blur, which a
+session does not record; :func:`blur_from_phases` finds it from the session's own object frames
+measured with and without the correction: the true surface does not follow the texture, so the
+``sigma^2`` that removes the phase's texture-correlated fine structure is the blur
+(``huefringe.stages.session_texture_blur`` runs it). Pure functions, no I/O.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+__all__ = ["blur_from_phases", "correct", "lean", "white_floor"]
+
+#: white level (full scale 1) below which the normalised fringe is not formed (noise, shadow)
+WHITE_FLOOR = 0.02
+
+
+def white_floor(white: NDArray[np.floating]) -> NDArray[np.float64]:
+    """The white image (H, W, 3) in [0, 1], floored at :data:`WHITE_FLOOR` (float64)."""
+    return np.maximum(np.asarray(white, np.float64), WHITE_FLOOR)
+
+
+def lean(rgb: NDArray[np.floating], white: NDArray[np.floating]) -> NDArray[np.float64]:
+    """``grad W_c . grad (B_c / W_c)`` per channel (central differences; 0 on the border rows and
+    columns): the capture's change per unit ``sigma^2`` that :func:`correct` removes.
+
+    Parameters
+    ----------
+    rgb, white : ndarray (H, W, 3)
+        A fringe capture and the object's white image, both in [0, 1] (``read_rgb``).
+    """
+    w = white_floor(white)
+    y = np.asarray(rgb, np.float64) / w
+    out = np.zeros(w.shape, np.float64)
+    # central differences: (f[+1] - f[-1]) / 2 along each axis, the pixel's own value left out
+    out[1:-1, :, :] += (w[2:] - w[:-2]) * (y[2:] - y[:-2]) / 4.0
+    out[:, 1:-1, :] += (w[:, 2:] - w[:, :-2]) * (y[:, 2:] - y[:, :-2]) / 4.0
+    return out
+
+
+def correct(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: float,
+            clipped: NDArray[np.bool_] | None = None) -> NDArray[np.float32]:
+    """The capture with the texture-edge lean removed, ``B - sigma^2 grad W . grad (B / W)``.
+
+    Parameters
+    ----------
+    rgb, white : ndarray (H, W, 3)
+        A fringe capture and the object's white image in [0, 1].
+    sigma2_px2 : float
+        The camera's blur variance (px^2); 0 returns the capture unchanged (as float32).
+    clipped : ndarray of bool (H, W), optional
+        Pixels left unchanged (saturated sensor: the chain marks them invalid by their code).
+
+    Returns
+    -------
+    ndarray of float32 (H, W, 3)
+        The corrected capture, clipped to [0, 1].
+    """
+    b = np.asarray(rgb, np.float64)
+    if sigma2_px2 == 0:
+        return b.astype(np.float32)
+    out = np.clip(b - sigma2_px2 * lean(b, white), 0.0, 1.0)
+    if clipped is not None:
+        out[clipped] = b[clipped]
+    return out.astype(np.float32)
+
+
+def _fine(a: NDArray[np.float64], ok: NDArray[np.bool_], smooth_px: float) -> NDArray[np.float64]:
+    """``a`` minus its normalised Gaussian average over the pixels ``ok`` (NaN elsewhere)."""
+    a0 = np.where(ok, a, 0.0)
+    wgt = ndimage.gaussian_filter(ok.astype(np.float64), smooth_px)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = a - ndimage.gaussian_filter(a0, smooth_px) / wgt
+    return np.where(ok & (wgt > 0.2), out, np.nan)
+
+
+def blur_from_phases(plain: Sequence[NDArray[np.floating]], unit: Sequence[NDArray[np.floating]], *,
+                     smooth_px: float = 2.0, band: tuple[float, float] = (0.5, 0.9),
+                     max_change_rad: float = 0.5) -> dict[str, Any]:
+    """The camera's blur variance (px^2) from the raw (unfiltered) phase of object frames measured
+    as captured (``plain``) and after :func:`correct` with ``sigma^2 = 1`` (``unit``).
+
+    The correction is linear in ``sigma^2``, so the phase it makes is ``phi_0 + sigma^2 g`` with
+    ``g = unit - plain``; the right ``sigma^2`` leaves a phase without the texture's fine
+    structure, so the fine structure (minus a Gaussian of ``smooth_px``) of ``phi_0`` is
+    ``-sigma^2`` times that of ``g``. The slope is an instrumental-variable estimate between two
+    frames, ``-(sum g_b phi_a + sum g_a phi_b) / (2 sum g_a g_b)`` (the frames share the texture's
+    lean, not their noise, which would bias a plain regression towards 0), over the pixels whose
+    ``|g|`` lies between the ``band`` quantiles: the first-order lean over-predicts at the
+    sharpest edges (there the slope measured falls to 0.1-0.4 of the blur), and the weakest
+    carry no signal. Frames are paired in order (an odd last one pairs with the first).
+
+    Returns
+    -------
+    dict
+        ``sigma2_px2`` (>= 0, 0 without usable pixels), ``samples``, ``pairs``.
+    """
+    if len(plain) != len(unit) or len(plain) < 2:
+        raise ValueError(f"blur_from_phases: {len(plain)} plain and {len(unit)} corrected phases (two or more pairs needed)")
+    ys, gs = [], []
+    for p, q in zip(plain, unit, strict=True):
+        p = np.asarray(p, np.float64)
+        g = np.asarray(q, np.float64) - p
+        ok = np.isfinite(p) & np.isfinite(g) & (np.abs(g) < max_change_rad)
+        ys.append(_fine(p, ok, smooth_px))
+        gs.append(_fine(g, ok, smooth_px))
+    num = den = 0.0
+    samples = pairs = 0
+    idx = list(range(len(ys)))
+    for a, b in zip(idx[0::2], idx[1::2] + ([idx[0]] if len(idx) % 2 else [])):
+        ok = np.isfinite(ys[a]) & np.isfinite(ys[b]) & np.isfinite(gs[a]) & np.isfinite(gs[b])
+        if ok.sum() < 100:
+            continue
+        ga, gb, ya, yb = gs[a][ok], gs[b][ok], ys[a][ok], ys[b][ok]
+        mag = np.abs(ga + gb)
+        lo, hi = np.quantile(mag, band)
+        k = (mag >= lo) & (mag <= hi)
+        num += float(np.sum(gb[k] * ya[k]) + np.sum(ga[k] * yb[k]))
+        den += float(2.0 * np.sum(ga[k] * gb[k]))
+        samples += int(k.sum())
+        pairs += 1
+    s2 = -num / den if den > 0 else 0.0
+    return {"sigma2_px2": max(float(s2), 0.0), "samples": samples, "pairs": pairs}
