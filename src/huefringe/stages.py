@@ -715,6 +715,16 @@ def archive_session(session: str, results: str, config: Mapping[str, Any], archi
     log.info("%s", check.summary())
 
 
+def archive(archives: Sequence[str], index: str) -> None:
+    """The run's archives in one index (``results/archives.json``): size and SHA-256 of each ZIP
+    and its crate's summary (:func:`huefringe.archive.archive_index`)."""
+    from huefringe.archive import archive_index
+
+    table = archive_index(list(archives))
+    write_json(index, table)
+    log.info("%d archives, %d bytes", len(table["archives"]), sum(r["bytes"] for r in table["archives"]))
+
+
 # --------------------------------------------------------------------------- without Snakemake
 
 def measure_session(session: str | Path, out: str | Path, config: Mapping[str, Any], *,
