@@ -15,6 +15,7 @@ from session_factory import make_session
 
 from huefringe.archive import ArchiveError, read_crate, verify_archive, write_archive
 from huefringe.cli import main
+from huefringe.settings import software_identity
 
 CONFIG = {"sessions": ["resources/s"], "results_dir": "results", "hue_model": "hexcone", "measurement": {"unwrap": "reference"}}
 
@@ -83,7 +84,7 @@ def test_archive_holds_crate_and_verifies(packed: tuple[Path, Path, Path], capsy
     assert not inputs & outputs
     software = {e["name"]: e["version"] for e in crate["@graph"] if e["@type"] == "SoftwareApplication"}
     assert {"huefringe", "Python", "numpy"} <= set(software)
-    assert action["instrument"] == {"@id": "#software/huefringe"}
+    assert action["instrument"] == {"@id": software_identity().url}  # [project.urls] Homepage of pyproject.toml
     assert any(e["@id"].startswith("https://pypi.org/project/numpy/") for e in crate["@graph"])
 
     with zipfile.ZipFile(out) as zf:
@@ -189,3 +190,25 @@ def test_archive_refuses_mismatched_folders(tmp_path: Path) -> None:
         write_archive(session, wrong.rename(results), session / "a.zip")
     assert main(["archive", str(tmp_path / "nowhere"), str(results), str(tmp_path / "a.zip")]) == 1
     assert not (tmp_path / "a.zip").exists()
+
+
+def test_archive_stage_indexes_the_runs_archives(packed: tuple[Path, Path, Path], tmp_path: Path) -> None:
+    """Rule ``archive`` -> ``stages.archive``: each ZIP's size and sha256 (as ``sha256sum`` gives
+    them) and its crate's counts, in ``results/archives.json``."""
+    import hashlib
+
+    from huefringe import stages
+
+    _, _, out = packed
+    stages.archive([str(out)], index=str(tmp_path / "archives.json"))
+    (row,) = json.loads((tmp_path / "archives.json").read_text())["archives"]
+    crate = read_crate(out)
+    files = [e for e in crate["@graph"] if e["@type"] == "File"]
+    assert row == {
+        "file": "test-session.archive.zip", "session": "test-session", "bytes": out.stat().st_size,
+        "sha256": hashlib.sha256(out.read_bytes()).hexdigest(),
+        "date_published": {e["@id"]: e for e in crate["@graph"]}["./"]["datePublished"],
+        "files": len(files), "inputs": verify_archive(out).inputs, "outputs": 2,
+    }
+    with pytest.raises(ArchiveError, match="nothing.zip: no such file"):
+        stages.archive([str(tmp_path / "nothing.zip")], index=str(tmp_path / "x.json"))

@@ -13,9 +13,11 @@ import open3d as o3d
 import pytest
 import tifffile
 import trimesh
+import x3pio
 import yaml
 from bench_helpers import CONFIG, REPO, bench_config
 
+from huefringe.archive import read_crate, verify_archive
 from huefringe.report import validate_report
 
 
@@ -71,6 +73,9 @@ def test_results_contract(e2e: Path) -> None:
         assert pts[:, 0].max() == pytest.approx(199 * 0.2, abs=1e-6)  # X = u * pitch, mm
         qa = json.loads((res / "qa" / "frames" / f"frame_{n:04d}.json").read_text())
         assert qa["valid_fraction"] == pytest.approx(np.isfinite(h).mean())
+        x3p = x3pio.read(res / "x3p" / f"frame_{n:04d}.x3p")  # x3p.frames: all (the default)
+        assert np.array_equal(x3p.layers[0].z, h.astype(np.float64) * 1e-3, equal_nan=True)
+        assert x3p.header.x.increment == pytest.approx(0.2e-3, rel=1e-15)
     # phase and hue maps of the rendered frame only (measurement.maps: rendered, render.frames: first)
     assert sorted(p.name for p in (res / "phase").iterdir()) == ["frame_0000.tiff"]
     assert sorted(p.name for p in (res / "hue").iterdir()) == ["frame_0000.tiff"]
@@ -109,6 +114,17 @@ def test_snakemake_report_includes_the_metrology_page(e2e: Path, tmp_path: Path)
         texts = [z.read(n).decode("utf-8", "replace") for n in names if n.endswith((".html", ".js", ".json"))
                  and not n.startswith("snakemake-report/data/raw/")]
         assert any(caption[:60] in t for t in texts), [n for n in names if "data/raw" not in n]
+
+
+def test_archive_target_packs_each_session_and_indexes_them(e2e: Path) -> None:
+    """``snakemake archive``: rule archive_session per session, then rule archive's index."""
+    run_snakemake(e2e, "archive")
+    out = e2e / "results" / "e2e-demo.archive.zip"
+    assert verify_archive(out).ok
+    (row,) = json.loads((e2e / "results" / "archives.json").read_text())["archives"]
+    assert row["file"] == out.name and row["session"] == "e2e-demo" and row["bytes"] == out.stat().st_size
+    names = {e["@id"] for e in read_crate(out)["@graph"]}
+    assert "results/x3p/frame_0002.x3p" in names
 
 
 def test_rerun_is_a_no_op(e2e: Path) -> None:

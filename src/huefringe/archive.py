@@ -30,8 +30,12 @@ ZIP epoch), permissions are fixed (0644), the JSON is written by this module fro
 ``rocrate`` document (entities in insertion order, fixed indentation), and ``datePublished``
 is the session's ``provenance.captured_at`` when given, else ``SOURCE_DATE_EPOCH`` (the
 reproducible-builds convention), else the ZIP epoch with the root's description saying it is a
-placeholder: the clock and file modification times never enter the archive (so the run has no
-``endTime``, the one Process Run Crate SHOULD not met). The archive is written atomically
+placeholder: the clock and file modification times never enter the archive. The run's
+``endTime`` is the same date (in the ``+00:00`` form the profile checks): the end of a run is
+neither an input nor an output, and only a date the inputs give keeps archives of the same
+inputs byte-identical. huefringe's SoftwareApplication has the absolute ``@id`` and ``url`` of
+``[project.urls]`` ``Homepage`` in ``pyproject.toml`` (read from the installed distribution,
+:func:`huefringe.settings.software_identity`), unless ``archive.software_url`` overrides it. The archive is written atomically
 (:func:`huefringe.io.atomic_path`). Leftover temporary files of interrupted atomic writes
 (``.<stem>.<random>.part<suffix>``) are not packed.
 
@@ -60,8 +64,9 @@ from urllib.parse import quote, unquote
 
 import yaml
 
-from huefringe.io import atomic_path
+from huefringe.io import atomic_path, source_date_epoch
 from huefringe.report import sha256_file, software_versions
+from huefringe.settings import software_identity
 
 __all__ = [
     "ArchiveError",
@@ -69,6 +74,7 @@ __all__ = [
     "CONTEXT",
     "METADATA_NAME",
     "Verification",
+    "archive_index",
     "build_crate",
     "encoding_format",
     "is_partial_file",
@@ -185,17 +191,30 @@ def _date_published(provenance: Mapping[str, Any] | None = None) -> tuple[str, s
     when = (provenance or {}).get("captured_at")
     if when:
         return str(when), "the capture date (provenance.captured_at of session.yaml)"
-    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
-    if epoch:
-        try:
-            t = _dt.datetime.fromtimestamp(int(epoch), tz=_dt.UTC)
-        except (ValueError, OverflowError, OSError) as exc:
-            raise ArchiveError(f"SOURCE_DATE_EPOCH={epoch!r} is not a Unix time in seconds") from exc
+    try:
+        t = source_date_epoch()
+    except ValueError as exc:
+        raise ArchiveError(str(exc)) from exc
+    if t is not None:
         return t.strftime("%Y-%m-%dT%H:%M:%SZ"), "SOURCE_DATE_EPOCH given when the archive was written"
     t = _dt.datetime(*ZIP_EPOCH, tzinfo=_dt.UTC)
     return t.strftime("%Y-%m-%dT%H:%M:%SZ"), (
         "a placeholder (the ZIP epoch): the session has no provenance.captured_at and SOURCE_DATE_EPOCH "
         "was not set, and the clock is not used so that the same inputs give the same archive")
+
+
+def _end_time(date_published: str) -> str:
+    """The run's ``endTime``: ``datePublished`` in the form Process Run Crate 0.5 checks.
+
+    Its pattern is a date, or a date-time with seconds (optionally milliseconds) and a ``+HH:MM``
+    offset, so a zoned time is written in UTC as ``+00:00`` (``Z`` and negative offsets do not
+    match) and a time without a zone keeps its date only (a zone would be a guess).
+    """
+    when = _dt.datetime.fromisoformat(date_published)
+    if len(date_published) == 10 or when.tzinfo is None:
+        return when.date().isoformat()
+    when = when.astimezone(_dt.UTC)
+    return when.isoformat(timespec="milliseconds" if when.microsecond else "seconds")
 
 
 def _runtime_requirements() -> list[str]:
@@ -250,7 +269,8 @@ def build_crate(
     """The RO-Crate JSON-LD document of an archive (see the module docstring), built with ``rocrate``.
 
     ``license`` is ``{"id": URI, "name": ...}`` (a plain string becomes the description of a
-    local ``#license`` entity); ``author`` ``{"name", "id"?, "type"?}`` (Person by default);
+    local ``#license`` entity); ``author`` ``{"name", "id"?, "type"?, "url"?, "affiliation"?}``
+    (Person by default);
     ``publisher`` ``{"name", "id"?, "url"?}`` (always an Organization); ``provenance`` the
     session's provenance block, recorded on the root dataset and the run.
     """
@@ -282,6 +302,8 @@ def build_crate(
     author_ref = None
     if author:
         props = {"name": str(author["name"])}
+        if author.get("url"):
+            props["url"] = str(author["url"])
         if author.get("affiliation"):
             props["affiliation"] = organization(author["affiliation"], "#affiliation")
         author_ref = entity(_contextual_id(author.get("id"), "#author"), str(author.get("type", "Person")), props)
@@ -362,6 +384,8 @@ def build_crate(
         "actionStatus": "http://schema.org/CompletedActionStatus",  # a string, as Process Run Crate writes it
         "object": [_ref(SESSION_DIR)] + ([config_ref] if config_ref else []),
         "result": _ref(RESULTS_DIR),
+        # the same deterministic date as datePublished: the clock would make archives differ
+        "endTime": _end_time(date_published),
     }
     if instrument:
         run["instrument"] = instrument
@@ -463,7 +487,7 @@ def write_archive(
     license = license if license is not None else archive_cfg.get("license")
     author = author if author is not None else archive_cfg.get("author")
     publisher = publisher if publisher is not None else archive_cfg.get("publisher")
-    software_url = archive_cfg.get("software_url")
+    software_url = software_identity(archive_cfg.get("software_url")).url
     if not results.is_dir():
         raise ArchiveError(f"{results}: results folder does not exist (run the workflow first)")
     if results.resolve().name != sid:
@@ -733,3 +757,51 @@ def _verify(reader: _Reader, doc: Mapping[str, Any]) -> Verification:
     for name in sorted(set(listed) - input_names - output_names - {CONFIG_NAME}):
         res.problems.append(f"{name}: listed as a File but not part of session/ or results/")
     return res
+
+
+def archive_index(archives: list[str | os.PathLike[str]]) -> dict[str, Any]:
+    """The index of a run's archives: for each, its session, size, SHA-256 and crate summary.
+
+    What ``results/archives.json`` holds (rule ``archive``): a lab moving the archives elsewhere
+    checks each ZIP as a whole against it (``sha256sum``) before ``huefringe verify`` checks the
+    files inside.
+
+    Parameters
+    ----------
+    archives : list of path
+        Archives written by :func:`write_archive`.
+
+    Returns
+    -------
+    dict
+        ``{"archives": [{"file", "session", "bytes", "sha256", "date_published", "files",
+        "inputs", "outputs"}, ...]}`` in the order given; ``file`` is the archive's name,
+        ``files`` the File entities of its crate, ``inputs``/``outputs`` those under
+        ``session/`` and ``results/``.
+
+    Raises
+    ------
+    ArchiveError
+        An archive cannot be read or has no RO-Crate (the message names it).
+    """
+    rows = []
+    for path in map(Path, archives):
+        doc = read_crate(path)
+        by_id = {str(e.get("@id")): e for e in doc["@graph"] if isinstance(e, Mapping)}
+        root = by_id.get("./", {})
+        n_files = sum("File" in _types(e) for e in by_id.values())
+        try:
+            size, digest = path.stat().st_size, sha256_file(path)
+        except OSError as exc:
+            raise ArchiveError(f"{path}: cannot read ({exc})") from exc
+        rows.append({
+            "file": path.name,
+            "session": root.get("identifier"),
+            "bytes": size,
+            "sha256": digest,
+            "date_published": root.get("datePublished"),
+            "files": n_files,
+            "inputs": len(_as_list(by_id.get(SESSION_DIR, {}).get("hasPart"))),
+            "outputs": len(_as_list(by_id.get(RESULTS_DIR, {}).get("hasPart"))),
+        })
+    return {"archives": rows}

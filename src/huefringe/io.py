@@ -8,6 +8,7 @@ moved into place with :func:`os.replace`, which is atomic on POSIX file systems.
 from __future__ import annotations
 
 import contextlib
+import datetime as dt
 import json
 import os
 import tempfile
@@ -59,6 +60,26 @@ def remove_stale_parts(target: str | os.PathLike[str]) -> list[Path]:
         with contextlib.suppress(FileNotFoundError):
             p.unlink()
     return stale
+
+
+def source_date_epoch() -> dt.datetime | None:
+    """``SOURCE_DATE_EPOCH`` (the reproducible-builds convention) as a UTC time, or None if unset.
+
+    Files that must carry a date but be byte-identical for the same inputs (archives, X3P)
+    use it when the session gives no capture date, instead of the clock.
+
+    Raises
+    ------
+    ValueError
+        If the variable is set but is not a Unix time in whole seconds (the message names it).
+    """
+    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    if not epoch:
+        return None
+    try:
+        return dt.datetime.fromtimestamp(int(epoch), tz=dt.UTC)
+    except (ValueError, OverflowError, OSError) as exc:
+        raise ValueError(f"SOURCE_DATE_EPOCH={epoch!r} is not a Unix time in seconds") from exc
 
 
 def write_tiff(path: str | os.PathLike[str], data: np.ndarray) -> None:

@@ -513,6 +513,43 @@ def cloud_frames(session: str, frames: Sequence[int], heights: Sequence[str], cl
         log.info("frame %04d: %d points", n, points)
 
 
+def x3p_frames(session: str, frames: Sequence[int], heights: Sequence[str], x3p: Sequence[str]) -> None:
+    """X3P files (ISO 25178-72) of a batch of measured frames, from their height TIFFs.
+
+    Parameters
+    ----------
+    session : str
+        Session folder; gives the pixel pitch (the increments), the id and the provenance block
+        (the record's date, operator and instrument).
+    frames : sequence of int
+        Frame numbers of the batch (named in each record's comment).
+    heights : sequence of str
+        Height TIFFs written by :func:`measure_frames`, in the order of ``frames``.
+    x3p : sequence of str
+        Target ``.x3p`` files, one per frame, written atomically by
+        :func:`huefringe.x3p.write_height_x3p`.
+
+    Raises
+    ------
+    ValueError
+        If ``frames``, ``heights`` and ``x3p`` differ in length.
+    X3PError
+        If a map cannot be written (the message names the file).
+    """
+    from huefringe.settings import software_identity
+    from huefringe.x3p import write_height_x3p
+
+    if not len(frames) == len(heights) == len(x3p):
+        raise ValueError(f"x3p_frames: {len(frames)} frames, {len(heights)} height maps, {len(x3p)} X3P files")
+    s = load_session(session)
+    software = software_identity()
+    for n, height, out in zip(frames, heights, x3p, strict=True):
+        t0 = time.perf_counter()
+        write_height_x3p(out, read_tiff(height), s.pixel_pitch_mm, provenance=s.provenance, session_id=s.id,
+                         frame=n, software=software)
+        log.info("frame %04d: %s, %d bytes, %.3f s", n, out, Path(out).stat().st_size, time.perf_counter() - t0)
+
+
 def _refuse_bad_frame(path: Path, stats: Mapping[str, Any], measurement: Mapping[str, Any]) -> None:
     if stats["clipped_fraction"] > measurement["max_clipped_fraction"]:
         raise FrameError(
@@ -862,6 +899,16 @@ def archive_session(session: str, results: str, config: Mapping[str, Any], archi
     log.info("%s", check.summary())
 
 
+def archive(archives: Sequence[str], index: str) -> None:
+    """The run's archives in one index (``results/archives.json``): size and SHA-256 of each ZIP
+    and its crate's summary (:func:`huefringe.archive.archive_index`)."""
+    from huefringe.archive import archive_index
+
+    table = archive_index(list(archives))
+    write_json(index, table)
+    log.info("%d archives, %d bytes", len(table["archives"]), sum(r["bytes"] for r in table["archives"]))
+
+
 # --------------------------------------------------------------------------- without Snakemake
 
 def measure_session(session: str | Path, out: str | Path, config: Mapping[str, Any], *,
@@ -952,6 +999,7 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
     from huefringe.archive import ArchiveError
     from huefringe.metrology import MetrologyError
     from huefringe.session import SessionError
+    from huefringe.x3p import X3PError
 
     logfile = smk.log[0] if len(smk.log) else None
     handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
@@ -968,7 +1016,8 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
     t0 = time.perf_counter()
     try:
         func(**kwargs)
-    except (SessionError, FrameError, HueTableError, PlaneCalibrationError, MetrologyError, ArchiveError) as exc:
+    except (SessionError, FrameError, HueTableError, PlaneCalibrationError, MetrologyError, ArchiveError,
+            X3PError) as exc:
         log.error("%s", exc)
         sys.stderr.write(f"\nhuefringe: {exc}\n")
         sys.exit(1)

@@ -1,7 +1,8 @@
 # Archives (not part of `all`): one ZIP per session holding the session folder, results/<id>/
 # and the configuration used, with RO-Crate 1.1 metadata (ro-crate-metadata.json) listing every
 # file with its sha256. Check one with: huefringe verify results/<id>.archive.zip
-#   snakemake --cores 2 archive                          every planned session
+#   snakemake --cores 2 archive                          every planned session, and their index
+#                                                        results/archives.json (size, sha256)
 #   snakemake --cores 2 results/<id>.archive.zip         one session
 # Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/archive.smk).
 
@@ -30,8 +31,18 @@ rule archive_session:
 
 rule archive:
     input:
-        [f"{RESULTS}/{sid}.archive.zip" for sid in PLANS if sid not in TABLE1_IDS],
-
-
-localrules:
-    archive,
+        archives=[
+            f"{RESULTS}/{sid}.archive.zip" for sid in PLANS if sid not in TABLE1_IDS
+        ],
+    output:
+        index=f"{RESULTS}/archives.json",
+    log:
+        "logs/archive.log",
+    conda:
+        "../envs/huefringe.yaml"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=10,
+    script:
+        "../../scripts/archive.py"

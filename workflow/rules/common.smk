@@ -69,7 +69,14 @@ def frame_outputs(sid, frames):
         "qa": [R(sid, "qa", "frames", f"{fname(n)}.json") for n in frames],
         "uncertainties": [R(sid, "uncertainty", f"{fname(n)}.tiff") for n in frames],
         "supports": [R(sid, "support", f"{fname(n)}.tiff") for n in frames],
+        "x3p": [R(sid, "x3p", f"{fname(n)}.x3p") for n in frames],
     }
+
+
+def x3p_selection(sid):
+    """Frames of session ``sid`` written as X3P (``x3p.frames``: first, all, a list or none)."""
+    sel = config.get("x3p", {}).get("frames", "all")
+    return [] if sel == "none" else PLANS[sid].frame_selection(sel)
 
 
 def map_frames(sid):
@@ -119,6 +126,7 @@ def all_targets():
             continue
         out += frame_outputs(sid, plan.frames)["heights"]
         out += frame_outputs(sid, plan.frames)["clouds"]
+        out += frame_outputs(sid, x3p_selection(sid))["x3p"]
         out += [R(sid, "calib", "compensated_pattern.png")]
         if plan.phase_shift:
             out += baseline_outputs(sid, plan.phase_shift)["heights"]

@@ -2,10 +2,10 @@
 # measurement.maps: all), point clouds and the three-step baseline, in batches of frames per job
 # (one rule per session and batch, at least one batch per core, at most frames_per_job frames:
 # plan.batch_frames; a 1000-frame session on 2 cores costs 4 job start-ups, not 1000). The
-# clouds are jobs of their own (cloud_frames_*), made from the batch's height maps, so that the
-# height maps do not wait for them.
+# clouds and the X3P files are jobs of their own (cloud_frames_*, x3p_frames_*), made from the
+# batch's height maps, so that the height maps do not wait for them.
 # Resources: config `resources: {measure_frames: {mem_mb: ..., runtime: ...}}` (also cloud_frames,
-# baseline_frames), or --set-resources on the generated rule names.
+# x3p_frames, baseline_frames), or --set-resources on the generated rule names.
 # Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/measurement.smk).
 
 # Why a loop: one batch job writes one file per frame, and a rule's outputs must be patterns of its
@@ -65,6 +65,31 @@ for _sid, _plan in PLANS.items():
                 frames=_frames,
             script:
                 "../../scripts/cloud_frames.py"
+
+        _x3p = [n for n in _frames if n in set(x3p_selection(_sid))]
+        if _x3p:  # the batch's frames selected by x3p.frames
+
+            rule:
+                name:
+                    f"x3p_frames_{_sid.replace('-', '_')}_{_b:03d}"
+                input:
+                    heights=frame_outputs(_sid, _x3p)["heights"],
+                output:
+                    x3p=frame_outputs(_sid, _x3p)["x3p"],
+                log:
+                    f"logs/{_sid}/x3p_{_b:03d}.log",
+                conda:
+                    "../envs/huefringe.yaml"
+                threads: 1
+                resources:
+                    **rule_resources(
+                        "x3p_frames", mem_mb=1000, runtime=max(10, len(_x3p) // 20)
+                    ),
+                params:
+                    session=str(_plan.path),
+                    frames=_x3p,
+                script:
+                    "../../scripts/x3p_frames.py"
 
     for _b, _frames in enumerate(_plan.phase_shift_batches):
 
