@@ -198,3 +198,22 @@ def test_mesh_vertices_move_to_the_lens_models_x_y() -> None:
     np.testing.assert_array_equal(m.vertices[:, 2], h[v, u])
     np.testing.assert_array_equal(m.vertex_attributes["sigma_mm"], sigma[v, u])
     assert m.metadata["xy"] == "lens model"
+
+
+def test_auto_does_not_register_from_a_strip_too_narrow_for_the_period(tmp_path: Path) -> None:
+    """On a 200 x 150 px flat board without aberration the fit reads only the central ~20 columns
+    (1.5 periods left out at each side) and extrapolates 3-4 px of "aberration" to the corners;
+    auto must not act on it (it took p95 from 0.04 to 0.55 mm), ``true`` still does. A field
+    narrower than three periods is not estimable at all, and auto leaves it alone."""
+    cfg = bench_config("flat", width=200, height=150, hue_bands=48, frames=1, id="small")
+    s = load_session(write(cfg, tmp_path))
+    rec = session_camera_record(s, {"chromatic_registration": "auto"}, CONFIG["calibration"])["chromatic_registration"]
+    assert max(rec["estimate"]["corner_displacement_px"].values()) > 10 * camera.CA_AUTO_THRESHOLD_PX  # the misread
+    assert rec["reach"] < camera.CA_AUTO_MIN_REACH
+    assert not rec["applied"] and "field's half-width" in rec["not_applied_because"]
+    assert session_camera_record(s, {"chromatic_registration": True}, CONFIG["calibration"])["chromatic_registration"]["applied"]
+    narrow = load_session(write(bench_config("dental", width=160, height=120, hue_bands=16, frames=1, id="narrow"),
+                                tmp_path / "narrow"))
+    rec = session_camera_record(narrow, {"chromatic_registration": "auto"}, CONFIG["calibration"])["chromatic_registration"]
+    assert not rec["estimate"]["estimable"] and rec["estimate"]["scale"] == {"R": 0.0, "B": 0.0}
+    assert not rec["applied"]

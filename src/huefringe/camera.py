@@ -308,6 +308,17 @@ CA_AUTO_THRESHOLD_PX = 0.1
 """``camera.chromatic_registration: auto`` registers R and B when the estimated displacement of
 either at the farthest image corner exceeds this (px); see docs/design.md for why 0.1 px."""
 
+CA_MIN_PIXELS = 200
+"""A plane whose usable pixels (1.5 periods left out at each side, fringe amplitude kept) are fewer
+than this is not fitted; with no plane fitted the estimate is ``estimable: false``, scale 0."""
+
+CA_AUTO_MIN_REACH = 0.3
+"""``auto`` also needs the pixels the estimate reads to reach this fraction of the field's half-width
+from the centre along u (the fringes' direction, the lever arm of a magnification): a fit over a
+narrow strip near the centre (a small image, a long period: 1.5 periods are left
+out at each side) extrapolates its scale to the corners and read 2.9-4.2 px of aberration on a
+200 x 150 px board that had none."""
+
 
 def _quadrature(signal: NDArray[np.float64], period_px: float) -> NDArray[np.complex128]:
     """Local complex amplitude of the fringe's fundamental: a Gabor filter along u (carrier
@@ -366,6 +377,7 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
     rows: dict[str, list[tuple[float, float, int]]] = {"R": [], "B": []}
     acc = {c: [0.0, 0.0] for c in "RB"}  # sums over planes of the centred normal equations (own d0 per plane)
     npix = 0
+    fit_radius = 0.0  # the farthest pixel from the centre that the fit reads: how far it extrapolates
     for img in planes:
         sig = np.asarray(img, np.float64) / wb
         z = [_quadrature(np.ascontiguousarray(sig[..., c]), period_px) for c in range(3)]
@@ -382,7 +394,12 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
         ok &= amp > 0.2 * np.median(amp)
         if shadow is not None:
             ok &= ~shadow
+        if int(ok.sum()) < CA_MIN_PIXELS:  # a field narrower than 3 periods: nothing to fit on this plane
+            continue
         npix = int(ok.sum())
+        if npix:
+            uu = np.nonzero(ok.any(axis=0))[0]  # the fringes run along u: the lever arm is u - cx
+            fit_radius = max(fit_radius, float(np.max(np.abs(uu - cx))))
         for c, name in ((0, "R"), (2, "B")):
             d = np.angle(z[c] * np.conj(zg))
             d0 = np.angle(np.sum(np.exp(1j * d[ok]) * amp[ok]))
@@ -402,12 +419,13 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
     r_max = float(max(np.hypot(x - cx, y - cy) for x in (0, w - 1) for y in (0, h - 1)))
     out: dict[str, Any] = {"centre": [cx, cy], "period_px": float(period_px), "planes": len(planes), "pixels": npix,
                            "scale": {}, "scale_se": {}, "scale_per_plane": {}, "corner_displacement_px": {},
-                           "corner_radius_px": r_max}
+                           "corner_radius_px": r_max, "fit_reach_u_px": fit_radius,
+                           "field_reach_u_px": float(max(cx, w - 1 - cx)), "estimable": bool(rows["R"])}
     for name in "RB":
         sxx, sxy = acc[name]
-        scale = sxy / sxx
+        scale = sxy / sxx if sxx > 0 else 0.0  # no plane fitted: no magnification read (estimable False)
         per = [p[0] for p in rows[name]]
-        se = float(np.std(per, ddof=1) / np.sqrt(len(per))) if len(per) > 1 else float("nan")
+        se = float(np.std(per, ddof=1) / np.sqrt(len(per))) if len(per) > 1 else None  # JSON: null
         out["scale"][name] = float(scale)
         out["scale_se"][name] = se
         out["scale_per_plane"][name] = per
@@ -504,8 +522,15 @@ def camera_record(meta: Mapping[str, Any], settings: Mapping[str, Any], planes: 
         return rec
     est = estimate_lateral_ca(planes, white, float(meta["pattern"]["period_px"]), model.centre, shadow=shadow)
     worst = max(est["corner_displacement_px"].values())
-    applied = mode is True or mode == "true" or worst > CA_AUTO_THRESHOLD_PX
-    rec["chromatic_registration"].update(applied=bool(applied), threshold_px=CA_AUTO_THRESHOLD_PX, estimate=est)
+    reach = est["fit_reach_u_px"] / max(est["field_reach_u_px"], 1e-9)
+    forced = mode is True or mode == "true"
+    applied = forced or (worst > CA_AUTO_THRESHOLD_PX and reach >= CA_AUTO_MIN_REACH)
+    rec["chromatic_registration"].update(applied=bool(applied), threshold_px=CA_AUTO_THRESHOLD_PX,
+                                         min_reach=CA_AUTO_MIN_REACH, reach=float(reach), estimate=est)
+    if not forced and worst > CA_AUTO_THRESHOLD_PX and reach < CA_AUTO_MIN_REACH:
+        rec["chromatic_registration"]["not_applied_because"] = (
+            f"the estimate reads pixels out to {reach:.2f} of the field's half-width along u only (needs {CA_AUTO_MIN_REACH}): "
+            "too small a field for the fringe period to tell a magnification")
     return rec
 
 
