@@ -4,6 +4,7 @@ quantisation bound, and the manifest lists every capture in the order of the rig
 from __future__ import annotations
 
 import math
+import shutil
 from pathlib import Path
 
 import cv2
@@ -14,6 +15,7 @@ import yaml
 from huefringe import cli, projection
 from huefringe.colour import hue_hexcone, hue_hsi, wrap_pi
 from huefringe.patterns import TWO_PI, band_phase, trapezoid_rgb
+from huefringe.session import load_session
 from huefringe.projection import PatternsError, projector_period, read_manifest, write_patterns
 
 W, H, T, N, R = 240, 4, 37.0, 12, 2
@@ -208,3 +210,23 @@ def test_cli_writes_and_refuses(tmp_path: Path, capsys: pytest.CaptureFixture[st
     rc = cli.main(["patterns", str(out), "--width", "48", "--height", "3", "--period-px", "8"])
     assert rc == 2 and "OUT" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def test_manifest_paths_make_a_session_that_check_accepts(tmp_path: Path) -> None:
+    """Each manifest row's image copied to its session_path (a camera seeing the projector 1:1) is a
+    capture-session/1 folder that ``load_session`` accepts, with the asked N, R, planes and frames."""
+    pat = write_patterns(tmp_path / "pat", width=48, height=8, period_px=12.0, hue_bands=6, repeats=2,
+                         planes_mm=[0.0, 1.0, 2.5], frames=2)
+    asked = yaml.safe_load((pat / "patterns.yaml").read_text())
+    ses = tmp_path / "ses"
+    for row in read_manifest(pat / "manifest.csv"):
+        (ses / row.session_path).parent.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(pat / row.image, ses / row.session_path)
+    meta = {"format": "capture-session/1", "id": "projected-1to1",
+            "camera": {"width": 48, "height": 8, "bit_depth": 8, "pixel_pitch_mm": 0.1},
+            "pattern": {"period_px": asked["period_px"], "hue_bands": asked["hue_bands"], "repeats": asked["repeats"]},
+            "planes_mm": asked["planes_mm"]}
+    (ses / "session.yaml").write_text(yaml.safe_dump(meta))
+    s = load_session(ses, deep=True)
+    assert (s.hue_bands, s.repeats, s.planes_mm) == (6, 2, [0.0, 1.0, 2.5])
+    assert s.frame_ids == [0, 1] and list(s.phase_shift) == [0]
