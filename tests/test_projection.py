@@ -15,8 +15,8 @@ import yaml
 from huefringe import cli, projection
 from huefringe.colour import hue_hexcone, hue_hsi, wrap_pi
 from huefringe.patterns import TWO_PI, band_phase, trapezoid_rgb
-from huefringe.session import load_session
 from huefringe.projection import PatternsError, projector_period, read_manifest, write_patterns
+from huefringe.session import load_session
 
 W, H, T, N, R = 240, 4, 37.0, 12, 2
 PLANES = [0.0, 2.0, -1.5]
