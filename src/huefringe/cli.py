@@ -89,6 +89,33 @@ def _cmd_archive(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_patterns(args: argparse.Namespace) -> int:
+    from huefringe.projection import PatternsError, write_patterns
+
+    try:
+        planes = [float(z) for z in args.planes.split(",") if z.strip()]
+    except ValueError:
+        print(f"REFUSED: --planes: {args.planes!r} is not a comma-separated list of mm (e.g. 0,2,4)", file=sys.stderr)
+        return 2
+    try:
+        out = write_patterns(
+            args.out, width=args.width, height=args.height, period_px=args.period_px, hue_bands=args.bands,
+            repeats=args.repeats, planes_mm=planes, frames=args.frames, phase_shift=not args.no_phase_shift,
+            bit_depth=args.bit_depth, camera_period_px=args.camera_period_px, magnification=args.magnification,
+        )
+    except PatternsError as exc:
+        flag = {"out_dir": "OUT", "hue_bands": "--bands", "planes_mm": "--planes"}.get(
+            exc.argument, "--" + exc.argument.replace("_", "-"))
+        print(f"REFUSED: {flag}: {exc.problem}", file=sys.stderr)
+        return 2
+    n_img = len(list(out.glob("[0-9][0-9][0-9][0-9]_*.png")))
+    with open(out / "manifest.csv", encoding="utf-8") as fh:
+        n_cap = sum(1 for _ in fh) - 1
+    print(f"wrote {n_img} projector images ({args.width} x {args.height}, {args.bit_depth}-bit) and a manifest "
+          f"of {n_cap} captures to {out}")
+    return 0
+
+
 DESCRIPTION = """\
 huefringe: one-shot trapezoidal HSI fringe-projection profilometry.
 
@@ -133,6 +160,23 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", help="the archive to write, e.g. results/<id>.archive.zip")
     p.add_argument("--config", help="the workflow configuration YAML used (stored as config.yaml)")
     p.set_defaults(func=_cmd_archive)
+
+    p = sub.add_parser("patterns", help="write the projector images of a session and the manifest of capture order")
+    p.add_argument("out", help="new folder to write (refused if it exists and is not empty)")
+    p.add_argument("--width", type=int, required=True, help="projector width in pixels")
+    p.add_argument("--height", type=int, required=True, help="projector height in pixels")
+    p.add_argument("--period-px", type=float, help="fringe period in projector pixels (at least 6)")
+    p.add_argument("--camera-period-px", type=float,
+                   help="wanted fringe period in camera pixels on the reference plane (with --magnification)")
+    p.add_argument("--magnification", type=float,
+                   help="measured camera pixels per projector pixel; projector period = camera period / magnification")
+    p.add_argument("--bands", type=int, default=256, help="hue bands N (6..999; default 256)")
+    p.add_argument("--repeats", type=int, default=3, help="captures per hue band R (default 3)")
+    p.add_argument("--planes", default="0,2,4", help="calibration planes in mm, comma list with 0 (default 0,2,4)")
+    p.add_argument("--frames", type=int, default=1, help="object frames (default 1)")
+    p.add_argument("--no-phase-shift", action="store_true", help="no three-step phase-shift images")
+    p.add_argument("--bit-depth", type=int, choices=(8, 16), default=8, help="PNG bit depth (default 8)")
+    p.set_defaults(func=_cmd_patterns)
     return parser
 
 

@@ -62,10 +62,23 @@ def phase_shift_intensity(phi: ArrayLike, s: int) -> NDArray[np.float64]:
     return 0.5 + 0.5 * np.cos(np.asarray(phi, dtype=np.float64) + delta)
 
 
+def quantise(values: ArrayLike, bit_depth: int = 8) -> NDArray[np.uint8] | NDArray[np.uint16]:
+    """Round values in [0, 1] to ``bit_depth``-bit codes (8 -> ``uint8`` 0..255, 16 -> ``uint16``).
+
+    Values outside [0, 1] are clipped. Rounding to the nearest code moves a value by at most
+    half a code step, ``0.5 / (2**bit_depth - 1)``.
+    """
+    if bit_depth not in (8, 16):
+        raise ValueError(f"bit_depth must be 8 or 16, got {bit_depth!r}")
+    top = float(2**bit_depth - 1)
+    dtype = np.uint8 if bit_depth == 8 else np.uint16
+    return np.round(np.clip(np.asarray(values, dtype=np.float64), 0.0, 1.0) * top).astype(dtype)
+
+
 def projector_image(
-    width: int, height: int, period_px: float, phase_map: ArrayLike | None = None
-) -> NDArray[np.uint8]:
-    """An 8-bit projector frame of the trapezoidal pattern (constant along rows).
+    width: int, height: int, period_px: float, phase_map: ArrayLike | None = None, *, bit_depth: int = 8
+) -> NDArray[np.uint8] | NDArray[np.uint16]:
+    """A projector frame of the trapezoidal pattern (constant along rows), 8- or 16-bit.
 
     Parameters
     ----------
@@ -76,6 +89,8 @@ def projector_image(
     phase_map : array_like, optional
         A 1-D map of length ``width`` giving the code phase to *emit* at each projector column
         (a pre-distorted pattern); default the linear ``2 pi x / T``.
+    bit_depth : {8, 16}
+        Code depth: ``uint8`` (default) or ``uint16`` output (see :func:`quantise`).
     """
     if phase_map is None:
         phase = TWO_PI * np.arange(width) / float(period_px)
@@ -83,5 +98,5 @@ def projector_image(
         phase = np.asarray(phase_map, dtype=np.float64)
         if phase.shape != (width,):
             raise ValueError(f"phase_map must have shape ({width},), got {phase.shape}")
-    row = np.round(trapezoid_rgb(phase) * 255.0).astype(np.uint8)
+    row = quantise(trapezoid_rgb(phase), bit_depth)
     return np.broadcast_to(row[None, :, :], (height, width, 3)).copy()

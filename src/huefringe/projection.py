@@ -1,0 +1,264 @@
+"""The images a real rig projects for one capture session, and the manifest of capture order.
+
+:func:`write_patterns` writes into a new folder ``OUT`` (contract: ``RIG_MANIFEST``, summarised in
+``docs/guide.md``, "Images to project"):
+
+- ``NNNN_<name>.png``: every distinct projector image once, numbered in the order of its first
+  capture: ``white`` (full white), ``band_III`` (the uniform colour of hue band ``III``, code phase
+  ``2 pi i / N``), ``trapezoid`` (paper eq. 3, code phase ``2 pi x / T`` at column ``x``) and, with
+  phase shifting, ``shift_s0..s2`` (grey ``0.5 + 0.5 cos(2 pi x / T + delta_s)``). RGB PNG at the
+  projector's resolution, 8- or 16-bit codes rounded to the nearest step.
+- ``manifest.csv``: ``order,image,session_path``, one row per capture in capture order, naming the
+  image to show and where that capture goes in a capture-session/1 folder.
+- ``patterns.yaml``: what was asked (resolution, bit depth, projector period, N, R, planes, frames).
+
+The folder is written into a hidden temporary folder beside ``OUT`` and renamed onto ``OUT`` at the
+end, so an interrupted run leaves nothing that looks complete. Arguments are checked before anything
+is written; a bad one raises :class:`PatternsError` naming it.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import csv
+import io as _stdio
+import math
+import os
+import shutil
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from .io import atomic_path, write_png_rgb
+from .patterns import TWO_PI, band_rgb, phase_shift_intensity, projector_image, quantise
+
+MANIFEST_HEADER = ("order", "image", "session_path")
+
+#: Smallest projector period accepted: below 6 px the six linear pieces of eq. 3 get < 1 px each.
+MIN_PERIOD_PX = 6.0
+
+_UMASK = os.umask(0)
+os.umask(_UMASK)
+
+
+class PatternsError(ValueError):
+    """A bad argument of :func:`write_patterns`: ``argument`` names it, ``problem`` says why."""
+
+    def __init__(self, argument: str, problem: str) -> None:
+        self.argument = argument
+        self.problem = problem
+        super().__init__(f"{argument}: {problem}")
+
+
+@dataclass(frozen=True)
+class Capture:
+    """One manifest row: capture ``order`` shows projector file ``image``, stored at ``session_path``."""
+
+    order: int
+    image: str
+    session_path: str
+
+
+def projector_period(camera_period_px: float, magnification: float) -> float:
+    """Projector period giving a wanted camera period: ``camera_period_px / magnification``.
+
+    ``magnification`` is the lateral scale of the rig on the reference plane, in **camera pixels per
+    projector pixel** (e.g. a projector column pattern of period 40 px seen with a period of 60
+    camera px: magnification 1.5).
+    """
+    return float(camera_period_px) / float(magnification)
+
+
+def _check(
+    out_dir: Path, *, width: int, height: int, period_px: float | None, hue_bands: int, repeats: int,
+    planes_mm: Sequence[float], frames: int, bit_depth: int, camera_period_px: float | None,
+    magnification: float | None,
+) -> tuple[float, list[float]]:
+    def positive_int(name: str, value: object, lo: int = 1, hi: int | None = None) -> None:
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+            raise PatternsError(name, f"must be an integer, got {value!r}")
+        if value < lo or (hi is not None and value > hi):
+            raise PatternsError(name, f"must be in {lo}..{hi if hi is not None else 'inf'}, got {value}")
+
+    positive_int("width", width)
+    positive_int("height", height)
+    positive_int("hue_bands", hue_bands, 6, 999)  # capture-session/1: pattern.hue_bands 6..999
+    positive_int("repeats", repeats, 1, 99)  # pattern.repeats 1..99
+    positive_int("frames", frames, 1, 10000)  # frame_NNNN: four digits
+    if bit_depth not in (8, 16):
+        raise PatternsError("bit_depth", f"must be 8 or 16, got {bit_depth!r}")
+    if period_px is not None and (camera_period_px is not None or magnification is not None):
+        raise PatternsError("period_px", "give the projector period or camera_period_px with magnification, not both")
+    if period_px is None:
+        if camera_period_px is None or magnification is None:
+            raise PatternsError("period_px", "give the projector period, or camera_period_px and magnification")
+        for name, v in (("camera_period_px", camera_period_px), ("magnification", magnification)):
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise PatternsError(name, f"must be a positive number, got {v!r}")
+        period = projector_period(camera_period_px, magnification)
+        where = f"camera_period_px / magnification = {camera_period_px:g} / {magnification:g} = {period:g} px"
+        name = "camera_period_px"
+    else:
+        if not (isinstance(period_px, (int, float)) and math.isfinite(period_px)):
+            raise PatternsError("period_px", f"must be a number, got {period_px!r}")
+        period, where, name = float(period_px), f"{float(period_px):g} px", "period_px"
+    if period < MIN_PERIOD_PX:
+        raise PatternsError(name, f"the projector period must be at least {MIN_PERIOD_PX:g} px, got {where}")
+    try:
+        planes = [float(z) for z in planes_mm]
+    except (TypeError, ValueError) as exc:
+        raise PatternsError("planes_mm", f"must be a list of numbers in mm ({exc})") from exc
+    if not all(math.isfinite(z) for z in planes):
+        raise PatternsError("planes_mm", f"must be finite numbers, got {planes}")
+    keys = [f"{z:.3f}" for z in planes]  # session file names z_<mm with 3 decimals>
+    if len(planes) < 2:
+        raise PatternsError("planes_mm", f"needs at least two planes (0.0 and one more), got {planes}")
+    if len(set(keys)) != len(keys):
+        raise PatternsError("planes_mm", f"has repeated planes (to 3 decimals): {planes}")
+    if "0.000" not in keys and "-0.000" not in keys:
+        raise PatternsError("planes_mm", f"must contain the reference plane 0.0, got {planes}")
+    if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
+        raise PatternsError("out_dir", f"{out_dir} already exists and is not an empty folder")
+    return period, planes
+
+
+def capture_plan(hue_bands: int, repeats: int, planes_mm: Sequence[float], frames: int,
+                 phase_shift: bool) -> list[tuple[str, str]]:
+    """``(image name, session path)`` of every capture in capture order (image names without number).
+
+    Order: reference white, reference bands (band-major: ``band_000_r0, band_000_r1, ...``),
+    reference planes in the given order, object white, object bands, object frames ``0..F-1``,
+    then the phase-shift triple of frame 0000 when ``phase_shift``.
+    """
+    plan: list[tuple[str, str]] = []
+    for part in ("reference", "object"):
+        plan.append(("white", f"{part}/white.png"))
+        plan += [(f"band_{i:03d}", f"{part}/hue/band_{i:03d}_r{r}.png")
+                 for i in range(hue_bands) for r in range(repeats)]
+        if part == "reference":
+            plan += [("trapezoid", f"reference/planes/z_{z:.3f}.png") for z in planes_mm]
+    plan += [("trapezoid", f"object/frames/frame_{f:04d}.png") for f in range(frames)]
+    if phase_shift:
+        plan += [(f"shift_s{s}", f"object/phase_shift/frame_0000_s{s}.png") for s in range(3)]
+    return plan
+
+
+def _image(name: str, *, width: int, height: int, period: float, hue_bands: int, bit_depth: int) -> np.ndarray:
+    if name == "white":
+        return np.full((height, width, 3), 2**bit_depth - 1, dtype=np.uint8 if bit_depth == 8 else np.uint16)
+    if name == "trapezoid":
+        return projector_image(width, height, period, bit_depth=bit_depth)
+    if name.startswith("band_"):
+        colour = quantise(band_rgb(int(name[5:]), hue_bands), bit_depth)
+        return np.broadcast_to(colour, (height, width, 3)).copy()
+    if name.startswith("shift_s"):
+        row = quantise(phase_shift_intensity(TWO_PI * np.arange(width) / period, int(name[7:])), bit_depth)
+        return np.broadcast_to(row[None, :, None], (height, width, 3)).copy()
+    raise ValueError(f"unknown projector image {name!r}")
+
+
+def write_patterns(
+    out_dir: str | os.PathLike[str],
+    *,
+    width: int,
+    height: int,
+    period_px: float | None = None,
+    hue_bands: int = 256,
+    repeats: int = 3,
+    planes_mm: Sequence[float] = (0.0, 2.0, 4.0),
+    frames: int = 1,
+    phase_shift: bool = True,
+    bit_depth: int = 8,
+    camera_period_px: float | None = None,
+    magnification: float | None = None,
+) -> Path:
+    """Write every projector image of one session, ``manifest.csv`` and ``patterns.yaml`` into ``out_dir``.
+
+    Parameters
+    ----------
+    out_dir : path
+        New folder to create (an existing empty folder is accepted; a non-empty one is refused).
+    width, height : int
+        Projector resolution in pixels.
+    period_px : float, optional
+        Fringe period in **projector** pixels (at least 6). Give it, or ``camera_period_px`` with
+        ``magnification``.
+    hue_bands, repeats : int
+        N uniform hue bands (6..999) captured R times each (1..99), as capture-session/1 requires.
+    planes_mm : sequence of float
+        Heights of the calibration planes in capture order; at least two, distinct to 3 decimals,
+        one of them 0.0.
+    frames : int
+        Object frames (1..10000); each shows the trapezoid.
+    phase_shift : bool
+        Also write and list the three-step phase-shift sinusoids for frame 0000.
+    bit_depth : {8, 16}
+        PNG code depth.
+    camera_period_px : float, optional
+        Wanted fringe period on the reference plane in camera pixels (the session's
+        ``pattern.period_px``).
+    magnification : float, optional
+        Measured lateral scale on the reference plane in camera pixels per projector pixel; the
+        projector period is then ``camera_period_px / magnification`` (:func:`projector_period`).
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+
+    Raises
+    ------
+    PatternsError
+        Bad argument (named in ``.argument``), before anything is written.
+    """
+    out = Path(out_dir)
+    period, planes = _check(out, width=width, height=height, period_px=period_px, hue_bands=hue_bands,
+                            repeats=repeats, planes_mm=planes_mm, frames=frames, bit_depth=bit_depth,
+                            camera_period_px=camera_period_px, magnification=magnification)
+    plan = capture_plan(hue_bands, repeats, planes, frames, phase_shift)
+    files: dict[str, str] = {}
+    for name, _ in plan:
+        files.setdefault(name, f"{len(files):04d}_{name}.png")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".part", dir=out.parent))
+    try:
+        for name, file in files.items():
+            write_png_rgb(tmp / file, _image(name, width=width, height=height, period=period,
+                                              hue_bands=hue_bands, bit_depth=bit_depth))
+        text = _stdio.StringIO()
+        w = csv.writer(text, lineterminator="\n")
+        w.writerow(MANIFEST_HEADER)
+        w.writerows((k, files[name], path) for k, (name, path) in enumerate(plan))
+        with atomic_path(tmp / "manifest.csv") as p:
+            p.write_text(text.getvalue(), encoding="utf-8")
+        asked = {
+            "format": "huefringe-patterns/1",
+            "width": int(width), "height": int(height), "bit_depth": int(bit_depth),
+            "period_px": period, "camera_period_px": None if camera_period_px is None else float(camera_period_px),
+            "magnification": None if magnification is None else float(magnification),
+            "hue_bands": int(hue_bands), "repeats": int(repeats), "planes_mm": planes,
+            "frames": int(frames), "phase_shift": bool(phase_shift),
+            "images": len(files), "captures": len(plan),
+        }
+        with atomic_path(tmp / "patterns.yaml") as p:
+            p.write_text(yaml.safe_dump(asked, sort_keys=False), encoding="utf-8")
+        os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp creates 0700
+        os.replace(tmp, out)  # POSIX: atomic, also onto an existing empty folder
+    except BaseException:
+        with contextlib.suppress(FileNotFoundError):
+            shutil.rmtree(tmp)
+        raise
+    return out
+
+
+def read_manifest(path: str | os.PathLike[str]) -> list[Capture]:
+    """The rows of a ``manifest.csv`` written by :func:`write_patterns`."""
+    with open(path, newline="", encoding="utf-8") as fh:
+        rows = list(csv.reader(fh))
+    if not rows or tuple(rows[0]) != MANIFEST_HEADER:
+        raise ValueError(f"{path}: header must be {','.join(MANIFEST_HEADER)}")
+    return [Capture(int(o), i, s) for o, i, s in rows[1:]]
