@@ -70,6 +70,7 @@ def test_graph_sees_known_edges() -> None:
     assert "huefringe.kernel" in g["huefringe.stages"]
     assert "huefringe.huetable" in g["huefringe.compensation"]
     assert {"huefringe.io", "huefringe.settings"} <= g["huefringe.x3p"]  # x3p sits beside cloud, above io
+    assert {"huefringe.session", "huefringe.camera"} <= g["huefringe.assemble"]  # assemble sits above both
 
 
 def test_find_cycle_finds_a_circle() -> None:
@@ -83,7 +84,7 @@ def test_no_import_circle() -> None:
 
 @pytest.mark.parametrize("module", ["colour", "phase", "height", "huetable", "compensation", "perframe", "kernel",
                                     "mesh", "cloud", "metrology", "render", "session", "io", "patterns",
-                                    "camera", "x3p"])
+                                    "camera", "x3p", "assemble"])
 def test_measuring_modules_do_not_reach_the_bench(module: str) -> None:
     g = import_graph()
     seen, todo = set(), [f"huefringe.{module}"]
