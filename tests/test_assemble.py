@@ -288,3 +288,18 @@ def test_cli_session(kit, capsys) -> None:
     assert cli.main(["session", str(caps), str(pat), str(spec), str(tmp / "cli2")]) == 2
     err = capsys.readouterr().err
     assert "1 missing" in err and not (tmp / "cli2").exists()
+
+
+@pytest.mark.parametrize("preset, size", [("dental", (160, 120)), ("demo", (320, 240))])
+def test_content_checks_accept_objects_with_texture_and_steps(preset: str, size: tuple[int, int], tmp_path: Path) -> None:
+    """Shading, albedo and gauge-block shadows in the object's bands stay below the fringe level
+    (measured: at most 0.015 (dental) and 0.04 (demo) of white, fringes 0.43-0.49)."""
+    cfg = bench_config(preset, width=size[0], height=size[1], hue_bands=16, repeats=2, frames=1, id=f"t-{preset}")
+    s = load_session(write(cfg, tmp_path / "b"))
+    out = assemble_session(disassemble(s, tmp_path / "caps")[0].parent, write_patterns(s, tmp_path / "pat"),
+                           write_spec(s, tmp_path / "spec.yaml"), tmp_path / "out")
+    for rel, p in capture_order(s):
+        np.testing.assert_array_equal(read_rgb_codes(out / rel), read_rgb_codes(p), err_msg=rel)
+    obj_white = read_rgb_codes(s.object_white)
+    amps = [fringe_spectrum(fringe_profile(read_rgb_codes(p), obj_white))[0] for reps in s.object_bands for p in reps]
+    assert max(amps) < 0.05
