@@ -303,3 +303,15 @@ def test_content_checks_accept_objects_with_texture_and_steps(preset: str, size:
     obj_white = read_rgb_codes(s.object_white)
     amps = [fringe_spectrum(fringe_profile(read_rgb_codes(p), obj_white))[0] for reps in s.object_bands for p in reps]
     assert max(amps) < 0.05
+
+
+def test_refuses_a_manifest_that_breaks_the_layout(kit) -> None:
+    caps, files, pat, spec, tmp = kit
+    text = (pat / "manifest.csv").read_text()
+    (pat / "manifest.csv").write_text(text.replace("reference/hue/band_003_r1.png", "reference/hue/band_3_r1.png"))
+    assert "manifest.csv: line 10 (order 8): session_path 'reference/hue/band_3_r1.png'" in refused(kit)
+    # paths of the right form but an incomplete layout (band 003 repeat 1 twice -> r2): load_session refuses,
+    # named under OUT, nothing left behind
+    (pat / "manifest.csv").write_text(text.replace("reference/hue/band_003_r1.png", "reference/hue/band_003_r2.png"))
+    msg = refused(kit)
+    assert str(tmp / "out") in msg and "nothing written" in msg and ".part" not in msg

@@ -41,6 +41,8 @@ PERIOD_TOLERANCE = 0.05
 """Largest relative disagreement between the declared and the measured reference-plane period."""
 FRINGE_LEVEL = 0.1
 """Fringe amplitude (fraction of the white capture's level) above which a capture shows a fringe."""
+_SESSION_PATH = re.compile(r"^((reference|object)/white|(reference|object)/hue/band_\d{3}_r\d+|reference/planes/z_-?\d+\.\d{3}"
+                           r"|object/frames/frame_\d{4}|object/phase_shift/frame_\d{4}_s[0-2])\.png$")
 _FRINGE_PATHS = re.compile(r"^(reference/planes/|object/frames/|object/phase_shift/)")
 
 
@@ -132,8 +134,10 @@ def read_patterns(patterns_dir: str | os.PathLike[str]) -> tuple[dict[str, Any],
     for k, line in enumerate(lines[1:]):
         if len(line) != 3 or line[0] != str(k) or not line[2].endswith(".png") or line[2].startswith("/") \
                 or ".." in Path(line[2]).parts:
-            raise SessionError.at(mcsv, f"row {k + 2} ({','.join(line)}): expected order {k}, an image and a "
+            raise SessionError.at(mcsv, f"line {k + 2} ({','.join(line)}): expected order {k}, an image and a "
                                         "relative session_path ending in .png")
+        if not _SESSION_PATH.match(line[2]):
+            raise SessionError.at(mcsv, f"line {k + 2} (order {k}): session_path {line[2]!r} is not a capture-session/1 image path")
         rows.append(_Row(k, line[1], line[2]))
     if len({r.session_path for r in rows}) != len(rows):
         raise SessionError.at(mcsv, "a session_path appears twice")
@@ -339,7 +343,11 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
                     raise SessionError.at(target, "OpenCV could not write the PNG")
         with atomic_path(tmp / "session.yaml") as t:
             t.write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
-        load_session(tmp, deep=True)
+        try:
+            load_session(tmp, deep=True)
+        except SessionError as exc:  # name the files as they would be in OUT, not in the temp folder
+            raise SessionError([Problem(out / p.path.relative_to(tmp) if p.path.is_relative_to(tmp) else p.path,
+                                        f"{p.message} (nothing written)") for p in exc.problems]) from exc
         os.chmod(tmp, 0o777 & ~_umask())
         if out.exists():
             out.rmdir()
