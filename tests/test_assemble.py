@@ -5,6 +5,7 @@ contract), assembled back, measured, and every refusal."""
 from __future__ import annotations
 
 import csv
+import datetime as dt
 import hashlib
 import shutil
 from pathlib import Path
@@ -151,9 +152,16 @@ def test_round_trip_16bit_and_12bit(bench16: Session, tmp_path: Path) -> None:
 def test_bayer_mosaics_are_demosaiced(bench8: Session, tmp_path: Path) -> None:
     caps = tmp_path / "raw"
     disassemble(bench8, caps, convert=lambda a: camera.mosaic(a, "GRBG"))
-    out = assemble_session(caps, write_patterns(bench8, tmp_path / "pat"),
-                           write_spec(bench8, tmp_path / "spec.yaml", bayer="GRBG"), tmp_path / "out")
-    load_session(out, deep=True)
+    when = dt.datetime(2026, 12, 3, 10, 0, tzinfo=dt.timezone.utc)  # an unquoted YAML timestamp
+    pat = write_patterns(bench8, tmp_path / "pat")
+    out = assemble_session(caps, pat, write_spec(bench8, tmp_path / "spec.yaml", bayer="GRBG",
+                                                 provenance={"captured_at": when}), tmp_path / "out")
+    assert load_session(out, deep=True).meta["provenance"]["captured_at"] == "2026-12-03T10:00:00Z"
+    # the CLI's --bayer gives the same files as the spec's bayer
+    assert cli.main(["session", str(caps), str(pat), str(write_spec(bench8, tmp_path / "plain.yaml")),
+                     str(tmp_path / "cli"), "--bayer", "GRBG"]) == 0
+    rel = "object/frames/frame_0001.png"
+    np.testing.assert_array_equal(read_rgb_codes(tmp_path / "cli" / rel), read_rgb_codes(out / rel))
     for rel, p in capture_order(bench8):
         expect = camera.demosaic(camera.mosaic(read_rgb_codes(p), "GRBG"), "GRBG")
         np.testing.assert_array_equal(read_rgb_codes(out / rel), expect, err_msg=rel)
@@ -253,6 +261,10 @@ def test_refuses_existing_nonempty_out(kit) -> None:
     with pytest.raises(SessionError, match="taken: already exists and is not empty"):
         assemble_session(caps, pat, spec, out)
     assert [p.name for p in out.iterdir()] == ["x.txt"]
+    before = snapshot(caps)
+    with pytest.raises(SessionError, match="lies inside the captures folder"):
+        assemble_session(caps, pat, spec, caps / "session")
+    assert snapshot(caps) == before
 
 
 def test_refuses_a_wrong_period(kit, bench8: Session) -> None:

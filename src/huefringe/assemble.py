@@ -277,6 +277,8 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
         raise SessionError.at(out, "already exists and is not empty; give a new folder")
     if not captures.is_dir():
         raise SessionError.at(captures, "not a folder of captures")
+    if out.resolve().is_relative_to(captures.resolve()):
+        raise SessionError.at(out, f"lies inside the captures folder {captures}, which is never modified")
     spec = read_spec(spec_yaml)
     bayer = bayer or spec.get("bayer")
     if bayer is not None and bayer not in BAYER_PATTERNS:
