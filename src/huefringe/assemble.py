@@ -174,12 +174,19 @@ def convert_capture(raw: NDArray, *, bayer: str | None, bit_depth_in: int) -> ND
     return np.ascontiguousarray(data)
 
 
+def column_profile(rgb: NDArray) -> NDArray[np.float64]:
+    """Mean over rows of each column and channel, ``(W, 3)`` float64."""
+    return rgb.mean(axis=0, dtype=np.float64)
+
+
 def fringe_profile(rgb: NDArray, white: NDArray) -> NDArray[np.float64]:
-    """Row means of ``rgb / white`` per channel, ``(W, 3)``: the fringe along columns in
-    fractions of the white capture's level (shading and albedo divide out)."""
-    num = rgb.astype(np.float64).mean(axis=0)
-    den = np.maximum(white.astype(np.float64).mean(axis=0), 1e-9)
-    return num / den
+    """Row means of ``rgb`` over row means of ``white`` per channel, ``(W, 3)``: the fringe along
+    columns in fractions of the white capture's level (shading and albedo divide out)."""
+    return _ratio(column_profile(rgb), column_profile(white))
+
+
+def _ratio(profile: NDArray[np.float64], white: NDArray[np.float64]) -> NDArray[np.float64]:
+    return profile / np.maximum(white, 1e-9)
 
 
 def fringe_spectrum(profile: NDArray[np.float64], *, pad: int = 16) -> tuple[float, float]:
@@ -200,16 +207,16 @@ def fringe_spectrum(profile: NDArray[np.float64], *, pad: int = 16) -> tuple[flo
     return float(amplitude), float(width / k[i]) if k[i] > 0 else float("inf")
 
 
-def _content_problems(images: dict[str, NDArray], files: dict[str, Path], period_px: float,
+def _content_problems(profiles: dict[str, NDArray[np.float64]], files: dict[str, Path], period_px: float,
                       planes_mm: list[float]) -> list[Problem]:
     problems = []
     for part in ("reference", "object"):
         wkey = f"{part}/white.png"
-        if wkey not in images:
+        if wkey not in profiles:
             continue
-        white = images[wkey]
+        white = profiles[wkey]
         wmean = float(white.mean())
-        for key, img in images.items():
+        for key, img in profiles.items():
             if not key.startswith(part + "/") or key == wkey:
                 continue
             if float(img.mean()) >= wmean:
@@ -217,7 +224,7 @@ def _content_problems(images: dict[str, NDArray], files: dict[str, Path], period
                                                     f"{files[wkey].name} (mean {img.mean():.4g} >= {wmean:.4g}), "
                                                     f"but goes to {key}: likely out of order"))
                 continue
-            amp, period = fringe_spectrum(fringe_profile(img, white))
+            amp, period = fringe_spectrum(_ratio(img, white))
             fringe = bool(_FRINGE_PATHS.match(key))
             if fringe and amp < FRINGE_LEVEL:
                 problems.append(Problem(files[key], f"shows no fringe (amplitude {amp:.3f} of white < {FRINGE_LEVEL}) "
@@ -289,10 +296,18 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
     if (err := _count_problem(files, rows, captures)) is not None:
         raise err
 
-    raws = [read_capture(p) for p in files]
-    first = raws[0]
+    # pass 1: every file read once, checked, and reduced to its column profile (memory O(width));
+    # pass 2, after every check passed: read again, converted and written.
+    first = read_capture(files[0])
+    container = 8 if first.dtype == np.uint8 else 16
+    bit_in = container if bit_in is None else bit_in
+    if (bit_in == 8) != (container == 8):
+        raise SessionError.at(spec_yaml, f"bit_depth_in {bit_in} does not fit {container}-bit capture files "
+                                         f"({files[0].name})")
     problems = []
-    for p, r in zip(files, raws):
+    profiles: dict[str, NDArray[np.float64]] = {}
+    for row, p in zip(rows, files):
+        r = first if p == files[0] else read_capture(p)
         if r.shape != first.shape or r.dtype != first.dtype:
             problems.append(Problem(p, f"{_describe(r)} differs from the first capture {files[0].name} "
                                        f"({_describe(first)})"))
@@ -301,24 +316,15 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
         elif not bayer and (r.ndim != 3 or r.shape[2] != 3):
             problems.append(Problem(p, f"not an RGB image (array shape {r.shape}); a raw Bayer mosaic needs "
                                        "--bayer or bayer: in the spec"))
+        elif bit_in == 12 and int(r.max()) > 4095:
+            problems.append(Problem(p, f"value {int(r.max())} exceeds 4095, not 12-bit data (bit_depth_in: 12)"))
+        else:
+            profiles[row.session_path] = column_profile(convert_capture(r, bayer=bayer, bit_depth_in=bit_in))
     if problems:
         raise SessionError(problems)
-    container = 8 if first.dtype == np.uint8 else 16
-    if bit_in is None:
-        bit_in = container
-    if (bit_in == 8) != (container == 8):
-        raise SessionError.at(spec_yaml, f"bit_depth_in {bit_in} does not fit {container}-bit capture files "
-                                         f"({files[0].name})")
-    if bit_in == 12:
-        over = [(p, int(r.max())) for p, r in zip(files, raws) if int(r.max()) > 4095]
-        if over:
-            raise SessionError([Problem(p, f"value {m} exceeds 4095, not 12-bit data (bit_depth_in: 12)")
-                                for p, m in over])
-
-    images = {row.session_path: convert_capture(r, bayer=bayer, bit_depth_in=bit_in) for row, r in zip(rows, raws)}
     where = {row.session_path: p for row, p in zip(rows, files)}
     planes_mm = [float(z) for z in patterns["planes_mm"]]
-    if problems := _content_problems(images, where, float(spec["period_px"]), planes_mm):
+    if problems := _content_problems(profiles, where, float(spec["period_px"]), planes_mm):
         raise SessionError(problems)
 
     height, width = first.shape[:2]
@@ -337,8 +343,9 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".part", dir=out.parent))
     try:
-        for rel, img in images.items():
-            target = tmp / rel
+        for row, p in zip(rows, files):
+            img = convert_capture(read_capture(p), bayer=bayer, bit_depth_in=bit_in)
+            target = tmp / row.session_path
             target.parent.mkdir(parents=True, exist_ok=True)
             with atomic_path(target) as t:
                 if not cv2.imwrite(str(t), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
