@@ -203,6 +203,11 @@ def test_refuses_missing_and_extra_captures(kit) -> None:
     files[-2].unlink()
     msg = refused(kit)
     assert "2 missing" in msg and "object/phase_shift/frame_0000_s1.png" in msg and str(caps) in msg
+    shutil.copy(files[0], files[-1])  # now one missing in the middle: the numbering gap names it
+    files[-1].rename(caps / "cap_75.png")
+    msg = refused(kit)
+    assert "1 missing; the file numbering has gaps: no file numbered 73-74 between cap_72.png and cap_75.png" in msg
+    (caps / "cap_75.png").unlink()
     shutil.copy(files[0], files[-2])
     shutil.copy(files[0], files[-1])
     shutil.copy(files[0], caps / "cap_999.png")

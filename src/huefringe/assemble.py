@@ -151,12 +151,31 @@ def _count_problem(files: list[Path], rows: list[_Row], captures_dir: Path) -> S
         missing = rows[len(files):]
         names = ", ".join(f"row {r.order} ({r.session_path})" for r in missing[:10])
         more = f" and {len(missing) - 10} more" if len(missing) > 10 else ""
+        gaps = _numbering_gaps(files)
+        where = (f"; the file numbering has gaps: {', '.join(gaps[:10])}" if gaps else
+                 f"; if the last captures are missing, {names}{more}")
         return SessionError.at(captures_dir, f"{len(files)} captures for {len(rows)} manifest rows: "
-                                             f"{len(missing)} missing, for {names}{more}")
+                                             f"{len(missing)} missing{where}")
     extra = files[len(rows):]
     names = ", ".join(p.name for p in extra[:10]) + (f" and {len(extra) - 10} more" if len(extra) > 10 else "")
     return SessionError.at(captures_dir, f"{len(files)} captures for {len(rows)} manifest rows: "
                                          f"{len(extra)} extra: {names}")
+
+
+def _numbering_gaps(files: list[Path]) -> list[str]:
+    """Numbers absent from the last digit run of the file stems (``cap_6``, ``cap_8``: 7), as text."""
+    nums = []
+    for p in files:
+        runs = re.findall(r"\d+", p.stem)
+        if not runs:
+            return []
+        nums.append(int(runs[-1]))
+    out = []
+    for (a, pa), (b, pb) in zip(zip(nums, files), zip(nums[1:], files[1:])):
+        if b - a > 1:
+            span = f"{a + 1}" if b - a == 2 else f"{a + 1}-{b - 1}"
+            out.append(f"no file numbered {span} between {pa.name} and {pb.name}")
+    return out
 
 
 def convert_capture(raw: NDArray, *, bayer: str | None, bit_depth_in: int) -> NDArray:
