@@ -71,6 +71,7 @@ def test_graph_sees_known_edges() -> None:
     assert "huefringe.huetable" in g["huefringe.compensation"]
     assert {"huefringe.io", "huefringe.settings"} <= g["huefringe.x3p"]  # x3p sits beside cloud, above io
     assert g["huefringe.projection"] == {"huefringe.io", "huefringe.patterns"}  # just above patterns and io
+    assert {"huefringe.session", "huefringe.camera"} <= g["huefringe.assemble"]  # assemble sits above both
 
 
 def test_find_cycle_finds_a_circle() -> None:
@@ -84,7 +85,7 @@ def test_no_import_circle() -> None:
 
 @pytest.mark.parametrize("module", ["colour", "phase", "height", "huetable", "compensation", "perframe", "kernel",
                                     "mesh", "cloud", "metrology", "render", "session", "io", "patterns",
-                                    "camera", "x3p", "projection"])
+                                    "camera", "x3p", "projection", "assemble"])
 def test_measuring_modules_do_not_reach_the_bench(module: str) -> None:
     g = import_graph()
     seen, todo = set(), [f"huefringe.{module}"]

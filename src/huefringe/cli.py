@@ -1,4 +1,4 @@
-"""Command-line entry point: ``huefringe check|bench|archive|verify ...`` and ``--version``."""
+"""Command-line entry point: ``huefringe check|bench|patterns|session|archive|verify ...`` and ``--version``."""
 
 from __future__ import annotations
 
@@ -116,6 +116,21 @@ def _cmd_patterns(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_session(args: argparse.Namespace) -> int:
+    from huefringe.assemble import assemble_session
+    from huefringe.session import SessionError
+
+    try:
+        out = assemble_session(args.captures, args.patterns_dir, args.spec, args.out, bayer=args.bayer)
+    except SessionError as exc:
+        print(f"REFUSED: no session written ({len(exc.problems)} problem(s)):", file=sys.stderr)
+        for p in exc.problems:
+            print(f"  - {p}", file=sys.stderr)
+        return 2
+    print(f"OK: {out}")
+    return 0
+
+
 DESCRIPTION = """\
 huefringe: one-shot trapezoidal HSI fringe-projection profilometry.
 
@@ -135,7 +150,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="huefringe", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"huefringe {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,archive,verify}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,patterns,session,archive,verify}")
 
     p = sub.add_parser("check", help="validate a capture session; exit 1 if it is refused")
     p.add_argument("session", help="the session folder (holding session.yaml)")
@@ -177,6 +192,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--no-phase-shift", action="store_true", help="no three-step phase-shift images")
     p.add_argument("--bit-depth", type=int, choices=(8, 16), default=8, help="PNG bit depth (default 8)")
     p.set_defaults(func=_cmd_patterns)
+
+    p = sub.add_parser("session", help="assemble a checked capture session from a folder of camera files; exit 2 if refused")
+    p.add_argument("captures", help="folder of camera files (PNG/TIFF), one per manifest row, in natural order of name")
+    p.add_argument("patterns_dir", help="the patterns folder (manifest.csv + patterns.yaml)")
+    p.add_argument("spec", help="spec YAML: id, pixel_pitch_mm, period_px, optional specimen, provenance, camera, bayer, bit_depth_in")
+    p.add_argument("out", help="the session folder to write (new or empty)")
+    p.add_argument("--bayer", choices=["RGGB", "BGGR", "GRBG", "GBRG"], help="raw Bayer mosaics: demosaic with this pattern")
+    p.set_defaults(func=_cmd_session)
     return parser
 
 
