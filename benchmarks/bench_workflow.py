@@ -278,6 +278,8 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
         qa = dict(clipped_fraction=m.counts["clipped"] / px, hue_undefined_fraction=m.counts["hue_undefined"] / px,
                   table_invalid_fraction=0.0, shadow_fraction=0.0, hue_model="hexcone")
         if hasattr(perframe, "reference_frame_stats"):  # what stages.frame_results calls
+            if "flag_valid" in perframe.reference_frame_stats.__code__.co_varnames:  # flags before the filter
+                qa["flag_valid"] = np.isfinite(m.dphi)
             st = perframe.reference_frame_stats(m.dphi, m.valid, m.height, **qa)
         else:  # (so that the same script measures the commits before it)
             st = perframe.frame_stats(m.valid, m.height, unwrap(m.dphi, m.valid, "reference").flags,

@@ -62,3 +62,23 @@ def test_no_valid_pixel_and_a_nan_height_as_frame_stats() -> None:
     assert np.isnan(a["median_height_mm"]) and np.isnan(b["median_height_mm"])
     a.pop("median_height_mm"), b.pop("median_height_mm")
     assert a == b
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_flags_on_the_pixels_valid_before_the_filter(seed: int) -> None:
+    """flag_valid: the wrap flags counted on measure_frame's pre-filter mask (its unwrap call),
+    the valid fraction, below-reference count and median on the final one (a subset: the
+    filter's rejects); on a wrapping phase this differs from counting on the final mask."""
+    rng = np.random.default_rng(100 + seed)
+    h, w = (int(x) for x in rng.integers(8, 60, 2))
+    dphi = np.angle(np.exp(1j * (np.arange(w)[None, :] * 0.9 + np.arange(h)[:, None] * 0.3))).astype(np.float32)
+    before = rng.random((h, w)) > 0.2
+    dphi[~before] = np.nan  # the kernel's dphi: NaN where no phase was decoded
+    after = before & (rng.random((h, w)) > 0.3)  # the filter rejects some pixels
+    height = np.where(after, rng.normal(0.0, 0.4, (h, w)), np.nan).astype(np.float32)
+    want = frame_stats(after, height, unwrap(dphi, before, "reference").flags, unwrap_mode="reference", **KW)
+    got = reference_frame_stats(dphi, after, height, flag_valid=np.isfinite(dphi), **KW)
+    assert got == want
+    old = reference_frame_stats(dphi, after, height, **KW)  # flags on the final mask: fewer
+    assert old["flags"]["near_wrap"] < got["flags"]["near_wrap"]
+    assert old["valid_fraction"] == got["valid_fraction"] and old["median_height_mm"] == got["median_height_mm"]

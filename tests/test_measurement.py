@@ -101,8 +101,13 @@ def test_predistorted_projection_beats_plain_trapezoid(tmp_path: Path) -> None:
     assert errors[True] < 0.7 * errors[False], errors
 
 
-def test_kernel_stage_equals_reference_stage(tmp_path: Path) -> None:
-    """measurement.kernel only changes the speed: same height, phase and hue maps, same QA."""
+@pytest.mark.parametrize("blur", [0, 1.0, "auto"])
+def test_kernel_stage_equals_reference_stage(tmp_path: Path, blur: float) -> None:
+    """measurement.kernel only changes the speed: same height, phase and hue maps, same QA, also
+    with the texture-edge correction on (calibration.texture_blur_px2 = 1 px^2: ~120 pixels per
+    frame valid before the phase filter are dropped after it, 9-13 of them near a wrap, which the
+    QA's wrap flags must count as measure_frame does, over the pixels valid before the filter;
+    and its own estimate, auto)."""
     import copy
 
     from bench_helpers import CONFIG
@@ -113,10 +118,14 @@ def test_kernel_stage_equals_reference_stage(tmp_path: Path) -> None:
     for fast in (True, False):
         cfg = copy.deepcopy(CONFIG)
         cfg["measurement"]["kernel"] = fast
+        cfg["calibration"]["texture_blur_px2"] = blur
         outs[fast] = process(session, tmp_path / f"out{int(fast)}", config=cfg)
     for key in ("heights", "phases", "hues", "qa"):
         for a, b in zip(outs[True][key], outs[False][key], strict=True):
             assert Path(a).read_bytes() == Path(b).read_bytes(), (key, a)
+    if blur == 1.0:  # the case exercises what it is for: pixels the filter rejected, wrap flags among them
+        qa = json.loads(Path(outs[False]["qa"][0]).read_text())
+        assert qa["flags"]["near_wrap"] + qa["flags"]["wrap_edge"] > 0, qa["flags"]
 
 
 @pytest.mark.parametrize("jump", [0.25, 0.1, 0.0])

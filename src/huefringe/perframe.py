@@ -392,25 +392,34 @@ def _phase_sigma_map(noise, slope, floor_slope, out):  # pragma: no cover - comp
 def reference_frame_stats(dphi: NDArray[np.float32], valid: NDArray[np.bool_], height: NDArray[np.float32], *,
                           clipped_fraction: float, hue_undefined_fraction: float, table_invalid_fraction: float,
                           shadow_fraction: float, hue_model: str, near_wrap: float = 0.9 * np.pi,
-                          below_reference_mm: float = 0.25) -> dict[str, Any]:
+                          below_reference_mm: float = 0.25, flag_valid: NDArray[np.bool_] | None = None) -> dict[str, Any]:
     """:func:`frame_stats` of a reference-relative frame, flags included, in one compiled pass.
 
-    Equals ``frame_stats(valid, height, phase.unwrap(dphi, valid, "reference").flags, ...,
+    Equals ``frame_stats(valid, height, phase.unwrap(dphi, flag_valid, "reference").flags, ...,
     unwrap_mode="reference")`` value for value (the flag counts, the valid fraction and the
     median height, NumPy's ``np.median`` of the float32 heights: the middle value, or the
     float32 mean of the two middle ones), without the flag maps, the unwrapped copy and the
     sort: what the kernel's measurement loop needs per frame (``dphi`` is the phase difference
     before the filter, ``valid`` and ``height`` the final ones).
+
+    ``flag_valid`` (default ``valid``) are the pixels the wrap flags are counted on: for
+    :func:`measure_frame`'s figures, the pixels valid *before* the phase filter (its ``unwrap``
+    call), i.e. ``np.isfinite(dphi)`` of the kernel's ``dphi``. The filter's rejection of noisy
+    pixels (``measurement.denoise_adaptive``) and a non-finite height drop pixels from ``valid``
+    only; counting the flags on the final ``valid`` instead under-counts ``near_wrap`` and
+    ``wrap_edge`` wherever the dropped pixels sit near a wrap (the texture-edge correction's case).
     """
     d = np.ascontiguousarray(dphi)
     ok = np.ascontiguousarray(valid, dtype=bool)
+    fv = ok if flag_valid is None else np.ascontiguousarray(flag_valid, dtype=bool)
     z = np.ascontiguousarray(height, dtype=np.float32)
-    if not d.shape == ok.shape == z.shape or d.ndim != 2:
-        raise ValueError(f"dphi {d.shape}, valid {ok.shape} and height {z.shape} must be the same 2-D shape")
+    if not d.shape == ok.shape == z.shape == fv.shape or d.ndim != 2:
+        raise ValueError(f"dphi {d.shape}, valid {ok.shape}, flag_valid {fv.shape} and height {z.shape} "
+                         "must be the same 2-D shape")
     edge = np.empty((3, d.shape[1]), np.uint8)
     keys = np.empty(d.size + 1, np.uint32)
-    n_valid, n_edge, n_near, n_below, n_keys = _reference_counts(d, ok, z, float(near_wrap), np.float32(below_reference_mm),
-                                                                 edge, keys)
+    n_valid, n_edge, n_near, n_below, n_keys = _reference_counts(d, ok, fv, z, float(near_wrap),
+                                                                 np.float32(below_reference_mm), edge, keys)
     counts = {"wrap_edge": int(n_edge), "near_wrap": int(n_near), "isolated": 0, "below_reference": int(n_below)}
     median = (None if n_valid == 0 else float("nan") if n_keys < n_valid  # NaN among them: np.median's NaN
               else float(_median_keys(keys, int(n_keys))))
@@ -420,8 +429,8 @@ def reference_frame_stats(dphi: NDArray[np.float32], valid: NDArray[np.bool_], h
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _reference_counts(d, valid, height, near_wrap, below, edge, keys):  # pragma: no cover - numba
-    """``phase._wrap_flags`` counted (on ``valid & finite(d)``, differences in float64), the
+def _reference_counts(d, valid, flag_valid, height, near_wrap, below, edge, keys):  # pragma: no cover - numba
+    """``phase._wrap_flags`` counted (on ``flag_valid & finite(d)``, differences in float64), the
     pixels below ``-below`` among ``valid``, and the valid heights as order-preserving uint32
     keys (for :func:`_median_keys`). Returns (valid, wrap_edge, near_wrap, below, keys).
 
@@ -443,6 +452,7 @@ def _reference_counts(d, valid, height, near_wrap, below, edge, keys):  # pragma
     for v in range(h):
         dv = d[v]
         okv = valid[v]
+        fvv = flag_valid[v]
         hv = height[v]
         zv = zb[v * w : v * w + w]
         for u in range(w):
@@ -454,19 +464,19 @@ def _reference_counts(d, valid, height, near_wrap, below, edge, keys):  # pragma
             keys[n_keys] = b ^ (np.uint32(0xFFFFFFFF) if b >> np.uint32(31) else np.uint32(0x80000000))
             n_keys += ok & (hh == hh)
             x = np.float64(dv[u])
-            n_near += ok & (x - x == 0) & (abs(x) > near_wrap)
+            n_near += fvv[u] & (x - x == 0) & (abs(x) > near_wrap)
         for u in range(w - 1):
             x = np.float64(dv[u])
             y = np.float64(dv[u + 1])
-            right[u] = okv[u] & okv[u + 1] & (x - x == 0) & (y - y == 0) & (abs(y - x) > pi)
+            right[u] = fvv[u] & fvv[u + 1] & (x - x == 0) & (y - y == 0) & (abs(y - x) > pi)
         right[w - 1] = 0
         if v + 1 < h:
             dn = d[v + 1]
-            okn = valid[v + 1]
+            fvn = flag_valid[v + 1]
             for u in range(w):
                 x = np.float64(dv[u])
                 y = np.float64(dn[u])
-                down[u] = okv[u] & okn[u] & (x - x == 0) & (y - y == 0) & (abs(y - x) > pi)
+                down[u] = fvv[u] & fvn[u] & (x - x == 0) & (y - y == 0) & (abs(y - x) > pi)
         else:
             down[:] = 0
         n_edge += right[0] | up[0] | down[0]

@@ -442,10 +442,12 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                                   want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty,
                                   out=buffers)
             px = m.valid.size  # frame_stats with unwrap's reference flags, in one compiled pass
+            # the wrap flags on the pixels valid before the filter (measure_frame's unwrap call): the
+            # kernel's dphi is NaN exactly where no phase was decoded; m.valid has lost the filter's rejects
             stats = reference_frame_stats(m.dphi, m.valid, m.height, clipped_fraction=m.counts["clipped"] / px,  # type: ignore[arg-type]
                                           hue_undefined_fraction=m.counts["hue_undefined"] / px,
                                           table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
-                                          hue_model=hue_model)
+                                          hue_model=hue_model, flag_valid=np.isfinite(m.dphi))
             height, phase, hue, u_map, support = m.height, m.phase, m.hue, m.uncertainty, m.support
         else:
             budget = pixel_budget(t, cal) if budget is None else budget
