@@ -27,13 +27,12 @@ from typing import Any
 import cv2
 import jsonschema
 import numpy as np
-import tifffile
 import yaml
 from numpy.typing import NDArray
 
 from huefringe.camera import BAYER_PATTERNS, bayer_problem, demosaic
 from huefringe.io import atomic_path
-from huefringe.session import Problem, SessionError, load_session
+from huefringe.session import Problem, SessionError, decode_image, load_session
 
 CAPTURE_SUFFIXES = (".png", ".tif", ".tiff")
 MANIFEST_HEADER = ["order", "image", "session_path"]
@@ -68,17 +67,7 @@ def capture_files(captures_dir: str | os.PathLike[str]) -> list[Path]:
 
 def read_capture(path: Path) -> NDArray:
     """A camera file as stored: ``(H, W)`` (raw/mono) or ``(H, W, 3)`` in R, G, B order."""
-    try:
-        if path.suffix.lower() in (".tif", ".tiff"):
-            data = tifffile.imread(path)
-        else:
-            data = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-            if data is not None and data.ndim == 3 and data.shape[2] == 3:
-                data = cv2.cvtColor(data, cv2.COLOR_BGR2RGB)
-    except Exception as exc:
-        raise SessionError.at(path, f"cannot decode image ({exc.__class__.__name__}: {exc})") from exc
-    if data is None:
-        raise SessionError.at(path, "cannot decode image (corrupt or truncated)")
+    data = decode_image(path)
     if data.dtype not in (np.uint8, np.uint16):
         raise SessionError.at(path, f"unsupported pixel type {data.dtype} (8- or 16-bit expected)")
     return np.ascontiguousarray(data)

@@ -409,16 +409,14 @@ def _tiff_info(path: Path) -> ImageInfo:
     return ImageInfo(width, height, depth, channels)
 
 
-def read_rgb_codes(path: str | Path) -> np.ndarray:
-    """Read an 8/16-bit RGB PNG or TIFF as its sensor codes: C-contiguous ``uint8``/``uint16``
-    ``(H, W, 3)`` in R, G, B order (what :func:`read_rgb` scales to [0, 1]).
+def decode_image(path: Path) -> np.ndarray:
+    """A PNG or TIFF as stored, 3-channel images in R, G, B order (no check of shape or type).
 
     Raises
     ------
     SessionError
-        If the file cannot be decoded or is not a 3-channel 8/16-bit image.
+        If the file cannot be decoded, naming it.
     """
-    path = Path(path)
     try:
         if path.suffix.lower() in (".tif", ".tiff"):
             data = tifffile.imread(path)
@@ -430,6 +428,20 @@ def read_rgb_codes(path: str | Path) -> np.ndarray:
         raise SessionError.at(path, f"cannot decode image ({exc.__class__.__name__}: {exc})") from exc
     if data is None:
         raise SessionError.at(path, "cannot decode image (corrupt or truncated)")
+    return data
+
+
+def read_rgb_codes(path: str | Path) -> np.ndarray:
+    """Read an 8/16-bit RGB PNG or TIFF as its sensor codes: C-contiguous ``uint8``/``uint16``
+    ``(H, W, 3)`` in R, G, B order (what :func:`read_rgb` scales to [0, 1]).
+
+    Raises
+    ------
+    SessionError
+        If the file cannot be decoded or is not a 3-channel 8/16-bit image.
+    """
+    path = Path(path)
+    data = decode_image(path)
     if data.ndim != 3 or data.shape[2] != 3:
         raise SessionError.at(path, f"not an RGB image (array shape {data.shape})")
     if data.dtype not in (np.uint8, np.uint16):
