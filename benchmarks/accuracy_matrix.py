@@ -27,8 +27,8 @@ method's correction on and off through the config keys ``camera.chromatic_regist
 chain is (the correction is then absent, i.e. "off") or skipped with a note ("on"); a session
 whose camera block this build's reader refuses is skipped with the reader's message. Sessions
 with ``ground_truth/xy`` also score X, Y at the field's corners: the 95th percentile of the
-distance between the true plate point and the method's X, Y (``huefringe.camera.CameraModel``
-where the build has it, else ``u * pitch``) over four 24 x 24 px corner patches.
+distance between the true plate point and the method's X, Y (``huefringe.camera.CameraModel``)
+over four 24 x 24 px corner patches.
 """
 
 from __future__ import annotations
@@ -47,6 +47,7 @@ import yaml
 from scipy import ndimage
 
 from huefringe import bench, metrology, stages
+from huefringe.camera import CameraModel
 from huefringe.session import SessionError, read_rgb
 from huefringe.settings import load_config
 from huefringe.height import accuracy
@@ -226,25 +227,17 @@ def _with_camera(fn, kwargs: dict, config: dict) -> dict:
 def xy_corner_error(paths: dict, config: dict) -> float | None:
     """95th percentile (mm) of |(X, Y) - truth| over four 24 x 24 px corner patches, or None
     without ``ground_truth/xy``. X, Y from the measured heights by ``huefringe.camera.CameraModel``
-    (``camera.lens_model`` as configured) where the build has it, else ``u * pitch, v * pitch``."""
+    (``camera.lens_model`` as configured)."""
     s = paths["session"]
     errs = []
-    try:
-        from huefringe.camera import CameraModel  # the method's X, Y (cammethod)
-    except ImportError:
-        CameraModel = None
     for n, hpath in zip(s.frame_ids, paths["heights"], strict=True):
         truth = s.root / "ground_truth" / "xy" / f"frame_{n:04d}.tiff"
         if not truth.is_file():
             return None
         gt = tifffile.imread(truth)
         h = tifffile.imread(hpath)
-        if CameraModel is not None:
-            model = CameraModel.from_meta(s.meta, lens_model=bool(config.get("camera", {}).get("lens_model", True)))
-            x, y = model.xy(h)
-        else:
-            v, u = np.mgrid[0:h.shape[0], 0:h.shape[1]].astype(np.float64)
-            x, y = u * s.pixel_pitch_mm, v * s.pixel_pitch_mm
+        model = CameraModel.from_meta(s.meta, lens_model=bool(config["camera"]["lens_model"]))
+        x, y = model.xy(h)
         d = np.hypot(x - gt[..., 0], y - gt[..., 1])
         d[~np.isfinite(h)] = np.nan
         c = 24
