@@ -88,3 +88,35 @@ def test_correction_lowers_the_error_on_a_photographed_relief(photo_runs: dict) 
     assert np.median(auto) < 0.92 * np.median(off)
     assert np.percentile(auto, 95) < 0.85 * np.percentile(off, 95)
     assert auto.size > 0.97 * off.size
+
+
+def _phases(s2: float, texture_rad: float, noise_rad: float, seed: int = 1):
+    """Two frames' raw phases ``phi_0 = -s2 g + noise`` and their unit-corrected ``phi_0 + g``:
+    ``g`` is the texture's predicted lean (shared by the frames), the noise is each frame's own."""
+    rng = np.random.default_rng(seed)
+    g = cv2.GaussianBlur(rng.normal(0.0, 1.0, (240, 320)), (0, 0), 1.0) * texture_rad
+    plain = [-s2 * g + rng.normal(0.0, noise_rad, g.shape) for _ in range(2)]
+    return plain, [p + g for p in plain]
+
+
+def test_blur_from_phases_recovers_a_textured_slope() -> None:
+    plain, unit = _phases(0.8, texture_rad=0.02, noise_rad=0.01)
+    est = texture.blur_from_phases(plain, unit)
+    assert "rejected" not in est and abs(est["sigma2_px2"] - 0.8) < 0.08, est
+    assert est["stderr_px2"] < 0.8 / 3
+
+
+def test_blur_from_phases_refuses_noise_without_texture() -> None:
+    # no shared lean: the ratio of two near-zero sums is noise (once read as 42.8 px^2 on a real
+    # untextured session): the estimate must be refused, not used
+    for seed in range(6):
+        plain, unit = _phases(0.8, texture_rad=0.0, noise_rad=0.01, seed=seed)
+        unit = [p + np.random.default_rng(seed + 50 + k).normal(0.0, 1e-4, p.shape) for k, p in enumerate(plain)]
+        est = texture.blur_from_phases(plain, unit)
+        assert est["sigma2_px2"] == 0.0 and "rejected" in est, est
+
+
+def test_blur_from_phases_refuses_an_implausible_blur() -> None:
+    plain, unit = _phases(20.0, texture_rad=0.02, noise_rad=0.01)
+    est = texture.blur_from_phases(plain, unit)
+    assert est["sigma2_px2"] == 0.0 and "exceeds" in est["rejected"] and est["raw_px2"] > 15, est

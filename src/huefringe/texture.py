@@ -33,6 +33,9 @@ __all__ = ["blur_from_phases", "correct", "lean", "white_floor"]
 #: white level (full scale 1) below which the normalised fringe is not formed (noise, shadow)
 WHITE_FLOOR = 0.02
 
+#: largest camera blur variance (px^2) the estimate accepts: sigma 3 px is a camera out of focus
+MAX_BLUR_PX2 = 9.0
+
 
 def white_floor(white: NDArray[np.floating]) -> NDArray[np.float64]:
     """The white image (H, W, 3) in [0, 1], floored at :data:`WHITE_FLOOR` (float64)."""
@@ -95,7 +98,8 @@ def _fine(a: NDArray[np.float64], ok: NDArray[np.bool_], smooth_px: float) -> ND
 
 def blur_from_phases(plain: Sequence[NDArray[np.floating]], unit: Sequence[NDArray[np.floating]], *,
                      smooth_px: float = 2.0, band: tuple[float, float] = (0.5, 0.9),
-                     max_change_rad: float = 0.5) -> dict[str, Any]:
+                     max_change_rad: float = 0.5, strips: int = 8, min_t: float = 3.0,
+                     max_sigma2_px2: float = MAX_BLUR_PX2) -> dict[str, Any]:
     """The camera's blur variance (px^2) from the raw (unfiltered) phase of object frames measured
     as captured (``plain``) and after :func:`correct` with ``sigma^2 = 1`` (``unit``).
 
@@ -109,10 +113,19 @@ def blur_from_phases(plain: Sequence[NDArray[np.floating]], unit: Sequence[NDArr
     sharpest edges (there the slope measured falls to 0.1-0.4 of the blur), and the weakest
     carry no signal. Frames are paired in order (an odd last one pairs with the first).
 
+    On a surface with little texture both sums are near zero and their ratio is noise (0.0 and
+    42.8 px^2 were read on two untextured sessions one grey level apart). The estimate is
+    therefore accepted only when it is significant: its jackknife standard error over ``strips``
+    horizontal strips of the image must be at most ``1 / min_t`` of it, and it must not exceed
+    ``max_sigma2_px2`` (a lens that blurs by more than that is not a focused camera). Otherwise the
+    result is 0 (no correction) and ``rejected`` says why.
+
     Returns
     -------
     dict
-        ``sigma2_px2`` (>= 0, 0 without usable pixels), ``samples``, ``pairs``.
+        ``sigma2_px2`` (>= 0, 0 without usable pixels or when rejected), ``raw_px2`` (the slope
+        before the checks), ``stderr_px2`` (jackknife), ``samples``, ``pairs`` and, when the
+        estimate was not used, ``rejected``.
     """
     if len(plain) != len(unit) or len(plain) < 2:
         raise ValueError(f"blur_from_phases: {len(plain)} plain and {len(unit)} corrected phases (two or more pairs needed)")
@@ -123,20 +136,42 @@ def blur_from_phases(plain: Sequence[NDArray[np.floating]], unit: Sequence[NDArr
         ok = np.isfinite(p) & np.isfinite(g) & (np.abs(g) < max_change_rad)
         ys.append(_fine(p, ok, smooth_px))
         gs.append(_fine(g, ok, smooth_px))
-    num = den = 0.0
+    num = np.zeros(strips)
+    den = np.zeros(strips)
     samples = pairs = 0
     idx = list(range(len(ys)))
     for a, b in zip(idx[0::2], idx[1::2] + ([idx[0]] if len(idx) % 2 else [])):
         ok = np.isfinite(ys[a]) & np.isfinite(ys[b]) & np.isfinite(gs[a]) & np.isfinite(gs[b])
         if ok.sum() < 100:
             continue
+        rows = np.nonzero(ok)[0] * strips // ok.shape[0]
         ga, gb, ya, yb = gs[a][ok], gs[b][ok], ys[a][ok], ys[b][ok]
         mag = np.abs(ga + gb)
         lo, hi = np.quantile(mag, band)
         k = (mag >= lo) & (mag <= hi)
-        num += float(np.sum(gb[k] * ya[k]) + np.sum(ga[k] * yb[k]))
-        den += float(2.0 * np.sum(ga[k] * gb[k]))
+        num += np.bincount(rows[k], weights=gb[k] * ya[k] + ga[k] * yb[k], minlength=strips)
+        den += np.bincount(rows[k], weights=2.0 * ga[k] * gb[k], minlength=strips)
         samples += int(k.sum())
         pairs += 1
-    s2 = -num / den if den > 0 else 0.0
-    return {"sigma2_px2": max(float(s2), 0.0), "samples": samples, "pairs": pairs}
+    out: dict[str, Any] = {"sigma2_px2": 0.0, "raw_px2": 0.0, "stderr_px2": None, "samples": samples, "pairs": pairs}
+    total = float(den.sum())
+    if total <= 0:
+        if pairs:
+            out["rejected"] = "no texture signal (the frames' predicted corrections do not correlate)"
+        return out
+    s2 = -float(num.sum()) / total
+    used = den != 0
+    with np.errstate(divide="ignore", invalid="ignore"):
+        loo = -(num.sum() - num[used]) / (total - den[used])  # leave one strip out
+    m = int(used.sum())
+    se = float(np.sqrt((m - 1) / m * np.sum((loo - loo.mean()) ** 2))) if m > 1 and np.all(np.isfinite(loo)) else float("inf")
+    out.update(raw_px2=s2, stderr_px2=se)
+    if s2 <= 0:
+        out["rejected"] = f"slope {s2:.3g} px^2 is not positive"
+    elif se * min_t > s2:
+        out["rejected"] = f"not significant: {s2:.3g} +- {se:.2g} px^2 (needs {min_t:g} standard errors)"
+    elif s2 > max_sigma2_px2:
+        out["rejected"] = f"{s2:.3g} px^2 exceeds {max_sigma2_px2:g} px^2 (a camera in focus blurs less)"
+    else:
+        out["sigma2_px2"] = s2
+    return out
