@@ -36,10 +36,13 @@ __all__ = [
     "frame_stats",
     "measure_frame",
     "phase_sigma",
+    "plane_edge_mask",
     "reference_frame_stats",
+    "remove_step_edges",
     "sensor_model",
     "shadow_mask",
     "sigma_from_slope",
+    "step_edge_mask",
 ]
 
 
@@ -113,6 +116,93 @@ def _edge_kernel(h, jump, edge):  # pragma: no cover - numba
     return n
 
 
+#: the step-edge tests of ``measurement.edge_test``
+EDGE_TESTS = ("pair", "plane")
+
+
+def plane_edge_mask(height: NDArray[np.floating], jump_mm: float, tol_mm: float) -> NDArray[np.bool_]:
+    """Mixed pixels of step edges by the two-sided local-line test (``measurement.edge_test: plane``).
+
+    Along u and along v, a valid pixel ``z0`` with neighbours ``z-2, z-1 | z1, z2`` is a
+    candidate when it differs from ``z-1`` or ``z1`` by more than ``jump_mm`` (the pair test's
+    jump, :func:`step_edge_mask`), and mixed when it also departs by more than ``tol_mm`` from
+    each one-sided straight-line extrapolation that exists, ``L = 2 z-1 - z-2`` and
+    ``R = 2 z1 - z2`` (both neighbours of a side valid; no side: no verdict). A pixel that
+    continues the plane (and slope) of either side is kept: the plateau pixels next to a step
+    and the pixels of a smooth slope steeper than ``jump_mm`` per pixel, which the pair test
+    drops; a pixel whose value lies between the two sides' planes, or off both (an outlier), is
+    returned (True = to invalidate). Float32 arithmetic, ``L = z-1 + z-1 - z-2``, as the
+    compiled pass (:func:`remove_step_edges`) computes it; ``jump_mm <= 0`` returns all False.
+
+    Parameters
+    ----------
+    height : ndarray (H, W)
+        Height map, NaN where invalid.
+    jump_mm : float
+        The candidate jump to a 4-neighbour (mm).
+    tol_mm : float
+        Largest departure from a side's extrapolated line that still counts as on it (mm).
+    """
+    h = np.asarray(height, np.float32)
+    out = np.zeros(h.shape, bool)
+    if jump_mm <= 0:
+        return out
+    jump, tol = np.float32(jump_mm), np.float32(tol_mm)
+    pad = np.full((h.shape[0] + 4, h.shape[1] + 4), np.nan, np.float32)
+    pad[2:-2, 2:-2] = h
+    rows, cols = h.shape
+
+    def at(dv: int, du: int) -> NDArray[np.float32]:
+        return pad[2 + dv:2 + dv + rows, 2 + du:2 + du + cols]
+
+    with np.errstate(invalid="ignore"):
+        for dv, du in ((0, 1), (1, 0)):
+            m1, m2, p1, p2 = at(-dv, -du), at(-2 * dv, -2 * du), at(dv, du), at(2 * dv, 2 * du)
+            cand = (np.abs(h - m1) > jump) | (np.abs(p1 - h) > jump)
+            left, right = m1 + m1 - m2, p1 + p1 - p2
+            have_l, have_r = np.isfinite(left), np.isfinite(right)
+            on_l = have_l & (np.abs(h - left) <= tol)
+            on_r = have_r & (np.abs(h - right) <= tol)
+            out |= np.isfinite(h) & cand & (have_l | have_r) & ~on_l & ~on_r
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _plane_edge_kernel(h, jump, tol, edge):  # pragma: no cover - numba
+    """:func:`plane_edge_mask` into ``edge`` (float32, NaN compares False); returns the number of
+    pixels marked."""
+    rows, cols = h.shape
+    n = 0
+    nan = np.float32(np.nan)
+    for v in range(rows):
+        for u in range(cols):
+            z = h[v, u]
+            e = False
+            if np.isfinite(z):
+                for axis in range(2):
+                    if axis == 0:
+                        m1 = h[v, u - 1] if u > 0 else nan
+                        m2 = h[v, u - 2] if u > 1 else nan
+                        p1 = h[v, u + 1] if u + 1 < cols else nan
+                        p2 = h[v, u + 2] if u + 2 < cols else nan
+                    else:
+                        m1 = h[v - 1, u] if v > 0 else nan
+                        m2 = h[v - 2, u] if v > 1 else nan
+                        p1 = h[v + 1, u] if v + 1 < rows else nan
+                        p2 = h[v + 2, u] if v + 2 < rows else nan
+                    cand = (abs(z - m1) > jump) or (abs(p1 - z) > jump)
+                    left = m1 + m1 - m2
+                    right = p1 + p1 - p2
+                    have_l = np.isfinite(left)
+                    have_r = np.isfinite(right)
+                    on_l = have_l and abs(z - left) <= tol
+                    on_r = have_r and abs(z - right) <= tol
+                    e |= cand and (have_l or have_r) and not on_l and not on_r
+            edge[v, u] = e
+            n += e
+    return n
+
+
 @numba.njit(cache=True, nogil=True)
 def _masked(x, edge, fill, out):  # pragma: no cover - numba
     """``out = where(edge, fill, x)``."""
@@ -140,20 +230,29 @@ def _finite_keys(z, keys):  # pragma: no cover - numba
 
 
 def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: Sequence[NDArray[np.float32] | None] = (),
-                      zero_maps: Sequence[NDArray[np.float32] | None] = ()) -> tuple[Any, ...]:
-    """Invalidate the mixed pixels of step edges (:func:`step_edge_mask`) in a height map and the
-    maps that go with it, in compiled passes: what ``measurement.edge_jump_mm`` does per frame.
+                      zero_maps: Sequence[NDArray[np.float32] | None] = (), test: str = "pair",
+                      tol_mm: float = 0.06) -> tuple[Any, ...]:
+    """Invalidate the mixed pixels of step edges in a height map and the maps that go with it, in
+    compiled passes: what ``measurement.edge_jump_mm`` / ``edge_test`` / ``edge_plane_tol_mm`` do
+    per frame.
 
-    Returns ``(height, nan_maps, zero_maps, stats)``: new float32 arrays (NaN on the edge pixels;
+    ``test`` is ``"pair"`` (:func:`step_edge_mask`: both pixels of a 4-neighbour pair differing
+    by more than ``jump_mm``) or ``"plane"`` (:func:`plane_edge_mask`: of such candidates, those
+    off both sides' extrapolated lines by more than ``tol_mm``). Returns
+    ``(height, nan_maps, zero_maps, stats)``: new float32 arrays (NaN on the edge pixels;
     0 in ``zero_maps``; None stays None) and the frame statistics that change, ``edge_fraction``,
     ``valid_fraction`` (finite heights) and ``median_height_mm`` (NumPy's ``nanmedian`` of the
-    new heights, None when none is left), equal to ``np.where(step_edge_mask(...), ...)`` and
-    ``np.nanmedian`` value for value (tested) at about a quarter of their cost (1.8 against 7.1 ms
-    on a 640 x 480 frame).
+    new heights, None when none is left), equal to ``np.where(step_edge_mask(...), ...)`` (or
+    ``plane_edge_mask``) and ``np.nanmedian`` value for value (tested) at about a quarter of
+    their cost (1.8 against 7.1 ms on a 640 x 480 frame, pair test).
     """
+    if test not in EDGE_TESTS:
+        raise ValueError(f"edge test must be one of {EDGE_TESTS}, got {test!r}")
     h = np.ascontiguousarray(height, np.float32)
     edge = np.empty(h.shape, bool)
-    if jump_mm > 0:
+    if jump_mm > 0 and test == "plane":
+        n_edge = _plane_edge_kernel(h, np.float32(jump_mm), np.float32(tol_mm), edge)
+    elif jump_mm > 0:
         n_edge = _edge_kernel(h, np.float32(jump_mm), edge)
     else:  # as step_edge_mask: 0 switches it off
         edge[...] = False
