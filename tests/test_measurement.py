@@ -180,7 +180,7 @@ def test_step_edge_mask_marks_both_sides_of_a_jump_only() -> None:
     assert not step_edge_mask(h, 0.0).any()
 
 
-@pytest.mark.parametrize("jump, tol", [(0.25, 0.06), (0.1, 0.02), (0.25, 0.5), (0.0, 0.06)])
+@pytest.mark.parametrize("jump, tol", [(0.25, 0.1), (0.1, 0.02), (0.25, 0.5), (0.0, 0.1)])
 def test_plane_edge_kernel_equals_the_numpy_definition(jump: float, tol: float) -> None:
     """measurement.edge_test: plane: the compiled pass of remove_step_edges marks exactly
     plane_edge_mask's pixels (NaN, inf, frame borders, odd sizes), and its maps and statistics
@@ -207,26 +207,30 @@ def test_plane_edge_kernel_equals_the_numpy_definition(jump: float, tol: float) 
         remove_step_edges(h, 0.25, test="planes")
 
 
-def test_plane_edge_test_keeps_plateaus_and_slopes_drops_mixed_pixels() -> None:
-    """The two-sided local-line test on an analytic profile: a 0.4 mm/px slope (steeper than the
-    0.25 mm jump) is kept whole, the pair test cuts it; of a 2 mm step blurred into two mixed
-    pixels (0.5, 1.5 mm) only those two go, the plateau pixels beside them stay (the pair test
-    drops them too); an isolated 0.5 mm outlier goes alone, its neighbours stay."""
+def test_plane_edge_test_keeps_slopes_and_outliers_neighbours_drops_steps() -> None:
+    """The local-line test on an analytic profile (0.25 mm jump, 0.1 mm tolerance): a 0.4 mm/px
+    slope (steeper than the jump) is kept but for its pixel 1 (its left line would need pixel -1:
+    a missing neighbour explains nothing) and its last pixel before the plateau (a kink); a 2 mm
+    step blurred into two mixed pixels loses both of them and the plateau pixel on either side
+    (as the pair test: a step's edge is only known to a pixel); an isolated 0.5 mm outlier goes
+    alone, its neighbours stay (the pair test drops them)."""
     import numpy as np
 
     from huefringe.perframe import plane_edge_mask, step_edge_mask
 
-    row = np.concatenate([0.4 * np.arange(10),                      # slope, columns 0-9
+    row = np.concatenate([0.4 * np.arange(10),                          # slope, columns 0-9
                           np.full(6, 4.0), [4.5, 5.5], np.full(6, 6.0),  # step 4 -> 6 mm, mixed at 16, 17
                           np.full(4, 6.0)]).astype(np.float32)
     row[24] += 0.5  # outlier
     h = np.tile(row, (7, 1))
-    plane = plane_edge_mask(h, 0.25, 0.06)
+    plane = plane_edge_mask(h, 0.25, 0.1)
     pair = step_edge_mask(h, 0.25)
-    assert np.flatnonzero(plane[3]).tolist() == [16, 17, 24]  # the slope's end (3.6 -> 4.0) continues either side
-    assert pair[3, :9].all() and not plane[3, :9].any()
-    assert pair[3, [15, 18, 23, 25]].all() and not plane[3, [15, 18, 23, 25]].any()
-    assert not plane_edge_mask(h, 0.0, 0.06).any()
+    assert np.flatnonzero(plane[3]).tolist() == [1, 9, 15, 16, 17, 18, 24]
+    assert np.flatnonzero(pair[3]).tolist() == list(range(11)) + [15, 16, 17, 18, 23, 24, 25]
+    assert (plane == plane[3]).all()  # no jump along v
+    h[:, 24] = np.nan  # the outlier already invalid: its neighbours have no jump left to test
+    assert np.flatnonzero(plane_edge_mask(h, 0.25, 0.1)[3]).tolist() == [1, 9, 15, 16, 17, 18]
+    assert not plane_edge_mask(h, 0.0, 0.1).any()
 
 
 def _true_step_pixels(truth: "np.ndarray") -> "np.ndarray":
@@ -272,9 +276,9 @@ def unmasked(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 def test_plane_edge_test_on_gauge_blocks_drops_mixed_pixels_and_keeps_the_steps(unmasked: dict) -> None:
     """Bench gauge blocks: of the pixels on true block edges whose error exceeds 0.25 mm (mixed),
-    the pair test removes 77 % and the plane test 67 % (measured: 408 and 591 of 1798 left; the
-    plane test keeps blurred edges that continue a side's line); every step height is measured as
-    with the pair test (to 1 um), and the plane test keeps 0.027 more of the lit pixels."""
+    the pair test leaves 408 of 1798 and the plane test 435 (measured; both pixels beside a real
+    step go in both); every step height is measured as with the pair test (to 1 um; measured
+    0.4 um on blue), and the plane test keeps a few more of the lit pixels (0.9081 -> 0.9123)."""
     from huefringe import metrology
     from huefringe.perframe import remove_step_edges
 
@@ -282,27 +286,29 @@ def test_plane_edge_test_on_gauge_blocks_drops_mixed_pixels_and_keeps_the_steps(
     s, h, t = g["session"], g["height"], g["truth"]
     edge = _true_step_pixels(t)
     mixed0 = np.isfinite(h) & edge & (np.abs(h - t) > 0.25)
-    got = {test: remove_step_edges(h, 0.25, test=test, tol_mm=0.06)[0] for test in ("pair", "plane")}
-    steps = {}
+    got = {test: remove_step_edges(h, 0.25, test=test, tol_mm=0.1)[0] for test in ("pair", "plane")}
+    steps, lefts = {}, {}
     for test, m in got.items():
         left = np.count_nonzero(np.isfinite(m) & mixed0)
-        assert left < {"pair": 0.26, "plane": 0.36}[test] * np.count_nonzero(mixed0), (test, left, np.count_nonzero(mixed0))
+        assert left < 0.25 * np.count_nonzero(mixed0), (test, left, np.count_nonzero(mixed0))
+        lefts[test] = left
         ev = metrology.evaluate_session([m], s.specimen, s.pixel_pitch_mm, range_mm=max(s.planes_mm) - min(s.planes_mm))
         steps[test] = np.array([st["error_mm"] for st in ev["steps"]])
         assert np.all(np.abs(steps[test]) < 0.025), steps[test]
     assert np.all(np.abs(steps["plane"] - steps["pair"]) < 0.001), steps
+    assert lefts["plane"] <= 1.1 * lefts["pair"], lefts
     cov = {k: accuracy(m, t)["coverage"] for k, m in got.items()}
-    assert cov["plane"] > cov["pair"] + 0.015, cov
+    assert cov["pair"] + 0.002 < cov["plane"] < cov["pair"] + 0.02, cov
 
 
 def test_plane_edge_test_keeps_the_freeform_tooth(unmasked: dict) -> None:
     """The two-tone tooth (steep smooth walls, a colour boundary): the pair test cuts the walls
-    steeper than 0.25 mm per pixel; the plane test keeps more of the lit pixels at a p95 error
-    still below issue 24's 0.15 mm."""
+    steeper than 0.25 mm per pixel; the plane test keeps more of the lit pixels (measured 0.742 ->
+    0.779) at a p95 error still well below issue 24's 0.15 mm (0.092 -> 0.097 mm)."""
     from huefringe.perframe import remove_step_edges
 
     d = unmasked["tooth"]
     h, t = d["height"], d["truth"]
-    acc = {test: accuracy(remove_step_edges(h, 0.25, test=test, tol_mm=0.06)[0], t) for test in ("pair", "plane")}
-    assert acc["plane"]["coverage"] > acc["pair"]["coverage"] + 0.04, acc
-    assert acc["plane"]["p95_abs_mm"] < 0.15 and acc["plane"]["median_abs_mm"] < 0.015, acc
+    acc = {test: accuracy(remove_step_edges(h, 0.25, test=test, tol_mm=0.1)[0], t) for test in ("pair", "plane")}
+    assert acc["plane"]["coverage"] > acc["pair"]["coverage"] + 0.03, acc
+    assert acc["plane"]["p95_abs_mm"] < 0.12 and acc["plane"]["median_abs_mm"] < 0.015, acc

@@ -125,14 +125,18 @@ def plane_edge_mask(height: NDArray[np.floating], jump_mm: float, tol_mm: float)
 
     Along u and along v, a valid pixel ``z0`` with neighbours ``z-2, z-1 | z1, z2`` is a
     candidate when it differs from ``z-1`` or ``z1`` by more than ``jump_mm`` (the pair test's
-    jump, :func:`step_edge_mask`), and mixed when it also departs by more than ``tol_mm`` from
-    each one-sided straight-line extrapolation that exists, ``L = 2 z-1 - z-2`` and
-    ``R = 2 z1 - z2`` (both neighbours of a side valid; no side: no verdict). A pixel that
-    continues the plane (and slope) of either side is kept: the plateau pixels next to a step
-    and the pixels of a smooth slope steeper than ``jump_mm`` per pixel, which the pair test
-    drops; a pixel whose value lies between the two sides' planes, or off both (an outlier), is
-    returned (True = to invalidate). Float32 arithmetic, ``L = z-1 + z-1 - z-2``, as the
-    compiled pass (:func:`remove_step_edges`) computes it; ``jump_mm <= 0`` returns all False.
+    jump, :func:`step_edge_mask`). It stays when every such jump is explained and it lies on a
+    side's line: on the line of side ``s`` when ``|z0 - (2 zs1 - zs2)| <= tol_mm`` (the
+    one-sided straight-line extrapolation; both pixels of the side valid); a jump to ``zs1`` is
+    explained when ``z0`` is on side ``s``'s line (a slope steeper than ``jump_mm`` per pixel goes
+    on through ``z0``) or when ``zs2`` is back on the line through the other side,
+    ``|zs2 - (3 z0 - 2 z-s1)| <= tol_mm`` (``zs1`` is an isolated outlier: its neighbours stay).
+    Otherwise it is returned (True = to invalidate): both pixels next to a real step (whose sides
+    do not continue each other, as the pair test: a step's edge is only known to a pixel), the
+    pixels between the two planes, and outliers. A missing neighbour explains nothing.
+    Float32 arithmetic in this order (``2 zs1 - zs2 = zs1 + zs1 - zs2``,
+    ``3 z0 - 2 z-s1 = z0 + d + d``, ``d = z0 - z-s1``), as the compiled pass
+    (:func:`remove_step_edges`) computes it; ``jump_mm <= 0`` returns all False.
 
     Parameters
     ----------
@@ -141,7 +145,7 @@ def plane_edge_mask(height: NDArray[np.floating], jump_mm: float, tol_mm: float)
     jump_mm : float
         The candidate jump to a 4-neighbour (mm).
     tol_mm : float
-        Largest departure from a side's extrapolated line that still counts as on it (mm).
+        Largest departure from an extrapolated line that still counts as on it (mm).
     """
     h = np.asarray(height, np.float32)
     out = np.zeros(h.shape, bool)
@@ -158,46 +162,49 @@ def plane_edge_mask(height: NDArray[np.floating], jump_mm: float, tol_mm: float)
     with np.errstate(invalid="ignore"):
         for dv, du in ((0, 1), (1, 0)):
             m1, m2, p1, p2 = at(-dv, -du), at(-2 * dv, -2 * du), at(dv, du), at(2 * dv, 2 * du)
-            cand = (np.abs(h - m1) > jump) | (np.abs(p1 - h) > jump)
-            left, right = m1 + m1 - m2, p1 + p1 - p2
-            have_l, have_r = np.isfinite(left), np.isfinite(right)
-            on_l = have_l & (np.abs(h - left) <= tol)
-            on_r = have_r & (np.abs(h - right) <= tol)
-            out |= np.isfinite(h) & cand & (have_l | have_r) & ~on_l & ~on_r
+            jump_l, jump_r = np.abs(h - m1) > jump, np.abs(p1 - h) > jump
+            on_l = np.abs(h - (m1 + m1 - m2)) <= tol
+            on_r = np.abs(h - (p1 + p1 - p2)) <= tol
+            dl, dr = h - m1, h - p1
+            iso_r = np.abs(p2 - (h + dl + dl)) <= tol  # z1 an outlier: z2 on the line through z-1, z0
+            iso_l = np.abs(m2 - (h + dr + dr)) <= tol
+            keep = (~jump_l | on_l | iso_l) & (~jump_r | on_r | iso_r) & (on_l | on_r)
+            out |= np.isfinite(h) & (jump_l | jump_r) & ~keep
     return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _plane_drop(z, m1, m2, p1, p2, jump, tol):  # pragma: no cover - numba
+    """One axis of :func:`plane_edge_mask` at a pixel: True = invalidate."""
+    jump_l = abs(z - m1) > jump
+    jump_r = abs(p1 - z) > jump
+    on_l = abs(z - (m1 + m1 - m2)) <= tol
+    on_r = abs(z - (p1 + p1 - p2)) <= tol
+    dl = z - m1
+    dr = z - p1
+    iso_r = abs(p2 - (z + dl + dl)) <= tol
+    iso_l = abs(m2 - (z + dr + dr)) <= tol
+    keep = (not jump_l or on_l or iso_l) and (not jump_r or on_r or iso_r) and (on_l or on_r)
+    return (jump_l or jump_r) and not keep
 
 
 @numba.njit(cache=True, nogil=True)
 def _plane_edge_kernel(h, jump, tol, edge):  # pragma: no cover - numba
-    """:func:`plane_edge_mask` into ``edge`` (float32, NaN compares False); returns the number of
-    pixels marked."""
+    """:func:`plane_edge_mask` into ``edge`` (float32, NaN compares False; the frame padded by two
+    NaN pixels); returns the number of pixels marked."""
     rows, cols = h.shape
+    pad = np.full((rows + 4, cols + 4), np.float32(np.nan))
+    pad[2:rows + 2, 2:cols + 2] = h
     n = 0
-    nan = np.float32(np.nan)
     for v in range(rows):
+        r = v + 2
         for u in range(cols):
-            z = h[v, u]
+            c = u + 2
+            z = pad[r, c]
             e = False
             if np.isfinite(z):
-                for axis in range(2):
-                    if axis == 0:
-                        m1 = h[v, u - 1] if u > 0 else nan
-                        m2 = h[v, u - 2] if u > 1 else nan
-                        p1 = h[v, u + 1] if u + 1 < cols else nan
-                        p2 = h[v, u + 2] if u + 2 < cols else nan
-                    else:
-                        m1 = h[v - 1, u] if v > 0 else nan
-                        m2 = h[v - 2, u] if v > 1 else nan
-                        p1 = h[v + 1, u] if v + 1 < rows else nan
-                        p2 = h[v + 2, u] if v + 2 < rows else nan
-                    cand = (abs(z - m1) > jump) or (abs(p1 - z) > jump)
-                    left = m1 + m1 - m2
-                    right = p1 + p1 - p2
-                    have_l = np.isfinite(left)
-                    have_r = np.isfinite(right)
-                    on_l = have_l and abs(z - left) <= tol
-                    on_r = have_r and abs(z - right) <= tol
-                    e |= cand and (have_l or have_r) and not on_l and not on_r
+                e = _plane_drop(z, pad[r, c - 1], pad[r, c - 2], pad[r, c + 1], pad[r, c + 2], jump, tol) or \
+                    _plane_drop(z, pad[r - 1, c], pad[r - 2, c], pad[r + 1, c], pad[r + 2, c], jump, tol)
             edge[v, u] = e
             n += e
     return n
@@ -231,7 +238,7 @@ def _finite_keys(z, keys):  # pragma: no cover - numba
 
 def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: Sequence[NDArray[np.float32] | None] = (),
                       zero_maps: Sequence[NDArray[np.float32] | None] = (), test: str = "pair",
-                      tol_mm: float = 0.06) -> tuple[Any, ...]:
+                      tol_mm: float = 0.1) -> tuple[Any, ...]:
     """Invalidate the mixed pixels of step edges in a height map and the maps that go with it, in
     compiled passes: what ``measurement.edge_jump_mm`` / ``edge_test`` / ``edge_plane_tol_mm`` do
     per frame.

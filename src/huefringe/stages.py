@@ -462,8 +462,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         jump = float(measurement.get("edge_jump_mm", 0.0) or 0.0)
         if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
             height, (phase, u_map), (support,), changed = remove_step_edges(
-                height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(measurement.get("edge_test", "pair")),
-                tol_mm=float(measurement.get("edge_plane_tol_mm", 0.06)))
+                height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(measurement.get("edge_test", "plane")),
+                tol_mm=float(measurement.get("edge_plane_tol_mm", 0.1)))
             stats = {**stats, **changed}
         _refuse_bad_frame(path, stats, measurement)
         yield n, height, phase, hue, stats, u_map, support
