@@ -170,9 +170,17 @@ VARIANTS.update({
     "texture blur auto (estimated)": {"calibration": {"texture_blur_px2": "auto"}},
     "texture correction off": {"calibration": {"texture_blur_px2": 0}},
 })
+VARIANTS.update({
+    # the step-edge test (measurement.edge_test; docs/accuracy-texture.md, Step-edge test)
+    "edge test plane": {"measurement": {"edge_test": "plane"}},
+    "edge test pair": {"measurement": {"edge_test": "pair"}},
+    "edge test pair 0.15": {"measurement": {"edge_test": "pair", "edge_jump_mm": 0.15}},
+    "shadow fraction 0.06": {"measurement": {"shadow_fraction": 0.06}},
+    "shadow fraction 0.03": {"measurement": {"shadow_fraction": 0.03}},
+})
 #: variants measured on some cases only, by words of the case name (the adaptive filter acts on
 #: weak signal: the photo reliefs; the camera corrections on the cases with such a camera)
-ONLY = {"adaptive filter off": ("photo",), **{v: ("photo", "tex ") for v in VARIANTS if v.startswith("texture ")},
+ONLY = {"shadow fraction 0.06": ("tex ",), "shadow fraction 0.03": ("tex ",), "adaptive filter off": ("photo",), **{v: ("photo", "tex ") for v in VARIANTS if v.startswith("texture ")},
         "chromatic registration off": ("CA", "chromatic", "lateral"),
         "lens model off": ("pinhole", "distortion", "lens")}
 

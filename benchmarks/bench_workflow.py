@@ -39,6 +39,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import inspect
 import json
 import os
 import statistics
@@ -286,7 +287,9 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
                                       unwrap_mode="reference", **qa)
         c.append(time.perf_counter())
         if jump > 0 and hasattr(perframe, "remove_step_edges"):  # as stages.frame_results
-            perframe.remove_step_edges(m.height, jump, nan_maps=(m.uncertainty,), zero_maps=(m.support,))
+            edge_kw = ({"test": m_cfg.get("edge_test", "pair"), "tol_mm": m_cfg.get("edge_plane_tol_mm", 0.1)}
+                       if "test" in inspect.signature(perframe.remove_step_edges).parameters else {})
+            perframe.remove_step_edges(m.height, jump, nan_maps=(m.uncertainty,), zero_maps=(m.support,), **edge_kw)
         elif jump > 0:
             e = perframe.step_edge_mask(m.height, jump)
             [np.where(e, np.float32(np.nan), x) for x in (m.height, m.uncertainty)] + [np.where(e, 0.0, m.support)]

@@ -36,10 +36,13 @@ __all__ = [
     "frame_stats",
     "measure_frame",
     "phase_sigma",
+    "plane_edge_mask",
     "reference_frame_stats",
+    "remove_step_edges",
     "sensor_model",
     "shadow_mask",
     "sigma_from_slope",
+    "step_edge_mask",
 ]
 
 
@@ -113,6 +116,100 @@ def _edge_kernel(h, jump, edge):  # pragma: no cover - numba
     return n
 
 
+#: the step-edge tests of ``measurement.edge_test``
+EDGE_TESTS = ("pair", "plane")
+
+
+def plane_edge_mask(height: NDArray[np.floating], jump_mm: float, tol_mm: float) -> NDArray[np.bool_]:
+    """Mixed pixels of step edges by the two-sided local-line test (``measurement.edge_test: plane``).
+
+    Along u and along v, a valid pixel ``z0`` with neighbours ``z-2, z-1 | z1, z2`` is a
+    candidate when it differs from ``z-1`` or ``z1`` by more than ``jump_mm`` (the pair test's
+    jump, :func:`step_edge_mask`). It stays when every such jump is explained and it lies on a
+    side's line: on the line of side ``s`` when ``|z0 - (2 zs1 - zs2)| <= tol_mm`` (the
+    one-sided straight-line extrapolation; both pixels of the side valid); a jump to ``zs1`` is
+    explained when ``z0`` is on side ``s``'s line (a slope steeper than ``jump_mm`` per pixel goes
+    on through ``z0``) or when ``zs2`` is back on the line through the other side,
+    ``|zs2 - (3 z0 - 2 z-s1)| <= tol_mm`` (``zs1`` is an isolated outlier: its neighbours stay).
+    Otherwise it is returned (True = to invalidate): both pixels next to a real step (whose sides
+    do not continue each other, as the pair test: a step's edge is only known to a pixel), the
+    pixels between the two planes, and outliers. A missing neighbour explains nothing.
+    Float32 arithmetic in this order (``2 zs1 - zs2 = zs1 + zs1 - zs2``,
+    ``3 z0 - 2 z-s1 = z0 + d + d``, ``d = z0 - z-s1``), as the compiled pass
+    (:func:`remove_step_edges`) computes it; ``jump_mm <= 0`` returns all False.
+
+    Parameters
+    ----------
+    height : ndarray (H, W)
+        Height map, NaN where invalid.
+    jump_mm : float
+        The candidate jump to a 4-neighbour (mm).
+    tol_mm : float
+        Largest departure from an extrapolated line that still counts as on it (mm).
+    """
+    h = np.asarray(height, np.float32)
+    out = np.zeros(h.shape, bool)
+    if jump_mm <= 0:
+        return out
+    jump, tol = np.float32(jump_mm), np.float32(tol_mm)
+    pad = np.full((h.shape[0] + 4, h.shape[1] + 4), np.nan, np.float32)
+    pad[2:-2, 2:-2] = h
+    rows, cols = h.shape
+
+    def at(dv: int, du: int) -> NDArray[np.float32]:
+        return pad[2 + dv:2 + dv + rows, 2 + du:2 + du + cols]
+
+    with np.errstate(invalid="ignore"):
+        for dv, du in ((0, 1), (1, 0)):
+            m1, m2, p1, p2 = at(-dv, -du), at(-2 * dv, -2 * du), at(dv, du), at(2 * dv, 2 * du)
+            jump_l, jump_r = np.abs(h - m1) > jump, np.abs(p1 - h) > jump
+            on_l = np.abs(h - (m1 + m1 - m2)) <= tol
+            on_r = np.abs(h - (p1 + p1 - p2)) <= tol
+            dl, dr = h - m1, h - p1
+            iso_r = np.abs(p2 - (h + dl + dl)) <= tol  # z1 an outlier: z2 on the line through z-1, z0
+            iso_l = np.abs(m2 - (h + dr + dr)) <= tol
+            keep = (~jump_l | on_l | iso_l) & (~jump_r | on_r | iso_r) & (on_l | on_r)
+            out |= np.isfinite(h) & (jump_l | jump_r) & ~keep
+    return out
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _plane_drop(z, m1, m2, p1, p2, jump, tol):  # pragma: no cover - numba
+    """One axis of :func:`plane_edge_mask` at a pixel: True = invalidate."""
+    jump_l = abs(z - m1) > jump
+    jump_r = abs(p1 - z) > jump
+    on_l = abs(z - (m1 + m1 - m2)) <= tol
+    on_r = abs(z - (p1 + p1 - p2)) <= tol
+    dl = z - m1
+    dr = z - p1
+    iso_r = abs(p2 - (z + dl + dl)) <= tol
+    iso_l = abs(m2 - (z + dr + dr)) <= tol
+    keep = (not jump_l or on_l or iso_l) and (not jump_r or on_r or iso_r) and (on_l or on_r)
+    return (jump_l or jump_r) and not keep
+
+
+@numba.njit(cache=True, nogil=True)
+def _plane_edge_kernel(h, jump, tol, edge):  # pragma: no cover - numba
+    """:func:`plane_edge_mask` into ``edge`` (float32, NaN compares False; the frame padded by two
+    NaN pixels); returns the number of pixels marked."""
+    rows, cols = h.shape
+    pad = np.full((rows + 4, cols + 4), np.float32(np.nan))
+    pad[2:rows + 2, 2:cols + 2] = h
+    n = 0
+    for v in range(rows):
+        r = v + 2
+        for u in range(cols):
+            c = u + 2
+            z = pad[r, c]
+            e = False
+            if np.isfinite(z):
+                e = _plane_drop(z, pad[r, c - 1], pad[r, c - 2], pad[r, c + 1], pad[r, c + 2], jump, tol) or \
+                    _plane_drop(z, pad[r - 1, c], pad[r - 2, c], pad[r + 1, c], pad[r + 2, c], jump, tol)
+            edge[v, u] = e
+            n += e
+    return n
+
+
 @numba.njit(cache=True, nogil=True)
 def _masked(x, edge, fill, out):  # pragma: no cover - numba
     """``out = where(edge, fill, x)``."""
@@ -140,20 +237,29 @@ def _finite_keys(z, keys):  # pragma: no cover - numba
 
 
 def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: Sequence[NDArray[np.float32] | None] = (),
-                      zero_maps: Sequence[NDArray[np.float32] | None] = ()) -> tuple[Any, ...]:
-    """Invalidate the mixed pixels of step edges (:func:`step_edge_mask`) in a height map and the
-    maps that go with it, in compiled passes: what ``measurement.edge_jump_mm`` does per frame.
+                      zero_maps: Sequence[NDArray[np.float32] | None] = (), test: str = "pair",
+                      tol_mm: float = 0.1) -> tuple[Any, ...]:
+    """Invalidate the mixed pixels of step edges in a height map and the maps that go with it, in
+    compiled passes: what ``measurement.edge_jump_mm`` / ``edge_test`` / ``edge_plane_tol_mm`` do
+    per frame.
 
-    Returns ``(height, nan_maps, zero_maps, stats)``: new float32 arrays (NaN on the edge pixels;
+    ``test`` is ``"pair"`` (:func:`step_edge_mask`: both pixels of a 4-neighbour pair differing
+    by more than ``jump_mm``) or ``"plane"`` (:func:`plane_edge_mask`: of such candidates, those
+    off both sides' extrapolated lines by more than ``tol_mm``). Returns
+    ``(height, nan_maps, zero_maps, stats)``: new float32 arrays (NaN on the edge pixels;
     0 in ``zero_maps``; None stays None) and the frame statistics that change, ``edge_fraction``,
     ``valid_fraction`` (finite heights) and ``median_height_mm`` (NumPy's ``nanmedian`` of the
-    new heights, None when none is left), equal to ``np.where(step_edge_mask(...), ...)`` and
-    ``np.nanmedian`` value for value (tested) at about a quarter of their cost (1.8 against 7.1 ms
-    on a 640 x 480 frame).
+    new heights, None when none is left), equal to ``np.where(step_edge_mask(...), ...)`` (or
+    ``plane_edge_mask``) and ``np.nanmedian`` value for value (tested) at about a quarter of
+    their cost (1.8 against 7.1 ms on a 640 x 480 frame, pair test).
     """
+    if test not in EDGE_TESTS:
+        raise ValueError(f"edge test must be one of {EDGE_TESTS}, got {test!r}")
     h = np.ascontiguousarray(height, np.float32)
     edge = np.empty(h.shape, bool)
-    if jump_mm > 0:
+    if jump_mm > 0 and test == "plane":
+        n_edge = _plane_edge_kernel(h, np.float32(jump_mm), np.float32(tol_mm), edge)
+    elif jump_mm > 0:
         n_edge = _edge_kernel(h, np.float32(jump_mm), edge)
     else:  # as step_edge_mask: 0 switches it off
         edge[...] = False

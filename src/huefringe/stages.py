@@ -407,8 +407,9 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     None from the kernel with ``want_uncertainty=False``), ``support`` the number of pixels the
     phase filter averaged into each height (float32, 0 where NaN; None alike).
     After either chain, ``measurement.edge_jump_mm`` > 0 invalidates the mixed pixels of step edges
-    (:func:`~huefringe.perframe.step_edge_mask`; ``stats["edge_fraction"]``), so the kernel and
-    :func:`~huefringe.perframe.measure_frame` stay identical to each other.
+    (``measurement.edge_test``: :func:`~huefringe.perframe.step_edge_mask`, or
+    :func:`~huefringe.perframe.plane_edge_mask` with ``edge_plane_tol_mm``; ``stats["edge_fraction"]``),
+    so the kernel and :func:`~huefringe.perframe.measure_frame` stay identical to each other.
     Each frame is refused (:class:`~huefringe.perframe.FrameError`, naming it) before it is yielded.
     The kernel's arrays are reused from frame to frame: copy what you keep.
     Every capture is read through ``reader`` (the camera corrections, :class:`~huefringe.camera.CaptureReader`:
@@ -460,8 +461,9 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             support = res.support
         jump = float(measurement.get("edge_jump_mm", 0.0) or 0.0)
         if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
-            height, (phase, u_map), (support,), changed = remove_step_edges(height, jump, nan_maps=(phase, u_map),
-                                                                            zero_maps=(support,))
+            height, (phase, u_map), (support,), changed = remove_step_edges(
+                height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(measurement.get("edge_test", "plane")),
+                tol_mm=float(measurement.get("edge_plane_tol_mm", 0.1)))
             stats = {**stats, **changed}
         _refuse_bad_frame(path, stats, measurement)
         yield n, height, phase, hue, stats, u_map, support
