@@ -48,6 +48,18 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     except bench.BenchConfigError as exc:
         print(f"REFUSED: {exc}", file=sys.stderr)
         return 1
+    if args.patterns:
+        if args.periods:
+            print("REFUSED: --patterns and --periods exclude each other", file=sys.stderr)
+            return 2
+        try:
+            out = bench.capture_patterns(cfg, Path(args.patterns), Path(args.out), progress=not args.quiet)
+        except (bench.ProjectionError, FileExistsError) as exc:
+            print(f"REFUSED: {exc}", file=sys.stderr)
+            return 2
+        n = len(list(out.glob("IMG_*.png")))
+        print(f"wrote {n} camera files to {out} (assemble with: huefringe session {out} {args.patterns} SPEC.yaml SESSION)")
+        return 0
     if args.periods:
         for out in bench.period_sweep(cfg, periods=args.periods, out_root=Path(args.out)):
             print(out)
@@ -157,12 +169,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--deep", action="store_true", help="also decode every image")
     p.set_defaults(func=_cmd_check)
 
-    p = sub.add_parser("bench", help="write a capture session with the virtual bench")
+    p = sub.add_parser("bench", help="write a capture session (or, with --patterns, camera files) with the virtual bench")
     p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1)")
-    p.add_argument("out", help="output session folder (with --periods: a folder for the sweep)")
+    p.add_argument("out", help="output session folder (with --periods: a folder for the sweep; with --patterns: "
+                               "the folder of camera files)")
     p.add_argument("--preset", action="store_true", help="CONFIG names a packaged preset")
     p.add_argument("--periods", type=int, nargs="+", help="write a period sweep (e.g. 20 40 60 80 100)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--patterns", metavar="PATTERNS_DIR",
+                   help="instead of a session: show this huefringe patterns folder's images in manifest order and "
+                        "write one camera file per row (OUT/IMG_0001.png ...) for huefringe session")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("verify", help="check every file of an archive against its RO-Crate sha256; exit 1 on any problem")
