@@ -114,6 +114,7 @@ def _cmd_patterns(args: argparse.Namespace) -> int:
             args.out, width=args.width, height=args.height, period_px=args.period_px, hue_bands=args.bands,
             repeats=args.repeats, planes_mm=planes, frames=args.frames, phase_shift=not args.no_phase_shift,
             bit_depth=args.bit_depth, camera_period_px=args.camera_period_px, magnification=args.magnification,
+            compensated=args.compensated,
         )
     except PatternsError as exc:
         flag = {"out_dir": "OUT", "hue_bands": "--bands", "planes_mm": "--planes"}.get(
@@ -123,8 +124,9 @@ def _cmd_patterns(args: argparse.Namespace) -> int:
     n_img = len(list(out.glob("[0-9][0-9][0-9][0-9]_*.png")))
     with open(out / "manifest.csv", encoding="utf-8") as fh:
         n_cap = sum(1 for _ in fh) - 1
-    print(f"wrote {n_img} projector images ({args.width} x {args.height}, {args.bit_depth}-bit) and a manifest "
-          f"of {n_cap} captures to {out}")
+    extra = " and predistortion.csv (compensated trapezoid, paper Fig. 6)" if args.compensated else ""
+    print(f"wrote {n_img} projector images ({args.width} x {args.height}, {args.bit_depth}-bit), a manifest "
+          f"of {n_cap} captures{extra} to {out}")
     return 0
 
 
@@ -207,6 +209,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=1, help="object frames (default 1)")
     p.add_argument("--no-phase-shift", action="store_true", help="no three-step phase-shift images")
     p.add_argument("--bit-depth", type=int, choices=(8, 16), default=8, help="PNG bit depth (default 8)")
+    p.add_argument("--compensated", metavar="CALIB",
+                   help="pre-distort the trapezoid (paper Fig. 6) from the plate's hue table CALIB/table_reference.json "
+                        "(a run's results/<id>/calib) and write predistortion.csv for huefringe session")
     p.set_defaults(func=_cmd_patterns)
 
     p = sub.add_parser("session", help="assemble a checked capture session from a folder of camera files; exit 2 if refused")
