@@ -55,6 +55,10 @@ def test_patterns_manifest_drives_the_assembler_to_the_bench_session(tmp_path: P
 # the image files, ``huefringe bench CONFIG CAMERA --patterns DIR`` shows each file in manifest order
 # and saves IMG_0001.png ..., ``huefringe session`` assembles them. Gauge blocks (four steps) at
 # 160 x 120 px, 0.5 mm pitch (the preset's 80 x 60 mm field), 16 bands, 1024 x 768 projector.
+#: Measured with the texture-edge correction off: on these untextured blocks its auto estimate is a ratio
+#: of two near-zero sums that jumps between sessions differing by 1 DN (0.0 vs 42.8 px^2 at 640 x 480,
+#: benchmarks/rig_files.py), which is not what these tests compare.
+MEASURE = {"calibration": {"texture_blur_px2": 0.0}}
 GAUGE = {"width": 160, "height": 120, "pixel_pitch_mm": 0.5, "period_px": 24, "hue_bands": 16, "repeats": 2,
          "frames": 2, "id": "rig-files"}
 
@@ -98,14 +102,14 @@ def gauge_chain(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
         return load_session(out, deep=True)
 
     plain = chain("plain")
-    m_plain = measure(plain)
+    m_plain = measure(plain, MEASURE)
     calib = root / "calib"  # what the workflow's hue_table rule leaves in results/<id>/calib
     calib.mkdir()
     m_plain.tables["reference"].save(calib / "table_reference.json")
     comp = chain("compensated", "--compensated", str(calib))
     truth = [tifffile.imread(direct.ground_truth[f]) for f in direct.frame_ids]
     return {"cfg": cfg, "root": root, "direct": direct, "plain": plain, "comp": comp, "truth": truth,
-            "m_direct": measure(direct), "m_plain": m_plain, "m_comp": measure(comp)}
+            "m_direct": measure(direct, MEASURE), "m_plain": m_plain, "m_comp": measure(comp, MEASURE)}
 
 
 def test_bench_fed_the_projector_files_measures_as_the_bench_session(gauge_chain: dict[str, object]) -> None:
@@ -119,8 +123,8 @@ def test_bench_fed_the_projector_files_measures_as_the_bench_session(gauge_chain
     assert plain.frame_ids == direct.frame_ids and plain.planes_mm == direct.planes_mm  # type: ignore[attr-defined]
     med_d, p95_d, cov_d = _errors(g["m_direct"].heights, g["truth"])  # type: ignore[attr-defined]
     med_f, p95_f, cov_f = _errors(g["m_plain"].heights, g["truth"])  # type: ignore[attr-defined]
-    assert med_d < 0.03  # the direct session measures as bench sessions do (0.016 mm when written)
-    assert abs(med_f - med_d) <= max(0.1 * med_d, 0.002)  # measured: 0.0165 vs 0.0163 mm
+    assert med_d < 0.03  # the direct session measures as bench sessions do
+    assert abs(med_f - med_d) <= max(0.1 * med_d, 0.002)  # measured: 0.0169 vs 0.0168 mm, p95 0.142 vs 0.140
     assert abs(p95_f - p95_d) <= max(0.1 * p95_d, 0.002)
     assert abs(cov_f - cov_d) < 0.02
     # the images differ from the direct session's only by what was projected: same ripple, not the same bytes
@@ -128,9 +132,10 @@ def test_bench_fed_the_projector_files_measures_as_the_bench_session(gauge_chain
     b = cv2.imread(str(direct.planes[0.0]), cv2.IMREAD_UNCHANGED)  # type: ignore[attr-defined]
     diff = np.abs(a.astype(np.int64) - b.astype(np.int64))
     assert 0 < np.median(diff) < 0.01 * 65535
-    # the four steps too (errors at this coarse 0.5 mm pitch, measured: 0.003/0.006/0.021/0.004 mm from the
-    # files, 0.002/0.004/0.023/0.005 mm direct)
-    for e_f, e_d in zip(_steps(g["m_plain"], plain), _steps(g["m_direct"], direct), strict=True):
+    # the four steps too (errors at this coarse 0.5 mm pitch, measured: 0.003/0.005/0.022/0.003 mm from the
+    # files, 0.003/0.003/0.024/0.003 mm direct)
+    steps = (_steps(g["m_plain"], plain), _steps(g["m_direct"], direct))
+    for e_f, e_d in zip(steps[0], steps[1], strict=True):
         assert abs(e_f) < 0.03 and abs(e_f - e_d) < 0.005
 
 
@@ -168,8 +173,8 @@ def test_compensated_patterns_flatten_the_plate_hue_and_decode(gauge_chain: dict
     # and the session decodes through predistortion.csv to the same accuracy
     med_d, p95_d, cov_d = _errors(g["m_direct"].heights, g["truth"])  # type: ignore[attr-defined]
     med_c, p95_c, cov_c = _errors(g["m_comp"].heights, g["truth"])  # type: ignore[attr-defined]
-    assert med_c <= 1.15 * med_d + 0.002  # measured: 0.0175 vs 0.0163 mm
-    assert p95_c <= 1.1 * p95_d  # measured: 0.090 vs 0.123 mm
+    assert med_c <= 1.15 * med_d + 0.002  # measured: 0.0175 vs 0.0168 mm
+    assert p95_c <= 1.1 * p95_d  # measured: 0.092 vs 0.140 mm
     assert cov_c > cov_d - 0.02
     for e in _steps(g["m_comp"], comp):  # measured: -0.003/0.010/-0.007/-0.020 mm
         assert abs(e) < 0.03
