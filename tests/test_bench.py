@@ -511,3 +511,21 @@ def test_projector_image_rows_and_uniform_images() -> None:
                                atol=2e-3)
     edge = hb.emitted_rgb(pat, x0, blurred, np.full_like(x0, 10.0 - 0.05))  # half a pixel above the step
     assert 0.3 < float(np.mean(edge / np.maximum(far, 1e-6))[()]) < 0.7
+
+
+def test_bench_capture_of_an_image_whose_rows_differ() -> None:
+    from huefringe.bench.projector import image_placement
+
+    b = Bench(ideal())  # 160 x 60 px at 0.2 mm; continuous projector: pixels of P / T = 0.1 mm
+    shift, y_centre = image_placement(b, 1024, 768, 80.0)
+    assert shift % 80.0 == 0.0 and y_centre == pytest.approx(0.5 * 59 * 0.2)
+    codes = patterns.projector_image(1024, 768, 80.0)
+    codes[384:] = 0  # the lower half of the projector image is black: rows below the field's centre
+    img = b.capture(Pattern.image(codes, 80.0, col_shift=shift, y_centre_mm=y_centre))
+    full = b.capture(Pattern.trapezoid())
+    assert img.max() > 0 and np.all(img[31:] == 0)
+    np.testing.assert_allclose(img[:29].astype(float), full[:29].astype(float), atol=0.01 * 65535)
+    with pytest.raises(hb.ProjectionError, match="projector columns are needed"):
+        image_placement(b, 200, 768, 80.0)
+    with pytest.raises(hb.ProjectionError, match="projector rows are needed"):
+        image_placement(b, 1024, 100, 80.0)
