@@ -459,3 +459,73 @@ def test_bench_writes_capture_date_and_operator_when_configured() -> None:
 
     text = dump_session_yaml(hb.session_document(cfg))
     assert yaml.safe_load(text)["provenance"]["simulated"] is True
+
+
+# ------------------------------------------------------------------------------ projector image files
+def _image_rig(defocus: float) -> hb.Rig:
+    cfg = ideal(projector={"pixel_mm": 0.1, "defocus_sigma_px": defocus, "gamma": [2.2, 2.0, 2.4], "x_origin_mm": 1.3})
+    return hb.Rig.from_config(cfg)
+
+
+@pytest.mark.parametrize("defocus", [0.0, 0.8])
+def test_projector_image_emits_the_analytic_trapezoid(defocus: float) -> None:
+    rig = _image_rig(defocus)  # period 40 px x 0.2 mm = 8 mm = 80 projector px of 0.1 mm
+    period = rig.period_mm / rig.projector_pixel_mm
+    codes = patterns.projector_image(1024, 8, period)
+    x0 = np.linspace(-3.0, 40.0, 5001)
+    c = (x0 - rig.x_origin_mm) / rig.projector_pixel_mm
+    x0 = x0[np.abs(c - np.floor(c) - 0.5) > 1e-6]  # not on a pixel border (either pixel is right there)
+    analytic = hb.emitted_rgb(Pattern.trapezoid(), x0, rig)
+    shift = 5 * period  # a whole number of periods keeps every code phase
+    image = hb.emitted_rgb(Pattern.image(codes, period, col_shift=shift), x0, rig)
+    # the same projector pixels, codes and gamma; but at T = 80 px one column in eight has a code exactly
+    # half-way between two steps (6 j / 80 * 255 = 19.125 j), which may round the other way along the
+    # file's float path: one code, <= gamma / 255 in output
+    assert np.max(np.abs(image - analytic)) < 2.4 / 255
+    if defocus == 0.0:
+        same = np.mean(np.all(image == analytic, axis=-1))
+        assert 0.8 < same < 1.0
+
+
+def test_projector_image_rows_and_uniform_images() -> None:
+    rig = _image_rig(0.0)
+    white = Pattern.image(np.full((6, 9, 3), 255, np.uint8), 80.0)
+    assert white == Pattern.white()  # a uniform file is the uniform pattern of its codes
+    band = patterns.quantise(patterns.band_rgb(3, 16))
+    assert Pattern.image(np.broadcast_to(band, (4, 4, 3)).copy(), 80.0) == Pattern("uniform", tuple(band / 255.0))
+    # an image whose rows differ: top half the trapezoid, bottom half black; rows centred on y_centre_mm
+    codes = patterns.projector_image(1024, 200, 80.0)
+    codes[100:] = 0
+    pat = Pattern.image(codes, 80.0, y_centre_mm=10.0, col_shift=160.0)
+    x0 = np.linspace(0.0, 60.0, 301)
+    top = hb.emitted_rgb(pat, x0, rig, np.full_like(x0, 10.0 - 5.0))  # 50 rows above the centre
+    bottom = hb.emitted_rgb(pat, x0, rig, np.full_like(x0, 10.0 + 5.0))
+    np.testing.assert_allclose(top, hb.emitted_rgb(Pattern.trapezoid(), x0, rig), atol=2.4 / 255)
+    assert np.all(bottom == 0.0)
+    with pytest.raises(ValueError, match="y0"):
+        hb.emitted_rgb(pat, x0, rig)
+    # with defocus, the exact 2-D box-Gaussian weights agree with the 1-D table far from the edge
+    blurred = _image_rig(1.5)
+    far = hb.emitted_rgb(pat, x0, blurred, np.full_like(x0, 5.0))
+    np.testing.assert_allclose(far, hb.emitted_rgb(Pattern.image(codes[:100], 80.0, col_shift=160.0), x0, blurred),
+                               atol=2e-3)
+    edge = hb.emitted_rgb(pat, x0, blurred, np.full_like(x0, 10.0 - 0.05))  # half a pixel above the step
+    assert 0.3 < float(np.mean(edge / np.maximum(far, 1e-6))[()]) < 0.7
+
+
+def test_bench_capture_of_an_image_whose_rows_differ() -> None:
+    from huefringe.bench.projector import image_placement
+
+    b = Bench(ideal())  # 160 x 60 px at 0.2 mm; continuous projector: pixels of P / T = 0.1 mm
+    shift, y_centre = image_placement(b, 1024, 768, 80.0)
+    assert shift % 80.0 == 0.0 and y_centre == pytest.approx(0.5 * 59 * 0.2)
+    codes = patterns.projector_image(1024, 768, 80.0)
+    codes[384:] = 0  # the lower half of the projector image is black: rows below the field's centre
+    img = b.capture(Pattern.image(codes, 80.0, col_shift=shift, y_centre_mm=y_centre))
+    full = b.capture(Pattern.trapezoid())
+    assert img.max() > 0 and np.all(img[31:] == 0)
+    np.testing.assert_allclose(img[:29].astype(float), full[:29].astype(float), atol=0.01 * 65535)
+    with pytest.raises(hb.ProjectionError, match="projector columns are needed"):
+        image_placement(b, 200, 768, 80.0)
+    with pytest.raises(hb.ProjectionError, match="projector rows are needed"):
+        image_placement(b, 1024, 100, 80.0)

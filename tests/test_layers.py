@@ -70,7 +70,10 @@ def test_graph_sees_known_edges() -> None:
     assert "huefringe.kernel" in g["huefringe.stages"]
     assert "huefringe.huetable" in g["huefringe.compensation"]
     assert {"huefringe.io", "huefringe.settings"} <= g["huefringe.x3p"]  # x3p sits beside cloud, above io
-    assert g["huefringe.projection"] == {"huefringe.io", "huefringe.patterns"}  # just above patterns and io
+    # above patterns and io, and (--compensated: the plate's hue table) above compensation and session
+    assert g["huefringe.projection"] == {"huefringe.io", "huefringe.patterns", "huefringe.compensation",
+                                         "huefringe.huetable", "huefringe.session"}
+    assert "huefringe.projection" in g["huefringe.bench.projector"]  # the bench reads the manifest
     assert {"huefringe.session", "huefringe.camera"} <= g["huefringe.assemble"]  # assemble sits above both
 
 

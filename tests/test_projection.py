@@ -230,3 +230,62 @@ def test_manifest_paths_make_a_session_that_check_accepts(tmp_path: Path) -> Non
     s = load_session(ses, deep=True)
     assert (s.hue_bands, s.repeats, s.planes_mm) == (6, 2, [0.0, 1.0, 2.5])
     assert s.frame_ids == [0, 1] and list(s.phase_shift) == [0]
+
+
+# --------------------------------------------------------------------------- --compensated (paper Fig. 6)
+def _calib_folder(root: Path, amplitude: float = 0.3) -> Path:
+    """A calibration folder whose plate hue table has the transfer ``hue = c + a sin(c)`` (every pixel)."""
+    from huefringe.huetable import RAD_PER_COUNT, HueTable
+
+    n, shape = 32, (3, 5)
+    c = TWO_PI * np.arange(n) / n
+    counts = np.round(np.mod(c + amplitude * np.sin(c), TWO_PI) / RAD_PER_COUNT).astype(np.uint16)
+    table = HueTable(model="hexcone", n_bands=n, table=np.broadcast_to(counts[:, None, None], (n, *shape)).copy(),
+                     valid=np.ones(shape, bool), start=np.zeros(shape, np.uint16), reason=np.zeros(shape, np.uint8),
+                     noise_rad=np.zeros(shape, np.float32), stats={})
+    folder = root / "calib"
+    folder.mkdir()
+    table.save(folder / "table_reference.json")
+    return folder
+
+
+@pytest.mark.parametrize("depth", [8, 16])
+def test_compensated_trapezoid_decodes_through_its_predistortion(tmp_path: Path, depth: int) -> None:
+    from huefringe.session import read_predistortion
+
+    calib = _calib_folder(tmp_path)
+    out = write_patterns(tmp_path / "p", width=W, height=H, period_px=T, hue_bands=N, repeats=1, frames=1,
+                         bit_depth=depth, compensated=calib)
+    pre = read_predistortion(out / "predistortion.csv")
+    asked = yaml.safe_load((out / "patterns.yaml").read_text())["compensated"]
+    assert asked["predicted_residual_rad"]["before"] > 0.1 > 0.01 > asked["predicted_residual_rad"]["after"]
+    # the emitted phase undoes the plate's transfer: F(p(c)) = p + 0.3 sin(p) = c
+    assert np.max(np.abs(wrap_pi(pre.emitted + 0.3 * np.sin(pre.emitted) - pre.code))) < 0.01
+    rgb, top = _read_rgb(next(out.glob("*_trapezoid.png")))
+    assert np.all(rgb == rgb[:1])
+    phi = TWO_PI * np.arange(W) / T
+    hue = hue_hexcone(rgb[0]).astype(np.float64)
+    assert np.max(np.abs(wrap_pi(hue - phi))) > 0.2  # really pre-distorted
+    # decoded with the project's own functions: hue -> emitted phase -> code phase, within quantisation
+    # (the hexcone bound, magnified by the steepest slope of the decoding)
+    slope = float(np.max(np.diff(pre.code) / np.diff(pre.emitted)))
+    err = np.abs(wrap_pi(pre.decode(hue).astype(np.float64) - phi))
+    assert err.max() <= slope * _bounds(top)[0] + 1e-5
+    # bands, white and phase-shift images are not pre-distorted
+    plain = write_patterns(tmp_path / "plain", width=W, height=H, period_px=T, hue_bands=N, repeats=1, frames=1,
+                           bit_depth=depth)
+    for p in plain.glob("*.png"):
+        same = (out / p.name).read_bytes() == p.read_bytes()
+        assert same != p.name.endswith("_trapezoid.png"), p.name
+    assert not (plain / "predistortion.csv").exists()
+
+
+def test_compensated_refuses_a_folder_without_the_table(tmp_path: Path) -> None:
+    calib = _calib_folder(tmp_path)
+    (calib / "table_reference.maps.npz").unlink()
+    with pytest.raises(PatternsError) as exc:
+        write_patterns(tmp_path / "p", width=W, height=H, period_px=T, compensated=calib)
+    assert exc.value.argument == "compensated" and "table_reference.maps.npz is missing" in exc.value.problem
+    assert not (tmp_path / "p").exists()
+    with pytest.raises(PatternsError, match="not a folder"):
+        write_patterns(tmp_path / "p", width=W, height=H, period_px=T, compensated=tmp_path / "nowhere")

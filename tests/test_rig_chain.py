@@ -1,7 +1,8 @@
 """The real-rig chain's two verbs against each other: ``huefringe patterns`` writes the manifest a
 capture script follows, the captures (here: the bench's, taken in the manifest's order and
 renamed as a camera names its files) go through ``huefringe session``, and the assembled
-session measures exactly as the bench's own."""
+session measures exactly as the bench's own; then the bench is fed the projector files themselves
+(``huefringe bench --patterns``), plain and compensated (``huefringe patterns --compensated``)."""
 
 from __future__ import annotations
 
@@ -9,7 +10,9 @@ import csv
 import shutil
 from pathlib import Path
 
+import cv2
 import numpy as np
+import pytest
 import yaml
 
 from bench_helpers import bench_config, write
@@ -45,3 +48,166 @@ def test_patterns_manifest_drives_the_assembler_to_the_bench_session(tmp_path: P
     np.testing.assert_array_equal(assembled.heights, direct.heights)
     flat = direct.heights[0][np.isfinite(direct.heights[0])]
     assert flat.size > 0.9 * 160 * 120 and abs(np.median(flat) - cfg["scene"]["height_mm"]) < 0.05
+
+
+# --------------------------------------------------------------------------- the bench fed the files
+# The full chain a lab runs, with the bench as projector and camera: ``huefringe patterns`` writes
+# the image files, ``huefringe bench CONFIG CAMERA --patterns DIR`` shows each file in manifest order
+# and saves IMG_0001.png ..., ``huefringe session`` assembles them. Gauge blocks (four steps) at
+# 160 x 120 px, 0.5 mm pitch (the preset's 80 x 60 mm field), 16 bands, 1024 x 768 projector.
+#: Measured with the texture-edge correction off: on these untextured blocks its auto estimate is a ratio
+#: of two near-zero sums that jumps between sessions differing by 1 DN (0.0 vs 42.8 px^2 at 640 x 480,
+#: benchmarks/rig_files.py), which is not what these tests compare.
+MEASURE = {"calibration": {"texture_blur_px2": 0.0}}
+GAUGE = {"width": 160, "height": 120, "pixel_pitch_mm": 0.5, "period_px": 24, "hue_bands": 16, "repeats": 2,
+         "frames": 2, "id": "rig-files"}
+
+
+def _errors(heights: np.ndarray, truth: list[np.ndarray]) -> tuple[float, float, float]:
+    """Median and p95 of |height - truth| over every valid pixel of every frame, and the coverage."""
+    ok = np.isfinite(heights)
+    err = np.abs(heights - np.stack(truth))[ok]
+    return float(np.median(err)), float(np.percentile(err, 95)), float(ok.mean())
+
+
+def _steps(result: object, session: object) -> list[float]:
+    from huefringe.metrology import evaluate_session
+
+    ev = evaluate_session(list(result.heights), session.specimen, session.pixel_pitch_mm,  # type: ignore[attr-defined]
+                          range_mm=max(session.planes_mm) - min(session.planes_mm))  # type: ignore[attr-defined]
+    return [s["error_mm"] for s in ev["steps"]]
+
+
+@pytest.fixture(scope="module")
+def gauge_chain(tmp_path_factory: pytest.TempPathFactory) -> dict[str, object]:
+    import tifffile
+
+    root = tmp_path_factory.mktemp("rig-files")
+    cfg = bench_config("plain_gauge", **GAUGE)
+    direct = load_session(write(cfg, root / "bench"))
+    (root / "bench.yaml").write_text(yaml.safe_dump(cfg))
+    spec = root / "spec.yaml"
+    spec.write_text(yaml.safe_dump({"id": "rig-files", "pixel_pitch_mm": 0.5, "period_px": 24,
+                                    "specimen": direct.meta["specimen"], "provenance": {"simulated": True}}))
+    mag = cfg["projector"]["pixel_mm"] / GAUGE["pixel_pitch_mm"]  # 0.1 mm projector pixels: 0.2 camera px each
+    planes = ",".join(f"{z:g}" for z in direct.planes_mm)
+
+    def chain(name: str, *extra: str) -> object:
+        pat, cam, out = root / f"patterns-{name}", root / f"camera-{name}", root / f"session-{name}"
+        assert cli.main(["patterns", str(pat), "--width", "1024", "--height", "768", "--camera-period-px", "24",
+                         "--magnification", f"{mag:g}", "--bands", "16", "--repeats", "2", "--planes", planes,
+                         "--frames", "2", *extra]) == 0
+        assert cli.main(["bench", str(root / "bench.yaml"), str(cam), "--patterns", str(pat), "--quiet"]) == 0
+        assert cli.main(["session", str(cam), str(pat), str(spec), str(out)]) == 0
+        return load_session(out, deep=True)
+
+    plain = chain("plain")
+    m_plain = measure(plain, MEASURE)
+    calib = root / "calib"  # what the workflow's hue_table rule leaves in results/<id>/calib
+    calib.mkdir()
+    m_plain.tables["reference"].save(calib / "table_reference.json")
+    comp = chain("compensated", "--compensated", str(calib))
+    truth = [tifffile.imread(direct.ground_truth[f]) for f in direct.frame_ids]
+    return {"cfg": cfg, "root": root, "direct": direct, "plain": plain, "comp": comp, "truth": truth,
+            "m_direct": measure(direct, MEASURE), "m_plain": m_plain, "m_comp": measure(comp, MEASURE)}
+
+
+def test_bench_fed_the_projector_files_measures_as_the_bench_session(gauge_chain: dict[str, object]) -> None:
+    g = gauge_chain
+    root, plain, direct = g["root"], g["plain"], g["direct"]
+    # the camera folder holds one file per manifest row, named as a camera names them
+    with open(root / "patterns-plain" / "manifest.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    cams = sorted(p.name for p in (root / "camera-plain").iterdir())
+    assert cams == [f"IMG_{k + 1:04d}.png" for k in range(len(rows))]
+    assert plain.frame_ids == direct.frame_ids and plain.planes_mm == direct.planes_mm  # type: ignore[attr-defined]
+    med_d, p95_d, cov_d = _errors(g["m_direct"].heights, g["truth"])  # type: ignore[attr-defined]
+    med_f, p95_f, cov_f = _errors(g["m_plain"].heights, g["truth"])  # type: ignore[attr-defined]
+    assert med_d < 0.03  # the direct session measures as bench sessions do
+    assert abs(med_f - med_d) <= max(0.1 * med_d, 0.002)  # measured: 0.0169 vs 0.0168 mm, p95 0.142 vs 0.140
+    assert abs(p95_f - p95_d) <= max(0.1 * p95_d, 0.002)
+    assert abs(cov_f - cov_d) < 0.02
+    # the images differ from the direct session's only by what was projected: same ripple, not the same bytes
+    a = cv2.imread(str(plain.planes[0.0]), cv2.IMREAD_UNCHANGED)  # type: ignore[attr-defined]
+    b = cv2.imread(str(direct.planes[0.0]), cv2.IMREAD_UNCHANGED)  # type: ignore[attr-defined]
+    diff = np.abs(a.astype(np.int64) - b.astype(np.int64))
+    assert 0 < np.median(diff) < 0.01 * 65535
+    # the four steps too (errors at this coarse 0.5 mm pitch, measured: 0.003/0.005/0.022/0.003 mm from the
+    # files, 0.003/0.003/0.024/0.003 mm direct)
+    steps = (_steps(g["m_plain"], plain), _steps(g["m_direct"], direct))
+    for e_f, e_d in zip(steps[0], steps[1], strict=True):
+        assert abs(e_f) < 0.03 and abs(e_f - e_d) < 0.005
+
+
+def _plate_hue_rms(session: object, cfg: dict) -> float:
+    """RMS (rad) of the white-balanced hexcone hue of the plane z = 0 about the true code phase
+    (offset removed): the plate's transfer-function ripple that compensation flattens."""
+    from huefringe import colour
+    from huefringe.bench import Bench
+    from huefringe.session import decode_image
+
+    rig = Bench(cfg).rig
+    wb = colour.white_balance(decode_image(session.planes[0.0]), decode_image(session.reference_white))  # type: ignore[attr-defined]
+    truth = 2 * np.pi * (np.arange(wb.shape[1]) * GAUGE["pixel_pitch_mm"] - rig.x_origin_mm) / rig.period_mm
+    e = colour.wrap_pi(colour.hue(wb, "hexcone") - truth[None, :])
+    e = colour.wrap_pi(e - np.nanmedian(e))
+    return float(np.sqrt(np.nanmean(e**2)))
+
+
+def test_compensated_patterns_flatten_the_plate_hue_and_decode(gauge_chain: dict[str, object]) -> None:
+    g = gauge_chain
+    root, comp, plain, cfg = g["root"], g["comp"], g["plain"], g["cfg"]
+    # patterns folder: the trapezoid pre-distorted, bands plain, predistortion.csv copied into the session
+    assert (root / "patterns-compensated" / "predistortion.csv").is_file()
+    assert comp.predistortion is not None and plain.predistortion is None  # type: ignore[attr-defined]
+    asked = yaml.safe_load((root / "patterns-compensated" / "patterns.yaml").read_text())
+    assert asked["compensated"]["table"] == "table_reference.json"
+    pat_plain, pat_comp = root / "patterns-plain", root / "patterns-compensated"
+    for name in ("0001_band_000.png", "0000_white.png"):
+        assert (pat_plain / name).read_bytes() == (pat_comp / name).read_bytes()
+    trap = next(pat_comp.glob("*_trapezoid.png")).name
+    assert (pat_plain / trap).read_bytes() != (pat_comp / trap).read_bytes()
+    # the captured plate hue becomes linear in the code phase (paper Fig. 6): measured 0.169 -> 0.030 rad
+    before, after = _plate_hue_rms(plain, cfg), _plate_hue_rms(comp, cfg)
+    assert before > 0.1 and after < 0.3 * before
+    # and the session decodes through predistortion.csv to the same accuracy
+    med_d, p95_d, cov_d = _errors(g["m_direct"].heights, g["truth"])  # type: ignore[attr-defined]
+    med_c, p95_c, cov_c = _errors(g["m_comp"].heights, g["truth"])  # type: ignore[attr-defined]
+    assert med_c <= 1.15 * med_d + 0.002  # measured: 0.0175 vs 0.0168 mm
+    assert p95_c <= 1.1 * p95_d  # measured: 0.092 vs 0.140 mm
+    assert cov_c > cov_d - 0.02
+    for e in _steps(g["m_comp"], comp):  # measured: -0.003/0.010/-0.007/-0.020 mm
+        assert abs(e) < 0.03
+
+
+def test_refused_compensation_folder_and_mismatched_patterns(gauge_chain: dict[str, object], tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    g = gauge_chain
+    empty = tmp_path / "calib"
+    empty.mkdir()
+    assert cli.main(["patterns", str(tmp_path / "p"), "--width", "640", "--height", "480", "--period-px", "60",
+                     "--compensated", str(empty)]) == 2
+    err = capsys.readouterr().err
+    assert "--compensated" in err and "table_reference.json is missing" in err and not (tmp_path / "p").exists()
+    # a period that puts projector pixels of another size on the bench's plate than projector.pixel_mm
+    assert cli.main(["patterns", str(tmp_path / "p60"), "--width", "1024", "--height", "768", "--period-px", "60",
+                     "--bands", "16", "--repeats", "1", "--planes", "0,3,6"]) == 0
+    capsys.readouterr()
+    assert cli.main(["bench", str(g["root"] / "bench.yaml"), str(tmp_path / "cam"), "--patterns",
+                     str(tmp_path / "p60"), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "patterns.yaml" in err and "projector.pixel_mm" in err and "--period-px 120" in err
+    assert not (tmp_path / "cam").exists()
+    # an image too narrow for the camera's field (80 mm at 0.1 mm per projector pixel)
+    assert cli.main(["patterns", str(tmp_path / "narrow"), "--width", "640", "--height", "768", "--period-px", "120",
+                     "--bands", "16", "--repeats", "1", "--planes", "0,3,6"]) == 0
+    assert cli.main(["bench", str(g["root"] / "bench.yaml"), str(tmp_path / "cam"), "--patterns",
+                     str(tmp_path / "narrow"), "--quiet"]) == 2
+    assert "projector columns are needed" in capsys.readouterr().err
+    # a compensated patterns folder without its predistortion.csv: the assembler refuses, naming it
+    pat = tmp_path / "comp-copy"
+    shutil.copytree(g["root"] / "patterns-compensated", pat)
+    (pat / "predistortion.csv").unlink()
+    assert cli.main(["session", str(g["root"] / "camera-compensated"), str(pat), str(g["root"] / "spec.yaml"),
+                     str(tmp_path / "s")]) == 2
+    assert "predistortion.csv: missing" in capsys.readouterr().err

@@ -32,9 +32,11 @@ from numpy.typing import NDArray
 
 from huefringe.camera import BAYER_PATTERNS, bayer_problem, demosaic
 from huefringe.io import atomic_path
-from huefringe.session import Problem, SessionError, decode_image, load_session
+from huefringe.session import Problem, SessionError, decode_image, load_session, read_predistortion
 
 CAPTURE_SUFFIXES = (".png", ".tif", ".tiff")
+PREDISTORTION = "predistortion.csv"
+"""A patterns folder's pre-distortion (``huefringe patterns --compensated``), copied into the session."""
 MANIFEST_HEADER = ["order", "image", "session_path"]
 PERIOD_TOLERANCE = 0.05
 """Largest relative disagreement between the declared and the measured reference-plane period."""
@@ -265,7 +267,9 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
         Bayer mosaics with ``bayer``), matched to the rows in natural order of file name.
     patterns_dir : path
         The patterns folder: ``manifest.csv`` (``order,image,session_path``) and
-        ``patterns.yaml`` (``hue_bands``, ``repeats``, ``planes_mm`` are read).
+        ``patterns.yaml`` (``hue_bands``, ``repeats``, ``planes_mm`` are read), and, if the
+        trapezoid was pre-distorted (``huefringe patterns --compensated``), ``predistortion.csv``,
+        checked and copied to the session's root.
     spec_yaml : path
         ``id``, ``pixel_pitch_mm``, ``period_px`` (camera px on the reference plane), optional
         ``specimen``, ``provenance``, ``camera`` (extra keys copied), ``bayer``, ``bit_depth_in``
@@ -300,6 +304,12 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
         raise SessionError.at(spec_yaml, f"unknown Bayer pattern {bayer!r}; use one of {', '.join(BAYER_PATTERNS)}")
     bit_in = spec.get("bit_depth_in")
     patterns, rows = read_patterns(patterns_dir)
+    predistortion = Path(patterns_dir) / PREDISTORTION
+    if predistortion.exists():  # huefringe patterns --compensated: the session must carry it to decode
+        read_predistortion(predistortion)
+    elif patterns.get("compensated"):
+        raise SessionError.at(predistortion, "missing: patterns.yaml says the trapezoid was pre-distorted "
+                                             "(compensated), and the session cannot decode without this file")
     files = capture_files(captures)
     if (err := _count_problem(files, rows, captures)) is not None:
         raise err
@@ -358,6 +368,9 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
             with atomic_path(target) as t:
                 if not cv2.imwrite(str(t), cv2.cvtColor(img, cv2.COLOR_RGB2BGR)):
                     raise SessionError.at(target, "OpenCV could not write the PNG")
+        if predistortion.exists():
+            with atomic_path(tmp / PREDISTORTION) as t:
+                shutil.copyfile(predistortion, t)
         with atomic_path(tmp / "session.yaml") as t:
             t.write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
         try:

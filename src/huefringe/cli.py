@@ -48,6 +48,18 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     except bench.BenchConfigError as exc:
         print(f"REFUSED: {exc}", file=sys.stderr)
         return 1
+    if args.patterns:
+        if args.periods:
+            print("REFUSED: --patterns and --periods exclude each other", file=sys.stderr)
+            return 2
+        try:
+            out = bench.capture_patterns(cfg, Path(args.patterns), Path(args.out), progress=not args.quiet)
+        except (bench.ProjectionError, FileExistsError) as exc:
+            print(f"REFUSED: {exc}", file=sys.stderr)
+            return 2
+        n = len(list(out.glob("IMG_*.png")))
+        print(f"wrote {n} camera files to {out} (assemble with: huefringe session {out} {args.patterns} SPEC.yaml SESSION)")
+        return 0
     if args.periods:
         for out in bench.period_sweep(cfg, periods=args.periods, out_root=Path(args.out)):
             print(out)
@@ -102,6 +114,7 @@ def _cmd_patterns(args: argparse.Namespace) -> int:
             args.out, width=args.width, height=args.height, period_px=args.period_px, hue_bands=args.bands,
             repeats=args.repeats, planes_mm=planes, frames=args.frames, phase_shift=not args.no_phase_shift,
             bit_depth=args.bit_depth, camera_period_px=args.camera_period_px, magnification=args.magnification,
+            compensated=args.compensated,
         )
     except PatternsError as exc:
         flag = {"out_dir": "OUT", "hue_bands": "--bands", "planes_mm": "--planes"}.get(
@@ -111,8 +124,9 @@ def _cmd_patterns(args: argparse.Namespace) -> int:
     n_img = len(list(out.glob("[0-9][0-9][0-9][0-9]_*.png")))
     with open(out / "manifest.csv", encoding="utf-8") as fh:
         n_cap = sum(1 for _ in fh) - 1
-    print(f"wrote {n_img} projector images ({args.width} x {args.height}, {args.bit_depth}-bit) and a manifest "
-          f"of {n_cap} captures to {out}")
+    extra = " and predistortion.csv (compensated trapezoid, paper Fig. 6)" if args.compensated else ""
+    print(f"wrote {n_img} projector images ({args.width} x {args.height}, {args.bit_depth}-bit), a manifest "
+          f"of {n_cap} captures{extra} to {out}")
     return 0
 
 
@@ -157,12 +171,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--deep", action="store_true", help="also decode every image")
     p.set_defaults(func=_cmd_check)
 
-    p = sub.add_parser("bench", help="write a capture session with the virtual bench")
+    p = sub.add_parser("bench", help="write a capture session (or, with --patterns, camera files) with the virtual bench")
     p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1)")
-    p.add_argument("out", help="output session folder (with --periods: a folder for the sweep)")
+    p.add_argument("out", help="output session folder (with --periods: a folder for the sweep; with --patterns: "
+                               "the folder of camera files)")
     p.add_argument("--preset", action="store_true", help="CONFIG names a packaged preset")
     p.add_argument("--periods", type=int, nargs="+", help="write a period sweep (e.g. 20 40 60 80 100)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--patterns", metavar="PATTERNS_DIR",
+                   help="instead of a session: show this huefringe patterns folder's images in manifest order and "
+                        "write one camera file per row (OUT/IMG_0001.png ...) for huefringe session")
     p.set_defaults(func=_cmd_bench)
 
     p = sub.add_parser("verify", help="check every file of an archive against its RO-Crate sha256; exit 1 on any problem")
@@ -191,6 +209,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--frames", type=int, default=1, help="object frames (default 1)")
     p.add_argument("--no-phase-shift", action="store_true", help="no three-step phase-shift images")
     p.add_argument("--bit-depth", type=int, choices=(8, 16), default=8, help="PNG bit depth (default 8)")
+    p.add_argument("--compensated", metavar="CALIB",
+                   help="pre-distort the trapezoid (paper Fig. 6) from the plate's hue table CALIB/table_reference.json "
+                        "(a run's results/<id>/calib) and write predistortion.csv for huefringe session")
     p.set_defaults(func=_cmd_patterns)
 
     p = sub.add_parser("session", help="assemble a checked capture session from a folder of camera files; exit 2 if refused")

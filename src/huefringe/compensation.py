@@ -24,6 +24,7 @@ from .patterns import TWO_PI, projector_image
 
 __all__ = [
     "compensate_pattern",
+    "emitted_columns",
     "hue_cross_section_figure",
     "plate_transfer",
     "predistortion",
@@ -116,6 +117,18 @@ def predistortion(
     return c, p, history
 
 
+def emitted_columns(code: NDArray[np.float64], emitted: NDArray[np.float64], width: int,
+                    period_px_projector: float) -> NDArray[np.float64]:
+    """Phase to emit at each projector column ``x`` of a pre-distorted trapezoid: ``p(2 pi x / T)``.
+
+    ``code``, ``emitted`` are the curve of :func:`predistortion` (``p - c`` periodic, interpolated
+    linearly between its samples, as :meth:`huefringe.session.Predistortion.decode` inverts it).
+    """
+    phase_x = TWO_PI * np.arange(width) / float(period_px_projector)
+    return phase_x + _periodic_interp(phase_x, np.asarray(code, np.float64),
+                                      np.asarray(emitted, np.float64) - np.asarray(code, np.float64))
+
+
 def compensate_pattern(
     table: HueTable,
     *,
@@ -124,7 +137,8 @@ def compensate_pattern(
     threshold_rad: float = 2e-3,
     max_iter: int = 50,
     gain: float = 0.8,
-) -> tuple[NDArray[np.uint8], list[dict[str, float]]]:
+    bit_depth: int = 8,
+) -> tuple[NDArray[np.uint8] | NDArray[np.uint16], list[dict[str, float]]]:
     """Pre-distorted trapezoidal projector pattern that makes the plate's captured hue linear.
 
     Parameters
@@ -138,11 +152,13 @@ def compensate_pattern(
         ``(width, height)`` of the projector (paper: 1024 x 768 DMD).
     threshold_rad, max_iter, gain
         See :func:`predistortion`.
+    bit_depth : {8, 16}
+        Code depth of the image (``uint8`` or ``uint16``).
 
     Returns
     -------
-    pattern : ndarray of uint8, shape (height, width, 3)
-        ``trapezoid_rgb(p(2 pi x / T))`` per column (constant along rows), 8-bit.
+    pattern : ndarray of uint8 or uint16, shape (height, width, 3)
+        ``trapezoid_rgb(p(2 pi x / T))`` per column (constant along rows, :func:`emitted_columns`).
     history : list of dict
         ``{"iteration", "std_rad", "max_rad"}``: std and max of the predicted
         (captured - projected code) residual at each iteration.
@@ -150,9 +166,8 @@ def compensate_pattern(
     width, height = projector_size
     code, dist = plate_transfer(table)
     c, p, history = predistortion(code, dist, threshold_rad=threshold_rad, max_iter=max_iter, gain=gain)
-    phase_x = TWO_PI * np.arange(width) / float(period_px_projector)
-    emit = phase_x + _periodic_interp(phase_x, c, p - c)
-    return projector_image(width, height, period_px_projector, phase_map=emit), history
+    emit = emitted_columns(c, p, width, period_px_projector)
+    return projector_image(width, height, period_px_projector, phase_map=emit, bit_depth=bit_depth), history
 
 
 # =============================================================================================

@@ -11,6 +11,11 @@
 - ``manifest.csv``: ``order,image,session_path``, one row per capture in capture order, naming the
   image to show and where that capture goes in a capture-session/1 folder.
 - ``patterns.yaml``: what was asked (resolution, bit depth, projector period, N, R, planes, frames).
+- with ``compensated=CALIB`` (paper Fig. 6): ``trapezoid`` pre-distorted from the plate's hue
+  table ``CALIB/table_reference.json`` (:func:`huefringe.compensation.plate_transfer`,
+  :func:`~huefringe.compensation.predistortion`) at the projector's resolution and period, and
+  ``predistortion.csv`` (the session extension of docs/design.md), which ``huefringe session``
+  copies into the session so that it decodes. Bands, white and phase-shift images stay plain.
 
 The folder is written into a hidden temporary folder beside ``OUT`` and renamed onto ``OUT`` at the
 end, so an interrupted run leaves nothing that looks complete. Arguments are checked before anything
@@ -33,8 +38,14 @@ from pathlib import Path
 import numpy as np
 import yaml
 
+from .compensation import emitted_columns, plate_transfer, predistortion
+from .huetable import HueTable
 from .io import atomic_path, write_png_rgb
 from .patterns import TWO_PI, band_rgb, phase_shift_intensity, projector_image, quantise
+from .session import SessionError, read_predistortion
+
+#: The hue table of the reference plate that ``--compensated`` reads from a calibration folder.
+CALIB_TABLE = "table_reference.json"
 
 MANIFEST_HEADER = ("order", "image", "session_path")
 
@@ -147,7 +158,64 @@ def capture_plan(hue_bands: int, repeats: int, planes_mm: Sequence[float], frame
     return plan
 
 
-def _image(name: str, *, width: int, height: int, period: float, hue_bands: int, bit_depth: int) -> np.ndarray:
+@dataclass(frozen=True)
+class Compensation:
+    """The pre-distortion of paper Fig. 6 computed from a calibration folder's plate hue table."""
+
+    calib: Path
+    code: np.ndarray
+    """Code phases ``c`` (``2 pi k / M``)."""
+    emitted: np.ndarray
+    """Phase ``p(c)`` the trapezoid emits for code ``c``."""
+    history: list[dict[str, float]]
+    """The loop's predicted residual per iteration (:func:`huefringe.compensation.predistortion`)."""
+
+
+def load_compensation(calib: str | os.PathLike[str], *, threshold_rad: float = 2e-3, max_iter: int = 50,
+                      gain: float = 0.8) -> Compensation:
+    """The pre-distortion from ``calib/table_reference.json`` (a run's ``results/<id>/calib``).
+
+    Raises
+    ------
+    PatternsError
+        (``compensated``) the folder or the table's files are missing or unreadable, naming the file.
+    """
+    folder = Path(calib)
+    if not folder.is_dir():
+        raise PatternsError("compensated", f"{folder} is not a folder (give a run's results/<id>/calib)")
+    base = folder / CALIB_TABLE
+    for name in (CALIB_TABLE, CALIB_TABLE.replace(".json", ".npy"), CALIB_TABLE.replace(".json", ".maps.npz")):
+        if not (folder / name).is_file():
+            raise PatternsError("compensated", f"{folder / name} is missing: the calibration folder must hold the "
+                                               f"plate's hue table {CALIB_TABLE} with its .npy and .maps.npz (the "
+                                               "workflow's rule hue_table writes them to results/<id>/calib)")
+    try:
+        table = HueTable.load(base)
+        code, dist = plate_transfer(table)
+    except (OSError, ValueError, KeyError) as exc:
+        raise PatternsError("compensated", f"{base}: cannot use the hue table ({exc})") from exc
+    c, p, history = predistortion(code, dist, threshold_rad=threshold_rad, max_iter=max_iter, gain=gain)
+    if np.any(np.diff(p) <= 0) or p[-1] >= p[0] + TWO_PI or np.any(np.abs(p - c) >= np.pi):
+        raise PatternsError("compensated", f"{base}: the plate's transfer function gives a pre-distortion that is "
+                                           "not invertible (emitted phase not rising by less than one turn)")
+    return Compensation(folder, c, p, history)
+
+
+def predistortion_csv(comp: Compensation) -> str:
+    """``predistortion.csv`` text (huefringe extension of capture-session/1, docs/design.md)."""
+    lines = ["# huefringe predistortion/1: the trapezoidal planes and frames of this session were projected",
+             "# with code phase c emitting the trapezoid of phase p(c) (paper Fig. 6); uniform bands were not.",
+             f"# written by huefringe patterns --compensated from {comp.calib / CALIB_TABLE}",
+             "code_phase_rad,emitted_phase_rad"]
+    lines += [f"{c:.9f},{e:.9f}" for c, e in zip(comp.code, comp.emitted, strict=True)]
+    return "\n".join(lines) + "\n"
+
+
+def _image(name: str, *, width: int, height: int, period: float, hue_bands: int, bit_depth: int,
+           compensation: Compensation | None = None) -> np.ndarray:
+    if name == "trapezoid" and compensation is not None:
+        emit = emitted_columns(compensation.code, compensation.emitted, width, period)
+        return projector_image(width, height, period, phase_map=emit, bit_depth=bit_depth)
     if name == "white":
         return np.full((height, width, 3), 2**bit_depth - 1, dtype=np.uint8 if bit_depth == 8 else np.uint16)
     if name == "trapezoid":
@@ -175,6 +243,10 @@ def write_patterns(
     bit_depth: int = 8,
     camera_period_px: float | None = None,
     magnification: float | None = None,
+    compensated: str | os.PathLike[str] | None = None,
+    threshold_rad: float = 2e-3,
+    max_iter: int = 50,
+    gain: float = 0.8,
 ) -> Path:
     """Write every projector image of one session, ``manifest.csv`` and ``patterns.yaml`` into ``out_dir``.
 
@@ -204,6 +276,12 @@ def write_patterns(
     magnification : float, optional
         Measured lateral scale on the reference plane in camera pixels per projector pixel; the
         projector period is then ``camera_period_px / magnification`` (:func:`projector_period`).
+    compensated : path, optional
+        A calibration folder (a run's ``results/<id>/calib``) holding the plate's hue table
+        ``table_reference.json``: the trapezoid is then pre-distorted (paper Fig. 6) and
+        ``predistortion.csv`` is written beside the manifest (:func:`load_compensation`).
+    threshold_rad, max_iter, gain
+        The compensation loop's (:func:`huefringe.compensation.predistortion`).
 
     Returns
     -------
@@ -219,6 +297,8 @@ def write_patterns(
     period, planes = _check(out, width=width, height=height, period_px=period_px, hue_bands=hue_bands,
                             repeats=repeats, planes_mm=planes_mm, frames=frames, bit_depth=bit_depth,
                             camera_period_px=camera_period_px, magnification=magnification)
+    comp = None if compensated is None else load_compensation(compensated, threshold_rad=threshold_rad,
+                                                                  max_iter=max_iter, gain=gain)
     plan = capture_plan(hue_bands, repeats, planes, frames, phase_shift)
     files: dict[str, str] = {}
     for name, _ in plan:
@@ -228,7 +308,14 @@ def write_patterns(
     try:
         for name, file in files.items():
             write_png_rgb(tmp / file, _image(name, width=width, height=height, period=period,
-                                              hue_bands=hue_bands, bit_depth=bit_depth))
+                                              hue_bands=hue_bands, bit_depth=bit_depth, compensation=comp))
+        if comp is not None:
+            with atomic_path(tmp / "predistortion.csv") as p:
+                p.write_text(predistortion_csv(comp), encoding="utf-8")
+            try:
+                read_predistortion(tmp / "predistortion.csv")
+            except SessionError as exc:  # pragma: no cover - load_compensation checks the same
+                raise PatternsError("compensated", str(exc)) from exc
         text = _stdio.StringIO()
         w = csv.writer(text, lineterminator="\n")
         w.writerow(MANIFEST_HEADER)
@@ -244,6 +331,13 @@ def write_patterns(
             "frames": int(frames), "phase_shift": bool(phase_shift),
             "images": len(files), "captures": len(plan),
         }
+        if comp is not None:
+            asked["compensated"] = {"calibration": str(comp.calib), "table": CALIB_TABLE,
+                                    "threshold_rad": float(threshold_rad), "max_iter": int(max_iter),
+                                    "gain": float(gain), "samples": int(comp.code.size),
+                                    "predicted_residual_rad": {"before": comp.history[0]["std_rad"],
+                                                               "after": comp.history[-1]["std_rad"]},
+                                    "iterations": int(comp.history[-1]["iteration"])}
         with atomic_path(tmp / "patterns.yaml") as p:
             p.write_text(yaml.safe_dump(asked, sort_keys=False), encoding="utf-8")
         os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp creates 0700

@@ -12,6 +12,9 @@ write_session(config, out_dir, progress=False) -> Path
     Simulate and write one session folder (session.yaml last, atomically moved into place).
 period_sweep(config, periods=(20, 40, 60, 80, 100), out_root) -> list[Path]
     The same bench at several fringe periods, ids suffixed ``-p20`` etc.
+capture_patterns(config, patterns_dir, out_dir) -> Path
+    Show a ``huefringe patterns`` folder's image files in manifest order and save one camera
+    file per row (``IMG_0001.png`` ...), for ``huefringe session``.
 preset_path(name) -> Path
     A packaged preset: ``demo``, ``flat``, ``dental``, ``table1``.
 code_phase, projector_ray_x0, analytic_phase_difference, simulate_capture, Bench, Pattern
@@ -44,6 +47,7 @@ _LAZY = {
     "Pattern": "radiometry", "Rig": "radiometry", "camera_response": "radiometry", "dmd_levels": "radiometry",
     "emitted_rgb": "radiometry",
     "build_scene": "scenes",
+    "ProjectionError": "projector", "capture_patterns": "projector", "image_placement": "projector",
     "Bench": "simulator", "noise_rng": "simulator", "simulate_capture": "simulator",
     "period_sweep": "writer", "rig_summary": "writer", "session_document": "writer", "write_session": "writer",
 }
@@ -62,16 +66,19 @@ __all__ = [
     "BenchConfigError",
     "Grid",
     "Pattern",
+    "ProjectionError",
     "Rig",
     "analytic_phase_difference",
     "available_presets",
     "bench_schema",
     "build_scene",
     "camera_response",
+    "capture_patterns",
     "cast_shadow_mask",
     "code_phase",
     "dmd_levels",
     "emitted_rgb",
+    "image_placement",
     "lambert_cosine",
     "load_bench_config",
     "noise_rng",

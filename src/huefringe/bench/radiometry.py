@@ -16,6 +16,13 @@ Per colour channel ``k`` (R, G, B):
 
 The phase-shift sinusoids are pre-compensated with the user's *estimate* of the projector gamma
 (``I ** (1 / gamma_hat)``); every other pattern is projected as is.
+
+A projector image file (:meth:`Pattern.image`, e.g. one written by ``huefringe patterns``) is
+projected as a DMD shows it: its pixels are boxes ``scale = P / T`` mm wide on the reference plane
+(``P`` the bench's period in mm, ``T`` the file's period in projector pixels), column ``c`` centred
+on ``X0 = x_origin + (c - col_shift) * scale`` and row ``r`` on ``Y0 = y_centre + (r - (rows - 1) / 2)
+* scale``; each pixel's codes go through the same DMD quantisation, gamma and defocus as an analytic
+pattern's.
 """
 
 from __future__ import annotations
@@ -28,11 +35,12 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.ndimage import gaussian_filter1d
+from scipy.special import erf
 
 from huefringe import patterns
 from huefringe.camera import demosaic, mosaic
 
-__all__ = ["Pattern", "Rig", "camera_response", "dmd_levels", "emitted_rgb", "rgb3"]
+__all__ = ["Pattern", "ProjectorImage", "Rig", "camera_response", "dmd_levels", "emitted_rgb", "rgb3"]
 
 TWO_PI = 2.0 * np.pi
 
@@ -43,18 +51,48 @@ def rgb3(value: float | ArrayLike) -> NDArray[np.float64]:
     return np.full(3, float(a)) if a.ndim == 0 else a.reshape(3).copy()
 
 
-@dataclass(frozen=True)
-class Pattern:
-    """What the projector shows: a uniform colour, the trapezoid (eq. 3) or a phase-shift sinusoid.
+@dataclass(frozen=True, eq=False)
+class ProjectorImage:
+    """A projector image file's drive levels and where its pixels land on the reference plane.
 
-    Use the constructors :meth:`white`, :meth:`hue_band`, :meth:`trapezoid`, :meth:`phase_shift`.
+    Compared and hashed by identity (it holds an array), so a :class:`Pattern` holding it can key
+    the bench's caches.
     """
 
-    kind: Literal["uniform", "trapezoid", "phase_shift"]
+    levels: NDArray[np.float64]
+    """``(rows, cols, 3)`` codes over full scale, in [0, 1]; ``(1, cols, 3)`` for an image whose
+    rows are all equal (a fringe: constant along rows)."""
+    rows: int
+    """Image height in projector pixels (``levels`` may hold a single row)."""
+    period_px: float
+    """The fringe period ``T`` of the file in projector pixels: one projector pixel is ``P / T`` mm."""
+    col_shift: float = 0.0
+    """Projector column (pixel centres at integers) on which the code origin ``x_origin`` lands."""
+    y_centre_mm: float = 0.0
+    """Plate ``Y`` on which the image's centre row ``(rows - 1) / 2`` lands."""
+
+    @property
+    def row_constant(self) -> bool:
+        """The image is one row repeated (the fringe varies along x only)."""
+        return self.levels.shape[0] == 1
+
+
+@dataclass(frozen=True)
+class Pattern:
+    """What the projector shows: a uniform colour, the trapezoid (eq. 3), a phase-shift sinusoid
+    or a projector image file.
+
+    Use the constructors :meth:`white`, :meth:`hue_band`, :meth:`trapezoid`, :meth:`phase_shift`,
+    :meth:`image`.
+    """
+
+    kind: Literal["uniform", "trapezoid", "phase_shift", "image"]
     rgb: tuple[float, float, float] = (1.0, 1.0, 1.0)
     step: int = 0
     emit_offset: tuple[float, ...] | None = None
     """Pre-distortion of the trapezoid: ``p(c) - c`` sampled at ``c = 2 pi k / M`` (paper Fig. 6)."""
+    source: ProjectorImage | None = None
+    """The projector image of kind ``image``."""
 
     @classmethod
     def white(cls) -> Pattern:
@@ -78,6 +116,47 @@ class Pattern:
         if s not in (0, 1, 2):
             raise ValueError(f"phase-shift step must be 0, 1 or 2, got {s}")
         return cls("phase_shift", step=s)
+
+    @classmethod
+    def image(cls, codes: NDArray[np.integer], period_px: float, *, bit_depth: int | None = None,
+              col_shift: float = 0.0, y_centre_mm: float = 0.0) -> Pattern:
+        """A projector image file as the projector shows it (see the module notes).
+
+        Parameters
+        ----------
+        codes : ndarray, shape (rows, cols, 3)
+            The file's RGB codes (``uint8`` or ``uint16``).
+        period_px : float
+            Fringe period of the file in projector pixels (``patterns.yaml``'s ``period_px``): the
+            file's column ``c`` carries code phase ``2 pi (c - col_shift) / period_px``, as the
+            analytic trapezoid at the same plate point.
+        bit_depth : int, optional
+            Full scale of the codes (default: 8 for ``uint8``, 16 for ``uint16``).
+        col_shift : float
+            Projector column on which the code origin ``x_origin`` lands (a whole number of periods
+            keeps every code phase; :func:`huefringe.bench.projector.image_placement` centres the
+            camera's field in the image with it).
+        y_centre_mm : float
+            Plate ``Y`` of the image's centre row.
+
+        A uniform image (every pixel the same colour) is the uniform pattern of those codes.
+        """
+        a = np.asarray(codes)
+        if a.ndim != 3 or a.shape[2] != 3 or a.dtype not in (np.uint8, np.uint16):
+            raise ValueError(f"a projector image must be RGB uint8/uint16 of shape (rows, cols, 3), got {a.dtype} {a.shape}")
+        bits = bit_depth if bit_depth is not None else (8 if a.dtype == np.uint8 else 16)
+        top = float((1 << bits) - 1)
+        flat = a.reshape(-1, 3)
+        if np.all(flat == flat[0]):
+            r, g, b = (float(v) / top for v in flat[0])
+            return cls("uniform", (r, g, b))
+        if not (np.isfinite(period_px) and period_px > 0):
+            raise ValueError(f"period_px must be a positive number, got {period_px!r}")
+        levels = a[:1] if np.all(a == a[:1]) else a
+        levels = np.clip(levels.astype(np.float64) / top, 0.0, 1.0)
+        levels.setflags(write=False)
+        return cls("image", source=ProjectorImage(levels, int(a.shape[0]), float(period_px), float(col_shift),
+                                                  float(y_centre_mm)))
 
 
 @dataclass(frozen=True, eq=False)
@@ -192,6 +271,9 @@ def dmd_levels(pattern: Pattern, phi: ArrayLike | None, rig: Rig) -> NDArray[np.
     elif pattern.kind == "phase_shift":
         grey = np.clip(patterns.phase_shift_intensity(phi, pattern.step), 0.0, 1.0)
         v = grey[..., None] ** (1.0 / rig.gamma_estimate)
+    elif pattern.kind == "image":  # the file's codes per projector pixel (phi unused)
+        assert pattern.source is not None
+        v = pattern.source.levels
     else:  # pragma: no cover - guarded by the dataclass constructors
         raise ValueError(f"unknown pattern kind {pattern.kind!r}")
     return np.round(v * q) / q
@@ -212,7 +294,8 @@ def _emitted_exact(pattern: Pattern, x0: NDArray[np.float64], rig: Rig) -> NDArr
     return _projector_output(dmd_levels(pattern, phi, rig), rig)
 
 
-def emitted_rgb(pattern: Pattern, x0: NDArray[np.floating] | None, rig: Rig) -> NDArray[np.float32]:
+def emitted_rgb(pattern: Pattern, x0: NDArray[np.floating] | None, rig: Rig,
+                y0: NDArray[np.floating] | None = None) -> NDArray[np.float32]:
     """Projector irradiance (before shading) reaching the points whose rays meet z = 0 at ``x0``.
 
     Parameters
@@ -224,6 +307,8 @@ def emitted_rgb(pattern: Pattern, x0: NDArray[np.floating] | None, rig: Rig) -> 
         (:func:`huefringe.bench.geometry.projector_ray_x0`); unused for uniform patterns.
     rig : Rig
         Projector model: DMD quantisation, gamma, pixelation, defocus, power.
+    y0 : ndarray, optional
+        The rays' ``Y`` on the reference plane; needed only by an image whose rows differ.
 
     Returns
     -------
@@ -241,6 +326,8 @@ def emitted_rgb(pattern: Pattern, x0: NDArray[np.floating] | None, rig: Rig) -> 
         return _projector_output(dmd_levels(pattern, None, rig), rig).astype(np.float32)
     assert x0 is not None
     x0 = np.asarray(x0, dtype=np.float64)
+    if pattern.kind == "image":
+        return _emitted_image(pattern, x0, y0, rig)
     sigma = rig.defocus_sigma_mm
     if sigma <= 0.0:
         return _emitted_exact(pattern, x0, rig).astype(np.float32)
@@ -270,6 +357,88 @@ def _defocused_table(pattern: Pattern, rig: Rig, lo: float, hi: float) -> tuple[
     xs = lo + step * np.arange(n)
     table = gaussian_filter1d(_emitted_exact(pattern, xs, rig), sigma / step, axis=0, mode="nearest", truncate=5.0)
     table = table.astype(np.float32)
+    table.setflags(write=False)
+    return step, table
+
+
+def image_scale_mm(image: ProjectorImage, rig: Rig) -> float:
+    """Size (mm) of one pixel of a projector image on the reference plane: ``P / T``."""
+    return rig.period_mm / image.period_px
+
+
+def _box_gauss(t: NDArray[np.float64], sigma: float) -> NDArray[np.float64]:
+    """A unit box pixel blurred by a Gaussian of ``sigma`` (pixels), at offset ``t`` from its centre."""
+    k = 1.0 / (sigma * np.sqrt(2.0))
+    return 0.5 * (erf((t + 0.5) * k) - erf((t - 0.5) * k))
+
+
+def _emitted_image(pattern: Pattern, x0: NDArray[np.float64], y0: NDArray[np.floating] | None,
+                   rig: Rig) -> NDArray[np.float32]:
+    """Projector output of an image pattern at reference-plane points ``(x0, y0)``.
+
+    Without defocus each point takes the pixel it falls in (pixels are boxes). With defocus
+    (``defocus_sigma_mm``, in pixels of this image ``sigma = defocus_sigma_mm / scale``) a point
+    takes the box pixels convolved with the Gaussian: for a row-constant image a finely tabulated
+    1-D profile (as for analytic patterns), otherwise the exact separable weights
+    ``K(r - i) K(c - j)`` with ``K`` the box-Gaussian.
+    """
+    img = pattern.source
+    assert img is not None
+    scale = image_scale_mm(img, rig)
+    emitted = _projector_output(dmd_levels(pattern, None, rig), rig)  # (rows or 1, cols, 3)
+    cols = emitted.shape[1]
+    c = (x0 - rig.x_origin_mm) / scale + img.col_shift
+    sigma = rig.defocus_sigma_mm / scale
+    if img.row_constant:
+        if sigma <= 0.0:
+            return emitted[0][np.clip(np.round(c), 0, cols - 1).astype(np.intp)].astype(np.float32)
+        step, table = _image_table(pattern, rig)
+        pos = (c + 0.5 + 6.0 * sigma) / step
+        idx = np.clip(pos.astype(np.intp), 0, table.shape[0] - 2)
+        frac = (pos - idx).astype(np.float32)[..., None]
+        return table[idx] + frac * (table[idx + 1] - table[idx])
+    if y0 is None:
+        raise ValueError("an image pattern whose rows differ needs the rays' y0")
+    r = (np.asarray(y0, dtype=np.float64) - img.y_centre_mm) / scale + 0.5 * (img.rows - 1)
+    if sigma <= 0.0:
+        ri = np.clip(np.round(r), 0, img.rows - 1).astype(np.intp)
+        return emitted[ri, np.clip(np.round(c), 0, cols - 1).astype(np.intp)].astype(np.float32)
+    half = int(np.ceil(5.0 * sigma)) + 1
+    offs = np.arange(-half, half + 1)
+    flat_r, flat_c = r.ravel(), c.ravel()
+    out = np.empty((flat_r.size, 3), np.float32)
+    chunk = max(1, 2_000_000 // (offs.size * offs.size * 3))
+    for s in range(0, flat_r.size, chunk):
+        rr, cc = flat_r[s:s + chunk], flat_c[s:s + chunk]
+        ir = np.round(rr)[:, None] + offs[None, :]
+        ic = np.round(cc)[:, None] + offs[None, :]
+        wr, wc = _box_gauss(rr[:, None] - ir, sigma), _box_gauss(cc[:, None] - ic, sigma)
+        ir = np.clip(ir, 0, img.rows - 1).astype(np.intp)
+        ic = np.clip(ic, 0, cols - 1).astype(np.intp)
+        patch = emitted[ir[:, :, None], ic[:, None, :]]  # (n, wr, wc, 3)
+        out[s:s + chunk] = np.einsum("ni,nj,nijk->nk", wr, wc, patch) / (wr.sum(1) * wc.sum(1))[:, None]
+    return out.reshape(r.shape + (3,))
+
+
+@lru_cache(maxsize=32)
+def _image_table(pattern: Pattern, rig: Rig) -> tuple[float, NDArray[np.float32]]:
+    """A row-constant image's defocused profile on a fine grid of projector columns.
+
+    Sample ``k`` sits at column ``-0.5 - 6 sigma + k step``: the box pixels (nearest column),
+    blurred by ``gaussian_filter1d`` (edge pixels continued), as :func:`_defocused_table` does
+    for analytic patterns.
+    """
+    img = pattern.source
+    assert img is not None
+    sigma = rig.defocus_sigma_mm / image_scale_mm(img, rig)
+    emitted = _projector_output(dmd_levels(pattern, None, rig), rig)[0]
+    cols = emitted.shape[0]
+    step = min(sigma / 8.0, 1.0 / 16.0, img.period_px / 1024.0)
+    pad = 6.0 * sigma
+    n = int(np.ceil((cols + 2.0 * pad) / step)) + 2
+    xs = -0.5 - pad + step * np.arange(n)
+    profile = emitted[np.clip(np.round(xs), 0, cols - 1).astype(np.intp)]
+    table = gaussian_filter1d(profile, sigma / step, axis=0, mode="nearest", truncate=5.0).astype(np.float32)
     table.setflags(write=False)
     return step, table
 

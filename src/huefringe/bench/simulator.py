@@ -225,7 +225,11 @@ class Bench:
 
     def radiance(self, surf: Surface, light: Lighting, pattern: Pattern) -> NDArray[np.float32]:
         """Eq. 7 on the fine grid, box-averaged to camera pixels: ``r_k (E g_k + a_k)``."""
-        em = light.irradiance[..., None] * emitted_rgb(pattern, light.x0, self.rig)
+        y0 = None
+        if pattern.source is not None and not pattern.source.row_constant:  # an image whose rows differ
+            rig = self.rig
+            y0 = projector_ray_x0(self._yf, surf.height, rig.projector_y_mm, rig.projector_height_mm)
+        em = light.irradiance[..., None] * emitted_rgb(pattern, light.x0, self.rig, y0)
         em += self.rig.ambient.astype(np.float32)
         em *= surf.reflectance
         return self.to_camera(em, surf)
