@@ -320,6 +320,94 @@ out at each side) extrapolates its scale to the corners and read 2.9-4.2 px of a
 200 x 150 px board that had none."""
 
 
+#: the six segments of the trapezoid's period (capture-session/1, "Projected codes") in which one
+#: primary alone varies, the other two held at 0 or 1: (start, end) as fractions of the period,
+#: the varying primary (0 R, 1 G, 2 B) and its direction (+1 rising, -1 falling)
+_MIXING_SEGMENTS = ((0.0, 1 / 6, 1, 1), (1 / 6, 1 / 3, 0, -1), (1 / 3, 1 / 2, 2, 1),
+                    (1 / 2, 2 / 3, 1, -1), (2 / 3, 5 / 6, 0, 1), (5 / 6, 1.0, 2, -1))
+
+CA_MIXING_MAX_OFF_DIAGONAL = 0.5
+"""A channel-mixing estimate with an off-diagonal entry beyond this (a camera channel answering
+another primary half as strongly as its own) or a condition number above 10 is not used: the
+registration then works on the camera channels themselves (``mixing`` ``estimable: false``)."""
+
+
+def mixing_band_pairs(n_bands: int) -> list[tuple[int, int, int, int]]:
+    """The hue bands :func:`estimate_channel_mixing` reads: ``(primary, first, last, direction)``
+    per segment of the period in which one primary alone varies (first and last band inside it),
+    for segments holding two bands at least (``n_bands >= 12`` gives all six)."""
+    out = []
+    for a, b, k, sign in _MIXING_SEGMENTS:
+        first, last = int(np.ceil(a * n_bands - 1e-9)), int(np.ceil(b * n_bands - 1e-9)) - 1
+        if last > first:
+            out.append((k, first, last, sign))
+    return out
+
+
+def estimate_channel_mixing(bands: Mapping[int, NDArray[np.floating]], n_bands: int, *,
+                            shadow: NDArray[np.bool_] | None = None) -> dict[str, Any]:
+    """The camera's response to each projector primary, from the uniform hue bands of a plate.
+
+    Lateral chromatic aberration magnifies the image of each projector primary (a narrow band of
+    wavelengths), not each camera channel: a camera channel that also sees the neighbouring
+    primaries (the colour filters' overlap, crosstalk) records a mix of images magnified
+    differently. Between two hue bands of a segment of the period in which one primary alone
+    varies (R falls from 1 to 0 while G is 1 and B is 0, ...: capture-session/1's trapezoid), the
+    change of the camera's RGB at any pixel is that primary's column of the mixing matrix times
+    a positive factor (the plate's reflectance, the irradiance, the projector's gamma: none of
+    them known or needed). The column is the sum of those changes over the plate's lit pixels,
+    both segments of the primary pooled, scaled to 1 in the primary's own channel.
+
+    Parameters
+    ----------
+    bands : mapping of band index to (H, W, 3) float image
+        The reference hue bands (repeats averaged) named by :func:`mixing_band_pairs`.
+    n_bands : int
+        ``pattern.hue_bands``.
+    shadow : (H, W) bool, optional
+        Pixels to leave out.
+
+    Returns
+    -------
+    dict
+        ``matrix`` (3 x 3, column k = the camera's R, G, B response to primary k, ``matrix[k][k]
+        = 1``; the identity when not estimable), ``estimable``, ``bands`` (the pairs read),
+        ``pixels``, and ``why`` when not estimable.
+    """
+    pairs = mixing_band_pairs(n_bands)
+    cols = np.zeros((3, 3))
+    npix = 0
+    for k, first, last, sign in pairs:
+        if first not in bands or last not in bands:
+            continue
+        lo, hi = np.asarray(bands[first], np.float64), np.asarray(bands[last], np.float64)
+        ok = np.all((lo > 0.0) & (lo < 1.0) & (hi > 0.0) & (hi < 1.0), axis=-1)  # no clipped channel
+        if shadow is not None:
+            ok &= ~shadow
+        npix = max(npix, int(ok.sum()))
+        cols[:, k] += sign * (hi - lo)[ok].sum(axis=0)
+    out: dict[str, Any] = {"matrix": np.eye(3).tolist(), "estimable": False,
+                           "bands": [list(p) for p in pairs], "pixels": npix}
+    diag = np.diag(cols)
+    if npix < CA_MIN_PIXELS or np.any(diag <= 0):
+        out["why"] = "no segment of the period with two hue bands for every primary" if len(
+            {p[0] for p in pairs}) < 3 else "too few unclipped lit pixels in the hue bands"
+        return out
+    m = cols / diag[None, :]
+    off = np.abs(m - np.diag(np.diag(m)))
+    if off.max() > CA_MIXING_MAX_OFF_DIAGONAL or np.linalg.cond(m) > 10.0:
+        out["why"] = f"implausible mixing (largest off-diagonal {off.max():.2f}, condition {np.linalg.cond(m):.1f})"
+        return out
+    out.update(matrix=m.tolist(), estimable=True)
+    return out
+
+
+def _unmix(image: NDArray, mixing: NDArray[np.float64] | None) -> NDArray[np.float64]:
+    """The primaries' images ``mixing^-1 c`` of a camera image (as float64); the image itself without mixing."""
+    img = np.asarray(image, np.float64)
+    return img if mixing is None else img @ np.linalg.inv(mixing).T
+
+
 def _quadrature(signal: NDArray[np.float64], period_px: float) -> NDArray[np.complex128]:
     """Local complex amplitude of the fringe's fundamental: a Gabor filter along u (carrier
     ``2 pi / period``, Gaussian sigma of half a period), smoothed over a few rows along v."""
@@ -337,7 +425,8 @@ def _quadrature(signal: NDArray[np.float64], period_px: float) -> NDArray[np.com
 
 
 def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[np.floating], period_px: float,
-                        centre: tuple[float, float], *, shadow: NDArray[np.bool_] | None = None) -> dict[str, Any]:
+                        centre: tuple[float, float], *, shadow: NDArray[np.bool_] | None = None,
+                        mixing: ArrayLike | None = None) -> dict[str, Any]:
     """Estimate the radial magnification of R and B relative to G from fringe images of flat planes.
 
     On a plane the three channels of the trapezoid are shifted copies of one another; a channel
@@ -361,6 +450,12 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
         The magnification centre: the distortion centre of ``camera.matrix``, else the image centre.
     shadow : (H, W) bool, optional
         Pixels to leave out.
+    mixing : (3, 3) array, optional
+        The camera's response to the projector primaries (:func:`estimate_channel_mixing`): the
+        planes and the white are unmixed into the primaries' images first, and ``s`` is the
+        magnification of the R and B primaries against G (what the lens does). Without it the
+        camera channels are compared (biased by their crosstalk: on the plain gauge bench with
+        10 % crosstalk they read 0.54 px for 0.50 px at the corners).
 
     Returns
     -------
@@ -370,7 +465,8 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
         radial displacement at the farthest image corner, ``|s| r_max``), ``centre``, ``pixels``.
     """
     cx, cy = float(centre[0]), float(centre[1])
-    wb = np.maximum(np.asarray(white, np.float64), 1e-3)
+    mix = None if mixing is None else np.asarray(mixing, np.float64).reshape(3, 3)
+    wb = np.maximum(_unmix(white, mix), 1e-3)
     h, w = wb.shape[:2]
     margin = int(np.ceil(1.5 * period_px))  # the filter's half-width: no reflected sample in the window
     u = np.arange(w, dtype=np.float64)
@@ -379,7 +475,7 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
     npix = 0
     fit_radius = 0.0  # the farthest pixel from the centre that the fit reads: how far it extrapolates
     for img in planes:
-        sig = np.asarray(img, np.float64) / wb
+        sig = _unmix(img, mix) / wb
         z = [_quadrature(np.ascontiguousarray(sig[..., c]), period_px) for c in range(3)]
         zg = z[1]
         k = np.empty((h, w))
@@ -435,16 +531,23 @@ def estimate_lateral_ca(planes: Sequence[NDArray[np.floating]], white: NDArray[n
 
 @dataclass(frozen=True)
 class ChannelRegistration:
-    """Resample R and B onto G: undo a radial magnification ``1 + s`` about ``centre``.
+    """Undo a radial magnification ``1 + s`` of the R and B primaries about ``centre``.
 
-    ``registered_c(x) = observed_c(centre + (1 + s_c) (x - centre))``, Lanczos
-    (``cv2.remap``, ``INTER_LANCZOS4``, replicated border), on the sensor codes themselves so that
-    both per-frame chains (the NumPy reference and the numba kernel) read the same image.
+    Without ``mixing``: ``registered_c(x) = observed_c(centre + (1 + s_c) (x - centre))`` for the
+    camera channels R and B. With ``mixing`` (the camera's response to the projector primaries,
+    :func:`estimate_channel_mixing`): the image is unmixed into the primaries' images
+    ``p = mixing^-1 c``, the R and B primaries are resampled so, and mixed back,
+    ``registered = c + mixing[:, R] (p_R' - p_R) + mixing[:, B] (p_B' - p_B)`` (G's primary is not
+    moved; a camera channel's share of another primary moves with that primary, as the lens moved
+    it). Lanczos (``cv2.remap``, ``INTER_LANCZOS4``, replicated border), on the sensor codes
+    themselves (rounded back to the sensor's dtype) so that both per-frame chains (the NumPy
+    reference and the numba kernel) read the same image.
     """
 
     centre: tuple[float, float]
     scale_r: float
     scale_b: float
+    mixing: tuple[tuple[float, ...], ...] | None = None
 
     def _maps(self, shape: tuple[int, int]) -> tuple[tuple[NDArray[np.float32], NDArray[np.float32]], ...]:
         key = (self.centre, self.scale_r, self.scale_b, shape)
@@ -460,12 +563,26 @@ class ChannelRegistration:
 
     def apply(self, image: NDArray) -> NDArray:
         """The registered copy of an ``(H, W, 3)`` image (codes or float), same dtype."""
-        out = np.array(image, copy=True, order="C")
-        maps = self._maps(out.shape[:2])
-        for c, (mx, my) in zip((0, 2), maps, strict=True):
-            out[..., c] = cv2.remap(np.ascontiguousarray(image[..., c]), mx, my, _INTERP,
-                                    borderMode=cv2.BORDER_REPLICATE)
-        return out
+        maps = self._maps(np.shape(image)[:2])
+        if self.mixing is None:
+            out = np.array(image, copy=True, order="C")
+            for c, (mx, my) in zip((0, 2), maps, strict=True):
+                out[..., c] = cv2.remap(np.ascontiguousarray(image[..., c]), mx, my, _INTERP,
+                                        borderMode=cv2.BORDER_REPLICATE)
+            return out
+        mix = np.asarray(self.mixing, np.float64)
+        img = np.asarray(image)
+        c = img.astype(np.float64)
+        prim = c @ np.linalg.inv(mix).T
+        out = c
+        for k, (mx, my) in zip((0, 2), maps, strict=True):
+            pk = np.ascontiguousarray(prim[..., k], dtype=np.float32)
+            moved = cv2.remap(pk, mx, my, _INTERP, borderMode=cv2.BORDER_REPLICATE)
+            out = out + (moved.astype(np.float64) - pk)[..., None] * mix[:, k]
+        if np.issubdtype(img.dtype, np.integer):
+            top = np.iinfo(img.dtype).max
+            return np.clip(np.rint(out), 0, top).astype(img.dtype)
+        return out.astype(img.dtype)
 
 
 _REMAPS: dict[Any, Any] = {}
@@ -500,7 +617,8 @@ class CaptureReader:
 
 
 def camera_record(meta: Mapping[str, Any], settings: Mapping[str, Any], planes: Sequence[NDArray[np.floating]],
-                  white: NDArray[np.floating], shadow: NDArray[np.bool_] | None = None) -> dict[str, Any]:
+                  white: NDArray[np.floating], shadow: NDArray[np.bool_] | None = None,
+                  bands: Mapping[int, NDArray[np.floating]] | None = None) -> dict[str, Any]:
     """The results' ``calib/camera.json``: the lens model used for X, Y and the channel registration.
 
     Parameters
@@ -511,6 +629,10 @@ def camera_record(meta: Mapping[str, Any], settings: Mapping[str, Any], planes: 
         The config block ``camera`` (``lens_model``, ``chromatic_registration``).
     planes, white
         The reference planes' captures and the reference white (float [0, 1]) for the estimate.
+    bands : mapping of band index to image, optional
+        The reference hue bands :func:`mixing_band_pairs` names (float [0, 1], repeats averaged):
+        the channel mixing (:func:`estimate_channel_mixing`) in which the magnification is
+        estimated and undone. Without them the camera channels themselves are registered.
     """
     lens = bool(settings.get("lens_model", True))
     mode = settings.get("chromatic_registration", "auto")
@@ -520,7 +642,11 @@ def camera_record(meta: Mapping[str, Any], settings: Mapping[str, Any], planes: 
                            "chromatic_registration": {"setting": mode, "applied": False}}
     if mode is False or mode == "false":
         return rec
-    est = estimate_lateral_ca(planes, white, float(meta["pattern"]["period_px"]), model.centre, shadow=shadow)
+    mixing = (estimate_channel_mixing(bands, int(meta["pattern"]["hue_bands"]), shadow=shadow) if bands
+              else {"matrix": np.eye(3).tolist(), "estimable": False, "why": "no hue bands given"})
+    est = estimate_lateral_ca(planes, white, float(meta["pattern"]["period_px"]), model.centre, shadow=shadow,
+                              mixing=mixing["matrix"] if mixing["estimable"] else None)
+    est["mixing"] = mixing
     worst = max(est["corner_displacement_px"].values())
     reach = est["fit_reach_u_px"] / max(est["field_reach_u_px"], 1e-9)
     forced = mode is True or mode == "true"
@@ -544,5 +670,7 @@ def corrections(record: Mapping[str, Any] | None, meta: Mapping[str, Any]) -> tu
     if not reg.get("applied"):
         return model, CaptureReader()
     est = reg["estimate"]
+    mix = est.get("mixing") or {}  # records before the mixing estimate: the camera channels registered
+    mixing = tuple(tuple(float(x) for x in row) for row in mix["matrix"]) if mix.get("estimable") else None
     return model, CaptureReader(ChannelRegistration(tuple(est["centre"]), float(est["scale"]["R"]),
-                                                    float(est["scale"]["B"])))
+                                                    float(est["scale"]["B"]), mixing))
