@@ -544,8 +544,8 @@ class ChannelRegistration:
     moved, and a camera channel's share of another primary moves with that primary, as the lens
     moved it. The resampling is cubic B-spline interpolation at the exact positions
     (``scipy.ndimage.spline_filter1d``, then two sparse products: separable, as the magnification
-    is; whole-sample mirrored border); the result is rounded back to the sensor's codes, so that both per-frame chains (the NumPy reference and the numba
-    kernel) read the same image.
+    is; whole-sample mirrored border); the result is rounded back to the sensor's codes, so that
+    both per-frame chains (the NumPy reference and the numba kernel) read the same image.
     """
 
     centre: tuple[float, float]
@@ -590,7 +590,7 @@ def _spline_rows(n: int, scale: float, centre: float) -> scipy.sparse.csr_matrix
     j = np.floor(x).astype(np.int64)[:, None] + np.arange(-1, 3)[None, :]
     t = np.abs(x[:, None] - j)
     wt = np.where(t < 1.0, 2.0 / 3.0 - t ** 2 + 0.5 * t ** 3, np.where(t < 2.0, (2.0 - t) ** 3 / 6.0, 0.0))
-    period = 2 * (n - 1)
+    period = max(2 * (n - 1), 1)
     jm = np.mod(j, period)
     jm = np.where(jm > n - 1, period - jm, jm)
     return scipy.sparse.csr_matrix((wt.ravel(), (np.repeat(np.arange(n), 4), jm.ravel())), shape=(n, n))
@@ -599,7 +599,7 @@ def _spline_rows(n: int, scale: float, centre: float) -> scipy.sparse.csr_matrix
 # Cubic B-splines rather than OpenCV's Lanczos (cv2.remap rounds every position to 1/32 px): on
 # the plain gauge bench lens (CA 0.5 px, in the primaries, true magnification) the registered
 # median is 0.0107 mm with cubic splines (scipy.ndimage.affine_transform order 3; this separable
-# form gives the same to 3e-5 of the fringe amplitude inside, 2 x faster), 0.0108 quintic, 0.0111
+# form gives the same to 1e-4 of the fringe amplitude inside, 2 x faster), 0.0108 quintic, 0.0111
 # cv2 Lanczos, 0.0146 cv2 bicubic (no CA: 0.0107); on a sine of period 6 px the interpolation error
 # is 1.5e-3 of the amplitude (cubic spline) against 8.4e-3 (cv2 Lanczos).
 
