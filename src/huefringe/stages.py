@@ -74,7 +74,7 @@ def session_camera_record(s: Session, camera: Mapping[str, Any], calibration: Ma
     white = read_rgb(s.reference_white)
     mode = camera.get("chromatic_registration", "auto")
     planes = [] if mode is False or mode == "false" else [read_rgb(p) for p in s.planes.values()]
-    bands = {}
+    bands: dict[int, NDArray[np.floating]] = {}
     if planes:  # the hue bands the channel-mixing estimate reads (repeats averaged)
         for _, first, last, _ in mixing_band_pairs(s.hue_bands):
             for i in (first, last):
