@@ -280,7 +280,8 @@ def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_mod
     estimate is 0 (off): the instrumental variable needs two.
 
     Returns the record kept in ``calib/planes.json`` (``texture_blur``): ``sigma2_px2``,
-    ``samples``, ``pairs``, ``frames``, ``source``.
+    ``raw_px2``, ``stderr_px2``, ``samples``, ``pairs``, ``frames``, ``source`` and, when the
+    estimate was not significant or not plausible (the correction is then off), ``rejected``.
     """
     frames = s.frame_ids[:TEXTURE_BLUR_FRAMES]
     if len(frames) < 2:
@@ -298,7 +299,9 @@ def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_mod
             m = kernel.frame_maps(prep, texture.correct(rgb, white, sigma2), denoise_radius=0, want_dphi=True)
             out.append(np.where(m.valid, m.dphi, np.nan))
     est = texture.blur_from_phases(plain, unit)
-    return {**est, "frames": [int(n) for n in frames], "source": "auto: estimated from the object frames"}
+    source = ("auto: estimated from the object frames" if "rejected" not in est
+              else "auto: estimate refused (see rejected), correction off")
+    return {**est, "frames": [int(n) for n in frames], "source": source}
 
 
 def compensation(session: str, table: str, model: str, hue_model: str, calibration: Mapping[str, Any],
