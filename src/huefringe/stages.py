@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from huefringe import kernel
-from huefringe.camera import CameraModel, CaptureReader, camera_record, corrections
+from huefringe.camera import CameraModel, CaptureReader, bayer_resampling, camera_record, corrections
 from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, calibrate_planes, coverage, xy_accuracy
@@ -31,7 +31,7 @@ from huefringe import phase_error, texture
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
-from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
+from huefringe.session import Session, load_session, read_rgb_codes
 from huefringe.uncertainty import pixel_budget
 
 log = logging.getLogger("huefringe")
@@ -71,9 +71,10 @@ def camera_calibration(session: str, camera: Mapping[str, Any], calibration: Map
 
 def session_camera_record(s: Session, camera: Mapping[str, Any], calibration: Mapping[str, Any]) -> dict[str, Any]:
     """The ``calib/camera.json`` record of a session in memory (:func:`camera_calibration` writes it)."""
-    white = read_rgb(s.reference_white)
+    read = CaptureReader(bayer=bayer_resampling(s.meta, camera.get("demosaic", "lanczos"))).rgb
+    white = read(s.reference_white)
     mode = camera.get("chromatic_registration", "auto")
-    planes = [] if mode is False or mode == "false" else [read_rgb(p) for p in s.planes.values()]
+    planes = [] if mode is False or mode == "false" else [read(p) for p in s.planes.values()]
     return camera_record(s.meta, camera, planes, white, shadow=shadow_mask(white, calibration["shadow_fraction"]))
 
 
@@ -247,7 +248,9 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     cal.stats["phase_error"] = None if lut is None else lut.stats
     blur = calibration.get("texture_blur_px2", 0.0)
     if blur == "auto":  # the camera's blur from the session's own object frames (needs the object table)
-        info = (session_texture_blur(s, object_table, cal, hue_model, calibration) if object_table is not None
+        # the frames as re-demosaiced (a Bayer session); the channel registration is not applied here (as before)
+        bayer = CaptureReader(bayer=reader.bayer) if reader is not None else None
+        info = (session_texture_blur(s, object_table, cal, hue_model, calibration, reader=bayer) if object_table is not None
                 else {"sigma2_px2": 0.0, "source": "auto, no object table given: off"})
     else:
         info = {"sigma2_px2": float(blur or 0.0), "source": "calibration.texture_blur_px2"}
@@ -265,7 +268,7 @@ TEXTURE_BLUR_FRAMES = 4
 
 
 def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str,
-                         calibration: Mapping[str, Any]) -> dict[str, Any]:
+                         calibration: Mapping[str, Any], *, reader: CaptureReader | None = None) -> dict[str, Any]:
     """The camera's blur variance (px^2) for the texture-edge correction, from the session's first
     object frames (up to :data:`TEXTURE_BLUR_FRAMES`, two at least): each frame's raw phase
     difference (the kernel, no phase filter) as captured and after :func:`huefringe.texture.correct`
@@ -279,13 +282,14 @@ def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_mod
     if len(frames) < 2:
         return {"sigma2_px2": 0.0, "samples": 0, "pairs": 0, "frames": list(frames),
                 "source": "auto: one frame, no estimate (off)"}
-    white = read_rgb(s.object_white)
+    read = (reader or CaptureReader()).rgb
+    white = read(s.object_white)
     prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=calibration["min_saturation"],
                           shadow=shadow_mask(white, calibration["shadow_fraction"]), bit_depth=s.bit_depth,
                           predistortion=s.predistortion)
     plain, unit = [], []
     for n in frames:
-        rgb = read_rgb(s.frames[n])
+        rgb = read(s.frames[n])
         for sigma2, out in ((0.0, plain), (1.0, unit)):
             m = kernel.frame_maps(prep, texture.correct(rgb, white, sigma2), denoise_radius=0, want_dphi=True)
             out.append(np.where(m.valid, m.dphi, np.nan))
