@@ -132,6 +132,13 @@ CAMERA_CASES = {
                                                 session={"period_px": 40, "seed": 33},
                                                 camera={"distortion": [-8e-6, 0.0, 1e-5, -1e-5, 0.0],
                                                         "lateral_ca_px": [0.4, -0.3], "supersample": 2}),
+    # defined after the first two Bayer hold-outs had been seen (docs/accuracy-cameras.md, issue 23 Bayer)
+    "bayer GBRG edge-aware p56 8bit": _case("bayer_gauge", True, variants=_DEM,
+                                            session={"period_px": 56, "bit_depth": 8, "seed": 57},
+                                            camera={"sensor": {"kind": "bayer", "pattern": "GBRG", "demosaic": "edge_aware"}}),
+    "bayer BGGR bilinear p40 blur 0.7": _case("bayer_gauge", True, variants=_DEM, session={"period_px": 40, "seed": 58},
+                                              camera={"lens_blur_sigma_px": 0.7,
+                                                      "sensor": {"kind": "bayer", "pattern": "BGGR", "demosaic": "bilinear"}}),
     "pinhole 300 mm p64 strong distortion bayer": _case(
         "pinhole_gauge", True, variants=_LENS + ("demosaic stored",), session={"period_px": 64, "seed": 34},
         camera={"distortion": [-0.35, 0.15, 2e-4, -1e-4, 0.0], "sensor": {"kind": "bayer", "pattern": "BGGR"}}),

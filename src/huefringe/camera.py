@@ -123,15 +123,20 @@ def demosaic(raw: NDArray, pattern: str, method: str = "edge_aware") -> NDArray:
 
 
 def lanczos_demosaic(raw: NDArray, pattern: str) -> NDArray:
-    """Demosaic by band-limited resampling of each colour's photosite lattice (OpenCV Lanczos).
+    """Demosaic by band-limited resampling of each colour's photosite lattice across the fringes.
 
     Each of the four 2 x 2 sub-lattices of the sensor (one colour each, spacing 2 px) is resampled
-    onto every pixel with ``cv2.remap`` (``INTER_LANCZOS4``, reflected border); R and B are their
-    lattice's resampling, G keeps its native value at G photosites and is the mean of its two
-    lattices' resamplings at R and B photosites. A signal below the lattice's Nyquist frequency
-    (period 4 px) is reproduced; OpenCV's demosaics interpolate with two taps, which on the
-    trapezoid's blurred corners (a fringe period of 48 px, corners blurred over about 1 px) leaves
-    an error of half the channel's second difference, alternating from column to column.
+    onto every pixel with ``cv2.remap``, reflected border: first along v (rows, along the fringes)
+    linearly, then along u (columns, across the fringes: the method's fringes vary along u) with
+    OpenCV's 8-tap Lanczos kernel (``INTER_LANCZOS4``). R and B are their lattice's resampling; G
+    keeps its native value at G photosites and is the mean of its two lattices' resamplings at R
+    and B photosites. Across the fringes a signal below the lattice's Nyquist frequency (period
+    4 px) is reproduced: OpenCV's demosaics interpolate with two taps, which on the trapezoid's
+    blurred corners (a fringe period of 48 px, corners blurred over about 1 px) leaves an error of
+    half the channel's second difference, alternating from column to column (hue rms 0.0094-0.0101
+    rad there, 0.0021 rad here, ``tests/test_camera_bayer.py``). Along the fringes the signal is
+    constant but for the object, and two taps keep the noise low: white photosite noise of
+    variance 1 leaves 0.68 at R and B (0.83 with Lanczos along v as well, 0.56 with OpenCV's).
 
     Parameters
     ----------
@@ -156,7 +161,8 @@ def lanczos_demosaic(raw: NDArray, pattern: str) -> NDArray:
     for i, colour in enumerate(pattern):
         oy, ox = divmod(i, 2)
         lattice = np.ascontiguousarray(raw[oy::2, ox::2], dtype=np.float32)
-        res = cv2.remap(lattice, *maps[(oy, ox)], cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT)
+        rows = cv2.remap(lattice, *maps[("v", oy)], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT)
+        res = cv2.remap(rows, *maps[("u", ox)], cv2.INTER_LANCZOS4, borderMode=cv2.BORDER_REFLECT)
         if colour == "G":
             g.append(res)
         else:
@@ -167,16 +173,21 @@ def lanczos_demosaic(raw: NDArray, pattern: str) -> NDArray:
     return np.rint(np.clip(out, 0.0, top)).astype(raw.dtype)
 
 
-_LATTICE_MAPS: dict[tuple[int, int], dict[tuple[int, int], tuple[NDArray[np.float32], NDArray[np.float32]]]] = {}
+_LATTICE_MAPS: dict[tuple[int, int], dict[tuple[str, int], tuple[NDArray[np.float32], NDArray[np.float32]]]] = {}
 
 
-def _lattice_maps(h: int, w: int) -> dict[tuple[int, int], tuple[NDArray[np.float32], NDArray[np.float32]]]:
-    """``cv2.remap`` maps from every pixel to the lattice coordinates of each 2 x 2 offset (cached)."""
+def _lattice_maps(h: int, w: int) -> dict[tuple[str, int], tuple[NDArray[np.float32], NDArray[np.float32]]]:
+    """``cv2.remap`` maps of :func:`lanczos_demosaic` (cached): ``("v", oy)`` from the lattice
+    (H/2, W/2) to every row (H, W/2), ``("u", ox)`` from there to every pixel (H, W)."""
     if (h, w) not in _LATTICE_MAPS:
-        v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+        maps = {}
+        for o in (0, 1):
+            v, u = np.mgrid[0:h, 0:w // 2].astype(np.float32)
+            maps[("v", o)] = (np.ascontiguousarray(u), np.ascontiguousarray((v - o) * 0.5))
+            v, u = np.mgrid[0:h, 0:w].astype(np.float32)
+            maps[("u", o)] = (np.ascontiguousarray((u - o) * 0.5), np.ascontiguousarray(v))
         _LATTICE_MAPS.clear()
-        _LATTICE_MAPS[(h, w)] = {(oy, ox): (np.ascontiguousarray((u - ox) * 0.5), np.ascontiguousarray((v - oy) * 0.5))
-                                 for oy in (0, 1) for ox in (0, 1)}
+        _LATTICE_MAPS[(h, w)] = maps
     return _LATTICE_MAPS[(h, w)]
 
 
