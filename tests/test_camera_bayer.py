@@ -179,3 +179,12 @@ def test_reader_of_a_bayer_session_reads_resampled_codes(bayer_session: Path) ->
     np.testing.assert_array_equal(camera.mosaic(got, "RGGB")[inner], camera.mosaic(stored, "RGGB")[inner])
     assert np.any(got != stored)
     np.testing.assert_array_equal(reader.rgb(s.frames[0]), got.astype(np.float32) * np.float32(1 / 65535))
+
+
+def test_both_chains_read_the_same_resampled_captures(bayer_session: Path) -> None:
+    """The fused kernel reads the re-demosaiced codes, the NumPy chain the same codes scaled:
+    the heights agree bit for bit (the tables and the plane calibration are shared)."""
+    fast = huefringe.measure(bayer_session, {"measurement": {"kernel": True}})
+    ref = huefringe.measure(bayer_session, {"measurement": {"kernel": False}})
+    assert fast.camera_record["demosaic"]["applied"]
+    np.testing.assert_array_equal(fast.heights, ref.heights)
