@@ -14,7 +14,7 @@ import yaml
 from scipy.ndimage import gaussian_filter1d
 
 import huefringe
-from huefringe import bench, camera, metrology, patterns
+from huefringe import bench, camera, metrology, patterns, stages, uncertainty
 from huefringe.colour import hue
 from huefringe.height import accuracy
 from huefringe.session import SessionError, load_session, read_rgb_codes
@@ -65,6 +65,36 @@ def test_lanczos_demosaic_noise_stays_below_the_native_noise() -> None:
     var = [float(out[..., k].var()) / 1e6 for k in range(3)]
     print(var)
     assert all(0.62 < x < 0.72 for x in var)
+
+
+def test_noise_correlation_of_independent_and_demosaiced_noise() -> None:
+    """Independent pixel noise: factor about 1; the same photosite noise through the Lanczos
+    re-demosaic: a 5 x 5 mean keeps several times the independent variance."""
+    rng = np.random.default_rng(5)
+    plain = [rng.standard_normal((120, 160)) for _ in range(4)]
+    assert uncertainty.noise_correlation(plain)["factor"] == pytest.approx(1.0, abs=0.12)
+    dem = []
+    for _ in range(4):
+        raw = np.rint(30000 + 2000 * rng.standard_normal((120, 160))).astype(np.uint16)
+        dem.append(camera.lanczos_demosaic(raw, "RGGB")[..., 0].astype(np.float64))
+    got = uncertainty.noise_correlation(dem)
+    print(got)
+    assert got["factor"] > 2.5 and got["images"] == 4 and got["box"] == 5
+    assert uncertainty.noise_correlation([np.full((4, 4), np.nan)]) == {"factor": 1.0, "box": 5, "images": 0}
+
+
+def test_noise_aware_filter_settings() -> None:
+    class T:
+        stats = {"noise_correlation": {"factor": 4.0}}
+
+    class Plain:
+        stats: dict = {}
+
+    adaptive = {"enabled": True, "max_radius": 6, "target_sigma_rad": 0.006, "reject_sigma_rad": 0.03}
+    assert stages.noise_aware_adaptive(adaptive, T()) == {**adaptive, "target_sigma_rad": 0.003, "reject_sigma_rad": 0.015}
+    assert stages.noise_aware_adaptive(adaptive, Plain()) is adaptive
+    T.stats = {"noise_correlation": {"factor": 0.8}}  # below 1: as given
+    assert stages.noise_aware_adaptive(adaptive, T()) == adaptive
 
 
 @pytest.mark.parametrize("driver", ["edge_aware", "bilinear"])
@@ -127,19 +157,31 @@ def test_bench_bayer_session_declares_its_pattern(bayer_session: Path) -> None:
     assert load_session(bayer_session).meta["camera"]["bayer"] == "RGGB"
 
 
+def _cover2u(m: huefringe.api.Measurement) -> float:
+    e = m.height(0).astype(np.float64) - tifffile.imread(m.session.ground_truth[0])
+    u = m.uncertainty[0].astype(np.float64)
+    ok = np.isfinite(e) & np.isfinite(u)
+    return float(np.mean(np.abs(e[ok]) <= 2 * u[ok]))
+
+
 def test_bayer_gauge_blocks_resampled_against_ground_truth(bayer_session: Path) -> None:
     """bayer_gauge (RGGB, OpenCV edge-aware in the 'driver', 320 x 240, one frame): the stored RGB
-    measures median 0.0180 mm, p95 0.117 mm, worst step 16.5 um; re-demosaiced with Lanczos
-    0.0146 mm, 0.102 mm, 12.3 um at the same coverage (0.898 / 0.897)."""
+    measures median 0.0180 mm, p95 0.117 mm, worst step 16.5 um, |error| <= 2u at 0.74 of the
+    pixels; re-demosaiced with Lanczos and the noise correlation known to the filter and the
+    uncertainty: 0.0136 mm, 0.0855 mm, 11.4 um, |error| <= 2u at 0.87 (coverage 0.898 / 0.896)."""
     new, m = _score(bayer_session, {})
-    old, _ = _score(bayer_session, {"camera": {"demosaic": "stored"}})
-    print("lanczos", new, "\nstored", old)
+    old, m_old = _score(bayer_session, {"camera": {"demosaic": "stored"}})
+    print("lanczos", new, _cover2u(m), "\nstored", old, _cover2u(m_old))
     assert m.camera_record["demosaic"] == {"bayer": "RGGB", "setting": "lanczos", "applied": True,
                                            "pattern": "RGGB", "method": "lanczos"}
+    corr = m.tables["object"].stats["noise_correlation"]
+    assert 2.0 < corr["factor"] < 5.0 and corr["images"] == 12
+    assert "noise_correlation" not in m_old.tables["object"].stats  # stored: nothing known of the mosaic
     assert new["median_abs_mm"] < 0.0165 < old["median_abs_mm"]
-    assert new["p95_abs_mm"] < 0.105 < old["p95_abs_mm"]
+    assert new["p95_abs_mm"] < 0.095 < old["p95_abs_mm"]
     assert new["worst_step_um"] < 13.0 < old["worst_step_um"]
     assert new["coverage"] > old["coverage"] - 0.01
+    assert _cover2u(m) > 0.84 > 0.78 > _cover2u(m_old)
 
 
 def test_three_chip_gauge_blocks_unchanged_by_the_setting(tmp_path: Path) -> None:
@@ -149,7 +191,9 @@ def test_three_chip_gauge_blocks_unchanged_by_the_setting(tmp_path: Path) -> Non
     a = huefringe.measure(session, {"camera": {"demosaic": "lanczos"}})
     b = huefringe.measure(session, {"camera": {"demosaic": "stored"}})
     assert a.camera_record["demosaic"]["applied"] is False
+    assert "noise_correlation" not in a.tables["object"].stats
     np.testing.assert_array_equal(a.heights, b.heights)
+    np.testing.assert_array_equal(a.uncertainty, b.uncertainty)
     acc = accuracy(a.height(0), tifffile.imread(a.session.ground_truth[0]))
     assert acc["median_abs_mm"] < 0.012  # the three-chip reference (0.0108 mm at 2 frames)
 
