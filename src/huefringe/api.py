@@ -80,7 +80,7 @@ def measure(session: str | os.PathLike[str] | Session,
     config : mapping or path to a YAML file, optional
         Overrides of the packaged defaults (``src/huefringe/defaults.yaml``), key by key, in the
         workflow's configuration format; only ``hue_model``, ``calibration``, ``measurement``
-        and ``camera`` (the channel registration) are read.
+        and ``camera`` (the channel registration, the Bayer re-demosaic) are read.
     frames : sequence of int, optional
         Frame numbers to measure; default all.
 

@@ -348,6 +348,8 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
     height, width = first.shape[:2]
     camera = {"width": int(width), "height": int(height), "bit_depth": 8 if bit_in == 8 else 16,
               "pixel_pitch_mm": spec["pixel_pitch_mm"], **spec.get("camera", {})}
+    if bayer:  # the pattern the images were demosaiced from: the method re-demosaics them (config camera.demosaic)
+        camera["bayer"] = bayer
     meta: dict[str, Any] = {
         "format": "capture-session/1", "id": spec["id"], "camera": camera,
         "pattern": {"period_px": spec["period_px"], "hue_bands": int(patterns["hue_bands"]),

@@ -344,6 +344,9 @@ def _camera_problems(cam: dict[str, Any], yaml_path: Path) -> list[Problem]:
             bad("plate_pose", "tvec is zero: the plate cannot pass through the camera centre")
     elif cam.get("plate_pose") is not None:
         bad("plate_pose", "only a pinhole camera (camera/model: pinhole) has a plate pose")
+    if cam.get("bayer") is not None and (int(cam["width"]) % 2 or int(cam["height"]) % 2):
+        bad("bayer", f"a Bayer sensor has whole 2 x 2 blocks: width and height must be even, got "
+                     f"{cam['width']} x {cam['height']}")
     return problems
 
 

@@ -22,7 +22,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from huefringe import kernel
-from huefringe.camera import CameraModel, CaptureReader, camera_record, corrections, mixing_band_pairs
+from huefringe.camera import CameraModel, CaptureReader, bayer_resampling, camera_record, corrections, mixing_band_pairs
 from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance
 from huefringe.height import PlaneCalibration, PlaneCalibrationError, accuracy, calibrate_planes, coverage, xy_accuracy
@@ -31,8 +31,8 @@ from huefringe import phase_error, texture
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
-from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
-from huefringe.uncertainty import pixel_budget
+from huefringe.session import Session, load_session, read_rgb_codes
+from huefringe.uncertainty import noise_correlation, pixel_budget
 
 log = logging.getLogger("huefringe")
 
@@ -71,15 +71,16 @@ def camera_calibration(session: str, camera: Mapping[str, Any], calibration: Map
 
 def session_camera_record(s: Session, camera: Mapping[str, Any], calibration: Mapping[str, Any]) -> dict[str, Any]:
     """The ``calib/camera.json`` record of a session in memory (:func:`camera_calibration` writes it)."""
-    white = read_rgb(s.reference_white)
+    read = CaptureReader(bayer=bayer_resampling(s.meta, camera.get("demosaic", "lanczos"))).rgb
+    white = read(s.reference_white)
     mode = camera.get("chromatic_registration", "auto")
-    planes = [] if mode is False or mode == "false" else [read_rgb(p) for p in s.planes.values()]
+    planes = [] if mode is False or mode == "false" else [read(p) for p in s.planes.values()]
     bands: dict[int, NDArray[np.floating]] = {}
     if planes:  # the hue bands the channel-mixing estimate reads (repeats averaged)
         for _, first, last, _ in mixing_band_pairs(s.hue_bands):
             for i in (first, last):
                 if i not in bands:
-                    bands[i] = np.mean([read_rgb(p) for p in s.reference_bands[i]], axis=0)
+                    bands[i] = np.mean([read(p) for p in s.reference_bands[i]], axis=0)
     return camera_record(s.meta, camera, planes, white, shadow=shadow_mask(white, calibration["shadow_fraction"]),
                          bands=bands)
 
@@ -181,7 +182,43 @@ def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mappi
         )
     built = build_table(bands, white, model=hue_model, progress=False, read=reader.rgb, **_calibration_opts(calibration))
     _refuse_bad_table(s.root / which / "hue", built.stats)
+    if reader.bayer is not None and len(bands[0]) >= 2:  # re-demosaiced: its noise is correlated between neighbours
+        built.stats["noise_correlation"] = bayer_noise_correlation(bands, white, reader, hue_model, calibration)
     return built
+
+
+def noise_aware_adaptive(adaptive: Mapping[str, Any] | None, table: HueTable) -> Mapping[str, Any] | None:
+    """The adaptive phase filter's settings (``measurement.denoise_adaptive``) for noise correlated
+    between neighbours: ``target_sigma_rad`` and ``reject_sigma_rad`` over ``sqrt(k)``, ``k`` the
+    table's ``noise_correlation`` factor (a re-demosaiced Bayer session, :func:`bayer_noise_correlation`;
+    at least 1). The filter's sigma ``1 / sqrt(sum w)`` assumes independent pixels, so it reads
+    ``sqrt(k)`` too low and stops growing too early. A table without the factor (three-chip): as given."""
+    corr = (table.stats or {}).get("noise_correlation")
+    if not adaptive or not corr:
+        return adaptive
+    scale = 1.0 / float(np.sqrt(max(1.0, float(corr["factor"]))))
+    out = dict(adaptive)
+    for key in ("target_sigma_rad", "reject_sigma_rad"):
+        if out.get(key) is not None:
+            out[key] = float(out[key]) * scale
+    return out
+
+
+#: hue bands (evenly spread) whose first two repeats give a Bayer session's noise correlation
+NOISE_CORRELATION_BANDS = 12
+
+
+def bayer_noise_correlation(bands: Sequence[Sequence[Path]], white: NDArray[np.floating], reader: CaptureReader,
+                            hue_model: str, calibration: Mapping[str, Any]) -> dict[str, Any]:
+    """:func:`huefringe.uncertainty.noise_correlation` of the hue differences between the first two
+    repeats of :data:`NOISE_CORRELATION_BANDS` bands, read as the chain reads them (``reader``)."""
+    picks = np.unique(np.linspace(0, len(bands) - 1, min(NOISE_CORRELATION_BANDS, len(bands))).round().astype(int))
+    diffs = []
+    for k in picks:
+        h0, h1 = (hue_of(white_balance(reader.rgb(bands[k][r]), white), hue_model,
+                         min_saturation=calibration["min_saturation"]) for r in (0, 1))
+        diffs.append(np.angle(np.exp(1j * (np.asarray(h1, np.float64) - h0))))
+    return noise_correlation(diffs)
 
 
 def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapping[str, Any],
@@ -272,7 +309,7 @@ TEXTURE_BLUR_FRAMES = 4
 
 
 def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str,
-                         calibration: Mapping[str, Any], reader: CaptureReader | None = None) -> dict[str, Any]:
+                         calibration: Mapping[str, Any], *, reader: CaptureReader | None = None) -> dict[str, Any]:
     """The camera's blur variance (px^2) for the texture-edge correction, from the session's first
     object frames (up to :data:`TEXTURE_BLUR_FRAMES`, two at least): each frame's raw phase
     difference (the kernel, no phase filter) as captured and after :func:`huefringe.texture.correct`
@@ -287,14 +324,14 @@ def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_mod
     if len(frames) < 2:
         return {"sigma2_px2": 0.0, "samples": 0, "pairs": 0, "frames": list(frames),
                 "source": "auto: one frame, no estimate (off)"}
-    reader = reader or CaptureReader()  # the frames as the chains read them (channel registration)
-    white = reader.rgb(s.object_white)
+    read = (reader or CaptureReader()).rgb  # the frames as the chains read them (re-demosaic, registration)
+    white = read(s.object_white)
     prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=calibration["min_saturation"],
                           shadow=shadow_mask(white, calibration["shadow_fraction"]), bit_depth=s.bit_depth,
                           predistortion=s.predistortion)
     plain, unit = [], []
     for n in frames:
-        rgb = reader.rgb(s.frames[n])
+        rgb = read(s.frames[n])
         for sigma2, out in ((0.0, plain), (1.0, unit)):
             m = kernel.frame_maps(prep, texture.correct(rgb, white, sigma2), denoise_radius=0, want_dphi=True)
             out.append(np.where(m.valid, m.dphi, np.nan))
@@ -430,6 +467,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     reader = reader or CaptureReader()
     white = reader.rgb(s.object_white)
     shadow = shadow_mask(white, measurement["shadow_fraction"])
+    adaptive = noise_aware_adaptive(measurement.get("denoise_adaptive"), t)
     budget = None
     fast = bool(measurement["kernel"]) and measurement["unwrap"] == "reference"
     if fast:
@@ -450,7 +488,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             rgb = texture.correct(raw, white, blur2, clipped=clipped_mask(raw, s.bit_depth))
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
             m = kernel.frame_maps(prep, reader.codes(path) if rgb is None else rgb, denoise_radius=measurement["denoise_radius"],
-                                  denoise_adaptive=measurement.get("denoise_adaptive"),
+                                  denoise_adaptive=adaptive,
                                   want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty,
                                   out=buffers)
             px = m.valid.size  # frame_stats with unwrap's reference flags, in one compiled pass
@@ -466,7 +504,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             res = measure_frame(reader.rgb(path) if rgb is None else rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                 shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
                                 denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
-                                denoise_adaptive=measurement.get("denoise_adaptive"), budget=budget,
+                                denoise_adaptive=adaptive, budget=budget,
                                 own_noise=bool(measurement.get("own_noise", False)))
             height, phase, hue, stats, u_map = res.height, res.phase, res.hue, res.stats, res.uncertainty
             support = res.support

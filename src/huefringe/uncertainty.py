@@ -47,6 +47,7 @@ from typing import Any
 import numba
 import numpy as np
 from numpy.typing import NDArray
+from scipy.ndimage import uniform_filter
 
 from huefringe.huetable import band_smoothing_matrix
 
@@ -235,6 +236,10 @@ class PixelBudget:
     every phase)."""
     phi_ref: NDArray[np.float32] | None = None
     """The reference phase: a pixel's code phase is ``phi_ref + dphi``, which picks its bin."""
+    noise_factor: float = 1.0
+    """Variance factor of the noise and table terms for noise correlated between neighbours (a
+    re-demosaiced Bayer session: :func:`noise_correlation`, the table's ``noise_correlation``
+    stats); the filter's ``1 / sum w`` assumes independent pixels. 1 for a three-chip camera."""
 
     @property
     def u_ref_rad(self) -> NDArray[np.float32]:
@@ -264,8 +269,36 @@ def pixel_budget(table: Any, cal: Any) -> PixelBudget:
     window = int(opts.get("smooth_window", 15))
     order = int(opts.get("smooth_order", 2))
     factor = table_variance_factor(table.n_bands, window, order, int(st.get("repeats", 1) or 1))
+    corr = st.get("noise_correlation") or {}
     return PixelBudget(np.ascontiguousarray(terms), factor, np.ascontiguousarray(bins),
-                       np.ascontiguousarray(cal.phi_ref, np.float32))
+                       np.ascontiguousarray(cal.phi_ref, np.float32), max(1.0, float(corr.get("factor", 1.0))))
+
+
+def noise_correlation(differences: Sequence[NDArray[np.floating]], box: int = 5) -> dict[str, Any]:
+    """How much less a box mean of neighbours averages noise than independent pixels would.
+
+    ``differences``: hue differences (rad) between two repeats of the same band (pure noise; NaN
+    where undefined). Per image, pixels beyond 5 MADs are left out; the factor is
+    ``box^2 var(box mean) / var(pixel)`` over the pixels whose whole ``box x box`` window is
+    used, the median over the images (1 for independent noise; a re-demosaiced Bayer capture reads
+    1.66 for 5 x 5, docs/accuracy-cameras.md). Returns ``factor``, ``box``, ``images``.
+    """
+    vals = []
+    for d in differences:
+        d = np.asarray(d, np.float64)
+        ok = np.isfinite(d)
+        if ok.sum() < 100:
+            continue
+        d = d - np.median(d[ok])
+        mad = 1.4826 * np.median(np.abs(d[ok]))
+        ok &= np.abs(d) <= 5.0 * max(mad, 1e-12)
+        x = np.where(ok, d, 0.0)
+        full = uniform_filter(ok.astype(np.float64), box, mode="constant") > 1.0 - 1e-9
+        if full.sum() < 100:
+            continue
+        mean = uniform_filter(x, box, mode="constant")
+        vals.append(float(box * box * np.mean(mean[full] ** 2) / np.mean(x[ok] ** 2)))
+    return {"factor": float(np.median(vals)) if vals else 1.0, "box": int(box), "images": len(vals)}
 
 
 def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.float64]:
@@ -285,10 +318,11 @@ def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.fl
 # per frame (called identically by perframe.measure_frame and kernel.frame_maps)
 # --------------------------------------------------------------------------------------------
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut, phi_ref, out, rsum):  # pragma: no cover
+def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut, phi_ref, out, rsum, nf):  # pragma: no cover
     """Branch-free rows (LLVM vectorises them); NaN where not valid or without weight. The
     interpolation error is that of the phase bin of ``phi_ref + dphi`` (``bins``, ``lut``). The
-    noise variance is ``rsum / sumw^2`` (``rsum = sumw``: ``1 / sumw``, bit for bit)."""
+    noise variance is ``rsum / sumw^2`` (``rsum = sumw``: ``1 / sumw``, bit for bit), times ``nf``
+    with the table's (``nf = 1``: the same bits)."""
     h, w = dphi.shape
     nb = bins.shape[2]
     kf = np.float32(nb)
@@ -330,7 +364,7 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
             g = abs(aa) * inv2
             ja = -d * inv2
             jb = ja * d
-            var = g * g / sw * tf + (g * t0[u]) ** 2 + (g * t4row[u]) ** 2
+            var = g * g / sw * tf * nf + (g * t0[u]) ** 2 + (g * t4row[u]) ** 2
             var += ja * ja * t1[u] + two * ja * jb * t2[u] + jb * jb * t3[u]
             r = np.sqrt(max(var, zero))
             ov[u] = r if ok else nan32
@@ -371,7 +405,8 @@ def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], val
     _uncertainty_kernel(np.ascontiguousarray(dphi, np.float32), sw,
                         np.ascontiguousarray(valid, bool), np.ascontiguousarray(a, np.float32),
                         np.ascontiguousarray(b, np.float32), budget.terms, np.float32(budget.table_factor), bins,
-                        _INTERP_LUT, phi_ref, out, sw if ratio_sum is None else np.ascontiguousarray(ratio_sum, np.float32))
+                        _INTERP_LUT, phi_ref, out, sw if ratio_sum is None else np.ascontiguousarray(ratio_sum, np.float32),
+                        np.float32(budget.noise_factor))
     return out
 
 

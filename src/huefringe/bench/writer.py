@@ -165,6 +165,9 @@ def session_document(cfg: dict[str, Any], bench: Bench | None = None) -> dict[st
         },
         "planes_mm": [float(z) for z in s["planes_mm"]],
     }
+    sensor = cfg.get("camera", {}).get("sensor") or {}
+    if sensor.get("kind") == "bayer":  # what the images were demosaiced from (docs/design.md, the camera block)
+        doc["camera"]["bayer"] = str(sensor.get("pattern", "RGGB"))
     bench = bench if bench is not None else Bench(cfg)
     if bench.lens is not None:  # the lens model as a lab's checkerboard calibration gives it
         doc["camera"].update(bench.lens.session_camera())
