@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 from huefringe.huetable import band_smoothing_matrix
 
 __all__ = [
-    "TERMS", "PixelBudget", "calibration_terms", "conformance", "edge_floor", "height_uncertainty",
+    "TERMS", "PixelBudget", "calibration_terms", "conformance", "edge_floor", "height_uncertainty", "add_lateral", "lateral_term",
     "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "reliability", "split_terms", "step_budget",
     "table_interpolation_rad", "table_variance_factor",
 ]
@@ -537,6 +537,48 @@ def edge_floor(height: NDArray[np.float32], valid: NDArray[np.bool_], u: NDArray
     """
     _edge_floor_kernel(np.ascontiguousarray(height, np.float32), np.ascontiguousarray(valid, bool), u)
     return u
+
+
+#: Lateral position uncertainty (px) of a height: where along the surface the value measured at a
+#: pixel belongs. Camera blur (0.6-0.9 px on the bench), the phase filter's window (radius 2) and
+#: the texture-edge correction's first-order remainder all move a pixel's height towards its
+#: neighbours'; measured on the tuning cases of benchmarks/accuracy_matrix.py --texture
+#: (docs/uncertainty.md, "Lateral term"): 1.75 px puts |error| <= 2u at 0.93-0.99 in every zone.
+LATERAL_PX = 1.75
+#: Gaussian scale (px) of the normalised average of the valid heights whose gradient is the slope.
+LATERAL_SMOOTH_PX = 1.5
+
+
+def lateral_term(height: NDArray[np.floating], *, lateral_px: float = LATERAL_PX,
+                 smooth_px: float = LATERAL_SMOOTH_PX) -> NDArray[np.float32]:
+    """The height error of a lateral position uncertainty, ``lateral_px |grad h|`` (mm), per pixel.
+
+    A pixel's height is a weighted mean over a footprint (camera blur, the phase filter's window,
+    the mixed pixels beside a step or a reflectance edge that the first-order texture correction
+    leaves), so its lateral position is uncertain by ``dx`` and its height by ``dx |grad h|``. The
+    slope is that of the measured heights, normalised-Gaussian averaged over the valid pixels
+    (``smooth_px``; NaN pixels carry no weight), by central differences in mm per px. Over a flat
+    top it is the noise's own gradient (a few % of ``u``); next to a step edge left after the edge
+    mask, a texture bump or a steep flank it is the error the other terms do not hold. NaN where
+    the height is NaN.
+    """
+    from scipy import ndimage
+
+    h = np.asarray(height, np.float64)
+    ok = np.isfinite(h)
+    num = ndimage.gaussian_filter(np.where(ok, h, 0.0), smooth_px, mode="nearest")
+    den = ndimage.gaussian_filter(ok.astype(np.float64), smooth_px, mode="nearest")
+    with np.errstate(invalid="ignore", divide="ignore"):
+        hm = np.where(den > 1e-3, num / np.maximum(den, 1e-3), np.nan)
+    gy, gx = np.gradient(hm)
+    slope = np.hypot(np.nan_to_num(gx), np.nan_to_num(gy))
+    return np.where(ok, lateral_px * slope, np.nan).astype(np.float32)
+
+
+def add_lateral(height: NDArray[np.floating], u: NDArray[np.floating], **kwargs: float) -> NDArray[np.float32]:
+    """``sqrt(u^2 + lateral_term(height)^2)`` (a new float32 map; NaN where either is NaN)."""
+    lat = lateral_term(height, **kwargs).astype(np.float64)
+    return np.sqrt(np.asarray(u, np.float64) ** 2 + lat**2).astype(np.float32)
 
 
 def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArray[np.floating],
