@@ -303,7 +303,7 @@ def test_step_uncertainty_in_report(still: dict) -> None:
         # the mean over 10 frames: independent part / sqrt(10), the calibration parts whole
         assert b["independent_mm"] == pytest.approx(b["independent_per_frame_mm"] / np.sqrt(10))
         assert st["u_mm"] ** 2 == pytest.approx(b["independent_mm"] ** 2 + b["pixel_calibration_mm"] ** 2
-                                                + b["correlated_mm"] ** 2)
+                                                + b["correlated_mm"] ** 2 + b["coating_mm"] ** 2)
         # observed frame-to-frame spread against the predicted independent part (still scene)
         assert 0.6 < st["std_mm"] / b["independent_per_frame_mm"] < 1.6
     doc = report.build_report_json(s.id, s.specimen, method)
@@ -552,3 +552,92 @@ def test_step_budget_crops_and_threads_change_nothing(base_roi: list | None) -> 
         got = one[0]["terms_mm"][term] ** 2 * scale
         assert got == pytest.approx(np.mean([r[term] for r in want]), rel=1e-9), term
         assert got > 0, term
+
+
+def test_lateral_term_is_dx_times_slope() -> None:
+    """On a plane of slope (gx, gy) mm/px the lateral term is LATERAL_PX * |g| wherever the Gaussian
+    average sees only valid pixels (a linear map is its own normalised average), NaN where the height
+    is NaN; add_lateral adds it in quadrature."""
+    vv, uu = np.mgrid[:60, :80].astype(np.float64)
+    h = (0.003 * uu - 0.004 * vv).astype(np.float32)
+    h[20:24, 30:34] = np.nan
+    lat = uncertainty.lateral_term(h)
+    assert np.isnan(lat[21, 31]) and np.isfinite(lat[40, 60])
+    far = np.zeros(h.shape, bool)
+    far[8:-8, 8:-8] = True
+    far[12:32, 22:42] = False  # the hole's reach (4 sigma)
+    np.testing.assert_allclose(lat[far], uncertainty.LATERAL_PX * 0.005, rtol=1e-4)
+    u = np.full(h.shape, 0.01, np.float32)
+    tot = uncertainty.add_lateral(h, u)
+    np.testing.assert_allclose(tot[far], np.hypot(0.01, uncertainty.LATERAL_PX * 0.005), rtol=1e-4)
+    # a flat top with noise: the term is a small fraction of the noise
+    rng = np.random.default_rng(3)
+    flat = rng.normal(0.0, 0.01, (60, 80)).astype(np.float32)
+    assert np.median(uncertainty.lateral_term(flat)) < 0.01
+
+
+@pytest.mark.parametrize("frames", [1, 5])
+def test_coating_term_recovers_a_fixed_pattern(frames: int) -> None:
+    """A top carrying a pattern fixed to the fringe (rms 8 um, period 60 px) under frame noise of
+    20 um per pixel and a tilt that changes from frame to frame: the coating term is the pattern's
+    rms within 10 % with 5 frames (the noise removed by the frames' spread); pure noise gives
+    about 0 (below 3 um); one frame keeps the noise (conservative)."""
+    rng = np.random.default_rng(11)
+    vv, uu = np.mgrid[:40, :50].astype(np.float64)
+    pattern = 0.008 * np.sqrt(2.0) * np.sin(2 * np.pi * uu / 60.0 + 0.3)
+    pattern -= pattern.mean()
+    # the pattern's rms about its own plane (what the term can see; a plane fit takes part of it)
+    x = np.column_stack([np.ones(uu.size), uu.ravel(), vv.ravel()])
+    rp = pattern.ravel() - x @ np.linalg.lstsq(x, pattern.ravel(), rcond=None)[0]
+    seen = float(np.sqrt(np.mean(rp**2)))
+    tops, noise_only = [], []
+    for f in range(frames):
+        tilt = 4.0 + 1e-4 * f * uu - 2e-4 * f * vv
+        n = rng.normal(0.0, 0.02, uu.shape)
+        tops.append(tilt + pattern + n)
+        noise_only.append(tilt + n)
+    got = uncertainty.coating_term(tops)
+    if frames == 1:
+        assert got == pytest.approx(np.hypot(seen, 0.02), rel=0.1)
+    else:
+        assert got == pytest.approx(seen, rel=0.1)
+        assert uncertainty.coating_term(noise_only) < 0.003
+
+
+@pytest.mark.slow
+def test_bench_gauge_coverage_per_zone_and_steps_within_u(tmp_path: Path) -> None:
+    """Plain gauge blocks (green, navy, red, charcoal; 320 x 240, 2 frames, the workflow's config):
+    |error| <= 2u for 0.92-0.98 of the valid pixels overall and in each zone (edge, texture, rest:
+    benchmarks/accuracy_matrix.py's zones; before the lateral term 0.866 overall, edge 0.613,
+    texture 0.531), and every step's error (the red block's +10 um among them) within its U."""
+    import sys
+
+    from huefringe import metrology
+    from huefringe.session import read_rgb
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    from accuracy_matrix import zones
+
+    session = bench.write_session(bench.load_bench_config(bench.preset_path("plain_gauge")), tmp_path / "s")
+    p = stages.measure_session(session, tmp_path / "out", CONFIG)
+    s = p["session"]
+    hs = [read_tiff(h) for h in p["heights"]]
+    us = [read_tiff(u) for u in p["uncertainties"]]
+    truths = [read_tiff(s.ground_truth[n]).astype(np.float64) for n in s.frame_ids]
+    zs = zones(np.where(np.isfinite(truths[0]), truths[0], 0.0), np.asarray(read_rgb(s.object_white), np.float64))
+    for name, zm in {"all": np.ones(hs[0].shape, bool), **zs}.items():
+        e = np.concatenate([(h - t)[zm] for h, t in zip(hs, truths)])
+        uu = np.concatenate([u[zm] for u in us])
+        ok = np.isfinite(e) & np.isfinite(uu)
+        cov = float(np.mean(np.abs(e[ok]) <= 2 * uu[ok]))
+        assert 0.92 <= cov <= 0.98, (name, cov)
+    method = metrology.evaluate_session(hs, s.specimen, s.pixel_pitch_mm, range_mm=max(s.planes_mm) - min(s.planes_mm),
+                                        edge_exclusion=CONFIG["metrology"]["edge_exclusion"])
+    stages.add_step_uncertainty(method, hs, us, s.specimen, s.pixel_pitch_mm, PlaneCalibration.load(str(tmp_path / "out" / "model.npz")),
+                                HueTable.load(tmp_path / "out" / "table_object.json"),
+                                edge_exclusion=CONFIG["metrology"]["edge_exclusion"],
+                                denoise_radius=CONFIG["measurement"]["denoise_radius"],
+                                supports=[read_tiff(x) for x in p["supports"]])
+    for st in method["steps"]:
+        assert abs(st["error_mm"]) <= st["U_mm"], st
+        assert st["uncertainty_budget"]["coating_mm"] > 0

@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 from huefringe.huetable import band_smoothing_matrix
 
 __all__ = [
-    "TERMS", "PixelBudget", "calibration_terms", "conformance", "edge_floor", "height_uncertainty", "add_lateral", "lateral_term",
+    "TERMS", "PixelBudget", "calibration_terms", "conformance", "edge_floor", "height_uncertainty", "add_lateral", "coating_term", "lateral_term",
     "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "reliability", "split_terms", "step_budget",
     "table_interpolation_rad", "table_variance_factor",
 ]
@@ -549,8 +549,8 @@ LATERAL_PX = 1.75
 LATERAL_SMOOTH_PX = 1.5
 
 
-def lateral_term(height: NDArray[np.floating], *, lateral_px: float = LATERAL_PX,
-                 smooth_px: float = LATERAL_SMOOTH_PX) -> NDArray[np.float32]:
+def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = None, *,
+                 lateral_px: float = LATERAL_PX, smooth_px: float = LATERAL_SMOOTH_PX) -> NDArray[np.float32]:
     """The height error of a lateral position uncertainty, ``lateral_px |grad h|`` (mm), per pixel.
 
     A pixel's height is a weighted mean over a footprint (camera blur, the phase filter's window,
@@ -559,8 +559,12 @@ def lateral_term(height: NDArray[np.floating], *, lateral_px: float = LATERAL_PX
     slope is that of the measured heights, normalised-Gaussian averaged over the valid pixels
     (``smooth_px``; NaN pixels carry no weight), by central differences in mm per px. Over a flat
     top it is the noise's own gradient (a few % of ``u``); next to a step edge left after the edge
-    mask, a texture bump or a steep flank it is the error the other terms do not hold. NaN where
-    the height is NaN.
+    mask, a texture bump or a steep flank it is the error the other terms do not hold. With ``u``
+    (the per-pixel uncertainty without this term) the slope's own noise is removed in quadrature:
+    the smoothed central difference is a linear filter ``K`` of the heights, so its variance from
+    pixel errors of standard uncertainty ``u`` is ``sum K^2 u^2`` (taken independent: on
+    unfiltered heights exact, on filtered ones it removes a little more than the noise holds).
+    NaN where the height is NaN.
     """
     from scipy import ndimage
 
@@ -571,13 +575,26 @@ def lateral_term(height: NDArray[np.floating], *, lateral_px: float = LATERAL_PX
     with np.errstate(invalid="ignore", divide="ignore"):
         hm = np.where(den > 1e-3, num / np.maximum(den, 1e-3), np.nan)
     gy, gx = np.gradient(hm)
-    slope = np.hypot(np.nan_to_num(gx), np.nan_to_num(gy))
-    return np.where(ok, lateral_px * slope, np.nan).astype(np.float32)
+    slope2 = np.nan_to_num(gx) ** 2 + np.nan_to_num(gy) ** 2
+    if u is not None:  # the noise of the slope itself: sum K^2 u^2 of the separable kernels
+        r = int(4.0 * smooth_px + 0.5)  # ndimage's truncation
+        t = np.arange(-r - 1, r + 2, dtype=np.float64)
+        g = np.exp(-0.5 * (t / smooth_px) ** 2)
+        g /= g[1:-1].sum()
+        d = 0.5 * (g[:-2] - g[2:])  # d/dt of the smoothed map by central differences
+        g = g[1:-1]
+        u2 = np.where(ok, np.nan_to_num(np.asarray(u, np.float64)) ** 2, 0.0)
+        var = (ndimage.correlate1d(ndimage.correlate1d(u2, d**2, axis=1, mode="nearest"), g**2, axis=0, mode="nearest")
+               + ndimage.correlate1d(ndimage.correlate1d(u2, d**2, axis=0, mode="nearest"), g**2, axis=1, mode="nearest"))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            var = var / np.maximum(den, 1e-3) ** 2
+        slope2 = np.maximum(slope2 - var, 0.0)
+    return np.where(ok, lateral_px * np.sqrt(slope2), np.nan).astype(np.float32)
 
 
 def add_lateral(height: NDArray[np.floating], u: NDArray[np.floating], **kwargs: float) -> NDArray[np.float32]:
     """``sqrt(u^2 + lateral_term(height)^2)`` (a new float32 map; NaN where either is NaN)."""
-    lat = lateral_term(height, **kwargs).astype(np.float64)
+    lat = lateral_term(height, u, **kwargs).astype(np.float64)
     return np.sqrt(np.asarray(u, np.float64) ** 2 + lat**2).astype(np.float32)
 
 
@@ -858,6 +875,47 @@ def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: ND
     return out
 
 
+def coating_term(tops: Sequence[NDArray[np.floating]]) -> float:
+    """The coating-dependent systematic of a step's top (mm): the rms, over the top box, of the
+    frame-mean heights' residual about their least-squares plane, less its frame-noise part.
+
+    The per-pixel table is calibrated on the object's own hue bands, but the phase-error table and
+    the planes' model on the grey plate (paper eqs. 6-9: each channel's reflectivity bends the
+    hue, so the blurred fringe's hue error on a red or blue coating is not the plate's). What is
+    left is a pattern fixed to the fringe phase (period = the fringe's) that the frame mean keeps:
+    on a box spanning about one period its mean is not zero, and that mean is the step's error. Its
+    size is that of the pattern: the top's non-flatness ``r`` about its plane, averaged over the F
+    frames; the noise the mean still holds, ``mean_T var_f(r_f) / F`` (sample variance over the
+    frames of each frame's residual), is removed in quadrature. One frame: the plane residual
+    alone (noise included, conservative). ``tops``: the top box of each frame (NaN invalid).
+    """
+    stack = np.asarray([np.asarray(t, np.float64) for t in tops])
+    if stack.size == 0 or stack.shape[1] < 2 or stack.shape[2] < 2:
+        return 0.0
+    vv, uu = np.mgrid[: stack.shape[1], : stack.shape[2]]
+    res = []
+    for z in stack:  # each frame about its own plane (a vibrating specimen tilts between frames)
+        ok = np.isfinite(z)
+        if ok.sum() < 6:
+            continue
+        x = np.column_stack([np.ones(ok.sum()), uu[ok], vv[ok]])
+        coef = np.linalg.lstsq(x, z[ok], rcond=None)[0]
+        r = np.full(z.shape, np.nan)
+        r[ok] = z[ok] - x @ coef
+        res.append(r)
+    if not res:
+        return 0.0
+    r = np.asarray(res)
+    nf = r.shape[0]
+    both = np.all(np.isfinite(r), axis=0)
+    if both.sum() < 6:
+        return 0.0
+    mean = r[:, both].mean(axis=0)
+    total = float(np.mean((mean - mean.mean()) ** 2))
+    noise = float(np.mean(np.var(r[:, both], axis=0, ddof=1))) / nf if nf > 1 else 0.0
+    return math.sqrt(max(total - noise, 0.0))
+
+
 def step_budget(
     heights: Sequence[NDArray[np.floating]],
     uncertainties: Sequence[NDArray[np.floating]],
@@ -891,7 +949,8 @@ def step_budget(
       ``mean_T(u)^2 + mean_B(u)^2``.
 
     Over F frames the independent part is divided by F, the others are not:
-    ``u^2 = <u_ind^2> / F + <u_pixel^2> + <u_corr>^2``. ``workers`` > 1 computes that many frames
+    ``u^2 = <u_ind^2> / F + <u_pixel^2> + <u_corr>^2 + u_coating^2`` (:func:`coating_term`: the
+    top's systematic non-flatness, which a box about one fringe period wide does not average out). ``workers`` > 1 computes that many frames
     at once (threads; the sequences are indexed from them, so lazy ones must allow it).
     """
     from huefringe import metrology
@@ -919,7 +978,8 @@ def step_budget(
             ncount = np.maximum(np.asarray(supports[f], np.float64), 1.0)
             if ncount.shape != shape:
                 raise ValueError(f"support map {f} has shape {ncount.shape}, the heights {shape}")
-        return _frame_step_terms(z, u, valid, ncount, base_boxes, step_boxes, pitch_mm, a, b, budget)
+        tops = [z[bx[1]:bx[3], bx[0]:bx[2]].copy() for bx in step_boxes]  # for the coating term
+        return _frame_step_terms(z, u, valid, ncount, base_boxes, step_boxes, pitch_mm, a, b, budget), tops
 
     if workers > 1 and len(heights) > 1:  # the compiled passes and NumPy's array work release the GIL
         from concurrent.futures import ThreadPoolExecutor
@@ -928,6 +988,8 @@ def step_budget(
             per_frame = list(pool.map(frame, range(len(heights))))
     else:
         per_frame = [frame(f) for f in range(len(heights))]
+    coating = [coating_term([tops[k] for _, tops in per_frame]) for k in range(len(steps))]
+    per_frame = [terms for terms, _ in per_frame]
     for terms_of_frame in per_frame:
         for k, terms in enumerate(terms_of_frame):
             for key, val in terms.items():
@@ -940,7 +1002,8 @@ def step_budget(
         ind_frame = math.sqrt(mean_var["noise"])
         pix = math.sqrt(mean_var["table"] + mean_var["interpolation"])
         corr = math.sqrt(mean_var["reference"] + mean_var["model"])
-        u = math.sqrt(ind_frame**2 / nf + pix**2 + corr**2)
+        coat = coating[k]
+        u = math.sqrt(ind_frame**2 / nf + pix**2 + corr**2 + coat**2)
         out.append({
             "name": str(s["name"]),
             "u_mm": u,
@@ -950,6 +1013,7 @@ def step_budget(
             "independent_mm": ind_frame / math.sqrt(nf),
             "pixel_calibration_mm": pix,
             "correlated_mm": corr,
+            "coating_mm": coat,
             "base_plane_per_frame_mm": math.sqrt(float(np.mean(r["base_plane"]))),
             "effective_independent_pixels": float(np.mean(r["n_eff"])),
             "terms_mm": {t: math.sqrt(mean_var[t] / (nf if GROUPS[t] == "independent" else 1)) for t in TERMS},
