@@ -146,6 +146,7 @@ def still(tmp_path_factory: pytest.TempPathFactory) -> dict:
     # and without the step-edge mask: on unfiltered heights at this coarse pitch (0.8 mm) it
     # also takes noisy pixels for mixed ones; these tests score the noise term on every pixel
     cfg["measurement"]["edge_jump_mm"] = 0.0
+    cfg["measurement"]["lateral_uncertainty_px"] = 0.0  # nor the lateral term (checked on its own below)
     cfg["measurement"]["own_noise"] = True  # these tests score the frame's own-signal noise model
     paths = stages.measure_session(session, root / "out", cfg)
     return {"paths": paths, "root": root, "session": session}
@@ -569,7 +570,10 @@ def test_lateral_term_is_dx_times_slope() -> None:
     np.testing.assert_allclose(lat[far], uncertainty.LATERAL_PX * 0.005, rtol=1e-4)
     u = np.full(h.shape, 0.01, np.float32)
     tot = uncertainty.add_lateral(h, u)
-    np.testing.assert_allclose(tot[far], np.hypot(0.01, uncertainty.LATERAL_PX * 0.005), rtol=1e-4)
+    with_noise = uncertainty.lateral_term(h, u)
+    np.testing.assert_allclose(tot[far], np.hypot(0.01, with_noise[far]), rtol=1e-5)
+    # less the slope's own noise: sum K^2 u^2 = 1.2e-6 mm^2 against a slope^2 of 2.5e-5
+    np.testing.assert_allclose(with_noise[far], uncertainty.LATERAL_PX * np.sqrt(0.005**2 - 1.24e-6), rtol=0.01)
     # a flat top with noise: the term is a small fraction of the noise
     rng = np.random.default_rng(3)
     flat = rng.normal(0.0, 0.01, (60, 80)).astype(np.float32)

@@ -32,7 +32,7 @@ from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
 from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
-from huefringe.uncertainty import add_lateral, pixel_budget
+from huefringe.uncertainty import LATERAL_PX, add_lateral, pixel_budget
 
 log = logging.getLogger("huefringe")
 
@@ -409,7 +409,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     After either chain, ``measurement.edge_jump_mm`` > 0 invalidates the mixed pixels of step edges
     (:func:`~huefringe.perframe.step_edge_mask`; ``stats["edge_fraction"]``), so the kernel and
     :func:`~huefringe.perframe.measure_frame` stay identical to each other; then the uncertainty
-    gains the lateral term of the delivered heights (:func:`~huefringe.uncertainty.add_lateral`).
+    gains the lateral term of the delivered heights (:func:`~huefringe.uncertainty.add_lateral`,
+    ``measurement.lateral_uncertainty_px``; 0 = off).
     Each frame is refused (:class:`~huefringe.perframe.FrameError`, naming it) before it is yielded.
     The kernel's arrays are reused from frame to frame: copy what you keep.
     Every capture is read through ``reader`` (the camera corrections, :class:`~huefringe.camera.CaptureReader`:
@@ -464,8 +465,9 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
             height, (phase, u_map), (support,), changed = remove_step_edges(height, jump, nan_maps=(phase, u_map),
                                                                             zero_maps=(support,))
             stats = {**stats, **changed}
-        if u_map is not None:  # the lateral term on the heights as delivered (after the edge mask), either chain
-            u_map = add_lateral(height, u_map)
+        lateral = float(measurement.get("lateral_uncertainty_px", LATERAL_PX))
+        if u_map is not None and lateral > 0:  # the lateral term on the heights as delivered (after the edge mask)
+            u_map = add_lateral(height, u_map, lateral_px=lateral)
         _refuse_bad_frame(path, stats, measurement)
         yield n, height, phase, hue, stats, u_map, support
 
