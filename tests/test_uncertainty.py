@@ -645,3 +645,52 @@ def test_bench_gauge_coverage_per_zone_and_steps_within_u(tmp_path: Path) -> Non
     for st in method["steps"]:
         assert abs(st["error_mm"]) <= st["U_mm"], st
         assert st["uncertainty_budget"]["coating_mm"] > 0
+
+
+class _XYCamera:
+    """A stand-in lens model: X, Y = f(u, v) at every pixel (NaN where the height is NaN)."""
+
+    plain = False
+
+    def __init__(self, f) -> None:
+        self.f = f
+
+    def xy(self, height: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        vv, uu = np.mgrid[: height.shape[0], : height.shape[1]].astype(np.float64)
+        x, y = self.f(uu, vv)
+        bad = ~np.isfinite(height)
+        return np.where(bad, np.nan, x), np.where(bad, np.nan, y)
+
+
+def test_step_budget_takes_the_lens_models_lever_arms() -> None:
+    """With a lens model the base plane's lever arms are each pixel's X, Y: an X, Y affine in
+    (u, v) (a telecentric lens at another pitch, rotated and shifted) gives the numbers of ``u *
+    pitch`` (the plane's prediction at the top is affine-invariant), a barrel-distorted one does
+    not (the leverage of the base plane changes, slightly)."""
+    rng = np.random.default_rng(5)
+    h, w = 64, 62
+    spec = _specimen()
+    a = np.ones((h, w), np.float32)
+    b = np.zeros((h, w), np.float32)
+    bud = _budget_identity((h, w))
+    zs, us = [], []
+    for _ in range(2):
+        z = np.zeros((h, w))
+        z[18:46, 13:47] = 1.0
+        zs.append((z + rng.normal(0, 0.003, (h, w))).astype(np.float32))
+        us.append(np.full((h, w), 0.003, np.float32))
+    kw = {"edge_exclusion": 1 / 3, "denoise_radius": 2}
+    tele = uncertainty.step_budget(zs, us, spec, 0.2, a, b, bud, **kw)[0]
+    affine = _XYCamera(lambda u, v: (5.0 + 0.31 * u - 0.05 * v, -2.0 + 0.04 * u + 0.29 * v))
+    same = uncertainty.step_budget(zs, us, spec, 0.2, a, b, bud, camera=affine, **kw)[0]
+    assert same["base_plane_per_frame_mm"] == pytest.approx(tele["base_plane_per_frame_mm"], rel=1e-9)
+    assert same["u_mm"] == pytest.approx(tele["u_mm"], rel=1e-9)
+
+    def barrel(u, v):
+        x, y = (u - 31) * 0.2, (v - 32) * 0.2
+        k = 1 + 4e-3 * (x * x + y * y)
+        return x * k, y * k
+
+    bent = uncertainty.step_budget(zs, us, spec, 0.2, a, b, bud, camera=_XYCamera(barrel), **kw)[0]
+    # 0.07 % here (7 % radial stretch at the corners): the sub-percent approximation u * pitch was
+    assert 2e-4 < abs(bent["base_plane_per_frame_mm"] / tele["base_plane_per_frame_mm"] - 1) < 0.01

@@ -798,7 +798,8 @@ assert all(GROUPS[t] != "correlated" for t in _SPREAD_TERMS)
 def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: NDArray[np.bool_],
                       ncount: NDArray[np.float64], base_boxes: Sequence[tuple[int, int, int, int]],
                       step_boxes: Sequence[tuple[int, int, int, int]], pitch_mm: float, a: NDArray[np.floating],
-                      b: NDArray[np.floating], budget: PixelBudget) -> list[dict[str, float]]:
+                      b: NDArray[np.floating], budget: PixelBudget,
+                      xy: tuple[NDArray[np.floating], NDArray[np.floating]] | None = None) -> list[dict[str, float]]:
     """One frame's variance of each step's height, term by term (:func:`step_budget`).
 
     Only the pixels the step budget reaches are visited: the boxes grown by the largest
@@ -831,7 +832,10 @@ def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: ND
         bmask[v0:v1, u0:u1] = True
     bmask &= valid
     vb, ub = np.nonzero(bmask)
-    xb = np.column_stack([np.ones(vb.size), ub * pitch_mm, vb * pitch_mm])
+    if xy is None:  # telecentric: the plane's lever arms are u * pitch, v * pitch
+        xb = np.column_stack([np.ones(vb.size), ub * pitch_mm, vb * pitch_mm])
+    else:  # a lens model: each pixel's own X, Y (metrology.step_height fits the plane there too)
+        xb = np.column_stack([np.ones(vb.size), xy[0][vb, ub], xy[1][vb, ub]])
     pinv = np.linalg.pinv(xb)  # (3, NB): plane coefficients from the base heights
     nb = ncount[vb, ub]
     # the base plane: the spreads of its three coefficients, once, on each group's crop
@@ -856,7 +860,10 @@ def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: ND
         tmask &= valid[tsl]
         vt, ut = np.nonzero(tmask)
         nt = vt.size
-        xbar = np.array([1.0, (ut + off[1]).mean() * pitch_mm, (vt + off[0]).mean() * pitch_mm])
+        if xy is None:
+            xbar = np.array([1.0, (ut + off[1]).mean() * pitch_mm, (vt + off[0]).mean() * pitch_mm])
+        else:
+            xbar = np.array([1.0, xy[0][vt + off[0], ut + off[1]].mean(), xy[1][vt + off[0], ut + off[1]].mean()])
         n_t = ncount[tsl][tmask]
         a_top = _spread(vt, ut, np.full(nt, 1.0 / nt), n_t, tmask.shape)
         m, c, n = crop_sums(tsl, a_top[None], tmask)
@@ -929,6 +936,7 @@ def step_budget(
     denoise_radius: int,
     supports: Sequence[NDArray[np.floating]] | None = None,
     workers: int = 1,
+    camera: Any = None,
 ) -> list[dict[str, Any]]:
     """Standard uncertainty of each step's mean height over the frames, term by term.
 
@@ -952,6 +960,9 @@ def step_budget(
     ``u^2 = <u_ind^2> / F + <u_pixel^2> + <u_corr>^2 + u_coating^2`` (:func:`coating_term`: the
     top's systematic non-flatness, which a box about one fringe period wide does not average out). ``workers`` > 1 computes that many frames
     at once (threads; the sequences are indexed from them, so lazy ones must allow it).
+    ``camera`` (a :class:`huefringe.camera.CameraModel` that is not plain): the base plane's lever
+    arms are each pixel's X, Y at its height (``camera.xy``), as ``metrology.step_height`` fits it,
+    instead of ``u * pitch``.
     """
     from huefringe import metrology
 
@@ -979,7 +990,8 @@ def step_budget(
             if ncount.shape != shape:
                 raise ValueError(f"support map {f} has shape {ncount.shape}, the heights {shape}")
         tops = [z[bx[1]:bx[3], bx[0]:bx[2]].copy() for bx in step_boxes]  # for the coating term
-        return _frame_step_terms(z, u, valid, ncount, base_boxes, step_boxes, pitch_mm, a, b, budget), tops
+        xy = None if camera is None or getattr(camera, "plain", True) else camera.xy(z)
+        return _frame_step_terms(z, u, valid, ncount, base_boxes, step_boxes, pitch_mm, a, b, budget, xy), tops
 
     if workers > 1 and len(heights) > 1:  # the compiled passes and NumPy's array work release the GIL
         from concurrent.futures import ThreadPoolExecutor
