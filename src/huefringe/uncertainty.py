@@ -44,6 +44,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numba
 import numpy as np
 from numpy.typing import NDArray
@@ -566,29 +567,32 @@ def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = 
     unfiltered heights exact, on filtered ones it removes a little more than the noise holds).
     NaN where the height is NaN.
     """
-    from scipy import ndimage
-
-    h = np.asarray(height, np.float64)
+    h = np.asarray(height, np.float32)
     ok = np.isfinite(h)
-    num = ndimage.gaussian_filter(np.where(ok, h, 0.0), smooth_px, mode="nearest")
-    den = ndimage.gaussian_filter(ok.astype(np.float64), smooth_px, mode="nearest")
+    r = int(4.0 * smooth_px + 0.5)  # scipy.ndimage's truncation
+    t = np.arange(-r - 1, r + 2, dtype=np.float64)
+    g_ext = np.exp(-0.5 * (t / smooth_px) ** 2)
+    g_ext /= g_ext[1:-1].sum()
+    g = g_ext[1:-1].astype(np.float32)
+
+    def sep(img: NDArray[np.float32], kx: NDArray[np.float32], ky: NDArray[np.float32]) -> NDArray[np.float32]:
+        # separable correlation, edges replicated (ndimage's mode="nearest"); OpenCV: 4-8 x faster
+        return cv2.sepFilter2D(img, cv2.CV_32F, kx, ky, borderType=cv2.BORDER_REPLICATE)
+
+    num = sep(np.where(ok, h, np.float32(0.0)), g, g)
+    den = sep(ok.astype(np.float32), g, g)
     with np.errstate(invalid="ignore", divide="ignore"):
-        hm = np.where(den > 1e-3, num / np.maximum(den, 1e-3), np.nan)
+        hm = np.where(den > 1e-3, num / np.maximum(den, np.float32(1e-3)), np.float32(np.nan))
     gy, gx = np.gradient(hm)
     slope2 = np.nan_to_num(gx) ** 2 + np.nan_to_num(gy) ** 2
     if u is not None:  # the noise of the slope itself: sum K^2 u^2 of the separable kernels
-        r = int(4.0 * smooth_px + 0.5)  # ndimage's truncation
-        t = np.arange(-r - 1, r + 2, dtype=np.float64)
-        g = np.exp(-0.5 * (t / smooth_px) ** 2)
-        g /= g[1:-1].sum()
-        d = 0.5 * (g[:-2] - g[2:])  # d/dt of the smoothed map by central differences
-        g = g[1:-1]
-        u2 = np.where(ok, np.nan_to_num(np.asarray(u, np.float64)) ** 2, 0.0)
-        var = (ndimage.correlate1d(ndimage.correlate1d(u2, d**2, axis=1, mode="nearest"), g**2, axis=0, mode="nearest")
-               + ndimage.correlate1d(ndimage.correlate1d(u2, d**2, axis=0, mode="nearest"), g**2, axis=1, mode="nearest"))
+        d2 = (0.5 * (g_ext[:-2] - g_ext[2:])).astype(np.float32) ** 2  # central difference of the smoothed map
+        g2 = g * g
+        u2 = np.where(ok, np.nan_to_num(np.asarray(u, np.float32)) ** 2, np.float32(0.0))
+        var = sep(u2, d2, g2) + sep(u2, g2, d2)
         with np.errstate(invalid="ignore", divide="ignore"):
-            var = var / np.maximum(den, 1e-3) ** 2
-        slope2 = np.maximum(slope2 - var, 0.0)
+            var = var / np.maximum(den, np.float32(1e-3)) ** 2
+        slope2 = np.maximum(slope2 - var, np.float32(0.0))
     return np.where(ok, lateral_px * np.sqrt(slope2), np.nan).astype(np.float32)
 
 
