@@ -777,7 +777,8 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
         add_step_uncertainty(method, _TiffMaps(heights), _TiffMaps(uncertainties), spec, s.pixel_pitch_mm,
                              PlaneCalibration.load(model), HueTable.load(object_table), edge_exclusion=edge,
                              denoise_radius=int(config["measurement"]["denoise_radius"]),
-                             supports=_TiffMaps(supports) if supports else None, workers=threads, camera=lens)
+                             supports=_TiffMaps(supports) if supports else None, workers=threads, camera=lens,
+                             lateral_px=float(config["measurement"].get("lateral_uncertainty_px", LATERAL_PX)))
     base = evaluate(baseline, method="three-step-phase-shift") if baseline else None
     plane_stats = jsonlib.loads(Path(planes).read_text())
     table_stats = jsonlib.loads(Path(tables).read_text())
@@ -874,19 +875,20 @@ def add_step_uncertainty(method: dict[str, Any], heights: Sequence[NDArray[np.fl
                          uncertainties: Sequence[NDArray[np.floating]], specimen: Mapping[str, Any], pitch_mm: float,
                          cal: PlaneCalibration, table: HueTable, *, edge_exclusion: float, denoise_radius: int,
                          supports: Sequence[NDArray[np.floating]] | None = None, workers: int = 1,
-                         camera: CameraModel | None = None) -> None:
+                         camera: CameraModel | None = None, lateral_px: float = LATERAL_PX) -> None:
     """Add ``u_mm``, ``U_mm`` (k = 2), ``conformance`` and ``uncertainty_budget`` to each step of an
     :func:`huefringe.metrology.evaluate_session` block, and ``verdict_with_uncertainty`` to the block.
 
     ``pass`` stays ``|error| <= tolerance`` (the contract); ``conformance`` is the ISO 14253-1
     decision with U: ``pass``, ``fail`` or ``undecided``. ``camera``: the lens model the steps were
-    evaluated with (the budget's plane lever arms at each pixel's X, Y).
+    evaluated with (the budget's plane lever arms at each pixel's X, Y); ``lateral_px``: the
+    ``measurement.lateral_uncertainty_px`` the maps were made with (the budget takes it out).
     """
     from huefringe import uncertainty as unc
 
     budgets = unc.step_budget(heights, uncertainties, specimen, pitch_mm, cal.a, cal.b, unc.pixel_budget(table, cal),
                               edge_exclusion=edge_exclusion, denoise_radius=denoise_radius, supports=supports,
-                              workers=workers, camera=camera)
+                              workers=workers, camera=camera, lateral_px=lateral_px)
     tol = float(method["tolerance_mm"])
     for step, bud in zip(method["steps"], budgets, strict=True):
         step["u_mm"] = bud["u_mm"]

@@ -941,6 +941,7 @@ def step_budget(
     supports: Sequence[NDArray[np.floating]] | None = None,
     workers: int = 1,
     camera: Any = None,
+    lateral_px: float = 0.0,
 ) -> list[dict[str, Any]]:
     """Standard uncertainty of each step's mean height over the frames, term by term.
 
@@ -966,7 +967,10 @@ def step_budget(
     at once (threads; the sequences are indexed from them, so lazy ones must allow it).
     ``camera`` (a :class:`huefringe.camera.CameraModel` that is not plain): the base plane's lever
     arms are each pixel's X, Y at its height (``camera.xy``), as ``metrology.step_height`` fits it,
-    instead of ``u * pitch``.
+    instead of ``u * pitch``. ``lateral_px`` > 0: the maps carry the lateral term
+    (:func:`add_lateral` with that ``dx``), which is taken out of each pixel's u before the split
+    (on a top it is the slope of the coating's phase-fixed pattern, which :func:`coating_term`
+    holds; left in, the split would count it as frame noise).
     """
     from huefringe import metrology
 
@@ -986,6 +990,9 @@ def step_budget(
         u = np.asarray(uncertainties[f])
         if z.shape != shape or u.shape != shape:
             raise ValueError(f"frame {f}: height {z.shape} and uncertainty {u.shape} maps, the model {shape}")
+        if lateral_px > 0:  # the lateral term out (computed with the combined u: a little less than was added)
+            lat = lateral_term(z, u, lateral_px=lateral_px).astype(np.float64)
+            u = np.sqrt(np.maximum(np.asarray(u, np.float64) ** 2 - lat**2, 0.0)).astype(np.float32)
         valid = np.isfinite(z) & np.isfinite(u)
         if supports is None:
             ncount = _neighbour_counts(valid, denoise_radius)
