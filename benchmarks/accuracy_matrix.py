@@ -179,6 +179,8 @@ VARIANTS.update({
     "texture blur 1.6": {"calibration": {"texture_blur_px2": 1.6}},
     "texture blur auto (estimated)": {"calibration": {"texture_blur_px2": "auto"}},
     "texture correction off": {"calibration": {"texture_blur_px2": 0}},
+    # the uncertainty's lateral term (docs/uncertainty.md): heights identical, u without it
+    "lateral term off": {"measurement": {"lateral_uncertainty_px": 0.0}},
 })
 VARIANTS.update({
     # the step-edge test (measurement.edge_test; docs/accuracy-texture.md, Step-edge test)

@@ -1,6 +1,6 @@
 """Does the predicted height uncertainty hold? Coverage and step ratios on bench presets.
 
-Usage: ./run python benchmarks/uncertainty_validation.py [--frames 5] [--presets demo flat dental ...]
+Usage: ./run python benchmarks/uncertainty_validation.py [--frames 5] [--presets demo flat dental ...] [--lateral-px 0]
 
 For each preset the bench writes a session, the whole chain measures it (the uncertainty maps
 from the kernel's pass), and against the bench's ground truth it prints: the fraction of the
@@ -35,8 +35,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=5)
     ap.add_argument("--presets", nargs="+", default=["demo", "flat", "dental", "plain_gauge", "photo_relief"])
+    ap.add_argument("--lateral-px", type=float, default=None,
+                    help="measurement.lateral_uncertainty_px (default: config.yaml's; 0 = the lateral term off)")
     args = ap.parse_args()
     cfg = load_config(REPO / "config.yaml")
+    if args.lateral_px is not None:
+        cfg["measurement"]["lateral_uncertainty_px"] = args.lateral_px
     print(f"{'preset':8} {'|e|<=2u':>8} {'rms e mm':>9} {'rms u mm':>9} {'median u mm':>11}  coverage by zone; "
           "steps: std / independent u")
     with tempfile.TemporaryDirectory() as tmp:
@@ -79,7 +83,8 @@ def main() -> None:
                                               HueTable.load(out / "table_object.json"),
                                               edge_exclusion=cfg["metrology"]["edge_exclusion"],
                                               denoise_radius=cfg["measurement"]["denoise_radius"],
-                                              supports=[tifffile.imread(x) for x in p["supports"]])
+                                              supports=[tifffile.imread(x) for x in p["supports"]],
+                                              lateral_px=cfg["measurement"]["lateral_uncertainty_px"])
                 parts = []
                 for st in method["steps"]:
                     ind = st["uncertainty_budget"]["independent_per_frame_mm"]

@@ -146,6 +146,7 @@ def still(tmp_path_factory: pytest.TempPathFactory) -> dict:
     # and without the step-edge mask: on unfiltered heights at this coarse pitch (0.8 mm) it
     # also takes noisy pixels for mixed ones; these tests score the noise term on every pixel
     cfg["measurement"]["edge_jump_mm"] = 0.0
+    cfg["measurement"]["lateral_uncertainty_px"] = 0.0  # nor the lateral term (checked on its own below)
     cfg["measurement"]["own_noise"] = True  # these tests score the frame's own-signal noise model
     paths = stages.measure_session(session, root / "out", cfg)
     return {"paths": paths, "root": root, "session": session}
@@ -292,7 +293,8 @@ def test_step_uncertainty_in_report(still: dict) -> None:
     us = [read_tiff(p) for p in paths["uncertainties"][:10]]
     method = metrology.evaluate_session(hs, s.specimen, s.pixel_pitch_mm, range_mm=6.0, edge_exclusion=0.2)
     stages.add_step_uncertainty(method, hs, us, s.specimen, s.pixel_pitch_mm, PlaneCalibration.load(str(out / "model.npz")),
-                                  HueTable.load(out / "table_object.json"), edge_exclusion=0.2, denoise_radius=0)
+                                  HueTable.load(out / "table_object.json"), edge_exclusion=0.2, denoise_radius=0,
+                                  lateral_px=0.0)  # the still session's maps have no lateral term
     tol = method["tolerance_mm"]
     for st in method["steps"]:
         assert st["U_mm"] == pytest.approx(2 * st["u_mm"])
@@ -303,7 +305,7 @@ def test_step_uncertainty_in_report(still: dict) -> None:
         # the mean over 10 frames: independent part / sqrt(10), the calibration parts whole
         assert b["independent_mm"] == pytest.approx(b["independent_per_frame_mm"] / np.sqrt(10))
         assert st["u_mm"] ** 2 == pytest.approx(b["independent_mm"] ** 2 + b["pixel_calibration_mm"] ** 2
-                                                + b["correlated_mm"] ** 2)
+                                                + b["correlated_mm"] ** 2 + b["coating_mm"] ** 2)
         # observed frame-to-frame spread against the predicted independent part (still scene)
         assert 0.6 < st["std_mm"] / b["independent_per_frame_mm"] < 1.6
     doc = report.build_report_json(s.id, s.specimen, method)
@@ -552,3 +554,147 @@ def test_step_budget_crops_and_threads_change_nothing(base_roi: list | None) -> 
         got = one[0]["terms_mm"][term] ** 2 * scale
         assert got == pytest.approx(np.mean([r[term] for r in want]), rel=1e-9), term
         assert got > 0, term
+
+
+def test_lateral_term_is_dx_times_slope() -> None:
+    """On a plane of slope (gx, gy) mm/px the lateral term is LATERAL_PX * |g| wherever the Gaussian
+    average sees only valid pixels (a linear map is its own normalised average), NaN where the height
+    is NaN; add_lateral adds it in quadrature."""
+    vv, uu = np.mgrid[:60, :80].astype(np.float64)
+    h = (0.003 * uu - 0.004 * vv).astype(np.float32)
+    h[20:24, 30:34] = np.nan
+    lat = uncertainty.lateral_term(h)
+    assert np.isnan(lat[21, 31]) and np.isfinite(lat[40, 60])
+    far = np.zeros(h.shape, bool)
+    far[8:-8, 8:-8] = True
+    far[12:32, 22:42] = False  # the hole's reach (4 sigma)
+    np.testing.assert_allclose(lat[far], uncertainty.LATERAL_PX * 0.005, rtol=1e-4)
+    u = np.full(h.shape, 0.01, np.float32)
+    tot = uncertainty.add_lateral(h, u)
+    with_noise = uncertainty.lateral_term(h, u)
+    np.testing.assert_allclose(tot[far], np.hypot(0.01, with_noise[far]), rtol=1e-5)
+    # less the slope's own noise: sum K^2 u^2 = 1.2e-6 mm^2 against a slope^2 of 2.5e-5
+    np.testing.assert_allclose(with_noise[far], uncertainty.LATERAL_PX * np.sqrt(0.005**2 - 1.24e-6), rtol=0.01)
+    # a flat top with noise: the term is a small fraction of the noise
+    rng = np.random.default_rng(3)
+    flat = rng.normal(0.0, 0.01, (60, 80)).astype(np.float32)
+    assert np.median(uncertainty.lateral_term(flat)) < 0.01
+
+
+@pytest.mark.parametrize("frames", [1, 5])
+def test_coating_term_recovers_a_fixed_pattern(frames: int) -> None:
+    """A top carrying a pattern fixed to the fringe (rms 8 um, period 60 px) under frame noise of
+    20 um per pixel and a tilt that changes from frame to frame: the coating term is the pattern's
+    rms within 10 % with 5 frames (the noise removed by the frames' spread); pure noise gives
+    about 0 (below 3 um); one frame keeps the noise (conservative)."""
+    rng = np.random.default_rng(11)
+    vv, uu = np.mgrid[:40, :50].astype(np.float64)
+    pattern = 0.008 * np.sqrt(2.0) * np.sin(2 * np.pi * uu / 60.0 + 0.3)
+    pattern -= pattern.mean()
+    # the pattern's rms about its own plane (what the term can see; a plane fit takes part of it)
+    x = np.column_stack([np.ones(uu.size), uu.ravel(), vv.ravel()])
+    rp = pattern.ravel() - x @ np.linalg.lstsq(x, pattern.ravel(), rcond=None)[0]
+    seen = float(np.sqrt(np.mean(rp**2)))
+    tops, noise_only = [], []
+    for f in range(frames):
+        tilt = 4.0 + 1e-4 * f * uu - 2e-4 * f * vv
+        n = rng.normal(0.0, 0.02, uu.shape)
+        tops.append(tilt + pattern + n)
+        noise_only.append(tilt + n)
+    got = uncertainty.coating_term(tops)
+    if frames == 1:
+        assert got == pytest.approx(np.hypot(seen, 0.02), rel=0.1)
+    else:
+        assert got == pytest.approx(seen, rel=0.1)
+        assert uncertainty.coating_term(noise_only) < 0.003
+
+
+@pytest.mark.slow
+def test_bench_gauge_coverage_per_zone_and_steps_within_u(tmp_path: Path) -> None:
+    """Plain gauge blocks (green, navy, red, charcoal; 320 x 240, 2 frames, the workflow's config):
+    |error| <= 2u for 0.92-0.98 of the valid pixels overall and in each zone (edge, texture, rest:
+    benchmarks/accuracy_matrix.py's zones; before the lateral term 0.866 overall, edge 0.613,
+    texture 0.531), and every step's error (the red block's +10 um among them) within its U."""
+    import sys
+
+    from huefringe import metrology
+    from huefringe.session import read_rgb
+
+    sys.path.insert(0, str(REPO / "benchmarks"))
+    from accuracy_matrix import zones
+
+    session = bench.write_session(bench.load_bench_config(bench.preset_path("plain_gauge")), tmp_path / "s")
+    p = stages.measure_session(session, tmp_path / "out", CONFIG)
+    s = p["session"]
+    hs = [read_tiff(h) for h in p["heights"]]
+    us = [read_tiff(u) for u in p["uncertainties"]]
+    truths = [read_tiff(s.ground_truth[n]).astype(np.float64) for n in s.frame_ids]
+    zs = zones(np.where(np.isfinite(truths[0]), truths[0], 0.0), np.asarray(read_rgb(s.object_white), np.float64))
+    for name, zm in {"all": np.ones(hs[0].shape, bool), **zs}.items():
+        e = np.concatenate([(h - t)[zm] for h, t in zip(hs, truths)])
+        uu = np.concatenate([u[zm] for u in us])
+        ok = np.isfinite(e) & np.isfinite(uu)
+        cov = float(np.mean(np.abs(e[ok]) <= 2 * uu[ok]))
+        # texture zone (4100 px): 0.931 while the texture correction ran at its estimate (0.16 px^2); that
+        # estimate is now refused as not significant, the correction is off and the zone reads 0.908: a
+        # known miss of the 0.95 +- 0.03 target (docs/uncertainty.md), bounded here so it cannot slide
+        assert (0.90 if name == "texture" else 0.92) <= cov <= 0.98, (name, cov)
+    method = metrology.evaluate_session(hs, s.specimen, s.pixel_pitch_mm, range_mm=max(s.planes_mm) - min(s.planes_mm),
+                                        edge_exclusion=CONFIG["metrology"]["edge_exclusion"])
+    stages.add_step_uncertainty(method, hs, us, s.specimen, s.pixel_pitch_mm, PlaneCalibration.load(str(tmp_path / "out" / "model.npz")),
+                                HueTable.load(tmp_path / "out" / "table_object.json"),
+                                edge_exclusion=CONFIG["metrology"]["edge_exclusion"],
+                                denoise_radius=CONFIG["measurement"]["denoise_radius"],
+                                supports=[read_tiff(x) for x in p["supports"]])
+    for st in method["steps"]:
+        assert abs(st["error_mm"]) <= st["U_mm"], st
+        assert st["uncertainty_budget"]["coating_mm"] > 0
+
+
+class _XYCamera:
+    """A stand-in lens model: X, Y = f(u, v) at every pixel (NaN where the height is NaN)."""
+
+    plain = False
+
+    def __init__(self, f) -> None:
+        self.f = f
+
+    def xy(self, height: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        vv, uu = np.mgrid[: height.shape[0], : height.shape[1]].astype(np.float64)
+        x, y = self.f(uu, vv)
+        bad = ~np.isfinite(height)
+        return np.where(bad, np.nan, x), np.where(bad, np.nan, y)
+
+
+def test_step_budget_takes_the_lens_models_lever_arms() -> None:
+    """With a lens model the base plane's lever arms are each pixel's X, Y: an X, Y affine in
+    (u, v) (a telecentric lens at another pitch, rotated and shifted) gives the numbers of ``u *
+    pitch`` (the plane's prediction at the top is affine-invariant), a barrel-distorted one does
+    not (the leverage of the base plane changes, slightly)."""
+    rng = np.random.default_rng(5)
+    h, w = 64, 62
+    spec = _specimen()
+    a = np.ones((h, w), np.float32)
+    b = np.zeros((h, w), np.float32)
+    bud = _budget_identity((h, w))
+    zs, us = [], []
+    for _ in range(2):
+        z = np.zeros((h, w))
+        z[18:46, 13:47] = 1.0
+        zs.append((z + rng.normal(0, 0.003, (h, w))).astype(np.float32))
+        us.append(np.full((h, w), 0.003, np.float32))
+    kw = {"edge_exclusion": 1 / 3, "denoise_radius": 2}
+    tele = uncertainty.step_budget(zs, us, spec, 0.2, a, b, bud, **kw)[0]
+    affine = _XYCamera(lambda u, v: (5.0 + 0.31 * u - 0.05 * v, -2.0 + 0.04 * u + 0.29 * v))
+    same = uncertainty.step_budget(zs, us, spec, 0.2, a, b, bud, camera=affine, **kw)[0]
+    assert same["base_plane_per_frame_mm"] == pytest.approx(tele["base_plane_per_frame_mm"], rel=1e-9)
+    assert same["u_mm"] == pytest.approx(tele["u_mm"], rel=1e-9)
+
+    def barrel(u, v):
+        x, y = (u - 31) * 0.2, (v - 32) * 0.2
+        k = 1 + 4e-3 * (x * x + y * y)
+        return x * k, y * k
+
+    bent = uncertainty.step_budget(zs, us, spec, 0.2, a, b, bud, camera=_XYCamera(barrel), **kw)[0]
+    # 0.07 % here (7 % radial stretch at the corners): the sub-percent approximation u * pitch was
+    assert 2e-4 < abs(bent["base_plane_per_frame_mm"] / tele["base_plane_per_frame_mm"] - 1) < 0.01

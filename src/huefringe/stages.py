@@ -31,8 +31,8 @@ from huefringe import phase_error, texture
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
-from huefringe.session import Session, load_session, read_rgb_codes
-from huefringe.uncertainty import noise_correlation, pixel_budget
+from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
+from huefringe.uncertainty import LATERAL_PX, add_lateral, noise_correlation, pixel_budget
 
 log = logging.getLogger("huefringe")
 
@@ -457,7 +457,9 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     After either chain, ``measurement.edge_jump_mm`` > 0 invalidates the mixed pixels of step edges
     (``measurement.edge_test``: :func:`~huefringe.perframe.step_edge_mask`, or
     :func:`~huefringe.perframe.plane_edge_mask` with ``edge_plane_tol_mm``; ``stats["edge_fraction"]``),
-    so the kernel and :func:`~huefringe.perframe.measure_frame` stay identical to each other.
+    so the kernel and :func:`~huefringe.perframe.measure_frame` stay identical to each other; then the uncertainty
+    gains the lateral term of the delivered heights (:func:`~huefringe.uncertainty.add_lateral`,
+    ``measurement.lateral_uncertainty_px``; 0 = off).
     Each frame is refused (:class:`~huefringe.perframe.FrameError`, naming it) before it is yielded.
     The kernel's arrays are reused from frame to frame: copy what you keep.
     Every capture is read through ``reader`` (the camera corrections, :class:`~huefringe.camera.CaptureReader`:
@@ -514,6 +516,9 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                 height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(measurement.get("edge_test", "plane")),
                 tol_mm=float(measurement.get("edge_plane_tol_mm", 0.1)))
             stats = {**stats, **changed}
+        lateral = float(measurement.get("lateral_uncertainty_px", LATERAL_PX))
+        if u_map is not None and lateral > 0:  # the lateral term on the heights as delivered (after the edge mask)
+            u_map = add_lateral(height, u_map, lateral_px=lateral)
         _refuse_bad_frame(path, stats, measurement)
         yield n, height, phase, hue, stats, u_map, support
 
@@ -823,7 +828,8 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
         add_step_uncertainty(method, _TiffMaps(heights), _TiffMaps(uncertainties), spec, s.pixel_pitch_mm,
                              PlaneCalibration.load(model), HueTable.load(object_table), edge_exclusion=edge,
                              denoise_radius=int(config["measurement"]["denoise_radius"]),
-                             supports=_TiffMaps(supports) if supports else None, workers=threads)
+                             supports=_TiffMaps(supports) if supports else None, workers=threads, camera=lens,
+                             lateral_px=float(config["measurement"].get("lateral_uncertainty_px", LATERAL_PX)))
     base = evaluate(baseline, method="three-step-phase-shift") if baseline else None
     plane_stats = jsonlib.loads(Path(planes).read_text())
     table_stats = jsonlib.loads(Path(tables).read_text())
@@ -919,18 +925,21 @@ def table1(reports: Sequence[str], periods: Sequence[float], step: str, nominal_
 def add_step_uncertainty(method: dict[str, Any], heights: Sequence[NDArray[np.floating]],
                          uncertainties: Sequence[NDArray[np.floating]], specimen: Mapping[str, Any], pitch_mm: float,
                          cal: PlaneCalibration, table: HueTable, *, edge_exclusion: float, denoise_radius: int,
-                         supports: Sequence[NDArray[np.floating]] | None = None, workers: int = 1) -> None:
+                         supports: Sequence[NDArray[np.floating]] | None = None, workers: int = 1,
+                         camera: CameraModel | None = None, lateral_px: float = LATERAL_PX) -> None:
     """Add ``u_mm``, ``U_mm`` (k = 2), ``conformance`` and ``uncertainty_budget`` to each step of an
     :func:`huefringe.metrology.evaluate_session` block, and ``verdict_with_uncertainty`` to the block.
 
     ``pass`` stays ``|error| <= tolerance`` (the contract); ``conformance`` is the ISO 14253-1
-    decision with U: ``pass``, ``fail`` or ``undecided``.
+    decision with U: ``pass``, ``fail`` or ``undecided``. ``camera``: the lens model the steps were
+    evaluated with (the budget's plane lever arms at each pixel's X, Y); ``lateral_px``: the
+    ``measurement.lateral_uncertainty_px`` the maps were made with (the budget takes it out).
     """
     from huefringe import uncertainty as unc
 
     budgets = unc.step_budget(heights, uncertainties, specimen, pitch_mm, cal.a, cal.b, unc.pixel_budget(table, cal),
                               edge_exclusion=edge_exclusion, denoise_radius=denoise_radius, supports=supports,
-                              workers=workers)
+                              workers=workers, camera=camera, lateral_px=lateral_px)
     tol = float(method["tolerance_mm"])
     for step, bud in zip(method["steps"], budgets, strict=True):
         step["u_mm"] = bud["u_mm"]

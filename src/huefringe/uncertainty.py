@@ -44,6 +44,7 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import cv2
 import numba
 import numpy as np
 from numpy.typing import NDArray
@@ -52,7 +53,7 @@ from scipy.ndimage import uniform_filter
 from huefringe.huetable import band_smoothing_matrix
 
 __all__ = [
-    "TERMS", "PixelBudget", "calibration_terms", "conformance", "edge_floor", "height_uncertainty",
+    "TERMS", "PixelBudget", "calibration_terms", "conformance", "edge_floor", "height_uncertainty", "add_lateral", "coating_term", "lateral_term",
     "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "reliability", "split_terms", "step_budget",
     "table_interpolation_rad", "table_variance_factor",
 ]
@@ -574,6 +575,68 @@ def edge_floor(height: NDArray[np.float32], valid: NDArray[np.bool_], u: NDArray
     return u
 
 
+#: Lateral position uncertainty (px) of a height: where along the surface the value measured at a
+#: pixel belongs. Camera blur (0.6-0.9 px on the bench), the phase filter's window (radius 2) and
+#: the texture-edge correction's first-order remainder all move a pixel's height towards its
+#: neighbours'; measured on the tuning cases of benchmarks/accuracy_matrix.py --texture
+#: (docs/uncertainty.md, "Lateral term"): 1.75 px puts |error| <= 2u at 0.93-0.99 in every zone.
+LATERAL_PX = 1.75
+#: Gaussian scale (px) of the normalised average of the valid heights whose gradient is the slope.
+LATERAL_SMOOTH_PX = 1.5
+
+
+def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = None, *,
+                 lateral_px: float = LATERAL_PX, smooth_px: float = LATERAL_SMOOTH_PX) -> NDArray[np.float32]:
+    """The height error of a lateral position uncertainty, ``lateral_px |grad h|`` (mm), per pixel.
+
+    A pixel's height is a weighted mean over a footprint (camera blur, the phase filter's window,
+    the mixed pixels beside a step or a reflectance edge that the first-order texture correction
+    leaves), so its lateral position is uncertain by ``dx`` and its height by ``dx |grad h|``. The
+    slope is that of the measured heights, normalised-Gaussian averaged over the valid pixels
+    (``smooth_px``; NaN pixels carry no weight), by central differences in mm per px. Over a flat
+    top it is the noise's own gradient (a few % of ``u``); next to a step edge left after the edge
+    mask, a texture bump or a steep flank it is the error the other terms do not hold. With ``u``
+    (the per-pixel uncertainty without this term) the slope's own noise is removed in quadrature:
+    the smoothed central difference is a linear filter ``K`` of the heights, so its variance from
+    pixel errors of standard uncertainty ``u`` is ``sum K^2 u^2`` (taken independent: on
+    unfiltered heights exact, on filtered ones it removes a little more than the noise holds).
+    NaN where the height is NaN.
+    """
+    h = np.asarray(height, np.float32)
+    ok = np.isfinite(h)
+    r = int(4.0 * smooth_px + 0.5)  # scipy.ndimage's truncation
+    t = np.arange(-r - 1, r + 2, dtype=np.float64)
+    g_ext = np.exp(-0.5 * (t / smooth_px) ** 2)
+    g_ext /= g_ext[1:-1].sum()
+    g = g_ext[1:-1].astype(np.float32)
+
+    def sep(img: NDArray[np.float32], kx: NDArray[np.float32], ky: NDArray[np.float32]) -> NDArray[np.float32]:
+        # separable correlation, edges replicated (ndimage's mode="nearest"); OpenCV: 4-8 x faster
+        return cv2.sepFilter2D(img, cv2.CV_32F, kx, ky, borderType=cv2.BORDER_REPLICATE)
+
+    num = sep(np.where(ok, h, np.float32(0.0)), g, g)
+    den = sep(ok.astype(np.float32), g, g)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        hm = np.where(den > 1e-3, num / np.maximum(den, np.float32(1e-3)), np.float32(np.nan))
+    gy, gx = np.gradient(hm)
+    slope2 = np.nan_to_num(gx) ** 2 + np.nan_to_num(gy) ** 2
+    if u is not None:  # the noise of the slope itself: sum K^2 u^2 of the separable kernels
+        d2 = (0.5 * (g_ext[:-2] - g_ext[2:])).astype(np.float32) ** 2  # central difference of the smoothed map
+        g2 = g * g
+        u2 = np.where(ok, np.nan_to_num(np.asarray(u, np.float32)) ** 2, np.float32(0.0))
+        var = sep(u2, d2, g2) + sep(u2, g2, d2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            var = var / np.maximum(den, np.float32(1e-3)) ** 2
+        slope2 = np.maximum(slope2 - var, np.float32(0.0))
+    return np.where(ok, lateral_px * np.sqrt(slope2), np.nan).astype(np.float32)
+
+
+def add_lateral(height: NDArray[np.floating], u: NDArray[np.floating], **kwargs: float) -> NDArray[np.float32]:
+    """``sqrt(u^2 + lateral_term(height)^2)`` (a new float32 map; NaN where either is NaN)."""
+    lat = lateral_term(height, u, **kwargs).astype(np.float64)
+    return np.sqrt(np.asarray(u, np.float64) ** 2 + lat**2).astype(np.float32)
+
+
 def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArray[np.floating],
                 b: NDArray[np.floating], budget: PixelBudget) -> dict[str, NDArray[np.float64]]:
     """The five terms (mm) of a combined uncertainty map, recovered from ``u`` and the height.
@@ -774,7 +837,8 @@ assert all(GROUPS[t] != "correlated" for t in _SPREAD_TERMS)
 def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: NDArray[np.bool_],
                       ncount: NDArray[np.float64], base_boxes: Sequence[tuple[int, int, int, int]],
                       step_boxes: Sequence[tuple[int, int, int, int]], pitch_mm: float, a: NDArray[np.floating],
-                      b: NDArray[np.floating], budget: PixelBudget) -> list[dict[str, float]]:
+                      b: NDArray[np.floating], budget: PixelBudget,
+                      xy: tuple[NDArray[np.floating], NDArray[np.floating]] | None = None) -> list[dict[str, float]]:
     """One frame's variance of each step's height, term by term (:func:`step_budget`).
 
     Only the pixels the step budget reaches are visited: the boxes grown by the largest
@@ -807,7 +871,10 @@ def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: ND
         bmask[v0:v1, u0:u1] = True
     bmask &= valid
     vb, ub = np.nonzero(bmask)
-    xb = np.column_stack([np.ones(vb.size), ub * pitch_mm, vb * pitch_mm])
+    if xy is None:  # telecentric: the plane's lever arms are u * pitch, v * pitch
+        xb = np.column_stack([np.ones(vb.size), ub * pitch_mm, vb * pitch_mm])
+    else:  # a lens model: each pixel's own X, Y (metrology.step_height fits the plane there too)
+        xb = np.column_stack([np.ones(vb.size), xy[0][vb, ub], xy[1][vb, ub]])
     pinv = np.linalg.pinv(xb)  # (3, NB): plane coefficients from the base heights
     nb = ncount[vb, ub]
     # the base plane: the spreads of its three coefficients, once, on each group's crop
@@ -832,7 +899,10 @@ def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: ND
         tmask &= valid[tsl]
         vt, ut = np.nonzero(tmask)
         nt = vt.size
-        xbar = np.array([1.0, (ut + off[1]).mean() * pitch_mm, (vt + off[0]).mean() * pitch_mm])
+        if xy is None:
+            xbar = np.array([1.0, (ut + off[1]).mean() * pitch_mm, (vt + off[0]).mean() * pitch_mm])
+        else:
+            xbar = np.array([1.0, xy[0][vt + off[0], ut + off[1]].mean(), xy[1][vt + off[0], ut + off[1]].mean()])
         n_t = ncount[tsl][tmask]
         a_top = _spread(vt, ut, np.full(nt, 1.0 / nt), n_t, tmask.shape)
         m, c, n = crop_sums(tsl, a_top[None], tmask)
@@ -851,6 +921,47 @@ def _frame_step_terms(z: NDArray[np.float64], u: NDArray[np.floating], valid: ND
     return out
 
 
+def coating_term(tops: Sequence[NDArray[np.floating]]) -> float:
+    """The coating-dependent systematic of a step's top (mm): the rms, over the top box, of the
+    frame-mean heights' residual about their least-squares plane, less its frame-noise part.
+
+    The per-pixel table is calibrated on the object's own hue bands, but the phase-error table and
+    the planes' model on the grey plate (paper eqs. 6-9: each channel's reflectivity bends the
+    hue, so the blurred fringe's hue error on a red or blue coating is not the plate's). What is
+    left is a pattern fixed to the fringe phase (period = the fringe's) that the frame mean keeps:
+    on a box spanning about one period its mean is not zero, and that mean is the step's error. Its
+    size is that of the pattern: the top's non-flatness ``r`` about its plane, averaged over the F
+    frames; the noise the mean still holds, ``mean_T var_f(r_f) / F`` (sample variance over the
+    frames of each frame's residual), is removed in quadrature. One frame: the plane residual
+    alone (noise included, conservative). ``tops``: the top box of each frame (NaN invalid).
+    """
+    stack = np.asarray([np.asarray(t, np.float64) for t in tops])
+    if stack.size == 0 or stack.shape[1] < 2 or stack.shape[2] < 2:
+        return 0.0
+    vv, uu = np.mgrid[: stack.shape[1], : stack.shape[2]]
+    res = []
+    for z in stack:  # each frame about its own plane (a vibrating specimen tilts between frames)
+        ok = np.isfinite(z)
+        if ok.sum() < 6:
+            continue
+        x = np.column_stack([np.ones(ok.sum()), uu[ok], vv[ok]])
+        coef = np.linalg.lstsq(x, z[ok], rcond=None)[0]
+        r = np.full(z.shape, np.nan)
+        r[ok] = z[ok] - x @ coef
+        res.append(r)
+    if not res:
+        return 0.0
+    r = np.asarray(res)
+    nf = r.shape[0]
+    both = np.all(np.isfinite(r), axis=0)
+    if both.sum() < 6:
+        return 0.0
+    mean = r[:, both].mean(axis=0)
+    total = float(np.mean((mean - mean.mean()) ** 2))
+    noise = float(np.mean(np.var(r[:, both], axis=0, ddof=1))) / nf if nf > 1 else 0.0
+    return math.sqrt(max(total - noise, 0.0))
+
+
 def step_budget(
     heights: Sequence[NDArray[np.floating]],
     uncertainties: Sequence[NDArray[np.floating]],
@@ -864,6 +975,8 @@ def step_budget(
     denoise_radius: int,
     supports: Sequence[NDArray[np.floating]] | None = None,
     workers: int = 1,
+    camera: Any = None,
+    lateral_px: float = 0.0,
 ) -> list[dict[str, Any]]:
     """Standard uncertainty of each step's mean height over the frames, term by term.
 
@@ -884,8 +997,15 @@ def step_budget(
       ``mean_T(u)^2 + mean_B(u)^2``.
 
     Over F frames the independent part is divided by F, the others are not:
-    ``u^2 = <u_ind^2> / F + <u_pixel^2> + <u_corr>^2``. ``workers`` > 1 computes that many frames
+    ``u^2 = <u_ind^2> / F + <u_pixel^2> + <u_corr>^2 + u_coating^2`` (:func:`coating_term`: the
+    top's systematic non-flatness, which a box about one fringe period wide does not average out). ``workers`` > 1 computes that many frames
     at once (threads; the sequences are indexed from them, so lazy ones must allow it).
+    ``camera`` (a :class:`huefringe.camera.CameraModel` that is not plain): the base plane's lever
+    arms are each pixel's X, Y at its height (``camera.xy``), as ``metrology.step_height`` fits it,
+    instead of ``u * pitch``. ``lateral_px`` > 0: the maps carry the lateral term
+    (:func:`add_lateral` with that ``dx``), which is taken out of each pixel's u before the split
+    (on a top it is the slope of the coating's phase-fixed pattern, which :func:`coating_term`
+    holds; left in, the split would count it as frame noise).
     """
     from huefringe import metrology
 
@@ -905,6 +1025,9 @@ def step_budget(
         u = np.asarray(uncertainties[f])
         if z.shape != shape or u.shape != shape:
             raise ValueError(f"frame {f}: height {z.shape} and uncertainty {u.shape} maps, the model {shape}")
+        if lateral_px > 0:  # the lateral term out (computed with the combined u: a little less than was added)
+            lat = lateral_term(z, u, lateral_px=lateral_px).astype(np.float64)
+            u = np.sqrt(np.maximum(np.asarray(u, np.float64) ** 2 - lat**2, 0.0)).astype(np.float32)
         valid = np.isfinite(z) & np.isfinite(u)
         if supports is None:
             ncount = _neighbour_counts(valid, denoise_radius)
@@ -912,7 +1035,9 @@ def step_budget(
             ncount = np.maximum(np.asarray(supports[f], np.float64), 1.0)
             if ncount.shape != shape:
                 raise ValueError(f"support map {f} has shape {ncount.shape}, the heights {shape}")
-        return _frame_step_terms(z, u, valid, ncount, base_boxes, step_boxes, pitch_mm, a, b, budget)
+        tops = [z[bx[1]:bx[3], bx[0]:bx[2]].copy() for bx in step_boxes]  # for the coating term
+        xy = None if camera is None or getattr(camera, "plain", True) else camera.xy(z)
+        return _frame_step_terms(z, u, valid, ncount, base_boxes, step_boxes, pitch_mm, a, b, budget, xy), tops
 
     if workers > 1 and len(heights) > 1:  # the compiled passes and NumPy's array work release the GIL
         from concurrent.futures import ThreadPoolExecutor
@@ -921,6 +1046,8 @@ def step_budget(
             per_frame = list(pool.map(frame, range(len(heights))))
     else:
         per_frame = [frame(f) for f in range(len(heights))]
+    coating = [coating_term([tops[k] for _, tops in per_frame]) for k in range(len(steps))]
+    per_frame = [terms for terms, _ in per_frame]
     for terms_of_frame in per_frame:
         for k, terms in enumerate(terms_of_frame):
             for key, val in terms.items():
@@ -933,7 +1060,8 @@ def step_budget(
         ind_frame = math.sqrt(mean_var["noise"])
         pix = math.sqrt(mean_var["table"] + mean_var["interpolation"])
         corr = math.sqrt(mean_var["reference"] + mean_var["model"])
-        u = math.sqrt(ind_frame**2 / nf + pix**2 + corr**2)
+        coat = coating[k]
+        u = math.sqrt(ind_frame**2 / nf + pix**2 + corr**2 + coat**2)
         out.append({
             "name": str(s["name"]),
             "u_mm": u,
@@ -943,6 +1071,7 @@ def step_budget(
             "independent_mm": ind_frame / math.sqrt(nf),
             "pixel_calibration_mm": pix,
             "correlated_mm": corr,
+            "coating_mm": coat,
             "base_plane_per_frame_mm": math.sqrt(float(np.mean(r["base_plane"]))),
             "effective_independent_pixels": float(np.mean(r["n_eff"])),
             "terms_mm": {t: math.sqrt(mean_var[t] / (nf if GROUPS[t] == "independent" else 1)) for t in TERMS},
