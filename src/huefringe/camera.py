@@ -475,6 +475,64 @@ _REMAPS: dict[Any, Any] = {}
 _INTERP = cv2.INTER_LANCZOS4
 
 
+# --------------------------------------------------------------------------- colour crosstalk
+
+DEMIX_AUTO_THRESHOLD = 0.01
+"""``camera.colour_demixing: auto`` demixes when the largest off-diagonal of the estimated
+crosstalk matrix (columns scaled to a unit diagonal) exceeds this: 1 % of a channel's light read
+by another channel (the bench's camera: 2-10 %; a camera without crosstalk reads 0.000-0.003)."""
+
+
+def _ramp_sectors(n_bands: int) -> dict[int, list[NDArray[np.int64]]]:
+    """The hue bands (indices) of the two trapezoid sectors in which each projector channel ramps
+    while the other two stay at 0 or 1 (:func:`huefringe.patterns.trapezoid_rgb`): G on s in
+    [0, 1] and [3, 4], R on [1, 2] and [4, 5], B on [2, 3] and [5, 6] (``s = 6 i / n``, ends included)."""
+    s = 6.0 * np.arange(n_bands) / n_bands
+    s_wrapped = np.where(s < 1e-9, 6.0, s)  # band 0 closes the B sector [5, 6]
+    out: dict[int, list[NDArray[np.int64]]] = {}
+    for k, starts in ((1, (0, 3)), (0, (1, 4)), (2, (2, 5))):
+        out[k] = []
+        for a in starts:
+            ss = s_wrapped if a == 5 else s
+            out[k].append(np.flatnonzero((ss >= a - 1e-9) & (ss <= a + 1 + 1e-9)))
+    return out
+
+
+def estimate_crosstalk(band_colours: ArrayLike) -> dict[str, Any]:
+    """The camera's colour crosstalk from the reference plate's hue bands.
+
+    Within a sector of the trapezoid one projector channel ``k`` ramps while the other two are
+    constant, so the camera colours of that sector's bands lie on a line whose direction is column
+    ``k`` of the crosstalk matrix ``M`` (camera channel from projector channel), whatever the
+    projector gamma (it only moves the points along the line), the plate's colour or the
+    illumination (they scale the column). Each column is the principal direction of the centred
+    colours of the channel's two ramp sectors, scaled to ``M[k, k] = 1``.
+
+    Parameters
+    ----------
+    band_colours : array_like, shape (n_bands, 3)
+        Mean camera colour (float) of each hue band over the reference plate's lit pixels.
+
+    Returns
+    -------
+    dict
+        ``matrix`` (3 x 3, rows camera R, G, B; columns projector R, G, B), ``max_offdiagonal`` and
+        ``line_residual`` (rms distance of the bands from their lines over the rms spread along them).
+    """
+    c = np.asarray(band_colours, np.float64)
+    n = c.shape[0]
+    m = np.eye(3)
+    resid = []
+    for k, groups in _ramp_sectors(n).items():
+        centred = np.concatenate([c[g] - c[g].mean(axis=0) for g in groups if g.size >= 2])
+        _, sv, vt = np.linalg.svd(centred, full_matrices=False)
+        d = vt[0] / vt[0][k]
+        m[:, k] = d
+        resid.append(float(np.sqrt(np.sum(sv[1:] ** 2)) / max(sv[0], 1e-12)))
+    off = np.abs(m - np.diag(np.diag(m)))
+    return {"matrix": m.tolist(), "max_offdiagonal": float(off.max()), "line_residual": float(max(resid))}
+
+
 class CaptureReader:
     """Reads a session's captures as the per-frame chains see them: through the camera corrections.
 
@@ -482,42 +540,84 @@ class CaptureReader:
     registered when a :class:`ChannelRegistration` is set); ``rgb(path)`` the same scaled to
     float32 [0, 1] exactly as :func:`huefringe.session.read_rgb` scales it. Without corrections
     both are the session reader's own functions (byte-identical outputs for plain sessions).
+
+    With a ``demix`` matrix (the inverse of the camera's colour crosstalk, :func:`estimate_crosstalk`)
+    ``rgb`` returns ``demix @ rgb`` per pixel: each channel then holds the light of its own
+    projector channel only, so that white balance cancels the surface colour (paper eqs. 7-8) on
+    coloured coatings as on the plate. A pixel with a channel at full scale keeps its clipped
+    values (the chains' clipping test still sees it). ``demixed`` tells the chains to read ``rgb``.
     """
 
-    def __init__(self, registration: ChannelRegistration | None = None):
+    def __init__(self, registration: ChannelRegistration | None = None, demix: ArrayLike | None = None):
         self.registration = registration
+        self.demix = None if demix is None else np.asarray(demix, np.float32).reshape(3, 3)
+
+    @property
+    def demixed(self) -> bool:
+        """Whether :meth:`rgb` demixes the channels (the sensor codes then are not what the chains read)."""
+        return self.demix is not None
 
     def codes(self, path: Any) -> NDArray:
         data = read_rgb_codes(path)
         return data if self.registration is None else self.registration.apply(data)
 
     def rgb(self, path: Any) -> NDArray[np.float32]:
-        if self.registration is None:
+        if self.registration is None and self.demix is None:
             return read_rgb(path)
         data = self.codes(path)
-        scale = 255.0 if data.dtype == np.uint8 else 65535.0
-        return data.astype(np.float32) * np.float32(1.0 / scale)
+        top = 255 if data.dtype == np.uint8 else 65535
+        out = data.astype(np.float32) * np.float32(1.0 / top)
+        if self.demix is None:
+            return out
+        mixed = cv2.transform(np.ascontiguousarray(out), self.demix)
+        clipped = (data >= top).any(axis=-1)
+        return np.where(clipped[..., None], out, mixed).astype(np.float32)
+
+
+def demixing_record(setting: Any, band_colours: ArrayLike | None) -> dict[str, Any]:
+    """The ``colour_demixing`` entry of ``calib/camera.json`` (``camera.colour_demixing``).
+
+    ``auto`` applies the inverse of :func:`estimate_crosstalk`'s matrix when its largest
+    off-diagonal exceeds :data:`DEMIX_AUTO_THRESHOLD`; ``true`` always; ``false`` never (not
+    estimated; also when no band colours are given).
+    """
+    rec: dict[str, Any] = {"setting": setting, "applied": False}
+    if setting is False or setting == "false" or band_colours is None:
+        return rec
+    est = estimate_crosstalk(band_colours)
+    forced = setting is True or setting == "true"
+    applied = forced or est["max_offdiagonal"] > DEMIX_AUTO_THRESHOLD
+    rec.update(applied=bool(applied), threshold=DEMIX_AUTO_THRESHOLD, estimate=est)
+    if applied:
+        rec["demix"] = np.linalg.inv(np.asarray(est["matrix"], np.float64)).tolist()
+    return rec
 
 
 def camera_record(meta: Mapping[str, Any], settings: Mapping[str, Any], planes: Sequence[NDArray[np.floating]],
-                  white: NDArray[np.floating], shadow: NDArray[np.bool_] | None = None) -> dict[str, Any]:
-    """The results' ``calib/camera.json``: the lens model used for X, Y and the channel registration.
+                  white: NDArray[np.floating], shadow: NDArray[np.bool_] | None = None,
+                  band_colours: ArrayLike | None = None) -> dict[str, Any]:
+    """The results' ``calib/camera.json``: the lens model used for X, Y, the channel registration
+    and the colour demixing.
 
     Parameters
     ----------
     meta : mapping
         The session's checked ``session.yaml``.
     settings : mapping
-        The config block ``camera`` (``lens_model``, ``chromatic_registration``).
+        The config block ``camera`` (``lens_model``, ``chromatic_registration``, ``colour_demixing``).
     planes, white
         The reference planes' captures and the reference white (float [0, 1]) for the estimate.
+    band_colours : array_like (n_bands, 3), optional
+        Mean colour of each reference hue band over the plate's lit pixels (:func:`estimate_crosstalk`);
+        without it no demixing.
     """
     lens = bool(settings.get("lens_model", True))
     mode = settings.get("chromatic_registration", "auto")
     model = CameraModel.from_meta(meta, lens_model=True)
     used = model if lens else CameraModel.from_meta(meta, lens_model=False)
     rec: dict[str, Any] = {"lens_model": lens, "xy_model": used.describe(),
-                           "chromatic_registration": {"setting": mode, "applied": False}}
+                           "chromatic_registration": {"setting": mode, "applied": False},
+                           "colour_demixing": demixing_record(settings.get("colour_demixing", False), band_colours)}
     if mode is False or mode == "false":
         return rec
     est = estimate_lateral_ca(planes, white, float(meta["pattern"]["period_px"]), model.centre, shadow=shadow)
@@ -540,9 +640,11 @@ def corrections(record: Mapping[str, Any] | None, meta: Mapping[str, Any]) -> tu
     if record is None:
         return CameraModel.from_meta(meta), CaptureReader()
     model = CameraModel.from_meta(meta, lens_model=bool(record.get("lens_model", True)))
+    mix = record.get("colour_demixing") or {}
+    demix = mix.get("demix") if mix.get("applied") else None
     reg = record.get("chromatic_registration") or {}
     if not reg.get("applied"):
-        return model, CaptureReader()
+        return model, CaptureReader(demix=demix)
     est = reg["estimate"]
     return model, CaptureReader(ChannelRegistration(tuple(est["centre"]), float(est["scale"]["R"]),
-                                                    float(est["scale"]["B"])))
+                                                    float(est["scale"]["B"])), demix=demix)

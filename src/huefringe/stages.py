@@ -74,7 +74,23 @@ def session_camera_record(s: Session, camera: Mapping[str, Any], calibration: Ma
     white = read_rgb(s.reference_white)
     mode = camera.get("chromatic_registration", "auto")
     planes = [] if mode is False or mode == "false" else [read_rgb(p) for p in s.planes.values()]
-    return camera_record(s.meta, camera, planes, white, shadow=shadow_mask(white, calibration["shadow_fraction"]))
+    shadow = shadow_mask(white, calibration["shadow_fraction"])
+    demix = camera.get("colour_demixing", False)
+    bands = None
+    if not (demix is False or demix == "false"):  # the crosstalk estimate: each band's mean colour on the lit plate
+        bands = band_colours(s.reference_bands, ~shadow)
+    return camera_record(s.meta, camera, planes, white, shadow=shadow, band_colours=bands)
+
+
+def band_colours(bands: Sequence[Sequence[Path]], lit: NDArray[np.bool_]) -> NDArray[np.float64]:
+    """Mean colour (float, [0, 1]) of each hue band over the ``lit`` pixels, averaged over its repeats;
+    pixels with a channel at full scale in any band are left out."""
+    imgs = [[read_rgb(p) for p in reps] for reps in bands]
+    keep = lit.copy()
+    for reps in imgs:
+        for im in reps:
+            keep &= ~(im >= 1.0).any(axis=-1)
+    return np.array([np.mean([im[keep].mean(axis=0) for im in reps], axis=0) for reps in imgs])
 
 
 def session_corrections(s: Session, camera_json: str | Path | None = "") -> tuple[CameraModel, CaptureReader]:
@@ -437,6 +453,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         if blur2 > 0:
             raw = reader.rgb(path)
             rgb = texture.correct(raw, white, blur2, clipped=clipped_mask(raw, s.bit_depth))
+        if rgb is None and reader.demixed:  # the demixed channels (camera.colour_demixing), to both chains
+            rgb = reader.rgb(path)
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
             m = kernel.frame_maps(prep, reader.codes(path) if rgb is None else rgb, denoise_radius=measurement["denoise_radius"],
                                   denoise_adaptive=measurement.get("denoise_adaptive"),
