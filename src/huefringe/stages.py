@@ -263,7 +263,7 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     cal.stats["phase_error"] = None if lut is None else lut.stats
     blur = calibration.get("texture_blur_px2", 0.0)
     if blur == "auto":  # the camera's blur from the session's own object frames (needs the object table)
-        info = (session_texture_blur(s, object_table, cal, hue_model, calibration) if object_table is not None
+        info = (session_texture_blur(s, object_table, cal, hue_model, calibration, reader=reader) if object_table is not None
                 else {"sigma2_px2": 0.0, "source": "auto, no object table given: off"})
     else:
         info = {"sigma2_px2": float(blur or 0.0), "source": "calibration.texture_blur_px2"}
@@ -281,7 +281,7 @@ TEXTURE_BLUR_FRAMES = 4
 
 
 def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str,
-                         calibration: Mapping[str, Any]) -> dict[str, Any]:
+                         calibration: Mapping[str, Any], reader: CaptureReader | None = None) -> dict[str, Any]:
     """The camera's blur variance (px^2) for the texture-edge correction, from the session's first
     object frames (up to :data:`TEXTURE_BLUR_FRAMES`, two at least): each frame's raw phase
     difference (the kernel, no phase filter) as captured and after :func:`huefringe.texture.correct`
@@ -295,13 +295,14 @@ def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_mod
     if len(frames) < 2:
         return {"sigma2_px2": 0.0, "samples": 0, "pairs": 0, "frames": list(frames),
                 "source": "auto: one frame, no estimate (off)"}
-    white = read_rgb(s.object_white)
+    reader = reader or CaptureReader()  # the captures as the chains read them (camera corrections)
+    white = reader.rgb(s.object_white)
     prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=calibration["min_saturation"],
                           shadow=shadow_mask(white, calibration["shadow_fraction"]), bit_depth=s.bit_depth,
                           predistortion=s.predistortion)
     plain, unit = [], []
     for n in frames:
-        rgb = read_rgb(s.frames[n])
+        rgb = reader.rgb(s.frames[n])
         for sigma2, out in ((0.0, plain), (1.0, unit)):
             m = kernel.frame_maps(prep, texture.correct(rgb, white, sigma2), denoise_radius=0, want_dphi=True)
             out.append(np.where(m.valid, m.dphi, np.nan))
