@@ -737,6 +737,14 @@ def _spline_rows(n: int, scale: float, centre: float) -> scipy.sparse.csr_matrix
 # is 1.5e-3 of the amplitude (cubic spline) against 8.4e-3 (cv2 Lanczos).
 
 
+# --------------------------------------------------------------------------- colour crosstalk
+
+DEMIX_AUTO_THRESHOLD = 0.01
+"""``camera.colour_demixing: auto`` demixes when the largest off-diagonal of the estimated
+crosstalk matrix (columns scaled to a unit diagonal) exceeds this: 1 % of a channel's light read
+by another channel (the bench's camera: 2-10 %; a camera without crosstalk reads 0.000-0.003)."""
+
+
 class CaptureReader:
     """Reads a session's captures as the per-frame chains see them: through the camera corrections.
 
@@ -745,11 +753,24 @@ class CaptureReader:
     :class:`ChannelRegistration` is set); ``rgb(path)`` the same scaled to
     float32 [0, 1] exactly as :func:`huefringe.session.read_rgb` scales it. Without corrections
     both are the session reader's own functions (byte-identical outputs for plain sessions).
+
+    With a ``demix`` matrix (the inverse of the camera's colour crosstalk, :func:`estimate_channel_mixing`)
+    ``rgb`` returns ``demix @ rgb`` per pixel: each channel then holds the light of its own
+    projector channel only, so that white balance cancels the surface colour (paper eqs. 7-8) on
+    coloured coatings as on the plate. A pixel with a channel at full scale keeps its clipped
+    values (the chains' clipping test still sees it). ``demixed`` tells the chains to read ``rgb``.
     """
 
-    def __init__(self, registration: ChannelRegistration | None = None, bayer: BayerResampling | None = None):
+    def __init__(self, registration: ChannelRegistration | None = None, bayer: BayerResampling | None = None,
+                 demix: ArrayLike | None = None):
         self.registration = registration
         self.bayer = bayer
+        self.demix = None if demix is None else np.asarray(demix, np.float32).reshape(3, 3)
+
+    @property
+    def demixed(self) -> bool:
+        """Whether :meth:`rgb` demixes the channels (the sensor codes then are not what the chains read)."""
+        return self.demix is not None
 
     def codes(self, path: Any) -> NDArray:
         data = read_rgb_codes(path)
@@ -758,32 +779,62 @@ class CaptureReader:
         return data if self.registration is None else self.registration.apply(data)
 
     def rgb(self, path: Any) -> NDArray[np.float32]:
-        if self.registration is None and self.bayer is None:
+        if self.registration is None and self.bayer is None and self.demix is None:
             return read_rgb(path)
         data = self.codes(path)
-        scale = 255.0 if data.dtype == np.uint8 else 65535.0
-        return data.astype(np.float32) * np.float32(1.0 / scale)
+        top = 255 if data.dtype == np.uint8 else 65535
+        out = data.astype(np.float32) * np.float32(1.0 / top)
+        if self.demix is None:
+            return out
+        mixed = cv2.transform(np.ascontiguousarray(out), self.demix)
+        clipped = (data >= top).any(axis=-1)
+        return np.where(clipped[..., None], out, mixed).astype(np.float32)
+
+
+def demixing_record(setting: Any, mixing: Mapping[str, Any] | None) -> dict[str, Any]:
+    """The ``colour_demixing`` entry of ``calib/camera.json`` (``camera.colour_demixing``).
+
+    ``mixing`` is :func:`estimate_channel_mixing`'s record (the camera's response to each projector
+    primary, columns scaled to a unit diagonal). ``auto`` applies its inverse when the largest
+    off-diagonal exceeds :data:`DEMIX_AUTO_THRESHOLD`; ``true`` always (when estimable); ``false``
+    never (also when no mixing was estimated).
+    """
+    rec: dict[str, Any] = {"setting": setting, "applied": False}
+    if setting is False or setting == "false" or mixing is None:
+        return rec
+    m = np.asarray(mixing["matrix"], np.float64)
+    off = float(np.abs(m - np.diag(np.diag(m))).max())
+    est = {"matrix": m.tolist(), "max_offdiagonal": off, "estimable": bool(mixing.get("estimable"))}
+    if not mixing.get("estimable"):
+        est["why"] = mixing.get("why")
+    forced = setting is True or setting == "true"
+    applied = bool(mixing.get("estimable")) and (forced or off > DEMIX_AUTO_THRESHOLD)
+    rec.update(applied=applied, threshold=DEMIX_AUTO_THRESHOLD, estimate=est)
+    if applied:
+        rec["demix"] = np.linalg.inv(m).tolist()
+    return rec
 
 
 def camera_record(meta: Mapping[str, Any], settings: Mapping[str, Any], planes: Sequence[NDArray[np.floating]],
                   white: NDArray[np.floating], shadow: NDArray[np.bool_] | None = None,
                   bands: Mapping[int, NDArray[np.floating]] | None = None) -> dict[str, Any]:
-    """The results' ``calib/camera.json``: the lens model used for X, Y and the channel registration.
+    """The results' ``calib/camera.json``: the lens model used for X, Y, the re-demosaic, the
+    channel registration and the colour demixing.
 
     Parameters
     ----------
     meta : mapping
         The session's checked ``session.yaml``.
     settings : mapping
-        The config block ``camera`` (``lens_model``, ``chromatic_registration``).
+        The config block ``camera`` (``lens_model``, ``chromatic_registration``, ``colour_demixing``).
     planes, white
         The reference planes' captures and the reference white (float [0, 1]) for the estimate
         (read through the record's re-demosaic, :func:`demosaic_record`).
     bands : mapping of band index to image, optional
         The reference hue bands :func:`mixing_band_pairs` names (float [0, 1], repeats averaged,
-        read as the planes are): the channel mixing (:func:`estimate_channel_mixing`) in which the
-        magnification is estimated and undone. Without them the camera channels themselves are
-        registered.
+        read as the planes are): the camera's channel mixing (:func:`estimate_channel_mixing`), in
+        which the magnification is estimated and undone and whose inverse demixes every capture
+        (:func:`demixing_record`). Without them neither.
     """
     lens = bool(settings.get("lens_model", True))
     mode = settings.get("chromatic_registration", "auto")
@@ -792,10 +843,11 @@ def camera_record(meta: Mapping[str, Any], settings: Mapping[str, Any], planes: 
     rec: dict[str, Any] = {"lens_model": lens, "xy_model": used.describe(),
                            "chromatic_registration": {"setting": mode, "applied": False}}
     rec["demosaic"] = demosaic_record(meta, settings)
-    if mode is False or mode == "false":
-        return rec
     mixing = (estimate_channel_mixing(bands, int(meta["pattern"]["hue_bands"]), shadow=shadow) if bands
               else {"matrix": np.eye(3).tolist(), "estimable": False, "why": "no hue bands given"})
+    rec["colour_demixing"] = demixing_record(settings.get("colour_demixing", False), mixing if bands else None)
+    if mode is False or mode == "false":
+        return rec
     est = estimate_lateral_ca(planes, white, float(meta["pattern"]["period_px"]), model.centre, shadow=shadow,
                               mixing=mixing["matrix"] if mixing["estimable"] else None)
     est["mixing"] = mixing
@@ -820,14 +872,16 @@ def corrections(record: Mapping[str, Any] | None, meta: Mapping[str, Any]) -> tu
     model = CameraModel.from_meta(meta, lens_model=bool(record.get("lens_model", True)))
     dem = record.get("demosaic") or {}
     bayer = BayerResampling(dem["pattern"], dem["method"]) if dem.get("applied") else None
+    mix = record.get("colour_demixing") or {}
+    demix = mix.get("demix") if mix.get("applied") else None
     reg = record.get("chromatic_registration") or {}
     if not reg.get("applied"):
-        return model, CaptureReader(bayer=bayer)
+        return model, CaptureReader(bayer=bayer, demix=demix)
     est = reg["estimate"]
     mix = est.get("mixing") or {}  # records before the mixing estimate: the camera channels registered
     mixing = tuple(tuple(float(x) for x in row) for row in mix["matrix"]) if mix.get("estimable") else None
     return model, CaptureReader(ChannelRegistration(tuple(est["centre"]), float(est["scale"]["R"]),
-                                                    float(est["scale"]["B"]), mixing), bayer=bayer)
+                                                    float(est["scale"]["B"]), mixing), bayer=bayer, demix=demix)
 
 
 def demosaic_record(meta: Mapping[str, Any], settings: Mapping[str, Any]) -> dict[str, Any]:

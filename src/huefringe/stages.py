@@ -75,8 +75,10 @@ def session_camera_record(s: Session, camera: Mapping[str, Any], calibration: Ma
     white = read(s.reference_white)
     mode = camera.get("chromatic_registration", "auto")
     planes = [] if mode is False or mode == "false" else [read(p) for p in s.planes.values()]
+    demix = camera.get("colour_demixing", False)
     bands: dict[int, NDArray[np.floating]] = {}
-    if planes:  # the hue bands the channel-mixing estimate reads (repeats averaged)
+    if planes or not (demix is False or demix == "false"):
+        # the hue bands the channel-mixing estimate reads (repeats averaged): the registration's and the demixing's
         for _, first, last, _ in mixing_band_pairs(s.hue_bands):
             for i in (first, last):
                 if i not in bands:
@@ -488,6 +490,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         if blur2 > 0:
             raw = reader.rgb(path)
             rgb = texture.correct(raw, white, blur2, clipped=clipped_mask(raw, s.bit_depth))
+        if rgb is None and reader.demixed:  # the demixed channels (camera.colour_demixing), to both chains
+            rgb = reader.rgb(path)
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
             m = kernel.frame_maps(prep, reader.codes(path) if rgb is None else rgb, denoise_radius=measurement["denoise_radius"],
                                   denoise_adaptive=adaptive,
