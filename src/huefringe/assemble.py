@@ -31,7 +31,7 @@ import yaml
 from numpy.typing import NDArray
 
 from huefringe.camera import BAYER_PATTERNS, bayer_problem, demosaic
-from huefringe.io import atomic_path
+from huefringe.io import atomic_path, publish_dir
 from huefringe.session import Problem, SessionError, decode_image, load_session, read_predistortion
 
 CAPTURE_SUFFIXES = (".png", ".tif", ".tiff")
@@ -380,10 +380,7 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
         except SessionError as exc:  # name the files as they would be in OUT, not in the temp folder
             raise SessionError([Problem(out / p.path.relative_to(tmp) if p.path.is_relative_to(tmp) else p.path,
                                         f"{p.message} (nothing written)") for p in exc.problems]) from exc
-        os.chmod(tmp, 0o777 & ~_umask())
-        if out.exists():
-            out.rmdir()
-        os.replace(tmp, out)
+        publish_dir(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
@@ -395,7 +392,3 @@ def _describe(a: NDArray) -> str:
     return f"{a.shape[1]} x {a.shape[0]} px, {chans} channel(s), {a.dtype.itemsize * 8}-bit"
 
 
-def _umask() -> int:
-    mask = os.umask(0)
-    os.umask(mask)
-    return mask

@@ -47,6 +47,20 @@ def atomic_path(target: str | os.PathLike[str]) -> Iterator[Path]:
         raise
 
 
+def publish_dir(tmp: str | os.PathLike[str], out: str | os.PathLike[str]) -> Path:
+    """Rename a finished temporary folder ``tmp`` onto ``out`` (absent or an empty folder), with
+    the permissions of a folder made under the current umask (``mkdtemp`` makes 0700). POSIX
+    rename: a reader sees either nothing or the whole folder."""
+    mask = os.umask(0)
+    os.umask(mask)
+    os.chmod(tmp, 0o777 & ~mask)
+    out = Path(out)
+    if out.exists():
+        out.rmdir()
+    os.replace(tmp, out)
+    return out
+
+
 def remove_stale_parts(target: str | os.PathLike[str]) -> list[Path]:
     """Delete temporary files that a killed writer of ``target`` left beside it.
 

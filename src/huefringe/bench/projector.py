@@ -37,16 +37,15 @@ import cv2
 import numpy as np
 import yaml
 from numpy.typing import NDArray
-from tqdm.auto import tqdm
 
-from huefringe.io import write_png_rgb
+from huefringe.io import publish_dir, write_png_rgb
 from huefringe.projection import read_manifest
 
 from .config import validate_bench_config
 from .geometry import projector_ray_x0
 from .radiometry import Pattern
 from .simulator import Bench, noise_rng
-from .writer import _run_threaded
+from .writer import run_jobs
 
 __all__ = ["ProjectionError", "capture_patterns", "image_placement"]
 
@@ -249,22 +248,8 @@ def capture_patterns(config: dict[str, Any], patterns_dir: str | os.PathLike[str
                 write_png_rgb(target, make(noise_rng(seed, rel)))
 
             jobs.append((target.name, run))
-        bench.object_surface(None, fine=False)  # warm the caches before the threads share them
-        n_workers = max(1, int(workers if workers is not None else min(2, os.cpu_count() or 1)))
-        bar = tqdm(total=len(jobs), desc=f"bench capture {pat.name}", unit="file", disable=not progress)
-        if n_workers == 1:
-            with bar:
-                for _, run in jobs:
-                    run()
-                    bar.update(1)
-        else:
-            _run_threaded(jobs, n_workers, bar)
-        mask = os.umask(0)
-        os.umask(mask)
-        os.chmod(tmp, 0o777 & ~mask)
-        if out.exists():
-            out.rmdir()
-        os.replace(tmp, out)
+        run_jobs(bench, jobs, workers, f"bench capture {pat.name}", progress)
+        publish_dir(tmp, out)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

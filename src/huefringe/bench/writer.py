@@ -436,16 +436,7 @@ def write_session(
         bench = Bench(cfg)
         doc = session_document(cfg, bench)  # fails early on an impossible specimen layout
         jobs = _jobs(cfg, bench, tmp)
-        bench.object_surface(None, fine=False)  # warm the caches before the threads share them
-        n_workers = max(1, int(workers if workers is not None else min(2, os.cpu_count() or 1)))
-        bar = tqdm(total=len(jobs), desc=f"bench {cfg['session']['id']}", unit="file", disable=not progress)
-        if n_workers == 1:
-            with bar:
-                for _, run in jobs:
-                    run()
-                    bar.update(1)
-        else:
-            _run_threaded(jobs, n_workers, bar)
+        run_jobs(bench, jobs, workers, f"bench {cfg['session']['id']}", progress)
         with atomic_path(tmp / "session.yaml") as p:
             p.write_text(dump_session_yaml(doc), encoding="utf-8")
         _swap_into_place(tmp, out_dir)
@@ -453,6 +444,21 @@ def write_session(
         shutil.rmtree(tmp, ignore_errors=True)
         raise
     return out_dir
+
+
+def run_jobs(bench: Bench, jobs: list[Job], workers: int | None, desc: str, progress: bool) -> None:
+    """Run the capture jobs with a progress bar: serially with one worker, else on threads
+    (default ``min(2, cpus)``), after warming the bench's caches that the threads share."""
+    bench.object_surface(None, fine=False)  # warm the caches before the threads share them
+    n_workers = max(1, int(workers if workers is not None else min(2, os.cpu_count() or 1)))
+    bar = tqdm(total=len(jobs), desc=desc, unit="file", disable=not progress)
+    if n_workers == 1:
+        with bar:
+            for _, run in jobs:
+                run()
+                bar.update(1)
+    else:
+        _run_threaded(jobs, n_workers, bar)
 
 
 def _run_threaded(jobs: list[Job], n_workers: int, bar: Any) -> None:
