@@ -19,7 +19,6 @@ from pathlib import Path
 
 import numpy as np
 import tifffile
-import yaml
 from scipy import ndimage
 
 from huefringe import bench, metrology, stages, uncertainty

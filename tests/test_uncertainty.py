@@ -7,7 +7,6 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-import yaml
 
 from huefringe import bench, stages, uncertainty
 from huefringe.settings import load_config

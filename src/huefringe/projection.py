@@ -42,7 +42,7 @@ from .compensation import emitted_columns, plate_transfer, predistortion
 from .huetable import HueTable
 from .io import atomic_path, write_png_rgb
 from .patterns import TWO_PI, band_rgb, phase_shift_intensity, projector_image, quantise
-from .session import SessionError, read_predistortion
+from .session import SessionError, format_predistortion, read_predistortion
 
 #: The hue table of the reference plate that ``--compensated`` reads from a calibration folder.
 CALIB_TABLE = "table_reference.json"
@@ -203,12 +203,8 @@ def load_compensation(calib: str | os.PathLike[str], *, threshold_rad: float = 2
 
 def predistortion_csv(comp: Compensation) -> str:
     """``predistortion.csv`` text (huefringe extension of capture-session/1, docs/design.md)."""
-    lines = ["# huefringe predistortion/1: the trapezoidal planes and frames of this session were projected",
-             "# with code phase c emitting the trapezoid of phase p(c) (paper Fig. 6); uniform bands were not.",
-             f"# written by huefringe patterns --compensated from {comp.calib / CALIB_TABLE}",
-             "code_phase_rad,emitted_phase_rad"]
-    lines += [f"{c:.9f},{e:.9f}" for c, e in zip(comp.code, comp.emitted, strict=True)]
-    return "\n".join(lines) + "\n"
+    return format_predistortion(comp.code, comp.emitted,
+                                source=f"huefringe patterns --compensated from {comp.calib / CALIB_TABLE}")
 
 
 def _image(name: str, *, width: int, height: int, period: float, hue_bands: int, bit_depth: int,

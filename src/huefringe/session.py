@@ -179,6 +179,19 @@ class Predistortion:
         return np.where(np.isfinite(x), slopes[j], np.nan)
 
 
+def format_predistortion(code: np.ndarray, emitted: np.ndarray, *, source: str | None = None) -> str:
+    """The text of a ``predistortion.csv`` (:class:`Predistortion`, read by :func:`read_predistortion`):
+    the header comments, ``# written by ...`` when ``source`` is given, the column header and one
+    row per code phase, 9 decimals."""
+    lines = ["# huefringe predistortion/1: the trapezoidal planes and frames of this session were projected",
+             "# with code phase c emitting the trapezoid of phase p(c) (paper Fig. 6); uniform bands were not."]
+    if source is not None:
+        lines.append(f"# written by {source}")
+    lines.append("code_phase_rad,emitted_phase_rad")
+    lines += [f"{c:.9f},{e:.9f}" for c, e in zip(code, emitted, strict=True)]
+    return "\n".join(lines) + "\n"
+
+
 def read_predistortion(path: str | Path) -> Predistortion:
     """Read and check ``predistortion.csv``; raise :class:`SessionError` naming the file."""
     path = Path(path)

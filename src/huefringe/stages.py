@@ -31,7 +31,7 @@ from huefringe import phase_error, texture
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
-from huefringe.session import Session, load_session, read_rgb, read_rgb_codes
+from huefringe.session import Session, load_session
 from huefringe.uncertainty import LATERAL_PX, add_lateral, noise_correlation, pixel_budget
 
 log = logging.getLogger("huefringe")

@@ -23,6 +23,7 @@ from scipy.ndimage import binary_dilation
 from tqdm.auto import tqdm
 
 from huefringe.io import atomic_path, write_json, write_png_rgb, write_tiff
+from huefringe.session import format_predistortion
 
 from .config import sweep_config, validate_bench_config
 from .geometry import analytic_phase_difference, triangulation_angle_deg
@@ -307,14 +308,6 @@ def plate_predistortion(cfg: dict[str, Any], bench: Bench) -> tuple[NDArray[np.f
     return cs, cs + offset, history
 
 
-def _predistortion_csv(code: NDArray[np.float64], emitted: NDArray[np.float64]) -> str:
-    lines = ["# huefringe predistortion/1: the trapezoidal planes and frames of this session were projected",
-             "# with code phase c emitting the trapezoid of phase p(c) (paper Fig. 6); uniform bands were not.",
-             "code_phase_rad,emitted_phase_rad"]
-    lines += [f"{c:.9f},{e:.9f}" for c, e in zip(code, emitted, strict=True)]
-    return "\n".join(lines) + "\n"
-
-
 def _jobs(cfg: dict[str, Any], bench: Bench, root: Path) -> list[Job]:
     """Every file of the session (except session.yaml) as (relative name, writer) pairs."""
     s = cfg["session"]
@@ -333,7 +326,7 @@ def _jobs(cfg: dict[str, Any], bench: Bench, root: Path) -> list[Job]:
     if cfg["projector"]["compensation"]["enabled"]:
         code, emitted, _ = plate_predistortion(cfg, bench)
         trapezoid = Pattern.trapezoid(tuple(float(v) for v in emitted - code))
-        text = _predistortion_csv(code, emitted)
+        text = format_predistortion(code, emitted)
 
         def write_predistortion() -> None:
             with atomic_path(root / "predistortion.csv") as tmp:
