@@ -398,7 +398,8 @@ def main() -> None:
 def cameras(args: argparse.Namespace) -> None:
     """The camera cases: each with its own variants (``CAMERA_CASES``)."""
     names = [c for c in CAMERA_CASES if c in args.cases or args.cases == list(CASES)]
-    names = [c for c in names if not (args.tuning and CAMERA_CASES[c]["holdout"])]
+    names = [c for c in names if not (args.tuning and CAMERA_CASES[c]["holdout"])
+             and not (args.holdout and not CAMERA_CASES[c]["holdout"])]
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
