@@ -317,8 +317,12 @@ def measure(session: Path, tables: Path, out: Path, config: dict) -> dict:
     model, cal = config["hue_model"], config["calibration"]
     cam = str(out / "camera.json")
     stages.camera_calibration(str(session), config["camera"], cal, record=cam)
-    # the tables depend on the channel registration: one set per registration setting
-    tables = tables / f"registration-{config['camera']['chromatic_registration']}"
+    # the tables depend on the camera corrections applied to every capture (channel registration,
+    # colour demixing): one set per setting of each (the default's folder keeps its old name)
+    cam_cfg = config["camera"]
+    tables = tables / f"registration-{cam_cfg['chromatic_registration']}"
+    if cam_cfg.get("colour_demixing", "auto") != "auto":
+        tables = tables.with_name(f"{tables.name}-demixing-{cam_cfg['colour_demixing']}")
     tables.mkdir(parents=True, exist_ok=True)
     for which in ("reference", "object"):
         if not (tables / f"table_{which}.json").exists():
