@@ -55,9 +55,10 @@ def test_patterns_manifest_drives_the_assembler_to_the_bench_session(tmp_path: P
 # the image files, ``huefringe bench CONFIG CAMERA --patterns DIR`` shows each file in manifest order
 # and saves IMG_0001.png ..., ``huefringe session`` assembles them. Gauge blocks (four steps) at
 # 160 x 120 px, 0.5 mm pitch (the preset's 80 x 60 mm field), 16 bands, 1024 x 768 projector.
-#: Measured with the defaults. On these untextured blocks the texture-blur estimate is a ratio of two
-#: near-zero sums (it once read 0.0 and 42.8 px^2 on two 640 x 480 sessions 1 DN apart); its
-#: significance test must refuse it on both routes, or the routes would not compare.
+#: Measured with the defaults. On these untextured blocks the phase's texture-blur estimate is a ratio of
+#: two near-zero sums (it once read 0.0 and 42.8 px^2 on two 640 x 480 sessions 1 DN apart); its
+#: significance test must refuse it on both routes, or the routes would not compare; the white image's
+#: edges then give the blur on each route alike.
 MEASURE = None
 GAUGE = {"width": 160, "height": 120, "pixel_pitch_mm": 0.5, "period_px": 24, "hue_bands": 16, "repeats": 2,
          "frames": 2, "id": "rig-files"}
@@ -124,9 +125,16 @@ def test_bench_fed_the_projector_files_measures_as_the_bench_session(gauge_chain
     med_d, p95_d, cov_d = _errors(g["m_direct"].heights, g["truth"])  # type: ignore[attr-defined]
     med_f, p95_f, cov_f = _errors(g["m_plain"].heights, g["truth"])  # type: ignore[attr-defined]
     assert med_d < 0.03  # the direct session measures as bench sessions do
-    for m in (g["m_direct"], g["m_plain"], g["m_comp"]):  # untextured: the blur estimate is refused, not used
+    # untextured: the phase's blur estimate is refused on every route, and the blur is read from the
+    # white image's coating edges instead (texture.blur_from_white): the bench lens, 0.81 px^2
+    blurs = []
+    for m in (g["m_direct"], g["m_plain"], g["m_comp"]):
         rec = m.calibration.stats["texture_blur"]  # type: ignore[attr-defined]
-        assert rec["sigma2_px2"] == 0.0 and "rejected" in rec, rec
+        assert "rejected" in rec and "rejected" not in rec["white_edges"], rec
+        assert rec["sigma2_px2"] == rec["white_edges"]["sigma2_px2"], rec
+        blurs.append(rec["sigma2_px2"])
+    assert 0.81 * 0.85 <= min(blurs) and max(blurs) <= 0.81 * 1.15, blurs  # measured 0.838 (direct)
+    assert max(blurs) - min(blurs) < 0.05, blurs
     assert abs(med_f - med_d) <= max(0.1 * med_d, 0.002)  # measured: 0.0169 vs 0.0168 mm, p95 0.142 vs 0.140
     assert abs(p95_f - p95_d) <= max(0.1 * p95_d, 0.002)
     assert abs(cov_f - cov_d) < 0.02

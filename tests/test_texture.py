@@ -120,3 +120,58 @@ def test_blur_from_phases_refuses_an_implausible_blur() -> None:
     plain, unit = _phases(20.0, texture_rad=0.02, noise_rad=0.01)
     est = texture.blur_from_phases(plain, unit)
     assert est["sigma2_px2"] == 0.0 and "exceeds" in est["rejected"] and est["raw_px2"] > 15, est
+
+
+def _gauge_white(sig: float, supersample: int = 1, noise: float = 0.0, seed: int = 0) -> np.ndarray:
+    """A 320 x 240 white image of four coloured blocks on a grey base (the bench gauge's coatings),
+    blurred by a Gaussian lens of ``sig`` px; ``supersample`` > 1 puts the edges inside pixels (box
+    integration over that many sub-pixels per axis)."""
+    from scipy import ndimage
+
+    n = supersample
+    r = np.full((240 * n, 320 * n, 3), 0.55)
+    coats = ([0.12, 0.65, 0.18], [0.08, 0.12, 0.32], [0.72, 0.13, 0.11], [0.17, 0.15, 0.14])
+    for x0, c in zip((33, 105, 177, 249), coats, strict=True):
+        r[int(57.3 * n):int(185.1 * n), int((x0 + 0.4) * n):int((x0 + 48.3) * n)] = c
+    r = r.reshape(240, n, 320, n, 3).mean(axis=(1, 3))
+    w = np.stack([ndimage.gaussian_filter(r[..., c], sig) for c in range(3)], -1)
+    return w + np.random.default_rng(seed).normal(0.0, noise, w.shape)
+
+
+@pytest.mark.parametrize(("sig", "supersample", "lo", "hi"), [
+    (0.6, 1, 0.33, 0.42),   # measured 0.393 (noise 0.004)
+    (0.9, 1, 0.76, 0.86),   # measured 0.817
+    (1.1, 1, 1.09, 1.27),   # measured 1.153
+    (0.9, 4, 0.85, 1.05),   # edges inside pixels: + about 1/12 px^2 of pixel integration; measured 0.950
+])
+def test_blur_from_white_reads_the_lens_at_sharp_coating_edges(sig: float, supersample: int, lo: float, hi: float) -> None:
+    est = texture.blur_from_white(_gauge_white(sig, supersample, noise=0.004))
+    assert "rejected" not in est and est["edges"] > 1000, est
+    assert lo <= est["sigma2_px2"] <= hi, (sig**2, est)
+
+
+def test_blur_from_white_refuses_a_plate_without_edges() -> None:
+    flat = np.full((240, 320, 3), 0.5) + np.random.default_rng(1).normal(0.0, 0.004, (240, 320, 3))
+    est = texture.blur_from_white(flat)
+    assert est["sigma2_px2"] == 0.0 and est["edges"] < 50 and "sharp edges" in est["rejected"], est
+
+
+def test_blur_from_white_overreads_soft_texture() -> None:
+    # reflectance edges that are soft themselves widen the edges it sees: an upper bound there,
+    # which is why it is only the fallback of the phase estimate (documented in blur_from_white)
+    _, w, _ = _scene(0.9)
+    est = texture.blur_from_white(w)
+    assert est["sigma2_px2"] > 0.81 + 0.3, est  # the scene's own 0.7 px smoothing adds 0.49 px^2: measured 1.276
+
+
+def test_blur_from_white_refuses_edges_that_disagree() -> None:
+    # one lens blurs every sharp edge alike: half the edges at 0.6 px and half at 1.2 px is no lens
+    w = _gauge_white(0.6, noise=0.004)
+    w[:, 160:] = _gauge_white(1.2, noise=0.004)[:, 160:]
+    est = texture.blur_from_white(w)
+    assert est["sigma2_px2"] == 0.0 and "disagree" in est["rejected"], est
+    q25, _, q75 = est["quartiles_px2"]
+    assert q75 > 1.6 * q25 and q25 < 0.5, est
+    # an estimate wider than the window measures is refused (a blur of sigma 1.5 px reads about 1.9 px^2)
+    wide = texture.blur_from_white(_gauge_white(1.5, noise=0.004))
+    assert wide["sigma2_px2"] == 0.0 and "exceeds" in wide["rejected"], wide

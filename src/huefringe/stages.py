@@ -318,16 +318,29 @@ def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_mod
     with ``sigma^2 = 1``, through :func:`huefringe.texture.blur_from_phases`. With one frame the
     estimate is 0 (off): the instrumental variable needs two.
 
+    Where that estimate is refused (not significant or not plausible: a surface with little
+    texture, such as gauge blocks) or the session has one frame, the blur is read from the white
+    image's sharp edges instead (:func:`huefringe.texture.blur_from_white`); when that is refused
+    too (no sharp edges: a flat plate) the correction is off.
+
     Returns the record kept in ``calib/planes.json`` (``texture_blur``): ``sigma2_px2``,
-    ``raw_px2``, ``stderr_px2``, ``samples``, ``pairs``, ``frames``, ``source`` and, when the
-    estimate was not significant or not plausible (the correction is then off), ``rejected``.
+    ``raw_px2``, ``stderr_px2``, ``samples``, ``pairs``, ``frames``, ``source``, ``rejected`` when
+    the phase estimate was refused and then ``white_edges`` (the white-image estimate's record:
+    ``sigma2_px2``, ``edges``, ``quartiles_px2``, ``rejected`` when refused as well).
     """
     frames = s.frame_ids[:TEXTURE_BLUR_FRAMES]
-    if len(frames) < 2:
-        return {"sigma2_px2": 0.0, "samples": 0, "pairs": 0, "frames": list(frames),
-                "source": "auto: one frame, no estimate (off)"}
     read = (reader or CaptureReader()).rgb  # the frames as the chains read them (re-demosaic, registration)
     white = read(s.object_white)
+
+    def fallback(rec: dict[str, Any], why: str) -> dict[str, Any]:
+        edges = texture.blur_from_white(white)
+        rec = {**rec, "white_edges": edges, "sigma2_px2": float(edges["sigma2_px2"])}
+        rec["source"] = (f"auto: {why}; read from the white image's edges" if "rejected" not in edges
+                         else f"auto: {why}, and no white-image estimate (see white_edges): correction off")
+        return rec
+
+    if len(frames) < 2:
+        return fallback({"sigma2_px2": 0.0, "samples": 0, "pairs": 0, "frames": list(frames)}, "one frame, no phase estimate")
     prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=calibration["min_saturation"],
                           shadow=shadow_mask(white, calibration["shadow_fraction"]), bit_depth=s.bit_depth,
                           predistortion=s.predistortion)
@@ -337,10 +350,10 @@ def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_mod
         for sigma2, out in ((0.0, plain), (1.0, unit)):
             m = kernel.frame_maps(prep, texture.correct(rgb, white, sigma2), denoise_radius=0, want_dphi=True)
             out.append(np.where(m.valid, m.dphi, np.nan))
-    est = texture.blur_from_phases(plain, unit)
-    source = ("auto: estimated from the object frames" if "rejected" not in est
-              else "auto: estimate refused (see rejected), correction off")
-    return {**est, "frames": [int(n) for n in frames], "source": source}
+    est = {**texture.blur_from_phases(plain, unit), "frames": [int(n) for n in frames]}
+    if "rejected" in est:
+        return fallback(est, "phase estimate refused (see rejected)")
+    return {**est, "source": "auto: estimated from the object frames"}
 
 
 def compensation(session: str, table: str, model: str, hue_model: str, calibration: Mapping[str, Any],
