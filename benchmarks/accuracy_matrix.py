@@ -170,6 +170,8 @@ VARIANTS.update({
     # aberration, and X, Y from the session's lens model; "off" = not estimated / telecentric u * pitch
     "chromatic registration off": {"camera": {"chromatic_registration": False}},
     "lens model off": {"camera": {"lens_model": False}},
+    # the camera's colour crosstalk left in the captures (camera.colour_demixing, docs/accuracy.md, Session 9)
+    "colour demixing off": {"camera": {"colour_demixing": False}},
 })
 VARIANTS.update({
     # the texture-edge correction (huefringe.texture): the camera blur given, or none
