@@ -319,8 +319,11 @@ def measure(session: Path, tables: Path, out: Path, config: dict) -> dict:
     model, cal = config["hue_model"], config["calibration"]
     cam = str(out / "camera.json")
     stages.camera_calibration(str(session), config["camera"], cal, record=cam)
-    # the tables depend on the channel registration: one set per registration setting
-    tables = tables / f"registration-{config['camera']['chromatic_registration']}"
+    # the tables depend on the camera corrections they are read through (channel registration, colour
+    # demixing): one set per setting (tables of demixed bands decode raw frames 0.3-0.5 mm off at p95)
+    demix = config["camera"].get("colour_demixing", False)
+    tables = tables / (f"registration-{config['camera']['chromatic_registration']}"
+                       + ("" if demix is False or demix == "false" else f"-demixing-{demix}"))
     tables.mkdir(parents=True, exist_ok=True)
     for which in ("reference", "object"):
         if not (tables / f"table_{which}.json").exists():
