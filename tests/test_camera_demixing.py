@@ -85,6 +85,12 @@ def test_gate_refuses_bands_that_show_no_fixed_mixing() -> None:
     assert rec["estimate"]["max_segment_spread"] == spread
     forced = camera.demixing_record(True, drift)  # "true": the user's decision, applied anyway
     assert forced["applied"] and "not_applied_because" not in forced
+    # a camera that stores gamma-encoded values (output ** (1 / 2.2), as sRGB): no linear mixing to undo,
+    # the pooled estimate 0.05-0.06 off the crosstalk, the segments 0.19-0.20 apart (measured, 16-96 bands)
+    for n in (16, 96):
+        encoded = camera.estimate_channel_mixing({i: v ** (1 / 2.2) for i, v in _plate_bands(n, mix).items()}, n)
+        assert encoded["estimable"] and encoded["max_segment_spread"] > 0.15
+        assert not camera.demixing_record("auto", encoded)["applied"]
     # 11 bands: blue has one ramp segment only, nothing to check it against
     few = camera.estimate_channel_mixing(_plate_bands(11, mix), 11)
     assert few["estimable"] and few["max_segment_spread"] is None
