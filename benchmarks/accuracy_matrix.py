@@ -170,13 +170,13 @@ VARIANTS.update({
     # aberration, and X, Y from the session's lens model; "off" = not estimated / telecentric u * pitch
     "chromatic registration off": {"camera": {"chromatic_registration": False}},
     "lens model off": {"camera": {"lens_model": False}},
+    # the camera's colour crosstalk left in the captures (camera.colour_demixing, docs/accuracy.md, Session 9)
+    "colour demixing off": {"camera": {"colour_demixing": False}},
 })
 VARIANTS.update({
     # the texture-edge correction (huefringe.texture): the camera blur given, or none
     "texture blur 0.81 (true)": {"calibration": {"texture_blur_px2": 0.81}},
     "texture blur 0.81, edge mask off": {"calibration": {"texture_blur_px2": 0.81}, "measurement": {"edge_jump_mm": 0.0}},
-    "texture blur 0.4": {"calibration": {"texture_blur_px2": 0.4}},
-    "texture blur 0.6": {"calibration": {"texture_blur_px2": 0.6}},
     "texture blur 1.2": {"calibration": {"texture_blur_px2": 1.2}},
     "texture blur 1.6": {"calibration": {"texture_blur_px2": 1.6}},
     "texture blur auto (estimated)": {"calibration": {"texture_blur_px2": "auto"}},
@@ -319,12 +319,11 @@ def measure(session: Path, tables: Path, out: Path, config: dict) -> dict:
     model, cal = config["hue_model"], config["calibration"]
     cam = str(out / "camera.json")
     stages.camera_calibration(str(session), config["camera"], cal, record=cam)
-    # the tables depend on the camera corrections applied to every capture (channel registration,
-    # colour demixing): one set per setting of each (the default's folder keeps its old name)
-    cam_cfg = config["camera"]
-    tables = tables / f"registration-{cam_cfg['chromatic_registration']}"
-    if cam_cfg.get("colour_demixing", "auto") != "auto":
-        tables = tables.with_name(f"{tables.name}-demixing-{cam_cfg['colour_demixing']}")
+    # the tables depend on the camera corrections they are read through (channel registration, colour
+    # demixing): one set per setting (tables of demixed bands decode raw frames 0.3-0.5 mm off at p95)
+    demix = config["camera"].get("colour_demixing", False)
+    tables = tables / (f"registration-{config['camera']['chromatic_registration']}"
+                       + ("" if demix is False or demix == "false" else f"-demixing-{demix}"))
     tables.mkdir(parents=True, exist_ok=True)
     for which in ("reference", "object"):
         if not (tables / f"table_{which}.json").exists():

@@ -143,13 +143,24 @@ def test_bench_fed_the_projector_files_measures_as_the_bench_session(gauge_chain
     b = cv2.imread(str(direct.planes[0.0]), cv2.IMREAD_UNCHANGED)  # type: ignore[attr-defined]
     diff = np.abs(a.astype(np.int64) - b.astype(np.int64))
     assert 0 < np.median(diff) < 0.01 * 65535
+    # the camera's crosstalk, estimated from 16 bands x 2 repeats on both routes: the bench's to 2e-4, and
+    # each primary's two ramp segments agree (docs/accuracy.md, Session 9: measured 1.6e-4, spread 1.9e-4)
+    m_true = np.asarray(g["cfg"]["camera"]["crosstalk"]) * np.asarray(g["cfg"]["camera"]["sensitivity"])[None, :]  # type: ignore[index]
+    m_true = m_true / np.diag(m_true)[None, :]
+    for m in (g["m_direct"], g["m_plain"]):
+        rec = m.camera_record["colour_demixing"]  # type: ignore[attr-defined]
+        assert rec["applied"] and np.abs(np.asarray(rec["estimate"]["matrix"]) - m_true).max() < 1e-3
+        assert rec["estimate"]["max_segment_spread"] < 1e-3
     # the four steps too (errors at this coarse 0.5 mm pitch and 16 bands; measured with the colour
-    # demixing on: 0.006/0.017/0.032/-0.002 mm from the files, 0.004/0.017/0.032/-0.001 mm direct; before
-    # the demixing 0.003/0.005/0.022/0.003 and 0.003/0.003/0.024/0.003 mm: an open question, docs/accuracy.md).
-    # What this test holds is the agreement of the two routes; the absolute bound is the 0.05 mm tolerance.
+    # demixing: 0.006/0.017/0.032/-0.002 mm from the files, 0.004/0.017/0.032/-0.001 mm direct; without
+    # 0.003/0.005/0.022/0.003 and 0.003/0.003/0.024/0.003 mm). Over 20 bench seeds of this session the red
+    # step reads +18.7 um (sd 11.3) demixed and +20.1 um (sd 11.0) not: the demixing does not move it
+    # (paired -1.4 +- 1.1 um); this seed's +7 um is the seed's (docs/accuracy.md, Session 9). The bounds:
+    # the ensemble's mean + 2 sd (red 0.041, the others 0.015-0.028 mm), and the routes' agreement.
     steps = (_steps(g["m_plain"], plain), _steps(g["m_direct"], direct))
-    for e_f, e_d in zip(steps[0], steps[1], strict=True):
-        assert abs(e_f) < 0.05 and abs(e_f - e_d) < 0.005
+    bounds = (0.02, 0.03, 0.042, 0.03)  # green, navy, red, charcoal
+    for e_f, e_d, bound in zip(steps[0], steps[1], bounds, strict=True):
+        assert abs(e_f) < bound and abs(e_d) < bound and abs(e_f - e_d) < 0.005
 
 
 def _plate_hue_rms(session: object, cfg: dict, m: object) -> float:
@@ -191,7 +202,9 @@ def test_compensated_patterns_flatten_the_plate_hue_and_decode(gauge_chain: dict
     assert med_c <= 1.15 * med_d + 0.002  # measured: 0.0175 vs 0.0168 mm
     assert p95_c <= 1.1 * p95_d  # measured: 0.092 vs 0.140 mm
     assert cov_c > cov_d - 0.02
-    for e in _steps(g["m_comp"], comp):  # measured: -0.003/0.010/-0.007/-0.020 mm; with demixing up to 0.043 mm
+    # measured: -0.003/0.010/-0.007/-0.020 mm without demixing, 0.000/0.043/-0.013/-0.035 mm with (the
+    # pre-distorted route was not run over seeds: its bound stays the 0.05 mm tolerance)
+    for e in _steps(g["m_comp"], comp):
         assert abs(e) < 0.05
 
 

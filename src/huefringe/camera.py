@@ -508,10 +508,12 @@ def estimate_channel_mixing(bands: Mapping[int, NDArray[np.floating]], n_bands: 
     dict
         ``matrix`` (3 x 3, column k = the camera's R, G, B response to primary k, ``matrix[k][k]
         = 1``; the identity when not estimable), ``estimable``, ``bands`` (the pairs read),
-        ``pixels``, and ``why`` when not estimable.
+        ``pixels``, and ``why`` when not estimable; when estimable also the leave-out check's
+        ``segment_spread`` and ``max_segment_spread`` (:func:`segment_check`).
     """
     pairs = mixing_band_pairs(n_bands)
     cols = np.zeros((3, 3))
+    per_segment: list[tuple[int, NDArray[np.float64]]] = []  # (primary, that segment's change) for the leave-out check
     npix = 0
     for k, first, last, sign in pairs:
         if first not in bands or last not in bands:
@@ -521,7 +523,9 @@ def estimate_channel_mixing(bands: Mapping[int, NDArray[np.floating]], n_bands: 
         if shadow is not None:
             ok &= ~shadow
         npix = max(npix, int(ok.sum()))
-        cols[:, k] += sign * (hi - lo)[ok].sum(axis=0)
+        change = sign * (hi - lo)[ok].sum(axis=0)
+        cols[:, k] += change
+        per_segment.append((k, change))
     out: dict[str, Any] = {"matrix": np.eye(3).tolist(), "estimable": False,
                            "bands": [list(p) for p in pairs], "pixels": npix}
     diag = np.diag(cols)
@@ -535,7 +539,38 @@ def estimate_channel_mixing(bands: Mapping[int, NDArray[np.floating]], n_bands: 
         out["why"] = f"implausible mixing (largest off-diagonal {off.max():.2f}, condition {np.linalg.cond(m):.1f})"
         return out
     out.update(matrix=m.tolist(), estimable=True)
+    out.update(segment_check(per_segment))
     return out
+
+
+def segment_check(per_segment: Sequence[tuple[int, NDArray[np.float64]]]) -> dict[str, Any]:
+    """The leave-out check of a channel-mixing estimate: each primary's column from each of its two
+    ramp segments alone (the rising and the falling one, disjoint bands), each scaled to a unit
+    diagonal, and how far they disagree.
+
+    Both segments see the same column of the camera's response whatever the gamma, the plate and the
+    illumination; they disagree by the bands' noise, and by whatever is not a fixed linear mixing
+    (a camera that stores gamma-encoded values, a drifting exposure between the bands: 0.19 and
+    0.014-0.10 in tests/test_camera_demixing.py).
+
+    Returns
+    -------
+    dict
+        ``segment_spread``: (3, 3) ``|column(segment 1) - column(segment 2)|`` per entry (None for
+        a primary with one segment), ``max_segment_spread`` (its largest entry, None when a primary
+        has no second segment).
+    """
+    by_primary: dict[int, list[NDArray[np.float64]]] = {}
+    for k, change in per_segment:
+        if change[k] > 0:
+            by_primary.setdefault(k, []).append(change / change[k])
+    spread = np.full((3, 3), np.nan)
+    for k, c in by_primary.items():
+        if len(c) >= 2:
+            spread[:, k] = np.abs(c[0] - c[1])
+    worst = None if np.isnan(spread).any() else float(spread.max())
+    return {"segment_spread": [[None if np.isnan(x) else float(x) for x in row] for row in spread],
+            "max_segment_spread": worst}
 
 
 def _unmix(image: NDArray, mixing: NDArray[np.float64] | None) -> NDArray[np.float64]:
@@ -744,6 +779,14 @@ DEMIX_AUTO_THRESHOLD = 0.01
 crosstalk matrix (columns scaled to a unit diagonal) exceeds this: 1 % of a channel's light read
 by another channel (the bench's camera: 2-10 %; a camera without crosstalk reads 0.000-0.003)."""
 
+DEMIX_MAX_SEGMENT_SPREAD = 0.01
+"""``auto`` also needs the estimate's leave-out check (:func:`segment_check`) to agree: the columns
+that each primary's rising and falling ramp segment give alone may differ by at most this in any
+entry (the smallest crosstalk worth undoing). Bench sessions from 16 bands x 1 repeat, 8 bit, at
+160 x 120 px upwards read 4e-5 - 7.1e-4 (docs/accuracy.md, Session 9); a spread beyond it means the
+bands do not show one fixed linear mixing (a camera's auto exposure drifting 0.2 % a band reads
+0.014), and the estimate is not used."""
+
 
 class CaptureReader:
     """Reads a session's captures as the per-frame chains see them: through the camera corrections.
@@ -796,8 +839,11 @@ def demixing_record(setting: Any, mixing: Mapping[str, Any] | None) -> dict[str,
 
     ``mixing`` is :func:`estimate_channel_mixing`'s record (the camera's response to each projector
     primary, columns scaled to a unit diagonal). ``auto`` applies its inverse when the largest
-    off-diagonal exceeds :data:`DEMIX_AUTO_THRESHOLD`; ``true`` always (when estimable); ``false``
-    never (also when no mixing was estimated).
+    off-diagonal exceeds :data:`DEMIX_AUTO_THRESHOLD` and the estimate passes its leave-out check
+    (the two ramp segments of every primary agree within :data:`DEMIX_MAX_SEGMENT_SPREAD`;
+    ``not_applied_because`` says why not); ``true`` always (when estimable); ``false`` never (also
+    when no mixing was estimated). When applied: ``demix`` (the inverse) and ``noise_gain`` (the
+    norm of each of its rows: a demixed channel's noise against equal white noise in R, G, B).
     """
     rec: dict[str, Any] = {"setting": setting, "applied": False}
     if setting is False or setting == "false" or mixing is None:
@@ -807,11 +853,25 @@ def demixing_record(setting: Any, mixing: Mapping[str, Any] | None) -> dict[str,
     est = {"matrix": m.tolist(), "max_offdiagonal": off, "estimable": bool(mixing.get("estimable"))}
     if not mixing.get("estimable"):
         est["why"] = mixing.get("why")
+    spread = mixing.get("max_segment_spread")
+    est["segment_spread"] = mixing.get("segment_spread")
+    est["max_segment_spread"] = spread
     forced = setting is True or setting == "true"
-    applied = bool(mixing.get("estimable")) and (forced or off > DEMIX_AUTO_THRESHOLD)
-    rec.update(applied=applied, threshold=DEMIX_AUTO_THRESHOLD, estimate=est)
+    reliable = spread is not None and spread <= DEMIX_MAX_SEGMENT_SPREAD
+    applied = bool(mixing.get("estimable")) and (forced or (off > DEMIX_AUTO_THRESHOLD and reliable))
+    rec.update(applied=applied, threshold=DEMIX_AUTO_THRESHOLD, max_segment_spread=DEMIX_MAX_SEGMENT_SPREAD,
+               estimate=est)
+    if mixing.get("estimable") and not forced and off > DEMIX_AUTO_THRESHOLD and not reliable:
+        rec["not_applied_because"] = (
+            "the leave-out check has no second ramp segment for every primary (fewer than 12 hue bands)"
+            if spread is None else
+            f"the leave-out check failed: the rising and the falling ramp segments give columns differing by "
+            f"{spread:.4f} (limit {DEMIX_MAX_SEGMENT_SPREAD}): the bands do not show one fixed linear channel mixing")
     if applied:
-        rec["demix"] = np.linalg.inv(m).tolist()
+        demix = np.linalg.inv(m)
+        rec["demix"] = demix.tolist()
+        # each demixed channel's noise against the camera channel's (white, equal noise in R, G, B)
+        rec["noise_gain"] = [float(x) for x in np.sqrt((demix ** 2).sum(axis=1))]
     return rec
 
 
