@@ -177,6 +177,8 @@ VARIANTS.update({
     # the texture-edge correction (huefringe.texture): the camera blur given, or none
     "texture blur 0.81 (true)": {"calibration": {"texture_blur_px2": 0.81}},
     "texture blur 0.81, edge mask off": {"calibration": {"texture_blur_px2": 0.81}, "measurement": {"edge_jump_mm": 0.0}},
+    "texture blur 0.4": {"calibration": {"texture_blur_px2": 0.4}},
+    "texture blur 0.6": {"calibration": {"texture_blur_px2": 0.6}},
     "texture blur 1.2": {"calibration": {"texture_blur_px2": 1.2}},
     "texture blur 1.6": {"calibration": {"texture_blur_px2": 1.6}},
     "texture blur auto (estimated)": {"calibration": {"texture_blur_px2": "auto"}},
