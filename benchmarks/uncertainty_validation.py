@@ -83,7 +83,8 @@ def main() -> None:
                                               edge_exclusion=cfg["metrology"]["edge_exclusion"],
                                               denoise_radius=cfg["measurement"]["denoise_radius"],
                                               supports=[tifffile.imread(x) for x in p["supports"]],
-                                              lateral_px=cfg["measurement"]["lateral_uncertainty_px"])
+                                              lateral_px=cfg["measurement"]["lateral_uncertainty_px"],
+                                              lateral_step_px=cfg["measurement"]["lateral_step_px"])
                 parts = []
                 for st in method["steps"]:
                     ind = st["uncertainty_budget"]["independent_per_frame_mm"]

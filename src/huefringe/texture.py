@@ -28,7 +28,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-__all__ = ["blur_from_phases", "correct", "lean", "white_floor"]
+__all__ = ["blur_from_phases", "blur_uncertainty", "correct", "lean", "white_floor"]
 
 #: white level (full scale 1) below which the normalised fringe is not formed (noise, shadow)
 WHITE_FLOOR = 0.02
@@ -175,3 +175,23 @@ def blur_from_phases(plain: Sequence[NDArray[np.floating]], unit: Sequence[NDArr
     else:
         out["sigma2_px2"] = s2
     return out
+
+
+def blur_uncertainty(info: dict[str, Any], *, min_t: float = 3.0) -> float:
+    """Standard uncertainty (px^2) of the blur variance the correction used, from the record of
+    :func:`blur_from_phases` (``calib/planes.json`` ``texture_blur``).
+
+    Accepted (``sigma2_px2`` used): the estimate's jackknife standard error ``stderr_px2``.
+    Refused (0 used: the correction off): the blur is somewhere between 0 and the largest value
+    the significance test could not tell from noise, ``max(raw_px2, 0) + min_t stderr_px2``; taken
+    as rectangular on that interval, the error of the 0 used has rms ``(max(raw, 0) + min_t se) /
+    sqrt(3)`` (GUM 4.3.7). A record without a standard error (a blur given in the config, one
+    frame, no texture signal) gives 0: no uncertainty is known.
+    """
+    se = info.get("stderr_px2")
+    if se is None or not np.isfinite(float(se)):
+        return 0.0
+    se = float(se)
+    if "rejected" in info:
+        return float((max(float(info.get("raw_px2", 0.0) or 0.0), 0.0) + min_t * se) / np.sqrt(3.0))
+    return se
