@@ -184,7 +184,9 @@ VARIANTS.update({
     "texture blur auto (estimated)": {"calibration": {"texture_blur_px2": "auto"}},
     "texture correction off": {"calibration": {"texture_blur_px2": 0}},
     # the uncertainty's lateral term (docs/uncertainty.md): heights identical, u without it
-    "lateral term off": {"measurement": {"lateral_uncertainty_px": 0.0}},
+    "lateral term off": {"measurement": {"lateral_uncertainty_px": 0.0, "lateral_step_px": 0.0}},
+    "lateral 1.75 px, no step part (session 8)": {"measurement": {"lateral_uncertainty_px": 1.75, "lateral_step_px": 0.0}},
+    "texture term off": {"measurement": {"texture_uncertainty": False}},
 })
 VARIANTS.update({
     # the step-edge test (measurement.edge_test; docs/accuracy-texture.md, Step-edge test)

@@ -36,10 +36,14 @@ def main() -> None:
     ap.add_argument("--presets", nargs="+", default=["demo", "flat", "dental", "plain_gauge", "photo_relief"])
     ap.add_argument("--lateral-px", type=float, default=None,
                     help="measurement.lateral_uncertainty_px (default: config.yaml's; 0 = the lateral term off)")
+    ap.add_argument("--lateral-step-px", type=float, default=None,
+                    help="measurement.lateral_step_px (default: config.yaml's; 0 = the lateral term's step part off)")
     args = ap.parse_args()
     cfg = load_config(REPO / "config.yaml")
     if args.lateral_px is not None:
         cfg["measurement"]["lateral_uncertainty_px"] = args.lateral_px
+    if args.lateral_step_px is not None:
+        cfg["measurement"]["lateral_step_px"] = args.lateral_step_px
     print(f"{'preset':8} {'|e|<=2u':>8} {'rms e mm':>9} {'rms u mm':>9} {'median u mm':>11}  coverage by zone; "
           "steps: std / independent u")
     with tempfile.TemporaryDirectory() as tmp:
@@ -83,7 +87,8 @@ def main() -> None:
                                               edge_exclusion=cfg["metrology"]["edge_exclusion"],
                                               denoise_radius=cfg["measurement"]["denoise_radius"],
                                               supports=[tifffile.imread(x) for x in p["supports"]],
-                                              lateral_px=cfg["measurement"]["lateral_uncertainty_px"])
+                                              lateral_px=cfg["measurement"]["lateral_uncertainty_px"],
+                                              lateral_step_px=cfg["measurement"]["lateral_step_px"])
                 parts = []
                 for st in method["steps"]:
                     ind = st["uncertainty_budget"]["independent_per_frame_mm"]

@@ -58,6 +58,9 @@ class PlaneCalibration:
     texture_blur_px2: float | None = None
     """The camera's blur variance (px^2) estimated from the session's object frames
     (:func:`huefringe.texture.estimate_blur`) for the texture-edge correction, or None."""
+    texture_blur_u_px2: float | None = None
+    """Its standard uncertainty (px^2, :func:`huefringe.texture.blur_uncertainty`), which the
+    per-pixel texture term of the uncertainty propagates, or None (unknown: no term)."""
 
     def height(self, dphi: NDArray[np.floating]) -> NDArray[np.float32]:
         """Height in mm from an unwrapped phase difference (NaN stays NaN)."""
@@ -81,6 +84,8 @@ class PlaneCalibration:
                     extra["phase_error"] = np.asarray(self.phase_error, np.float64)
                 if self.texture_blur_px2 is not None:
                     extra["texture_blur_px2"] = np.float64(self.texture_blur_px2)
+                if self.texture_blur_u_px2 is not None:
+                    extra["texture_blur_u_px2"] = np.float64(self.texture_blur_u_px2)
                 np.savez(f, phi_ref=self.phi_ref, a=self.a, b=self.b, planes_mm=np.asarray(self.planes_mm), **extra)
 
     @classmethod
@@ -89,8 +94,9 @@ class PlaneCalibration:
             pe = z["phase_error"] if "phase_error" in z.files else None
             budget = {k[len("budget_"):]: z[k] for k in z.files if k.startswith("budget_")} or None
             blur = float(z["texture_blur_px2"]) if "texture_blur_px2" in z.files else None
+            blur_u = float(z["texture_blur_u_px2"]) if "texture_blur_u_px2" in z.files else None
             return cls(z["phi_ref"], z["a"], z["b"], [float(v) for v in z["planes_mm"]], phase_error=pe, budget=budget,
-                       texture_blur_px2=blur)
+                       texture_blur_px2=blur, texture_blur_u_px2=blur_u)
 
 
 def _design(shape: tuple[int, int], degree: int, uu: NDArray, vv: NDArray) -> NDArray[np.float64]:

@@ -32,7 +32,7 @@ from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
 from huefringe.session import Session, load_session
-from huefringe.uncertainty import LATERAL_PX, add_lateral, noise_correlation, pixel_budget
+from huefringe.uncertainty import LATERAL_PX, LATERAL_STEP_PX, add_lateral, noise_correlation, pixel_budget, texture_term
 
 log = logging.getLogger("huefringe")
 
@@ -298,6 +298,8 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     else:
         info = {"sigma2_px2": float(blur or 0.0), "source": "calibration.texture_blur_px2"}
     cal.texture_blur_px2 = float(info["sigma2_px2"])
+    cal.texture_blur_u_px2 = texture.blur_uncertainty(info)  # the per-pixel texture term (docs/uncertainty.md)
+    info = {**info, "u_px2": cal.texture_blur_u_px2}
     cal.stats["texture_blur"] = info
     if lut is not None:  # its residual on the planes (reported; not added to u: docs/uncertainty.md)
         from huefringe.uncertainty import phase_error_residual_rad
@@ -496,16 +498,28 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         del t  # the kernel's pixel-major copy replaces the band-major table
         buffers = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))  # reused frame to frame
     blur2 = float(cal.texture_blur_px2 or 0.0)  # the plane calibration's (calibration.texture_blur_px2)
+    # the texture term of u: the heights' change when the correction's blur moves by its uncertainty
+    blur_u = float(cal.texture_blur_u_px2 or 0.0) if measurement.get("texture_uncertainty", True) else 0.0
+    blur_u = blur_u if want_uncertainty else 0.0
     for n in frames:
         path = s.frames[n]
         # the texture-edge correction (huefringe.texture) once, before either chain: both read it
         rgb = None
-        if blur2 > 0:
+        moved = None  # the capture corrected with the blur moved by its uncertainty (texture term)
+        if blur2 > 0 or blur_u > 0:
             raw = reader.rgb(path)
-            rgb = texture.correct(raw, white, blur2, clipped=clipped_mask(raw, s.bit_depth))
+            clip = clipped_mask(raw, s.bit_depth)
+            if blur2 > 0:
+                rgb = texture.correct(raw, white, blur2, clipped=clip)
+            if blur_u > 0:
+                moved = texture.correct(raw, white, blur2 + blur_u, clipped=clip)
         if rgb is None and reader.demixed:  # the demixed channels (camera.colour_demixing), to both chains
             rgb = reader.rgb(path)
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
+            if moved is not None:  # first, on buffers of its own (a copy: the pass below reuses the kernel's)
+                moved_height = np.array(kernel.frame_maps(
+                    prep, moved, denoise_radius=measurement["denoise_radius"], denoise_adaptive=adaptive,
+                    want_maps=False, want_dphi=False, want_uncertainty=False).height)
             m = kernel.frame_maps(prep, reader.codes(path) if rgb is None else rgb, denoise_radius=measurement["denoise_radius"],
                                   denoise_adaptive=adaptive,
                                   want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty,
@@ -518,6 +532,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                                           table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
                                           hue_model=hue_model, flag_valid=np.isfinite(m.dphi))
             height, phase, hue, u_map, support = m.height, m.phase, m.hue, m.uncertainty, m.support
+            if moved is not None:
+                tex_u = texture_term(height, moved_height)
         else:
             budget = pixel_budget(t, cal) if budget is None else budget
             res = measure_frame(reader.rgb(path) if rgb is None else rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
@@ -527,15 +543,24 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                                 own_noise=bool(measurement.get("own_noise", False)))
             height, phase, hue, stats, u_map = res.height, res.phase, res.hue, res.stats, res.uncertainty
             support = res.support
+            if moved is not None:
+                tex_u = texture_term(height, measure_frame(
+                    moved, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
+                    shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
+                    denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
+                    denoise_adaptive=adaptive, budget=None, own_noise=bool(measurement.get("own_noise", False))).height)
         jump = float(measurement.get("edge_jump_mm", 0.0) or 0.0)
         if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
             height, (phase, u_map), (support,), changed = remove_step_edges(
                 height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(measurement.get("edge_test", "plane")),
                 tol_mm=float(measurement.get("edge_plane_tol_mm", 0.1)))
             stats = {**stats, **changed}
+        if u_map is not None and moved is not None:  # the texture term, in quadrature (NaN where the height is)
+            u_map = np.hypot(u_map, tex_u).astype(np.float32)
         lateral = float(measurement.get("lateral_uncertainty_px", LATERAL_PX))
-        if u_map is not None and lateral > 0:  # the lateral term on the heights as delivered (after the edge mask)
-            u_map = add_lateral(height, u_map, lateral_px=lateral)
+        step = float(measurement.get("lateral_step_px", LATERAL_STEP_PX))
+        if u_map is not None and (lateral > 0 or step > 0):  # the lateral term on the heights as delivered (after the edge mask)
+            u_map = add_lateral(height, u_map, lateral_px=lateral, step_px=step)
         _refuse_bad_frame(path, stats, measurement)
         yield n, height, phase, hue, stats, u_map, support
 
@@ -846,7 +871,8 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
                              PlaneCalibration.load(model), HueTable.load(object_table), edge_exclusion=edge,
                              denoise_radius=int(config["measurement"]["denoise_radius"]),
                              supports=_TiffMaps(supports) if supports else None, workers=threads, camera=lens,
-                             lateral_px=float(config["measurement"].get("lateral_uncertainty_px", LATERAL_PX)))
+                             lateral_px=float(config["measurement"].get("lateral_uncertainty_px", LATERAL_PX)),
+                             lateral_step_px=float(config["measurement"].get("lateral_step_px", LATERAL_STEP_PX)))
     base = evaluate(baseline, method="three-step-phase-shift") if baseline else None
     plane_stats = jsonlib.loads(Path(planes).read_text())
     table_stats = jsonlib.loads(Path(tables).read_text())
@@ -943,20 +969,23 @@ def add_step_uncertainty(method: dict[str, Any], heights: Sequence[NDArray[np.fl
                          uncertainties: Sequence[NDArray[np.floating]], specimen: Mapping[str, Any], pitch_mm: float,
                          cal: PlaneCalibration, table: HueTable, *, edge_exclusion: float, denoise_radius: int,
                          supports: Sequence[NDArray[np.floating]] | None = None, workers: int = 1,
-                         camera: CameraModel | None = None, lateral_px: float = LATERAL_PX) -> None:
+                         camera: CameraModel | None = None, lateral_px: float = LATERAL_PX,
+                         lateral_step_px: float = LATERAL_STEP_PX) -> None:
     """Add ``u_mm``, ``U_mm`` (k = 2), ``conformance`` and ``uncertainty_budget`` to each step of an
     :func:`huefringe.metrology.evaluate_session` block, and ``verdict_with_uncertainty`` to the block.
 
     ``pass`` stays ``|error| <= tolerance`` (the contract); ``conformance`` is the ISO 14253-1
     decision with U: ``pass``, ``fail`` or ``undecided``. ``camera``: the lens model the steps were
     evaluated with (the budget's plane lever arms at each pixel's X, Y); ``lateral_px``: the
-    ``measurement.lateral_uncertainty_px`` the maps were made with (the budget takes it out).
+    ``measurement.lateral_uncertainty_px`` the maps were made with, ``lateral_step_px`` its
+    ``measurement.lateral_step_px`` (the budget takes the lateral term out).
     """
     from huefringe import uncertainty as unc
 
     budgets = unc.step_budget(heights, uncertainties, specimen, pitch_mm, cal.a, cal.b, unc.pixel_budget(table, cal),
                               edge_exclusion=edge_exclusion, denoise_radius=denoise_radius, supports=supports,
-                              workers=workers, camera=camera, lateral_px=lateral_px)
+                              workers=workers, camera=camera, lateral_px=lateral_px,
+                              lateral_step_px=lateral_step_px)
     tol = float(method["tolerance_mm"])
     for step, bud in zip(method["steps"], budgets, strict=True):
         step["u_mm"] = bud["u_mm"]

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-__all__ = ["blur_from_phases", "blur_from_white", "correct", "lean", "white_floor"]
+__all__ = ["blur_from_phases", "blur_from_white", "blur_uncertainty", "correct", "lean", "white_floor"]
 
 #: white level (full scale 1) below which the normalised fringe is not formed (noise, shadow)
 WHITE_FLOOR = 0.02
@@ -258,3 +258,32 @@ def blur_from_white(white: NDArray[np.floating], *, half_px: int = 3, min_contra
     else:
         out["sigma2_px2"] = s2
     return out
+
+
+def blur_uncertainty(info: dict[str, Any], *, min_t: float = 3.0) -> float:
+    """Standard uncertainty (px^2) of the blur variance the correction used, from the record of
+    :func:`blur_from_phases` (``calib/planes.json`` ``texture_blur``).
+
+    Accepted (``sigma2_px2`` used): the estimate's jackknife standard error ``stderr_px2``.
+    Refused (0 used: the correction off): the blur is somewhere between 0 and the largest value
+    the significance test could not tell from noise, ``max(raw_px2, 0) + min_t stderr_px2``; taken
+    as rectangular on that interval, the error of the 0 used has rms ``(max(raw, 0) + min_t se) /
+    sqrt(3)`` (GUM 4.3.7). A record without a standard error (a blur given in the config, one
+    frame, no texture signal) gives 0: no uncertainty is known.
+
+    Read from the white image's edges instead (the phase estimate refused or one frame; the record's
+    ``white_edges``, :func:`blur_from_white`, used): its estimate is the lower quartile of the edges'
+    moments, and the truth is taken as rectangular between that and their median, ``(q50 - q25) /
+    sqrt(3)`` (edges wider than the lens's own, soft or noisy ones, only raise the upper quantiles).
+    """
+    edges = info.get("white_edges")
+    if isinstance(edges, dict) and "rejected" not in edges and edges.get("quartiles_px2"):
+        q25, q50 = (float(x) for x in edges["quartiles_px2"][:2])
+        return float(max(q50 - q25, 0.0) / np.sqrt(3.0))
+    se = info.get("stderr_px2")
+    if se is None or not np.isfinite(float(se)):
+        return 0.0
+    se = float(se)
+    if "rejected" in info:
+        return float((max(float(info.get("raw_px2", 0.0) or 0.0), 0.0) + min_t * se) / np.sqrt(3.0))
+    return se

@@ -53,7 +53,7 @@ from scipy.ndimage import uniform_filter
 from huefringe.huetable import band_smoothing_matrix
 
 __all__ = [
-    "TERMS", "PixelBudget", "calibration_terms", "conformance", "edge_floor", "height_uncertainty", "add_lateral", "coating_term", "lateral_term",
+    "TERMS", "PixelBudget", "calibration_terms", "conformance", "edge_floor", "height_uncertainty", "add_lateral", "coating_term", "lateral_term", "texture_term",
     "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "reliability", "split_terms", "step_budget",
     "table_interpolation_rad", "table_variance_factor",
 ]
@@ -575,66 +575,120 @@ def edge_floor(height: NDArray[np.float32], valid: NDArray[np.bool_], u: NDArray
     return u
 
 
-#: Lateral position uncertainty (px) of a height: where along the surface the value measured at a
-#: pixel belongs. Camera blur (0.6-0.9 px on the bench), the phase filter's window (radius 2) and
-#: the texture-edge correction's first-order remainder all move a pixel's height towards its
-#: neighbours'; measured on the tuning cases of benchmarks/accuracy_matrix.py --texture
-#: (docs/uncertainty.md, "Lateral term"): 1.75 px puts |error| <= 2u at 0.93-0.99 in every zone.
-LATERAL_PX = 1.75
+#: Lateral position uncertainty (px) of a height on a locally linear surface: a symmetric footprint
+#: (camera blur, the phase filter's window) returns a plane's height exactly, so only its shift
+#: moves the height there: the filter's weights follow the signal (noise) and the texture lean's
+#: first-order remainder. Measured on the tuning cases (docs/uncertainty.md, "Lateral term"):
+#: with :data:`LATERAL_STEP_PX` it puts the smooth reliefs' and the tooth's steep flanks at
+#: |error| <= 2u for 0.96-0.97 (1.75 px alone, session 8: 0.98-0.99).
+LATERAL_PX = 0.5
+#: Lateral reach (px) of a footprint where the slope changes within it (a step left by the edge
+#: mask, a shadow border, a sharp bend): the camera blur (sigma 0.6-0.9 px on the bench) plus the
+#: phase filter's radius (2 px); there the mixed pixels' error (hue mixing of two surfaces,
+#: nonlinear in the heights) follows the slope that the blur leaves. Times
+#: ``|grad h~ - grad h~_coarse|`` (:func:`lateral_term`).
+LATERAL_STEP_PX = 2.0
 #: Gaussian scale (px) of the normalised average of the valid heights whose gradient is the slope.
 LATERAL_SMOOTH_PX = 1.5
+#: Gaussian scale (px) of the coarse slope: what a locally linear surface keeps over the footprint's
+#: reach (a step's slope is spread over it, a smooth flank's is not).
+LATERAL_COARSE_PX = 5.0
 
 
-def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = None, *,
-                 lateral_px: float = LATERAL_PX, smooth_px: float = LATERAL_SMOOTH_PX) -> NDArray[np.float32]:
-    """The height error of a lateral position uncertainty, ``lateral_px |grad h|`` (mm), per pixel.
-
-    A pixel's height is a weighted mean over a footprint (camera blur, the phase filter's window,
-    the mixed pixels beside a step or a reflectance edge that the first-order texture correction
-    leaves), so its lateral position is uncertain by ``dx`` and its height by ``dx |grad h|``. The
-    slope is that of the measured heights, normalised-Gaussian averaged over the valid pixels
-    (``smooth_px``; NaN pixels carry no weight), by central differences in mm per px. Over a flat
-    top it is the noise's own gradient (a few % of ``u``); next to a step edge left after the edge
-    mask, a texture bump or a steep flank it is the error the other terms do not hold. With ``u``
-    (the per-pixel uncertainty without this term) the slope's own noise is removed in quadrature:
-    the smoothed central difference is a linear filter ``K`` of the heights, so its variance from
-    pixel errors of standard uncertainty ``u`` is ``sum K^2 u^2`` (taken independent: on
-    unfiltered heights exact, on filtered ones it removes a little more than the noise holds).
-    NaN where the height is NaN.
-    """
-    h = np.asarray(height, np.float32)
-    ok = np.isfinite(h)
-    r = int(4.0 * smooth_px + 0.5)  # scipy.ndimage's truncation
+def _gaussian_kernel(smooth_px: float) -> NDArray[np.float64]:
+    """``scipy.ndimage``'s Gaussian (truncate 4) with one extra tap each side (for the difference kernel)."""
+    r = int(4.0 * smooth_px + 0.5)
     t = np.arange(-r - 1, r + 2, dtype=np.float64)
     g_ext = np.exp(-0.5 * (t / smooth_px) ** 2)
     g_ext /= g_ext[1:-1].sum()
-    g = g_ext[1:-1].astype(np.float32)
+    return g_ext
 
-    def sep(img: NDArray[np.float32], kx: NDArray[np.float32], ky: NDArray[np.float32]) -> NDArray[np.float32]:
-        # separable correlation, edges replicated (ndimage's mode="nearest"); OpenCV: 4-8 x faster
-        return cv2.sepFilter2D(img, cv2.CV_32F, kx, ky, borderType=cv2.BORDER_REPLICATE)
 
-    num = sep(np.where(ok, h, np.float32(0.0)), g, g)
-    den = sep(ok.astype(np.float32), g, g)
+def _sep(img: NDArray[np.float32], kx: NDArray[np.floating], ky: NDArray[np.floating]) -> NDArray[np.float32]:
+    """Separable correlation, edges replicated (``scipy.ndimage``'s ``mode="nearest"``); OpenCV: 4-8 x faster."""
+    return cv2.sepFilter2D(img, cv2.CV_32F, np.asarray(kx, np.float32), np.asarray(ky, np.float32),
+                           borderType=cv2.BORDER_REPLICATE)
+
+
+def _smoothed_slope(h: NDArray[np.float32], ok: NDArray[np.bool_], smooth_px: float):
+    """The gradient (mm/px, central differences) of the normalised Gaussian average of the valid
+    heights, and that average's weight sum (NaN heights carry no weight)."""
+    g = _gaussian_kernel(smooth_px)[1:-1]
+    num = _sep(np.where(ok, h, np.float32(0.0)), g, g)
+    den = _sep(ok.astype(np.float32), g, g)
     with np.errstate(invalid="ignore", divide="ignore"):
         hm = np.where(den > 1e-3, num / np.maximum(den, np.float32(1e-3)), np.float32(np.nan))
     gy, gx = np.gradient(hm)
-    slope2 = np.nan_to_num(gx) ** 2 + np.nan_to_num(gy) ** 2
+    return np.nan_to_num(gx), np.nan_to_num(gy), den
+
+
+def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = None, *,
+                 lateral_px: float = LATERAL_PX, smooth_px: float = LATERAL_SMOOTH_PX,
+                 step_px: float = 0.0, coarse_px: float = LATERAL_COARSE_PX) -> NDArray[np.float32]:
+    """The height error of a lateral position uncertainty (mm), per pixel::
+
+        u_lat^2 = (lateral_px |g|)^2 + (step_px min(|g - g_coarse|, |g|))^2
+
+    A pixel's height is a weighted mean over a footprint (camera blur, the phase filter's window,
+    the mixed pixels beside a step or a reflectance edge that the first-order texture correction
+    leaves). On a locally linear surface a symmetric footprint returns the height exactly; only
+    its shift (``lateral_px``: the filter's noise weights, the texture lean's remainder) moves it,
+    by ``dx |grad h|``. Where the slope changes within the footprint's reach (a step left after
+    the edge mask, a shadow border) the mixed pixels' error follows the part of the slope that is
+    not linear there: ``g - g_coarse``, the slope ``g`` (Gaussian ``smooth_px``) less the coarse
+    one (``coarse_px``), which a smooth flank keeps and a step spreads, times ``step_px`` (the
+    reach: blur plus filter radius). ``step_px = 0`` (the default) gives the first term alone.
+
+    The slopes are those of the measured heights, normalised-Gaussian averaged over the valid
+    pixels (NaN pixels carry no weight), by central differences in mm per px. With ``u`` (the
+    per-pixel uncertainty without this term) the fine slope's own noise is removed in
+    quadrature: the smoothed central difference is a linear filter ``K`` of the heights, so its
+    variance from pixel errors of standard uncertainty ``u`` is ``sum K^2 u^2`` (taken
+    independent: on unfiltered heights exact, on filtered ones it removes a little more than the
+    noise holds); the step part never exceeds that noise-free slope (on a noisy flat top both
+    are ~0). NaN where the height is NaN.
+    """
+    h = np.asarray(height, np.float32)
+    ok = np.isfinite(h)
+    gx, gy, den = _smoothed_slope(h, ok, smooth_px)
+    slope2 = gx**2 + gy**2
     if u is not None:  # the noise of the slope itself: sum K^2 u^2 of the separable kernels
-        d2 = (0.5 * (g_ext[:-2] - g_ext[2:])).astype(np.float32) ** 2  # central difference of the smoothed map
-        g2 = g * g
+        g_ext = _gaussian_kernel(smooth_px)
+        d2 = (0.5 * (g_ext[:-2] - g_ext[2:])) ** 2  # central difference of the smoothed map
+        g2 = g_ext[1:-1] ** 2
         u2 = np.where(ok, np.nan_to_num(np.asarray(u, np.float32)) ** 2, np.float32(0.0))
-        var = sep(u2, d2, g2) + sep(u2, g2, d2)
+        var = _sep(u2, d2, g2) + _sep(u2, g2, d2)
         with np.errstate(invalid="ignore", divide="ignore"):
             var = var / np.maximum(den, np.float32(1e-3)) ** 2
         slope2 = np.maximum(slope2 - var, np.float32(0.0))
-    return np.where(ok, lateral_px * np.sqrt(slope2), np.nan).astype(np.float32)
+    lat2 = np.float32(lateral_px) ** 2 * slope2
+    if step_px > 0:
+        cx, cy, _ = _smoothed_slope(h, ok, coarse_px)
+        bend2 = np.minimum((gx - cx) ** 2 + (gy - cy) ** 2, slope2)
+        lat2 = lat2 + np.float32(step_px) ** 2 * bend2
+    return np.where(ok, np.sqrt(lat2), np.nan).astype(np.float32)
 
 
 def add_lateral(height: NDArray[np.floating], u: NDArray[np.floating], **kwargs: float) -> NDArray[np.float32]:
-    """``sqrt(u^2 + lateral_term(height)^2)`` (a new float32 map; NaN where either is NaN)."""
+    """``sqrt(u^2 + lateral_term(height, u, **kwargs)^2)`` (a new float32 map; NaN where either is NaN)."""
     lat = lateral_term(height, u, **kwargs).astype(np.float64)
     return np.sqrt(np.asarray(u, np.float64) ** 2 + lat**2).astype(np.float32)
+
+
+def texture_term(height: NDArray[np.floating], moved: NDArray[np.floating]) -> NDArray[np.float32]:
+    """The texture-edge correction's residual (mm) per pixel: ``|h(s + u_s) - h(s)|``.
+
+    ``height`` is measured from the capture corrected with the blur ``s`` the session uses
+    (:func:`huefringe.texture.correct`, ``B - s grad W . grad(B / W)``), ``moved`` from the
+    same capture corrected with ``s + u_s`` (``u_s``: :func:`huefringe.texture.blur_uncertainty`),
+    through the same chain. The correction is linear in ``s``, so their difference is the height
+    error of a blur wrong by one standard uncertainty, to first order: largest exactly where
+    ``|grad W . grad(B / W)|`` is (reflectance edges across the fringe), about 0 on a uniform
+    reflectance. 0 where only ``moved`` is NaN, NaN where ``height`` is.
+    """
+    h = np.asarray(height, np.float32)
+    d = np.abs(np.asarray(moved, np.float32) - h)
+    return np.where(np.isfinite(h), np.nan_to_num(d, nan=0.0), np.nan).astype(np.float32)
 
 
 def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArray[np.floating],
@@ -977,6 +1031,7 @@ def step_budget(
     workers: int = 1,
     camera: Any = None,
     lateral_px: float = 0.0,
+    lateral_step_px: float = 0.0,
 ) -> list[dict[str, Any]]:
     """Standard uncertainty of each step's mean height over the frames, term by term.
 
@@ -1002,8 +1057,8 @@ def step_budget(
     at once (threads; the sequences are indexed from them, so lazy ones must allow it).
     ``camera`` (a :class:`huefringe.camera.CameraModel` that is not plain): the base plane's lever
     arms are each pixel's X, Y at its height (``camera.xy``), as ``metrology.step_height`` fits it,
-    instead of ``u * pitch``. ``lateral_px`` > 0: the maps carry the lateral term
-    (:func:`add_lateral` with that ``dx``), which is taken out of each pixel's u before the split
+    instead of ``u * pitch``. ``lateral_px`` or ``lateral_step_px`` > 0: the maps carry the lateral term
+    (:func:`add_lateral` with that ``dx`` and ``step_px``), which is taken out of each pixel's u before the split
     (on a top it is the slope of the coating's phase-fixed pattern, which :func:`coating_term`
     holds; left in, the split would count it as frame noise).
     """
@@ -1025,8 +1080,8 @@ def step_budget(
         u = np.asarray(uncertainties[f])
         if z.shape != shape or u.shape != shape:
             raise ValueError(f"frame {f}: height {z.shape} and uncertainty {u.shape} maps, the model {shape}")
-        if lateral_px > 0:  # the lateral term out (computed with the combined u: a little less than was added)
-            lat = lateral_term(z, u, lateral_px=lateral_px).astype(np.float64)
+        if lateral_px > 0 or lateral_step_px > 0:  # the lateral term out (computed with the combined u: a little less than was added)
+            lat = lateral_term(z, u, lateral_px=lateral_px, step_px=lateral_step_px).astype(np.float64)
             u = np.sqrt(np.maximum(np.asarray(u, np.float64) ** 2 - lat**2, 0.0)).astype(np.float32)
         valid = np.isfinite(z) & np.isfinite(u)
         if supports is None:
