@@ -744,6 +744,12 @@ def test_blur_uncertainty_from_the_estimates_record() -> None:
     assert texture.blur_uncertainty(refused) == pytest.approx((0.07 + 0.78) / np.sqrt(3.0))
     assert texture.blur_uncertainty({**refused, "raw_px2": -0.2}) == pytest.approx(0.78 / np.sqrt(3.0))
     assert texture.blur_uncertainty({"sigma2_px2": 0.81, "source": "calibration.texture_blur_px2"}) == 0.0
+    # read from the white image's edges (the phase estimate refused): rectangular between the
+    # edges' lower quartile (the estimate) and their median; refused as well: the phase interval
+    white = {"sigma2_px2": 0.82, "edges": 300, "quartiles_px2": [0.82, 0.90, 0.98]}
+    assert texture.blur_uncertainty({**refused, "sigma2_px2": 0.82, "white_edges": white}) == pytest.approx(0.08 / np.sqrt(3.0))
+    no_edges = {"sigma2_px2": 0.0, "edges": 3, "quartiles_px2": None, "rejected": "3 sharp edges"}
+    assert texture.blur_uncertainty({**refused, "white_edges": no_edges}) == pytest.approx((0.07 + 0.78) / np.sqrt(3.0))
 
 
 def test_texture_term_is_the_phase_error_of_a_wrong_blur() -> None:
