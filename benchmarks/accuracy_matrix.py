@@ -194,6 +194,10 @@ VARIANTS.update({
     # issue 24, photo reliefs' noise (docs/accuracy-texture.md, Session 9): the adaptive phase filter's reach
     "target 0.004": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.004}}},
     "target 0.003": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.003}}},
+    "target 0.002": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.002}}},
+    "target 0.0015": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.0015}}},
+    "target 0.001": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.001}}},
+    "target 0.002 max 9": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.002, "max_radius": 9}}},
     "target 0.004 max 9": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.004, "max_radius": 9}}},
     "target 0.003 max 9": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.003, "max_radius": 9}}},
     "radius 3": {"measurement": {"denoise_radius": 3}},
