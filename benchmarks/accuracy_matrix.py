@@ -196,6 +196,19 @@ VARIANTS.update({
     "shadow fraction 0.06": {"measurement": {"shadow_fraction": 0.06}},
     "shadow fraction 0.03": {"measurement": {"shadow_fraction": 0.03}},
 })
+VARIANTS.update({
+    # issue 24, photo reliefs' noise (docs/accuracy-texture.md, Session 9): the adaptive phase filter's reach
+    "target 0.004": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.004}}},
+    "target 0.003": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.003}}},
+    "target 0.002": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.002}}},
+    "target 0.0015": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.0015}}},
+    "target 0.001": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.001}}},
+    "target 0.002 max 9": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.002, "max_radius": 9}}},
+    "target 0.004 max 9": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.004, "max_radius": 9}}},
+    "target 0.003 max 9": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.003, "max_radius": 9}}},
+    "radius 3": {"measurement": {"denoise_radius": 3}},
+    "radius 3 target 0.004": {"measurement": {"denoise_radius": 3, "denoise_adaptive": {"target_sigma_rad": 0.004}}},
+})
 #: variants measured on some cases only, by words of the case name (the adaptive filter acts on
 #: weak signal: the photo reliefs; the camera corrections on the cases with such a camera)
 ONLY = {"shadow fraction 0.06": ("tex ",), "shadow fraction 0.03": ("tex ",), "adaptive filter off": ("photo",), **{v: ("photo", "tex ") for v in VARIANTS if v.startswith("texture ")},

@@ -600,7 +600,7 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
 
 
 #: ``measurement.denoise_adaptive`` defaults (sigmas in rad of phase)
-ADAPTIVE_DEFAULTS = {"enabled": True, "max_radius": 6, "target_sigma_rad": 0.006, "reject_sigma_rad": 0.03}
+ADAPTIVE_DEFAULTS = {"enabled": True, "max_radius": 6, "target_sigma_rad": 0.002, "reject_sigma_rad": 0.03}
 
 
 def adaptive_kwargs(opts: dict | None) -> dict:
