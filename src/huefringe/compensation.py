@@ -194,7 +194,9 @@ MAX_GAMMA_RESIDUAL_RAD = 0.05
 #: Plausible gammas; a fit outside is refused (a broken table, not a projector).
 GAMMA_RANGE = (0.3, 5.0)
 
-#: Fewest bands strictly inside a channel's two ramp sextants (``N >= 12``).
+#: Fewest hue bands :func:`projector_gamma` fits (nine parameters), and fewest strictly inside
+#: each channel's two ramp sextants.
+MIN_GAMMA_BANDS = 12
 MIN_RAMP_BANDS = 2
 
 
@@ -278,7 +280,7 @@ def projector_gamma(code: ArrayLike, hue: ArrayLike, *, model: str = "hexcone") 
     Raises
     ------
     GammaFitError
-        Too few bands inside a channel's ramps (``N < 12``), a captured hue that does not rise
+        Too few bands (``N < 12``, or fewer than two inside a channel's ramps), a captured hue that does not rise
         by about one turn, a gamma outside :data:`GAMMA_RANGE`, or a residual above
         :data:`MAX_GAMMA_RESIDUAL_RAD` (the power law does not describe the projector).
 
@@ -296,10 +298,10 @@ def projector_gamma(code: ArrayLike, hue: ArrayLike, *, model: str = "hexcone") 
     k = np.minimum(s.astype(np.intp), 5)
     inside = (s - k) > 1e-9
     ramp = tuple(int(np.count_nonzero(inside & (np.asarray(SEXTANT_CHANNEL)[k] == ch))) for ch in range(3))
-    if min(ramp) < MIN_RAMP_BANDS:
-        raise GammaFitError(f"{c.size} hue bands leave {min(ramp)} band(s) on a channel's ramps (R, G, B: "
-                            f"{ramp[0]}, {ramp[1]}, {ramp[2]}); the projector's response needs at least "
-                            f"{MIN_RAMP_BANDS} per channel (N >= 12)")
+    if c.size < MIN_GAMMA_BANDS or min(ramp) < MIN_RAMP_BANDS:
+        raise GammaFitError(f"{c.size} hue bands leave {ramp[0]}, {ramp[1]}, {ramp[2]} band(s) on the R, G, B "
+                            f"ramps: fitting the projector's response (six boundary hues, three gammas) needs "
+                            f"at least {MIN_GAMMA_BANDS} bands, {MIN_RAMP_BANDS} on each channel's ramps")
     span = (h[-1] - h[0]) * c.size / max(c.size - 1, 1)
     if not np.all(np.isfinite(h)) or abs(span - TWO_PI) > 0.5 * np.pi:
         raise GammaFitError(f"the captured hue does not wind once round the circle over the bands "

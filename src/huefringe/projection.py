@@ -399,7 +399,7 @@ def write_patterns(
                 fit = comp.gamma
                 asked["compensated"]["phase_shift"] = {
                     "levels": PHASE_SHIFT_LEVELS, "model": "drive = level ** (1 / gamma), per channel R, G, B",
-                    "gamma": [round(float(g), 4) for g in fit.gamma],
+                    "gamma": [float(g) for g in fit.gamma],
                     "fit_residual_rad": {"rms": fit.residual_rms_rad, "max": fit.residual_max_rad},
                     "hue_bands": fit.n_bands, "ramp_bands": list(fit.ramp_bands)}
         with atomic_path(tmp / "patterns.yaml") as p:
