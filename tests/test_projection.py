@@ -271,13 +271,16 @@ def test_compensated_trapezoid_decodes_through_its_predistortion(tmp_path: Path,
     slope = float(np.max(np.diff(pre.code) / np.diff(pre.emitted)))
     err = np.abs(wrap_pi(pre.decode(hue).astype(np.float64) - phi))
     assert err.max() <= slope * _bounds(top)[0] + 1e-5
-    # bands, white and phase-shift images are not pre-distorted
+    # bands and white are not pre-distorted; the phase-shift images are pre-compensated for the
+    # projector's gamma fitted to the same table (tests/test_patterns_gamma.py)
     plain = write_patterns(tmp_path / "plain", width=W, height=H, period_px=T, hue_bands=N, repeats=1, frames=1,
                            bit_depth=depth)
     for p in plain.glob("*.png"):
         same = (out / p.name).read_bytes() == p.read_bytes()
-        assert same != p.name.endswith("_trapezoid.png"), p.name
-    assert not (plain / "predistortion.csv").exists()
+        assert same == (not p.name.endswith(("_trapezoid.png", "_shift_s0.png", "_shift_s1.png", "_shift_s2.png"))), \
+            p.name
+    assert not (plain / "predistortion.csv").exists() and not (plain / "phase_shift_levels.csv").exists()
+    assert (out / "phase_shift_levels.csv").is_file()
 
 
 def test_compensated_refuses_a_folder_without_the_table(tmp_path: Path) -> None:

@@ -125,6 +125,8 @@ def _cmd_patterns(args: argparse.Namespace) -> int:
     with open(out / "manifest.csv", encoding="utf-8") as fh:
         n_cap = sum(1 for _ in fh) - 1
     extra = " and predistortion.csv (compensated trapezoid, paper Fig. 6)" if args.compensated else ""
+    if args.compensated and not args.no_phase_shift:
+        extra += " and phase_shift_levels.csv (phase shifts pre-compensated for the projector gamma)"
     print(f"wrote {n_img} projector images ({args.width} x {args.height}, {args.bit_depth}-bit), a manifest "
           f"of {n_cap} captures{extra} to {out}")
     return 0
@@ -211,7 +213,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--bit-depth", type=int, choices=(8, 16), default=8, help="PNG bit depth (default 8)")
     p.add_argument("--compensated", metavar="CALIB",
                    help="pre-distort the trapezoid (paper Fig. 6) from the plate's hue table CALIB/table_reference.json "
-                        "(a run's results/<id>/calib) and write predistortion.csv for huefringe session")
+                        "(a run's results/<id>/calib) and write predistortion.csv for huefringe session; the "
+                        "phase-shift images are pre-compensated for the projector gamma fitted to the same table "
+                        "(phase_shift_levels.csv)")
     p.set_defaults(func=_cmd_patterns)
 
     p = sub.add_parser("session", help="assemble a checked capture session from a folder of camera files; exit 2 if refused")

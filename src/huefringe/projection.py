@@ -15,7 +15,12 @@
   table ``CALIB/table_reference.json`` (:func:`huefringe.compensation.plate_transfer`,
   :func:`~huefringe.compensation.predistortion`) at the projector's resolution and period, and
   ``predistortion.csv`` (the session extension of docs/design.md), which ``huefringe session``
-  copies into the session so that it decodes. Bands, white and phase-shift images stay plain.
+  copies into the session so that it decodes. With phase shifting, the three sinusoids are
+  pre-compensated for the projector's response, read off the same table
+  (:func:`huefringe.compensation.table_gamma`: per-channel gamma from the hue bands' ramps):
+  channel ``k`` of ``shift_sN`` drives ``I ** (1 / gamma_k)`` so that the captured intensity is
+  the sinusoid ``I`` again, and ``phase_shift_levels.csv`` records the drive levels applied
+  (:func:`phase_shift_levels_csv`). Bands and white stay plain.
 
 The folder is written into a hidden temporary folder beside ``OUT`` and renamed onto ``OUT`` at the
 end, so an interrupted run leaves nothing that looks complete. Arguments are checked before anything
@@ -38,7 +43,8 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from .compensation import emitted_columns, plate_transfer, predistortion
+from .compensation import GammaFit, GammaFitError, emitted_columns, linearised_levels, plate_transfer, \
+    predistortion, table_gamma
 from .huetable import HueTable
 from .io import atomic_path, write_png_rgb
 from .patterns import TWO_PI, band_rgb, phase_shift_intensity, projector_image, quantise
@@ -46,6 +52,12 @@ from .session import SessionError, format_predistortion, read_predistortion
 
 #: The hue table of the reference plate that ``--compensated`` reads from a calibration folder.
 CALIB_TABLE = "table_reference.json"
+
+#: What ``--compensated`` writes beside the manifest when the phase-shift sinusoids are pre-compensated.
+PHASE_SHIFT_LEVELS = "phase_shift_levels.csv"
+
+#: Rows of ``phase_shift_levels.csv``: wanted grey level ``j / PHASE_SHIFT_LEVEL_STEPS``.
+PHASE_SHIFT_LEVEL_STEPS = 256
 
 MANIFEST_HEADER = ("order", "image", "session_path")
 
@@ -169,16 +181,23 @@ class Compensation:
     """Phase ``p(c)`` the trapezoid emits for code ``c``."""
     history: list[dict[str, float]]
     """The loop's predicted residual per iteration (:func:`huefringe.compensation.predistortion`)."""
+    gamma: GammaFit | None = None
+    """The projector's per-channel response the phase-shift sinusoids are pre-compensated with
+    (None: no phase shifting)."""
 
 
 def load_compensation(calib: str | os.PathLike[str], *, threshold_rad: float = 2e-3, max_iter: int = 50,
-                      gain: float = 0.8) -> Compensation:
+                      gain: float = 0.8, phase_shift: bool = False) -> Compensation:
     """The pre-distortion from ``calib/table_reference.json`` (a run's ``results/<id>/calib``).
+
+    With ``phase_shift`` also the projector's per-channel gamma from the same table
+    (:func:`huefringe.compensation.table_gamma`), for pre-compensated phase-shift sinusoids.
 
     Raises
     ------
     PatternsError
-        (``compensated``) the folder or the table's files are missing or unreadable, naming the file.
+        (``compensated``) the folder or the table's files are missing or unreadable, or (with
+        ``phase_shift``) the table cannot give the projector's response, naming the file and why.
     """
     folder = Path(calib)
     if not folder.is_dir():
@@ -198,13 +217,45 @@ def load_compensation(calib: str | os.PathLike[str], *, threshold_rad: float = 2
     if np.any(np.diff(p) <= 0) or p[-1] >= p[0] + TWO_PI or np.any(np.abs(p - c) >= np.pi):
         raise PatternsError("compensated", f"{base}: the plate's transfer function gives a pre-distortion that is "
                                            "not invertible (emitted phase not rising by less than one turn)")
-    return Compensation(folder, c, p, history)
+    fit = None
+    if phase_shift:
+        try:
+            fit = table_gamma(table)
+        except GammaFitError as exc:
+            raise PatternsError("compensated", f"{base}: cannot read the projector's response for the phase-shift "
+                                               f"images off the plate's hue table: {exc} (or write them with "
+                                               "--no-phase-shift)") from exc
+    return Compensation(folder, c, p, history, fit)
 
 
 def predistortion_csv(comp: Compensation) -> str:
     """``predistortion.csv`` text (huefringe extension of capture-session/1, docs/design.md)."""
     return format_predistortion(comp.code, comp.emitted,
                                 source=f"huefringe patterns --compensated from {comp.calib / CALIB_TABLE}")
+
+
+def phase_shift_levels_csv(comp: Compensation) -> str:
+    """``phase_shift_levels.csv`` text: the drive levels of the pre-compensated phase-shift images.
+
+    Comment lines ``#`` (the fitted gammas, the fit's residual and the source table), a header
+    ``level,r,g,b``, then one row per wanted grey level ``j / 256``: the drive level (0..1, before
+    rounding to the image's codes) each channel is given for it, ``level ** (1 / gamma_k)``
+    (:func:`huefringe.compensation.linearised_levels`).
+    """
+    fit = comp.gamma
+    assert fit is not None
+    level = np.arange(PHASE_SHIFT_LEVEL_STEPS + 1) / PHASE_SHIFT_LEVEL_STEPS
+    drive = linearised_levels(level, fit.gamma)
+    g = fit.gamma
+    lines = ["# huefringe phase-shift-levels/1: the grey phase-shift sinusoids I = 0.5 + 0.5 cos(2 pi x / T + delta_s)",
+             "# were projected with channel k driven at level ** (1 / gamma_k), so that the captured intensity is I",
+             f"# gamma R, G, B = {g[0]:.4f}, {g[1]:.4f}, {g[2]:.4f} (normalised response v ** gamma_k), fitted to the",
+             f"# captured hue of the plate's {fit.n_bands} hue bands: "
+             f"residual RMS {fit.residual_rms_rad:.4f} rad, max {fit.residual_max_rad:.4f} rad",
+             f"# written by huefringe patterns --compensated from {comp.calib / CALIB_TABLE}",
+             "level,r,g,b"]
+    lines += [f"{lv:.6f},{r:.6f},{gg:.6f},{b:.6f}" for lv, (r, gg, b) in zip(level, drive, strict=True)]
+    return "\n".join(lines) + "\n"
 
 
 def _image(name: str, *, width: int, height: int, period: float, hue_bands: int, bit_depth: int,
@@ -219,6 +270,10 @@ def _image(name: str, *, width: int, height: int, period: float, hue_bands: int,
     if name.startswith("band_"):
         colour = quantise(band_rgb(int(name[5:]), hue_bands), bit_depth)
         return np.broadcast_to(colour, (height, width, 3)).copy()
+    if name.startswith("shift_s") and compensation is not None and compensation.gamma is not None:
+        level = phase_shift_intensity(TWO_PI * np.arange(width) / period, int(name[7:]))
+        row = quantise(linearised_levels(level, compensation.gamma.gamma), bit_depth)
+        return np.broadcast_to(row[None, :, :], (height, width, 3)).copy()
     if name.startswith("shift_s"):
         row = quantise(phase_shift_intensity(TWO_PI * np.arange(width) / period, int(name[7:])), bit_depth)
         return np.broadcast_to(row[None, :, None], (height, width, 3)).copy()
@@ -275,7 +330,9 @@ def write_patterns(
     compensated : path, optional
         A calibration folder (a run's ``results/<id>/calib``) holding the plate's hue table
         ``table_reference.json``: the trapezoid is then pre-distorted (paper Fig. 6) and
-        ``predistortion.csv`` is written beside the manifest (:func:`load_compensation`).
+        ``predistortion.csv`` is written beside the manifest (:func:`load_compensation`); with
+        ``phase_shift`` the sinusoids are pre-compensated for the projector's per-channel gamma
+        fitted to the same table, recorded in ``phase_shift_levels.csv`` and ``patterns.yaml``.
     threshold_rad, max_iter, gain
         The compensation loop's (:func:`huefringe.compensation.predistortion`).
 
@@ -294,7 +351,8 @@ def write_patterns(
                             repeats=repeats, planes_mm=planes_mm, frames=frames, bit_depth=bit_depth,
                             camera_period_px=camera_period_px, magnification=magnification)
     comp = None if compensated is None else load_compensation(compensated, threshold_rad=threshold_rad,
-                                                                  max_iter=max_iter, gain=gain)
+                                                                  max_iter=max_iter, gain=gain,
+                                                                  phase_shift=phase_shift)
     plan = capture_plan(hue_bands, repeats, planes, frames, phase_shift)
     files: dict[str, str] = {}
     for name, _ in plan:
@@ -312,6 +370,9 @@ def write_patterns(
                 read_predistortion(tmp / "predistortion.csv")
             except SessionError as exc:  # pragma: no cover - load_compensation checks the same
                 raise PatternsError("compensated", str(exc)) from exc
+            if comp.gamma is not None:
+                with atomic_path(tmp / PHASE_SHIFT_LEVELS) as p:
+                    p.write_text(phase_shift_levels_csv(comp), encoding="utf-8")
         text = _stdio.StringIO()
         w = csv.writer(text, lineterminator="\n")
         w.writerow(MANIFEST_HEADER)
@@ -334,6 +395,13 @@ def write_patterns(
                                     "predicted_residual_rad": {"before": comp.history[0]["std_rad"],
                                                                "after": comp.history[-1]["std_rad"]},
                                     "iterations": int(comp.history[-1]["iteration"])}
+            if comp.gamma is not None:
+                fit = comp.gamma
+                asked["compensated"]["phase_shift"] = {
+                    "levels": PHASE_SHIFT_LEVELS, "model": "drive = level ** (1 / gamma), per channel R, G, B",
+                    "gamma": [float(g) for g in fit.gamma],
+                    "fit_residual_rad": {"rms": fit.residual_rms_rad, "max": fit.residual_max_rad},
+                    "hue_bands": fit.n_bands, "ramp_bands": list(fit.ramp_bands)}
         with atomic_path(tmp / "patterns.yaml") as p:
             p.write_text(yaml.safe_dump(asked, sort_keys=False), encoding="utf-8")
         os.chmod(tmp, 0o777 & ~_UMASK)  # mkdtemp creates 0700
