@@ -198,6 +198,7 @@ VARIANTS.update({
 })
 VARIANTS.update({
     # issue 24, photo reliefs' noise (docs/accuracy-texture.md, Session 9): the adaptive phase filter's reach
+    "target 0.006 (session 8)": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.006}}},
     "target 0.004": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.004}}},
     "target 0.003": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.003}}},
     "target 0.002": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.002}}},
