@@ -235,18 +235,10 @@ def test_manifest_paths_make_a_session_that_check_accepts(tmp_path: Path) -> Non
 # --------------------------------------------------------------------------- --compensated (paper Fig. 6)
 def _calib_folder(root: Path, amplitude: float = 0.3) -> Path:
     """A calibration folder whose plate hue table has the transfer ``hue = c + a sin(c)`` (every pixel)."""
-    from huefringe.huetable import RAD_PER_COUNT, HueTable
+    from test_patterns_gamma import calib_folder
 
-    n, shape = 32, (3, 5)
-    c = TWO_PI * np.arange(n) / n
-    counts = np.round(np.mod(c + amplitude * np.sin(c), TWO_PI) / RAD_PER_COUNT).astype(np.uint16)
-    table = HueTable(model="hexcone", n_bands=n, table=np.broadcast_to(counts[:, None, None], (n, *shape)).copy(),
-                     valid=np.ones(shape, bool), start=np.zeros(shape, np.uint16), reason=np.zeros(shape, np.uint8),
-                     noise_rad=np.zeros(shape, np.float32), stats={})
-    folder = root / "calib"
-    folder.mkdir()
-    table.save(folder / "table_reference.json")
-    return folder
+    c = TWO_PI * np.arange(32) / 32
+    return calib_folder(root, c + amplitude * np.sin(c))
 
 
 @pytest.mark.parametrize("depth", [8, 16])
