@@ -499,8 +499,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         buffers = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))  # reused frame to frame
     blur2 = float(cal.texture_blur_px2 or 0.0)  # the plane calibration's (calibration.texture_blur_px2)
     # the texture term of u: the heights' change when the correction's blur moves by its uncertainty
-    blur_u = float(cal.texture_blur_u_px2 or 0.0) if measurement.get("texture_uncertainty", True) else 0.0
-    blur_u = blur_u if want_uncertainty else 0.0
+    blur_u = (float(cal.texture_blur_u_px2 or 0.0)
+              if want_uncertainty and measurement.get("texture_uncertainty", True) else 0.0)
     for n in frames:
         path = s.frames[n]
         # the texture-edge correction (huefringe.texture) once, before either chain: both read it
@@ -536,19 +536,19 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                 tex_u = texture_term(height, moved_height)
         else:
             budget = pixel_budget(t, cal) if budget is None else budget
-            res = measure_frame(reader.rgb(path) if rgb is None else rgb, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
-                                shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
-                                denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
-                                denoise_adaptive=adaptive, budget=budget,
-                                own_noise=bool(measurement.get("own_noise", False)))
+
+            def reference(image: NDArray[np.floating]):
+                return measure_frame(image, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
+                                     shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
+                                     denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
+                                     denoise_adaptive=adaptive, budget=budget,
+                                     own_noise=bool(measurement.get("own_noise", False)))
+
+            res = reference(reader.rgb(path) if rgb is None else rgb)
             height, phase, hue, stats, u_map = res.height, res.phase, res.hue, res.stats, res.uncertainty
             support = res.support
-            if moved is not None:
-                tex_u = texture_term(height, measure_frame(
-                    moved, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
-                    shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
-                    denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
-                    denoise_adaptive=adaptive, budget=None, own_noise=bool(measurement.get("own_noise", False))).height)
+            if moved is not None:  # the same chain and budget (budget=None would rebuild it every frame)
+                tex_u = texture_term(height, reference(moved).height)
         jump = float(measurement.get("edge_jump_mm", 0.0) or 0.0)
         if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
             height, (phase, u_map), (support,), changed = remove_step_edges(
