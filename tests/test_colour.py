@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
 from huefringe import colour
-from huefringe.patterns import TWO_PI, trapezoid_rgb
+from huefringe.patterns import RAMP_SEXTANTS, TWO_PI, trapezoid_rgb
 
 
 def circ(a, b):
@@ -23,6 +23,17 @@ def test_hexcone_hue_of_trapezoid_is_the_code_phase():
     h = colour.hue_hexcone(trapezoid_rgb(phi))
     assert h.dtype == np.float32
     assert np.max(np.abs(circ(h, phi))) < 1e-6
+
+
+def test_ramp_sextants_name_the_one_channel_eq3_ramps():
+    """In sextant k of eq. 3 exactly the channel RAMP_SEXTANTS names changes, by +-1 in its direction,
+    while the other two stay at 0 and 1."""
+    for k, (ch, sign) in enumerate(RAMP_SEXTANTS):
+        a, b = trapezoid_rgb(np.array([k, k + 1 - 1e-9]) * np.pi / 3)
+        change = b - a
+        assert change[ch] == pytest.approx(sign, abs=1e-6)
+        others = [c for c in range(3) if c != ch]
+        assert np.allclose(change[others], 0.0) and np.allclose(sorted(a[others]), [0.0, 1.0])
 
 
 def test_hsi_hue_of_trapezoid_is_only_nearly_linear_and_monotonic():

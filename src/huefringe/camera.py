@@ -24,6 +24,7 @@ from numpy.typing import ArrayLike, NDArray
 import scipy.sparse
 from scipy import ndimage
 
+from huefringe.patterns import RAMP_SEXTANTS
 from huefringe.session import read_rgb, read_rgb_codes
 
 BAYER_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
@@ -459,8 +460,7 @@ out at each side) extrapolates its scale to the corners and read 2.9-4.2 px of a
 #: the six segments of the trapezoid's period (capture-session/1, "Projected codes") in which one
 #: primary alone varies, the other two held at 0 or 1: (start, end) as fractions of the period,
 #: the varying primary (0 R, 1 G, 2 B) and its direction (+1 rising, -1 falling)
-_MIXING_SEGMENTS = ((0.0, 1 / 6, 1, 1), (1 / 6, 1 / 3, 0, -1), (1 / 3, 1 / 2, 2, 1),
-                    (1 / 2, 2 / 3, 1, -1), (2 / 3, 5 / 6, 0, 1), (5 / 6, 1.0, 2, -1))
+_MIXING_SEGMENTS = tuple((k / 6, (k + 1) / 6, ch, sign) for k, (ch, sign) in enumerate(RAMP_SEXTANTS))
 
 CA_MIXING_MAX_OFF_DIAGONAL = 0.5
 """A channel-mixing estimate with an off-diagonal entry beyond this (a camera channel answering
@@ -938,8 +938,8 @@ def corrections(record: Mapping[str, Any] | None, meta: Mapping[str, Any]) -> tu
     if not reg.get("applied"):
         return model, CaptureReader(bayer=bayer, demix=demix)
     est = reg["estimate"]
-    mix = est.get("mixing") or {}  # records before the mixing estimate: the camera channels registered
-    mixing = tuple(tuple(float(x) for x in row) for row in mix["matrix"]) if mix.get("estimable") else None
+    reg_mix = est.get("mixing") or {}  # records before the mixing estimate: the camera channels registered
+    mixing = tuple(tuple(float(x) for x in row) for row in reg_mix["matrix"]) if reg_mix.get("estimable") else None
     return model, CaptureReader(ChannelRegistration(tuple(est["centre"]), float(est["scale"]["R"]),
                                                     float(est["scale"]["B"]), mixing), bayer=bayer, demix=demix)
 

@@ -25,7 +25,7 @@ from scipy.optimize import least_squares
 from . import colour
 from .huetable import RAD_PER_COUNT, HueTable
 from .io import write_figure_png
-from .patterns import TWO_PI, projector_image, trapezoid_rgb
+from .patterns import RAMP_SEXTANTS, TWO_PI, projector_image, trapezoid_rgb
 
 __all__ = [
     "GammaFit",
@@ -184,8 +184,9 @@ def compensate_pattern(
 # The projector's per-channel response, for pre-compensated phase-shift sinusoids
 # =============================================================================================
 #: Eq. 3 sextant by sextant (code ``c`` in ``[k pi / 3, (k + 1) pi / 3)``): the channel on a ramp
-#: (0 R, 1 G, 2 B); it rises in even sextants and falls in odd ones, the other two sit at 0 and 1.
-SEXTANT_CHANNEL: tuple[int, ...] = (1, 0, 2, 1, 0, 2)
+#: (0 R, 1 G, 2 B; :data:`~huefringe.patterns.RAMP_SEXTANTS`); it rises in even sextants and falls in
+#: odd ones, the other two sit at 0 and 1.
+SEXTANT_CHANNEL: tuple[int, ...] = tuple(ch for ch, _ in RAMP_SEXTANTS)
 
 #: :func:`projector_gamma` refuses fits whose RMS residual (captured hue, rad) exceeds this: the
 #: per-channel power law then does not describe the projector (bench tables: 0.001-0.005 rad).

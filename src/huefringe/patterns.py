@@ -13,6 +13,12 @@ from numpy.typing import ArrayLike, NDArray
 
 TWO_PI = 2.0 * np.pi
 
+#: Eq. 3 sextant by sextant (``s = 3 phi / pi`` in ``[k, k + 1)``, :func:`trapezoid_rgb`): the one
+#: channel on a ramp (0 R, 1 G, 2 B) and its direction (+1 rising, -1 falling); the other two sit
+#: at 0 and 1. What the hue bands of a segment show about one primary alone (the camera's channel
+#: mixing, the projector's per-channel response) is read through this.
+RAMP_SEXTANTS: tuple[tuple[int, int], ...] = ((1, 1), (0, -1), (2, 1), (1, -1), (0, 1), (2, -1))
+
 
 def trapezoid_rgb(phi: ArrayLike) -> NDArray[np.float64]:
     """Trapezoidal RGB fringe of paper eq. 3 at code phase ``phi``.
