@@ -34,7 +34,6 @@ __all__ = [
     "emitted_columns",
     "linearised_levels",
     "projector_gamma",
-    "table_gamma",
     "hue_cross_section_figure",
     "plate_transfer",
     "predistortion",
@@ -324,12 +323,6 @@ def projector_gamma(code: ArrayLike, hue: ArrayLike, *, model: str = "hexcone") 
                             f"{rms:.3f} rad (limit {MAX_GAMMA_RESIDUAL_RAD:g}, max {mx:.3f} rad)")
     return GammaFit(gamma=gamma, boundary_hue=fit.x[:6].copy(), residual_rms_rad=rms, residual_max_rad=mx,
                     ramp_bands=ramp, n_bands=int(c.size), model=model)  # type: ignore[arg-type]
-
-
-def table_gamma(table: HueTable) -> GammaFit:
-    """:func:`projector_gamma` of a plate's hue table (its median transfer, :func:`plate_transfer`)."""
-    code, dist = plate_transfer(table)
-    return projector_gamma(code, code + dist, model=table.model)
 
 
 def linearised_levels(level: ArrayLike, gamma: ArrayLike) -> NDArray[np.float64]:

@@ -17,7 +17,7 @@
   ``predistortion.csv`` (the session extension of docs/design.md), which ``huefringe session``
   copies into the session so that it decodes. With phase shifting, the three sinusoids are
   pre-compensated for the projector's response, read off the same table
-  (:func:`huefringe.compensation.table_gamma`: per-channel gamma from the hue bands' ramps):
+  (:func:`huefringe.compensation.projector_gamma` of its transfer: per-channel gamma from the hue bands' ramps):
   channel ``k`` of ``shift_sN`` drives ``I ** (1 / gamma_k)`` so that the captured intensity is
   the sinusoid ``I`` again, and ``phase_shift_levels.csv`` records the drive levels applied
   (:func:`phase_shift_levels_csv`). Bands and white stay plain.
@@ -44,7 +44,7 @@ import numpy as np
 import yaml
 
 from .compensation import GammaFit, GammaFitError, emitted_columns, linearised_levels, plate_transfer, \
-    predistortion, table_gamma
+    predistortion, projector_gamma
 from .huetable import HueTable
 from .io import atomic_path, write_png_rgb
 from .patterns import TWO_PI, band_rgb, phase_shift_intensity, projector_image, quantise
@@ -191,7 +191,8 @@ def load_compensation(calib: str | os.PathLike[str], *, threshold_rad: float = 2
     """The pre-distortion from ``calib/table_reference.json`` (a run's ``results/<id>/calib``).
 
     With ``phase_shift`` also the projector's per-channel gamma from the same table
-    (:func:`huefringe.compensation.table_gamma`), for pre-compensated phase-shift sinusoids.
+    (:func:`huefringe.compensation.projector_gamma` of the same plate transfer), for pre-compensated
+    phase-shift sinusoids.
 
     Raises
     ------
@@ -220,7 +221,7 @@ def load_compensation(calib: str | os.PathLike[str], *, threshold_rad: float = 2
     fit = None
     if phase_shift:
         try:
-            fit = table_gamma(table)
+            fit = projector_gamma(code, code + dist, model=table.model)  # the transfer read once, above
         except GammaFitError as exc:
             raise PatternsError("compensated", f"{base}: cannot read the projector's response for the phase-shift "
                                                f"images off the plate's hue table: {exc} (or write them with "
