@@ -35,11 +35,11 @@ from typing import Any
 
 import cv2
 import numpy as np
-import yaml
 from numpy.typing import NDArray
 
+from huefringe.assemble import read_patterns
 from huefringe.io import publish_dir, write_png_rgb
-from huefringe.projection import read_manifest
+from huefringe.session import SessionError
 
 from .config import validate_bench_config
 from .geometry import projector_ray_x0
@@ -130,6 +130,8 @@ def image_placement(bench: Bench, width: int, height: int, period_px: float, *,
 
 
 def _read_patterns(patterns_dir: Path) -> tuple[dict[str, Any], list[Any]]:
+    """``patterns.yaml`` and the manifest's rows, read and checked as ``huefringe session`` reads
+    them (:func:`huefringe.assemble.read_patterns`), plus the keys the projection needs."""
     spec, manifest = patterns_dir / "patterns.yaml", patterns_dir / "manifest.csv"
     if not patterns_dir.is_dir():
         raise ProjectionError(patterns_dir, "not a patterns folder (written by huefringe patterns)")
@@ -137,22 +139,15 @@ def _read_patterns(patterns_dir: Path) -> tuple[dict[str, Any], list[Any]]:
         if not p.is_file():
             raise ProjectionError(p, "missing: not a patterns folder written by huefringe patterns")
     try:
-        meta = yaml.safe_load(spec.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
-        raise ProjectionError(spec, f"cannot read ({exc})") from exc
-    missing = [k for k in ("width", "height", "period_px", "bit_depth") if not isinstance(meta, dict) or k not in meta]
+        meta, rows = read_patterns(patterns_dir)
+    except SessionError as exc:
+        problem = exc.problems[0]
+        raise ProjectionError(problem.path, problem.message) from exc
+    missing = [k for k in ("width", "height", "period_px", "bit_depth") if k not in meta]
     if missing:
         raise ProjectionError(spec, f"lacks {', '.join(missing)}")
-    try:
-        rows = read_manifest(manifest)
-    except (OSError, ValueError) as exc:
-        raise ProjectionError(manifest, str(exc).removeprefix(f"{manifest}: ")) from exc
     if not rows:
         raise ProjectionError(manifest, "lists no capture")
-    for row in rows:
-        if not _PATH.match(row.session_path):
-            raise ProjectionError(manifest, f"row {row.order}: session_path {row.session_path!r} is not a "
-                                            "capture-session/1 image path")
     return meta, rows
 
 
