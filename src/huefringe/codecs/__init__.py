@@ -38,7 +38,7 @@ from huefringe.codecs.graycode import (
     index_to_gray,
     opencv_graycode_patterns,
 )
-from huefringe.codecs.nstep import NoiseModel, WrappedPhase, equal_shifts, linearise, wrapped_phase
+from huefringe.codecs.nstep import NoiseModel, WrappedPhase, equal_shifts, profile_lut, wrapped_phase
 from huefringe.codecs.sequence import (
     Decoded,
     DecodeOptions,
@@ -77,12 +77,12 @@ __all__ = [
     "heterodyne",
     "index_to_gray",
     "kamino410_sequence",
-    "linearise",
     "load_sequence",
     "number_theoretic",
     "opencv_gray_blocks",
     "opencv_graycode_patterns",
     "orders_from_reference",
+    "profile_lut",
     "read_captures",
     "wrapped_phase",
 ]

@@ -1,16 +1,14 @@
 """The projector's gamma estimated from the captures themselves.
 
-Two independent estimates, each of the exponent ``gamma_p`` in ``display = value**gamma_p``:
-
-``flat``
-    With white and black frames, a correctly linearised N-step block has offset 0.5 and amplitude
-    0.5 of ``white - black`` (:func:`~huefringe.codecs.nstep.linearise`); the exponent that makes
-    the fitted offset equal half the span, over the valid pixels, is the estimate.
-``harmonic``
-    A wrong exponent leaves a phase error with three cycles per fringe (for three steps) whose
-    sign and size depend on the block's encoding exponent; two blocks of the same period but
-    different encoding exponents (kamino410's ``gamma_correction``) therefore disagree unless the
-    exponent is right: the estimate minimises their RMS wrapped difference.
+A display of gamma ``gamma_p`` showing a pattern encoded with exponent ``g`` puts a fringe of
+profile ``(0.5 + 0.5 cos)**(g gamma_p)`` on the object; an N-step fit that assumes a sinusoid
+then errs by harmonics ``N +- 1`` of the phase (:func:`~huefringe.codecs.nstep.profile_lut`).
+The estimate does not use the white and black frames (ambient and scattered light lift a
+fringe's dark parts above the black frame, so a power law between those two frames is the wrong
+model). Binary Gray-code patterns carry no gamma: the Gray code's cell centres give each pixel's
+phase to within half a cell. For each phase block, the exponent whose profile correction brings
+the block's phase closest to the Gray code's (least circular squares) is that block's ``Gamma``;
+``gamma_p`` is the median of ``Gamma / g`` over the blocks.
 """
 
 from __future__ import annotations
@@ -19,19 +17,96 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy import optimize
+
+from huefringe.codecs.graycode import decode_gray
+from huefringe.codecs.nstep import TWO_PI, profile_lut, shift_matrix
+from huefringe.codecs.sequence import GrayBlock, PhaseBlock, SequenceSpec
 
 __all__ = ["GammaEstimate", "estimate_projector_gamma"]
 
 
 @dataclass(frozen=True)
 class GammaEstimate:
-    """Projector gamma estimates (``nan`` where the sequence lacks what a method needs)."""
+    """Projector gamma estimated against the Gray code (``nan`` without one).
 
-    flat: float
-    harmonic: float
+    Attributes
+    ----------
+    gray : float
+        Median over phase blocks of ``Gamma / encoding_gamma`` against the Gray code.
+    gray_blocks : tuple of float
+        Each phase block's ``Gamma / encoding_gamma`` (capture order; nan without a Gray code).
+    pixels : int
+        Pixels used.
+    """
+
+    gray: float
+    gray_blocks: tuple[float, ...]
     pixels: int
 
 
-def estimate_projector_gamma(images, spec, options=None, *, mask: NDArray[np.bool_] | None = None) -> GammaEstimate:
-    """Estimate ``spec``'s projector gamma from its captures (module docstring)."""
-    raise NotImplementedError
+def _correct(naive: NDArray[np.float64], shifts: tuple[float, ...], gamma: float) -> NDArray[np.float64]:
+    grid, h = profile_lut(shifts, gamma, samples=1024)
+    return np.interp(h[0] + np.mod(naive - h[0], TWO_PI), h, grid)
+
+
+def _circ_ms(d: NDArray[np.float64]) -> float:
+    return float(np.mean(np.angle(np.exp(1j * d)) ** 2))
+
+
+def estimate_projector_gamma(
+    images: list[NDArray[np.number]] | NDArray[np.number],
+    spec: SequenceSpec,
+    mask: NDArray[np.bool_],
+    *,
+    bounds: tuple[float, float] = (0.3, 4.0),
+    max_pixels: int = 200_000,
+) -> GammaEstimate:
+    """Estimate the projector gamma of ``spec`` from its captures (module docstring).
+
+    Parameters
+    ----------
+    images : list of ndarray or ndarray, shape (n_frames, H, W)
+        Captures in ``spec``'s order.
+    spec : SequenceSpec
+        Its blocks' ``encoding_gamma`` are known; its ``projector_gamma`` is not used.
+    mask : ndarray of bool, shape (H, W)
+        Pixels to use (e.g. a first decode's ``valid``).
+    bounds : (float, float)
+        Search interval of the exponent.
+    max_pixels : int
+        Evenly spread subsample of ``mask`` used (the estimate is one number).
+    """
+    stack = np.stack(images) if isinstance(images, list) else np.asarray(images)
+    idx = np.flatnonzero(np.asarray(mask, bool))
+    if idx.size > max_pixels:
+        idx = idx[np.linspace(0, idx.size - 1, max_pixels).astype(np.intp)]
+    flat = stack.reshape(stack.shape[0], -1)[:, idx].astype(np.float32)
+    blocks = [(b, sl) for b, sl in spec.slices() if isinstance(b, PhaseBlock)]
+    naive = []
+    for b, sl in blocks:
+        m = shift_matrix(b.shifts_rad).astype(np.float32)
+        naive.append(np.mod(np.arctan2(-(m[2] @ flat[sl]), m[1] @ flat[sl]).astype(np.float64), TWO_PI))
+    # Gray code reference, all bits, cell centres
+    gray_ref: dict[str, NDArray[np.float64]] = {}
+    for b, sl in spec.slices():
+        if isinstance(b, GrayBlock) and b.inverse:
+            dec = decode_gray(flat[sl][0::2, None, :], 0.0, inverse=flat[sl][1::2, None, :])
+            gray_ref[b.axis] = (dec.index[0] + 0.5) * b.cell_px - 0.5
+    per_block = []
+    for (b, _), nv in zip(blocks, naive, strict=True):
+        if b.axis not in gray_ref:
+            per_block.append(np.nan)
+            continue
+        ref = TWO_PI * (gray_ref[b.axis] - b.origin_px) / b.period_px
+        res = optimize.minimize_scalar(
+            lambda gp, b=b, nv=nv, ref=ref: _circ_ms(_correct(nv, b.shifts_rad, b.encoding_gamma * gp) - ref),
+            bounds=bounds,
+            method="bounded",
+            options={"xatol": 1e-3},
+        )
+        per_block.append(float(res.x))
+    finite = [g for g in per_block if np.isfinite(g)]
+    return GammaEstimate(
+        gray=float(np.median(finite)) if finite else np.nan, gray_blocks=tuple(per_block), pixels=int(idx.size)
+    )

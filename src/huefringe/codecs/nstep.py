@@ -13,10 +13,14 @@ each frame's noise through ``phi = atan2(-c, b)``:
 with ``u(I_n)**2`` from a :class:`NoiseModel` (read noise, shot noise, quantisation). For
 equal shifts this is the familiar ``u(phi) = sqrt(2 / N) u(I) / B``.
 
-Patterns encoded with an exponent (a projector image ``(0.5 + 0.5 cos)**g``, or a display with
-gamma ``gamma_p``) reach the camera as ``black + (white - black) * (0.5 + 0.5 cos)**Gamma`` with
-``Gamma = g * gamma_p``: :func:`linearise` undoes it from the white and black frames before the
-fit, and its derivative is carried into the uncertainty.
+Patterns encoded with an exponent (a projector image ``(0.5 + 0.5 cos)**g`` shown by a display
+of gamma ``gamma_p``) reach the camera as ``A' + B' f(phi + delta_n)`` with the fringe profile
+``f(theta) = (0.5 + 0.5 cos(theta))**Gamma``, ``Gamma = g * gamma_p``, and ``A'``, ``B'`` unknown
+per pixel (ambient and scattered light raise the fringes' dark parts above a black frame's: the
+white and black frames do not give them). The fit above then returns ``h(phi)``, a function of
+the true phase alone (offset and gain cancel in the arctangent), whose error has ``N +- 1``
+harmonics of ``f``. :func:`profile_lut` tabulates ``h`` for the known shifts and ``Gamma`` and
+:func:`wrapped_phase` inverts it; the uncertainty is divided by ``h'``.
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from numpy.typing import ArrayLike, NDArray
 
 TWO_PI = 2.0 * np.pi
 
-__all__ = ["NoiseModel", "WrappedPhase", "equal_shifts", "linearise", "shift_matrix", "wrapped_phase"]
+__all__ = ["NoiseModel", "WrappedPhase", "equal_shifts", "profile_lut", "shift_matrix", "wrapped_phase"]
 
 
 @dataclass(frozen=True)
@@ -69,8 +73,7 @@ class WrappedPhase:
     phase : ndarray of float64
         Wrapped phase ``phi`` in [0, 2 pi).
     modulation : ndarray of float32
-        Fringe amplitude ``B`` in camera DN (of the linearised signal scaled back to DN when an
-        encoding gamma was undone): the data-quality map.
+        Amplitude ``B`` (camera DN) of the captures' fundamental: the data-quality map.
     offset : ndarray of float32
         Background ``A`` in the same units.
     sigma : ndarray of float32
@@ -115,38 +118,40 @@ def shift_matrix(shifts: ArrayLike) -> NDArray[np.float64]:
     return np.linalg.pinv(design)
 
 
-def linearise(
-    frames: NDArray[np.floating], gamma: float, black: NDArray[np.floating], white: NDArray[np.floating]
-) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.float32]]:
-    """Undo an encoding exponent: ``s = ((I - black) / (white - black)) ** (1 / gamma)``.
-
-    Parameters
-    ----------
-    frames : ndarray, shape (N, H, W)
-        Captures in DN.
-    gamma : float
-        The total exponent ``Gamma`` between the sinusoid and the camera (pattern exponent times
-        projector gamma).
-    black, white : ndarray, shape (H, W)
-        Captures of the projector's black and white images.
+def profile_lut(shifts: ArrayLike, gamma: float, samples: int = 4096) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The N-step fit's phase ``h(phi)`` for fringes of profile ``(0.5 + 0.5 cos)**gamma``.
 
     Returns
     -------
-    s : ndarray of float32, shape (N, H, W)
-        The linearised frames, ``0.5 + 0.5 cos`` where the model holds, in units of
-        ``white - black``.
-    ds_di : ndarray of float32, shape (N, H, W)
-        ``d s / d I`` (per DN), for the uncertainty.
-    span : ndarray of float32, shape (H, W)
-        ``white - black`` (DN), at least 1.
+    phi : ndarray of float64
+        True phases on a uniform grid over [0, 2 pi], ``samples + 1`` points.
+    h : ndarray of float64
+        The fitted phase, unwrapped so that it increases with ``phi`` by 2 pi in total.
+
+    Raises
+    ------
+    ValueError
+        When ``h`` is not increasing (the profile too distorted for these shifts).
+
+    Examples
+    --------
+    >>> phi, h = profile_lut(equal_shifts(3), 1.0)
+    >>> float(np.max(np.abs(h - phi))) < 1e-12
+    True
+    >>> phi, h = profile_lut(equal_shifts(3), 2.0)  # three cycles of error per fringe
+    >>> round(float(np.max(np.abs(h - phi))), 3)
+    0.108
     """
-    span = np.maximum(np.asarray(white, np.float32) - np.asarray(black, np.float32), 1.0)
-    t = (np.asarray(frames, np.float32) - np.asarray(black, np.float32)) / span
-    t = np.clip(t, 1e-3, 1.0)
-    inv = np.float32(1.0 / gamma)
-    s = t**inv
-    ds_di = inv * s / t / span
-    return s, ds_di, span
+    d = np.asarray(shifts, np.float64).ravel()
+    m = shift_matrix(d)
+    phi = np.linspace(0.0, TWO_PI, samples + 1)
+    f = (0.5 + 0.5 * np.cos(phi[:, None] + d[None, :])) ** gamma
+    b = f @ m[1]
+    c = f @ m[2]
+    h = np.unwrap(np.arctan2(-c, b))
+    if np.any(np.diff(h) <= 0):
+        raise ValueError(f"a fringe profile of exponent {gamma:g} is not invertible with shifts {np.degrees(d).round(2).tolist()} deg")
+    return phi, h
 
 
 def wrapped_phase(
@@ -155,8 +160,6 @@ def wrapped_phase(
     noise: NoiseModel,
     *,
     gamma: float = 1.0,
-    black: NDArray[np.floating] | None = None,
-    white: NDArray[np.floating] | None = None,
 ) -> WrappedPhase:
     """Wrapped phase, modulation and phase uncertainty of one phase block.
 
@@ -169,9 +172,7 @@ def wrapped_phase(
     noise : NoiseModel
         The camera's noise, for ``sigma``.
     gamma : float
-        Total encoding exponent to undo (1 = linear, no white/black frames needed).
-    black, white : ndarray, optional
-        Captures of black and white projector images, required when ``gamma != 1``.
+        The fringe profile's exponent ``Gamma`` (1 = sinusoidal), undone by :func:`profile_lut`.
 
     Returns
     -------
@@ -185,21 +186,15 @@ def wrapped_phase(
     >>> w = wrapped_phase(frames, d, NoiseModel(0.5, None, 255))
     >>> bool(np.allclose(w.phase[0], np.mod(2 * np.pi * u / 16, 2 * np.pi)))
     True
-    >>> float(w.modulation[0, 0]), round(float(w.sigma[0, 0]), 5)
-    (50.0, 0.01087)
+    >>> float(w.modulation[0, 0]), round(float(w.sigma[0, 0]), 5)  # sqrt(2 / 4) sqrt(0.5**2 + 1 / 12) / 50
+    (50.0, 0.00816)
     """
     m = shift_matrix(shifts)
     stack = np.asarray(frames, np.float32)
     if stack.ndim != 3 or stack.shape[0] != m.shape[1]:
         raise ValueError(f"expected {m.shape[1]} frames of shape (H, W), got an array of shape {stack.shape}")
-    var_i = noise.variance(stack)
-    if gamma != 1.0:
-        if black is None or white is None:
-            raise ValueError(f"undoing an encoding gamma of {gamma:g} needs the white and black frames")
-        sig, ds_di, scale = linearise(stack, gamma, black, white)
-        var_s = var_i * ds_di * ds_di
-    else:
-        sig, var_s, scale = stack, var_i, np.float32(1.0)
+    var_s = noise.variance(stack)
+    sig = stack
     m32 = m.astype(np.float32)
     a = np.tensordot(m32[0], sig, axes=1)
     b = np.tensordot(m32[1], sig, axes=1)
@@ -214,6 +209,12 @@ def wrapped_phase(
     with np.errstate(divide="ignore", invalid="ignore"):
         sigma = np.sqrt(acc) / np.maximum(amp2, np.float32(1e-30))
     sigma = np.where(amp2 > 0, sigma, np.float32(np.pi)).astype(np.float32)
-    modulation = (np.sqrt(amp2) * scale).astype(np.float32)
-    offset = (a * scale).astype(np.float32)
-    return WrappedPhase(phase=phase, modulation=modulation, offset=offset, sigma=sigma)
+    if gamma != 1.0:
+        grid, h = profile_lut(shifts, gamma)
+        slope = np.gradient(h, grid)
+        # h(phi) -> phi: h spans [h0, h0 + 2 pi); bring the fitted phase into that window first
+        hp = h[0] + np.mod(phase - h[0], TWO_PI)
+        phase = np.mod(np.interp(hp, h, grid), TWO_PI)
+        sigma = (sigma / np.interp(hp, h, slope)).astype(np.float32)
+    modulation = np.sqrt(amp2).astype(np.float32)
+    return WrappedPhase(phase=phase, modulation=modulation, offset=a.astype(np.float32), sigma=sigma)

@@ -57,7 +57,7 @@ def orders_from_reference(
     --------
     >>> c, m = orders_from_reference(np.array([10.0, 99.0]), 100.0, np.array([320.0, 150.0]))
     >>> c.tolist(), m.round(2).tolist()
-    [[310.0, 99.0], [0.1, 0.49]]
+    ([310.0, 199.0], [0.1, 0.49])
     """
     q = (np.asarray(reference, np.float64) - wrapped) / period
     k = np.floor(q + 0.5)
@@ -80,7 +80,7 @@ def heterodyne(
     --------
     >>> u = np.array([0.0, 50.0, 130.0, 199.0])
     >>> wb, pb = heterodyne(np.mod(u, 200 / 3), 200 / 3, np.mod(u, 100.0), 100.0)
-    >>> pb, wb.round(9).tolist()
+    >>> round(pb, 9), wb.round(9).tolist()
     (200.0, [0.0, 50.0, 130.0, 199.0])
     """
     if p1 == p2:
