@@ -36,8 +36,9 @@ class GrayDecoded:
     index : ndarray of int32
         Cell index ``j`` of the decoded bits (with ``use_bits`` < all bits: ``j >> dropped``).
     contrast : ndarray of float32
-        Smallest ``|pattern - reference|`` (DN) over the decoded bits: how clearly every bit was
-        seen.
+        Second smallest ``|pattern - reference|`` (DN) over the decoded bits (the smallest with a
+        single bit). Next to a cell edge one bit is always ambiguous and misreading it moves the
+        index by one cell, which a phase unwrapping absorbs; two unclear bits mean no code.
     valid : ndarray of bool
         ``contrast >= min_contrast``.
     """
@@ -133,7 +134,8 @@ def decode_gray(
     patterns : array, shape (n_bits, H, W)
         Captures of the bit patterns, MSB first.
     min_contrast : float
-        A pixel is valid when every decoded bit differs from its reference by at least this (DN).
+        A pixel is valid when all decoded bits but at most one differ from their reference by at
+        least this (DN).
     inverse : array, shape (n_bits, H, W), optional
         Captures of each pattern's inverse: bit = pattern > inverse (OpenCV's decision).
     reference : array, shape (H, W), optional
@@ -155,13 +157,17 @@ def decode_gray(
         raise ValueError("give exactly one of inverse (pattern pairs) or reference (a threshold image)")
     shape = pats.shape[1:]
     gray = np.zeros(shape, np.int32)
-    contrast = np.full(shape, np.inf, np.float32)
+    lo1 = np.full(shape, np.inf, np.float32)
+    lo2 = np.full(shape, np.inf, np.float32)
     ref = None if reference is None else np.asarray(reference, np.float32)
     inv = None if inverse is None else np.asarray(inverse)
     for k in range(m):
         p = pats[k].astype(np.float32)
         d = p - (inv[k].astype(np.float32) if inv is not None else ref)
         gray = (gray << 1) | (d > 0)
-        np.minimum(contrast, np.abs(d), out=contrast)
+        ad = np.abs(d)
+        np.minimum(lo2, np.maximum(lo1, ad), out=lo2)
+        np.minimum(lo1, ad, out=lo1)
+    contrast = lo2 if m > 1 else lo1
     index = gray_to_index(gray).astype(np.int32)
     return GrayDecoded(index=index, contrast=contrast, valid=contrast >= np.float32(min_contrast))
