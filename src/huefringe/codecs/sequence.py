@@ -16,9 +16,10 @@ covering the projector, the number-theoretic search over the periods decides. Ev
 of the axis is then unwrapped against the finest stage and the results are averaged with
 weights ``1 / u**2``: the coordinate's uncertainty is that of the weighted mean.
 
-A pixel is valid when every phase block's modulation reaches ``min_modulation_dn``, every decoded
-Gray bit differs from its reference by ``min_gray_contrast_dn`` and every order decision kept a
-margin below ``order_tolerance`` (a fraction of the period; 0.5 is a coin toss).
+A pixel is valid when every phase block's modulation reaches ``min_modulation_dn`` and none of
+its frames is clipped at full scale, the decoded Gray bits (all but one, next to a cell edge)
+differ from their reference by ``min_gray_contrast_dn`` and every order decision kept a margin
+below ``order_tolerance`` (a fraction of the period; 0.5 is a coin toss).
 
 YAML form (:func:`load_sequence`), blocks in capture order::
 
@@ -219,7 +220,7 @@ class Decoded:
     modulation : ndarray of float32
         Fringe amplitude (camera DN) of the axis' finest phase block: the data-quality map.
     valid : ndarray of bool
-        Modulation, Gray contrast and order margins all passed.
+        Modulation, no clipped frame, Gray contrast and order margins all passed.
     order_margin : ndarray of float32
         Largest fraction of a period by which an order decision missed its integer (0 .. 0.5).
     absolute : bool
@@ -592,8 +593,9 @@ def _stages(periods: list[float]) -> list[tuple[float, tuple[int, ...]]]:
 
 
 def _decode_axis(
-    stack: NDArray, spec: SequenceSpec, axis: Axis, flats: dict[str, NDArray], noise: NoiseModel, opts: DecodeOptions, scale: float
+    stack: NDArray, spec: SequenceSpec, axis: Axis, flats: dict[str, NDArray], noise: NoiseModel, opts: DecodeOptions, full: float
 ) -> Decoded:
+    scale = full / 255.0
     blocks = [(b, sl) for b, sl in spec.slices() if isinstance(b, PhaseBlock) and b.axis == axis]
     phases = [wrapped_phase(stack[sl], b.shifts_rad, noise, gamma=b.encoding_gamma * spec.projector_gamma) for b, sl in blocks]
     periods = [b.period_px for b, _ in blocks]
@@ -603,6 +605,8 @@ def _decode_axis(
     valid = np.ones(stack.shape[1:], bool)
     for p in phases:
         valid &= p.modulation >= opts.min_modulation_dn * scale
+    for _, sl in blocks:  # a clipped frame is no sinusoid
+        valid &= stack[sl].max(axis=0) < full
     margin = np.zeros(stack.shape[1:], np.float64)
     extent = spec.extent(axis)
 
@@ -717,4 +721,4 @@ def decode_sequence(
     for b, sl in spec.slices():
         if isinstance(b, FlatBlock) and b.level not in flats:
             flats[b.level] = stack[sl.start]
-    return {axis: _decode_axis(stack, spec, axis, flats, noise, opts, scale) for axis in spec.axes()}
+    return {axis: _decode_axis(stack, spec, axis, flats, noise, opts, full) for axis in spec.axes()}
