@@ -76,5 +76,6 @@ huefringe_sections = [
     ("Using huefringe", ["guide", "capture*", "rig*", "spec/capture-session", "spec/results", "outputs",
                          "configuration", "cluster*", "archives*", "x3p*", "api"]),
     ("Method and design", ["method", "design*"]),
-    ("Measured", ["demo", "accuracy", "accuracy-texture", "accuracy-cameras", "accuracy-*", "uncertainty*", "table1*", "hue-models*", "throughput*"]),
+    ("Measured", ["demo", "accuracy", "accuracy-texture", "accuracy-cameras", "accuracy-*", "uncertainty*", "noise*",
+                  "table1*", "hue-models*", "throughput*", "real-captures*"]),
 ]
