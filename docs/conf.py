@@ -73,9 +73,9 @@ html_show_sourcelink = False
 # pages of the manual in the order of the contents; a page of docs/ that no pattern names
 # lands under "More" (huefringe_docs.contents), so pages added by later work always appear
 huefringe_sections = [
-    ("Using huefringe", ["guide", "capture*", "real-captures*", "rig*", "spec/capture-session", "spec/results",
-                         "outputs", "configuration", "cluster*", "archives*", "x3p*", "api"]),
+    ("Using huefringe", ["guide", "capture*", "rig*", "spec/capture-session", "spec/results", "outputs",
+                         "configuration", "cluster*", "archives*", "x3p*", "api"]),
     ("Method and design", ["method", "design*"]),
     ("Measured", ["demo", "accuracy", "accuracy-texture", "accuracy-cameras", "accuracy-*", "uncertainty*", "noise*",
-                  "table1*", "hue-models*", "throughput*"]),
+                  "table1*", "hue-models*", "throughput*", "real-captures*"]),
 ]
