@@ -174,8 +174,8 @@ def calibration_problems(path: str | Path, width: int, height: int) -> list[Prob
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
         opened = fs.isOpened()
-    except cv2.error as exc:
-        lines = str(exc).strip().splitlines()
+    except (cv2.error, SystemError) as exc:  # OpenCV's parser error surfaces as SystemError in some builds
+        lines = str(exc.__context__ or exc).strip().splitlines()
         return [Problem(path, f"not an OpenCV FileStorage file ({lines[-1] if lines else exc})")]
     if not opened:
         return [Problem(path, "not an OpenCV FileStorage file")]
