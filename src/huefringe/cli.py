@@ -45,6 +45,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
     try:
         cfg = bench.load_bench_config(bench.preset_path(args.config) if args.preset else args.config)
+    except FileNotFoundError as exc:  # no such preset: the message lists the available ones
+        print(f"REFUSED: --preset: {exc}", file=sys.stderr)
+        return 1
     except bench.BenchConfigError as exc:
         print(f"REFUSED: {exc}", file=sys.stderr)
         return 1
@@ -174,7 +177,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=_cmd_check)
 
     p = sub.add_parser("bench", help="write a capture session (or, with --patterns, camera files) with the virtual bench")
-    p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1)")
+    p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1, rehearsal, ...)")
     p.add_argument("out", help="output session folder (with --periods: a folder for the sweep; with --patterns: "
                                "the folder of camera files)")
     p.add_argument("--preset", action="store_true", help="CONFIG names a packaged preset")
