@@ -4,12 +4,16 @@ A real rig shows the projector images of a patterns folder (``manifest.csv`` + `
 written by ``huefringe patterns``, contract in docs/guide.md) one after another and saves one
 camera file per image. :func:`assemble_session` matches capture ``k`` (natural order of file
 name) to manifest row ``k``, converts it (Bayer demosaic, 12-bit scaling) and writes the session
-folder with its ``session.yaml``, after checking everything it can before writing anything:
-counts, sizes, bit depths, the Bayer pattern, the spec YAML, and the content (the white
-capture is the brightest, fringe captures show a fringe, uniform captures do not, and the
-fringe period on the reference plane agrees with the declared ``period_px`` within 5 %).
+folder with its ``session.yaml``, after checking everything it can before writing anything, in
+one reading pass that reports every problem together: counts, unreadable files, sizes and bit
+depths (against the majority), copies (:mod:`huefringe.capture_checks`: same or near-identical
+pixel values, named as copies), the Bayer pattern against the mosaic's statistics (the four
+patterns compared), the spec YAML, the content (the white capture is the brightest, fringe
+captures show a fringe, uniform captures do not, each hue band's hue rises with its band
+number, and the fringe period on the reference plane agrees with the declared ``period_px``
+within 5 %), and the free disk.
 
-Layer: above :mod:`huefringe.session` and :mod:`huefringe.camera`.
+Layer: above :mod:`huefringe.session`, :mod:`huefringe.camera` and :mod:`huefringe.capture_checks`.
 """
 
 from __future__ import annotations
@@ -451,9 +455,10 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
     Raises
     ------
     SessionError
-        Before anything is written, naming the file: count mismatch, size/bit depth/Bayer
-        problems, a bad spec or patterns folder, content out of order, a period disagreeing by
-        more than 5 %, or an existing non-empty ``out_dir``.
+        Before anything is written, naming each file, all problems of the folder at once: count
+        mismatch, copies, unreadable files, size/bit depth/Bayer problems, a bad spec or patterns
+        folder, content or hue bands out of order, a period disagreeing by more than 5 %, too
+        little disk, or an existing non-empty ``out_dir``.
     """
     captures, out = Path(captures_dir), Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
