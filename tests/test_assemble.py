@@ -389,7 +389,9 @@ def test_swapped_hue_bands_are_named_at_assembly(kit) -> None:
     assert len(lines) == 4, err
     assert "cap_8.png: goes to reference/hue/band_003_r0.png (hue band 003) but its hue" in err
     assert "is that of band 009" in err and "is that of band 003" in err
-    assert "swapped with cap_20.png?" in err
+    assert "cap_8.png: goes to" in err and "cap_9.png: goes to reference/hue/band_003_r1.png" in err
+    line9 = next(ln for ln in lines if "cap_9.png" in ln)
+    assert line9.endswith("swapped with cap_21.png?") and lines[0].endswith("swapped with cap_20.png?")
 
 
 def test_a_wrong_bayer_pattern_is_named_with_the_likely_one(kit, bench8: Session) -> None:
@@ -417,3 +419,14 @@ def test_a_mixed_folder_is_reported_in_one_pass(kit) -> None:
     assert "cap_4.png: cannot decode image" in err
     assert "cap_8.png: 158 x 120 px, 3 channel(s), 8-bit differs from 71 of the 73 captures (160 x 120 px" in err
     assert "cap_10.png: 160 x 120 px, 3 channel(s), 16-bit differs from 71 of the 73" in err
+
+
+def test_a_full_disk_is_refused_before_writing(kit, monkeypatch) -> None:
+    import collections
+
+    from huefringe import assemble
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(assemble.shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 1000, 1000))
+    code, err = session_cli(kit)
+    assert code == 2 and "cli: needs about 0.0 GB" in err and "has 0.0 GB free" in err

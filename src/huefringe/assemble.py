@@ -302,7 +302,9 @@ def _band_problems(profiles: dict[str, NDArray[np.float64]], where: dict[str, Pa
         found = band_order_problems(rgb, bands, hue_bands)
         for m in found:
             key = keys[m.index]
-            partner = [keys[o.index] for o in found if o.band == m.fits and o.fits == m.band]
+            rep = key.rsplit("_r", 1)[1]  # the same repeat of the other band first
+            partner = sorted((keys[o.index] for o in found if o.band == m.fits and o.fits == m.band),
+                             key=lambda k: k.rsplit("_r", 1)[1] != rep)
             swap = f"; swapped with {where[partner[0]].name}?" if partner else ""
             out.append(Problem(where[key], f"goes to {key} (hue band {m.band:03d}) but its hue, {m.hue_rad:.3f} rad, is "
                                            f"that of band {m.fits:03d}: the captured hue must rise with the band "
