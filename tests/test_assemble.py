@@ -430,3 +430,19 @@ def test_a_full_disk_is_refused_before_writing(kit, monkeypatch) -> None:
     monkeypatch.setattr(assemble.shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 1000, 1000))
     code, err = session_cli(kit)
     assert code == 2 and "cli: needs about 0.0 GB" in err and "has 0.0 GB free" in err
+
+
+def test_check_deep_names_swapped_hue_bands_of_a_session(bench8: Session, tmp_path: Path, capsys) -> None:
+    sess = tmp_path / "s"
+    shutil.copytree(bench8.root, sess)
+    assert cli.main(["check", "--deep", str(sess)]) == 0
+    a, b = sess / "object/hue/band_002_r0.png", sess / "object/hue/band_011_r0.png"
+    da, db = a.read_bytes(), b.read_bytes()
+    a.write_bytes(db)
+    b.write_bytes(da)
+    assert cli.main(["check", str(sess)]) == 0  # the quick check reads headers only
+    capsys.readouterr()
+    assert cli.main(["check", "--deep", str(sess)]) == 1
+    out = capsys.readouterr().out
+    assert "band_002_r0.png: object hue band 002, but its hue" in out and "is that of band 011" in out
+    assert "band_011_r0.png: object hue band 011, but its hue" in out and "is that of band 002" in out

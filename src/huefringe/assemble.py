@@ -40,7 +40,7 @@ from huefringe.camera import BAYER_PATTERNS, bayer_problem, demosaic
 from huefringe.capture_checks import NEAR_IDENTICAL_FRACTION, band_order_problems, bayer_fit, duplicate_groups, \
     site_means
 from huefringe.io import atomic_path, publish_dir
-from huefringe.session import Problem, SessionError, decode_image, load_session, read_predistortion
+from huefringe.session import Problem, Session, SessionError, decode_image, load_session, read_predistortion
 
 CAPTURE_SUFFIXES = (".png", ".tif", ".tiff")
 PREDISTORTION = "predistortion.csv"
@@ -546,4 +546,23 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    return out
+
+
+def session_band_problems(session: Session) -> list[Problem]:
+    """Hue-band images of a written session whose hue is another band's (``huefringe check --deep``).
+
+    The check :func:`assemble_session` makes at assembly (:func:`huefringe.capture_checks.band_order_problems`),
+    on each band image's mean colour over its white's, for a session however it was written.
+    """
+    out = []
+    for part, white, bands in (("reference", session.reference_white, session.reference_bands),
+                               ("object", session.object_white, session.object_bands)):
+        paths = [(i, p) for i, reps in enumerate(bands) for p in reps]
+        w = decode_image(white).mean(axis=(0, 1), dtype=np.float64)
+        rgb = np.stack([decode_image(p).mean(axis=(0, 1), dtype=np.float64) for _, p in paths]) / np.maximum(w, 1e-9)
+        for m in band_order_problems(rgb, [i for i, _ in paths], session.hue_bands):
+            out.append(Problem(paths[m.index][1], f"{part} hue band {m.band:03d}, but its hue ({m.hue_rad:.3f} rad) "
+                                                  f"is that of band {m.fits:03d}: the captured hue must rise with the "
+                                                  "band number; bands out of order"))
     return out
