@@ -222,9 +222,10 @@ def _scan(files: list[Path], rows: list[_Row], *, bayer: str | None, bit_in: int
             continue
         shapes.append((r.shape, r.dtype))
         digests.append(hashlib.sha256(repr((r.shape, r.dtype.str)).encode() + r.tobytes()).digest())
-        col = r.mean(axis=0, dtype=np.float64).reshape(r.shape[1], -1).mean(axis=1)
-        sigs[k] = [b.mean() for b in np.array_split(col, 32)] if col.size >= 32 else np.resize(col, 32)
         file_bits = 8 if r.dtype == np.uint8 else (bit_in or 16)
+        raw_profile = r.mean(axis=0, dtype=np.float64)  # (W,) or (W, C): the column means as stored
+        col = raw_profile.reshape(r.shape[1], -1).mean(axis=1)
+        sigs[k] = [b.mean() for b in np.array_split(col, 32)] if col.size >= 32 else np.resize(col, 32)
         if bayer and (why := bayer_problem(r.shape, r.dtype)):
             per_file[k] = f"does not fit Bayer pattern {bayer}: {why}"
         elif not bayer and (r.ndim != 3 or r.shape[2] != 3):
@@ -233,7 +234,9 @@ def _scan(files: list[Path], rows: list[_Row], *, bayer: str | None, bit_in: int
         elif file_bits == 12 and int(r.max()) > 4095:
             per_file[k] = f"value {int(r.max())} exceeds 4095, not 12-bit data (bit_depth_in: 12)"
         elif key is not None:
-            profiles[key] = column_profile(convert_capture(r, bayer=bayer, bit_depth_in=file_bits))
+            # without a demosaic or a 12-bit scaling the stored values are the session's: reuse their profile
+            profiles[key] = (raw_profile if not bayer and file_bits != 12 else
+                             column_profile(convert_capture(r, bayer=bayer, bit_depth_in=file_bits)))
             if bayer and key.startswith("reference/") and ("/hue/" in key or key.endswith("white.png")):
                 sites[key] = site_means(r)
     seen = [s for s in shapes if s is not None]
