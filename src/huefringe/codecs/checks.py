@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
+from numpy.polynomial import legendre
 from scipy import ndimage
 
 __all__ = ["SmoothFit", "largest_region", "smooth_fit", "smooth_region"]
@@ -83,8 +84,10 @@ def smooth_fit(coord: NDArray[np.floating], mask: NDArray[np.bool_], degree: int
     z = np.asarray(coord, np.float64)[mask]
     x = (xx - xx.mean()) / max(np.ptp(xx), 1) * 2
     y = (yy - yy.mean()) / max(np.ptp(yy), 1) * 2
-    a = np.stack([x**i * y**j for i in range(degree + 1) for j in range(degree + 1 - i)], axis=1)
-    coef, *_ = np.linalg.lstsq(a, z, rcond=None)
+    # Legendre products of total degree <= degree (well conditioned on [-1, 1]); normal equations
+    vx, vy = legendre.legvander(x, degree), legendre.legvander(y, degree)
+    a = np.stack([vx[:, i] * vy[:, j] for i in range(degree + 1) for j in range(degree + 1 - i)], axis=1)
+    coef = np.linalg.solve(a.T @ a, a.T @ z)
     r = z - a @ coef
     res = np.full(mask.shape, np.nan)
     res[mask] = r
