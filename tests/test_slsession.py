@@ -93,9 +93,25 @@ def test_assembled_session_loads_and_decodes_to_the_projector_columns(rig, tmp_p
         d = dec[axis]
         assert d.valid.mean() > 0.95, axis
         err = d.coord[d.valid] - truth[d.valid]
+        print(f"synthetic {axis}: RMS {np.sqrt(np.mean(err**2)):.4f} px, {d.valid.mean():.1%} valid")
         assert np.sqrt(np.mean(err**2)) < 0.1, (axis, np.sqrt(np.mean(err**2)))
     # the session's sequence.yaml is the codecs' own form: huefringe decode reads it as is
     assert C.load_sequence(out / "sequence.yaml").n_frames == 21
+
+
+def test_sixteen_bit_tiff_captures(tmp_path: Path) -> None:
+    caps = tmp_path / "caps"
+    spec = C.sequence_from_mapping({**SEQUENCE, "frames": "img_*.tif"}, tmp_path / "seq.yaml", caps)
+    caps.mkdir()
+    for i, im in enumerate(C.generate(spec, np.uint16)):
+        tifffile.imwrite(caps / f"img_{i + 1}.tif", np.round(5000 + 0.8 * im).astype(np.uint16))
+    (tmp_path / "seq.yaml").write_text(yaml.safe_dump({**SEQUENCE, "frames": "img_*.tif"}))
+    s = load_sl_session(assemble_sl_session(caps, tmp_path / "seq.yaml", tmp_path / "out"), deep=True)
+    assert s.bit_depth == 16 and s.captures[20].name == "0020.tiff"
+    assert s.spec.frames == "[0-9][0-9][0-9][0-9].tiff" and len(C.read_captures(s.root / "captures", s.spec)) == 21
+    d = C.decode_sequence(s.read_captures(), s.spec)["x"]
+    err = d.coord[d.valid] - np.mgrid[0:48, 0:64][1][d.valid]
+    assert d.valid.mean() > 0.95 and np.sqrt(np.mean(err**2)) < 0.01
 
 
 def test_assembly_refusals_name_the_file_and_write_nothing(rig, tmp_path: Path) -> None:

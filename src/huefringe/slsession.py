@@ -131,8 +131,8 @@ def _sha256(path: Path) -> str:
 
 
 def _decode(path: Path) -> NDArray[np.number]:
-    try:
-        im = tifffile.imread(path) if path.suffix.lower() in (".tif", ".tiff") else cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    try:  # OpenCV for PNG and TIFF alike: colour comes as B, G, R, as codecs.read_captures reads it
+        im = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     except Exception as exc:
         raise SessionError.at(path, f"cannot decode image ({exc.__class__.__name__}: {exc})") from None
     if im is None:
