@@ -238,7 +238,7 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
 
     from huefringe import kernel, perframe
     from huefringe.huetable import HueTable
-    from huefringe.cloud import _check_colours, colour_bytes, write_height_cloud
+    from huefringe.cloud import check_colours, colour_bytes, write_height_cloud
     from huefringe.height import PlaneCalibration
     from huefringe.io import read_tiff, write_json, write_tiff
     from huefringe.phase import unwrap
@@ -253,7 +253,7 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
     shadow = perframe.shadow_mask(white, m_cfg["shadow_fraction"])
     prep = kernel.prepare(t, cal, white, hue_model="hexcone", min_saturation=m_cfg["min_saturation"], shadow=shadow,
                           bit_depth=s.bit_depth, predistortion=s.predistortion)
-    rgb = colour_bytes(_check_colours(white, white.shape[:2]).reshape(-1, 3))
+    rgb = colour_bytes(check_colours(white, white.shape[:2]).reshape(-1, 3))
     buf = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))
     out = Path(tempfile.mkdtemp(prefix="hf-stages-"))
     names = ("decode", "kernel", "filter", "uncertainty", "flags+stats", "step edges", "height tiff", "u+support tiff",

@@ -17,7 +17,7 @@ from huefringe import api, camera, cloud, metrology
 from huefringe.camera import CameraModel, CaptureReader, ChannelRegistration
 from huefringe.io import read_tiff
 from huefringe.session import load_session, read_rgb, read_rgb_codes
-from huefringe.stages import session_camera_record
+from huefringe.pipeline import session_camera_record
 
 
 @pytest.fixture(scope="module")

@@ -299,7 +299,7 @@ def test_step_uncertainty_in_report(still: dict) -> None:
     method = metrology.evaluate_session(hs, s.specimen, s.pixel_pitch_mm, range_mm=6.0, edge_exclusion=0.2)
     stages.add_step_uncertainty(method, hs, us, s.specimen, s.pixel_pitch_mm, PlaneCalibration.load(str(out / "model.npz")),
                                   HueTable.load(out / "table_object.json"), edge_exclusion=0.2, denoise_radius=0,
-                                  lateral_px=0.0)  # the still session's maps have no lateral term
+                                  lateral_px=0.0, lateral_step_px=0.0)  # the still session's maps have no lateral term
     tol = method["tolerance_mm"]
     for st in method["steps"]:
         assert st["U_mm"] == pytest.approx(2 * st["u_mm"])
@@ -650,7 +650,9 @@ def test_bench_gauge_coverage_per_zone_and_steps_within_u(tmp_path: Path) -> Non
                                 HueTable.load(tmp_path / "out" / "table_object.json"),
                                 edge_exclusion=CONFIG["metrology"]["edge_exclusion"],
                                 denoise_radius=CONFIG["measurement"]["denoise_radius"],
-                                supports=[read_tiff(x) for x in p["supports"]])
+                                supports=[read_tiff(x) for x in p["supports"]],
+                                lateral_px=CONFIG["measurement"]["lateral_uncertainty_px"],
+                                lateral_step_px=CONFIG["measurement"]["lateral_step_px"])
     for st in method["steps"]:
         assert abs(st["error_mm"]) <= st["U_mm"], st
         assert st["uncertainty_budget"]["coating_mm"] > 0
