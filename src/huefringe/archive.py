@@ -64,8 +64,8 @@ from urllib.parse import quote, unquote
 
 import yaml
 
-from huefringe.io import atomic_path, source_date_epoch
-from huefringe.report import sha256_file, software_versions
+from huefringe.io import atomic_path, sha256_file, source_date_epoch
+from huefringe.report import software_versions
 from huefringe.settings import software_identity
 
 __all__ = [
