@@ -64,11 +64,11 @@ class FrameResult:
 
 def session_camera_record(s: Session, camera: Mapping[str, Any], calibration: Mapping[str, Any]) -> dict[str, Any]:
     """The ``calib/camera.json`` record of a session in memory (:func:`camera_calibration` writes it)."""
-    read = CaptureReader(bayer=bayer_resampling(s.meta, camera.get("demosaic", "lanczos"))).rgb
+    read = CaptureReader(bayer=bayer_resampling(s.meta, camera["demosaic"])).rgb
     white = read(s.reference_white)
-    mode = camera.get("chromatic_registration", "auto")
+    mode = camera["chromatic_registration"]
     planes = [] if mode is False or mode == "false" else [read(p) for p in s.planes.values()]
-    demix = camera.get("colour_demixing", False)
+    demix = camera["colour_demixing"]
     bands: dict[int, NDArray[np.floating]] = {}
     if planes or not (demix is False or demix == "false"):
         # the hue bands the channel-mixing estimate reads (repeats averaged): the registration's and the demixing's
@@ -92,8 +92,6 @@ def _calibration_opts(calibration: Mapping[str, Any]) -> dict[str, Any]:
 
 #: A hue table usable for fewer pixels than this is refused: the bands are not what they claim.
 MIN_TABLE_VALID_FRACTION = 0.2
-#: A white image with more clipped pixels than this is refused: white balance needs the true level.
-MAX_WHITE_CLIPPED_FRACTION = 0.01
 
 _TABLE_HINTS = {
     "low_signal": "the white image is too dark there (projector off, lens cap, exposure too short?)",
@@ -133,7 +131,7 @@ def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mappi
     reader = reader or CaptureReader()
     white = reader.rgb(white_path)
     clipped = float(clipped_mask(white, s.bit_depth).mean())
-    limit = float(calibration.get("max_white_clipped_fraction", MAX_WHITE_CLIPPED_FRACTION))
+    limit = float(calibration["max_white_clipped_fraction"])
     if clipped > limit:
         raise HueTableError(
             f"{white_path}: {100 * clipped:.1f} % of the pixels are clipped (sensor saturated; limit "
@@ -228,7 +226,7 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
         ) from exc
     cal.phase_error = None if lut is None else lut.error
     cal.stats["phase_error"] = None if lut is None else lut.stats
-    blur = calibration.get("texture_blur_px2", 0.0)
+    blur = calibration["texture_blur_px2"]
     if blur == "auto":  # the camera's blur from the session's own object frames (needs the object table)
         info = (session_texture_blur(s, object_table, cal, hue_model, calibration, reader=reader) if object_table is not None
                 else {"sigma2_px2": 0.0, "source": "auto, no object table given: off"})

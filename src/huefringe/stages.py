@@ -663,7 +663,7 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
     frames = s.frame_ids if frames is None else list(frames)
     model, cal = config["hue_model"], config["calibration"]
     cam = str(out / "camera.json")
-    camera_calibration(str(session), config.get("camera", {}), cal, record=cam)
+    camera_calibration(str(session), config["camera"], cal, record=cam)
     for which in ("reference", "object"):
         hue_table(str(session), which, model, cal, table=str(out / f"table_{which}.json"),
                   stats=str(out / f"table_{which}.stats.json"), camera_json=cam)

@@ -141,8 +141,8 @@ def camera_record(meta: Mapping[str, Any], settings: Mapping[str, Any], planes: 
         which the magnification is estimated and undone and whose inverse demixes every capture
         (:func:`demixing_record`). Without them neither.
     """
-    lens = bool(settings.get("lens_model", True))
-    mode = settings.get("chromatic_registration", "auto")
+    lens = bool(settings["lens_model"])
+    mode = settings["chromatic_registration"]
     model = CameraModel.from_meta(meta, lens_model=True)
     used = model if lens else CameraModel.from_meta(meta, lens_model=False)
     rec: dict[str, Any] = {"lens_model": lens, "xy_model": used.describe(),
@@ -150,7 +150,7 @@ def camera_record(meta: Mapping[str, Any], settings: Mapping[str, Any], planes: 
     rec["demosaic"] = demosaic_record(meta, settings)
     mixing = (estimate_channel_mixing(bands, int(meta["pattern"]["hue_bands"]), shadow=shadow) if bands
               else {"matrix": np.eye(3).tolist(), "estimable": False, "why": "no hue bands given"})
-    rec["colour_demixing"] = demixing_record(settings.get("colour_demixing", False), mixing if bands else None)
+    rec["colour_demixing"] = demixing_record(settings["colour_demixing"], mixing if bands else None)
     if mode is False or mode == "false":
         return rec
     est = estimate_lateral_ca(planes, white, float(meta["pattern"]["period_px"]), model.centre, shadow=shadow,
@@ -193,7 +193,7 @@ def demosaic_record(meta: Mapping[str, Any], settings: Mapping[str, Any]) -> dic
     """The ``demosaic`` entry of ``calib/camera.json``: the session's Bayer pattern (``camera.bayer``,
     None for a three-chip camera), the setting (config ``camera.demosaic``) and whether the
     stored RGB is re-demosaiced (``applied``, with ``method``)."""
-    setting = settings.get("demosaic", "lanczos")
+    setting = settings["demosaic"]
     res = bayer_resampling(meta, setting)
     out: dict[str, Any] = {"bayer": meta.get("camera", meta).get("bayer"), "setting": setting, "applied": res is not None}
     if res is not None:
