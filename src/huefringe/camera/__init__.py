@@ -1,7 +1,7 @@
 """Camera corrections: turn a stored capture into the RGB image both per-frame chains read.
 
 This package sits just above :mod:`huefringe.session` in the layers; its topic modules are
-:mod:`~huefringe.camera.bayer`, :mod:`~huefringe.camera.geometry`, :mod:`~huefringe.camera.crosstalk`,
+:mod:`~huefringe.camera.bayer`, :mod:`~huefringe.camera.model`, :mod:`~huefringe.camera.crosstalk`,
 :mod:`~huefringe.camera.lateral` and :mod:`~huefringe.camera.reader`, whose public names are
 importable from here. It holds what depends on the camera a lab owns rather than on the method:
 demosaicing of single-chip Bayer captures
@@ -20,7 +20,7 @@ from huefringe.camera.bayer import (
     BAYER_PATTERNS, BayerResampling, DEMOSAIC_METHODS, RESAMPLE_SETTINGS, bayer_channel_map, bayer_problem,
     bayer_resampling, demosaic, lanczos_demosaic, mosaic,
 )
-from huefringe.camera.geometry import CAMERA_MODELS, CameraModel, DISTORTION_LENGTHS
+from huefringe.camera.model import CAMERA_MODELS, CameraModel, DISTORTION_LENGTHS
 from huefringe.camera.crosstalk import (
     CA_MIXING_MAX_OFF_DIAGONAL, estimate_channel_mixing, mixing_band_pairs, segment_check,
 )

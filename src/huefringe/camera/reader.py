@@ -15,7 +15,7 @@ from numpy.typing import ArrayLike, NDArray
 from huefringe.session import read_rgb, read_rgb_codes
 from huefringe.camera.bayer import BayerResampling, bayer_resampling
 from huefringe.camera.crosstalk import estimate_channel_mixing
-from huefringe.camera.geometry import CameraModel
+from huefringe.camera.model import CameraModel
 from huefringe.camera.lateral import CA_AUTO_MIN_REACH, CA_AUTO_THRESHOLD_PX, ChannelRegistration, estimate_lateral_ca
 
 

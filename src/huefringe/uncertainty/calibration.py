@@ -16,6 +16,8 @@ from scipy.ndimage import uniform_filter
 
 from huefringe.huetable import band_smoothing_matrix
 
+__all__ = ["PixelBudget", "TERMS", "calibration_terms", "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "table_interpolation_rad", "table_variance_factor"]
+
 
 TERMS = ("noise", "table", "interpolation", "reference", "model")
 """Names of the per-pixel terms, in the order of :func:`split_terms`."""

@@ -14,6 +14,8 @@ from numpy.typing import NDArray
 
 from huefringe.uncertainty.calibration import PixelBudget, TERMS, _INTERP_LUT, _encode_interp
 
+__all__ = ["add_lateral", "edge_floor", "height_uncertainty", "lateral_term", "split_terms", "texture_term"]
+
 
 def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.float64]:
     """Interpolation error (rad) at each pixel's phase, as the kernel picks it (float32 bin)."""

@@ -16,6 +16,8 @@ from numpy.typing import NDArray
 from huefringe.uncertainty.calibration import GROUPS, PixelBudget, TERMS, _INTERP_LUT
 from huefringe.uncertainty.frame import lateral_term
 
+__all__ = ["coating_term", "conformance", "step_budget"]
+
 
 def _neighbour_counts(valid: NDArray[np.bool_], radius: int) -> NDArray[np.float64]:
     """Valid pixels in each pixel's ``(2 r + 1)^2`` window: how many raw pixels its filtered value

@@ -8,6 +8,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+__all__ = ["reliability"]
+
 
 def reliability(errors: NDArray[np.floating], u: NDArray[np.floating], *, bins: int = 12) -> dict[str, Any]:
     """Coverage of ``|error| <= 2 u`` and the binned reliability curve (observed rms error, and the
