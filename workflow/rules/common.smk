@@ -5,7 +5,6 @@ from pathlib import Path
 
 from huefringe.plan import PlanError, plan_sessions, plan_table1
 
-
 # The plan reads the configuration and the session folders only, never workflow.cores: the SLURM
 # executor's job-side Snakemake (--cores all on the node) must plan the same batches as the
 # submitting one (no --cores), or a batch job writes only part of its declared outputs.
