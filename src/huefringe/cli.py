@@ -13,6 +13,11 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
     try:
         s = load_session(args.session, deep=args.deep)
+        if args.deep:  # the content: hue bands in their order
+            from huefringe.assemble import session_band_problems
+
+            if problems := session_band_problems(s):
+                raise SessionError(problems)
     except SessionError as exc:
         print(f"REFUSED: {args.session} is not a valid capture session ({len(exc.problems)} problem(s)):")
         for p in exc.problems:
@@ -45,6 +50,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
     try:
         cfg = bench.load_bench_config(bench.preset_path(args.config) if args.preset else args.config)
+    except FileNotFoundError as exc:  # no such preset: the message lists the available ones
+        print(f"REFUSED: --preset: {exc}", file=sys.stderr)
+        return 1
     except bench.BenchConfigError as exc:
         print(f"REFUSED: {exc}", file=sys.stderr)
         return 1
@@ -170,11 +178,11 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("check", help="validate a capture session; exit 1 if it is refused")
     p.add_argument("session", help="the session folder (holding session.yaml)")
-    p.add_argument("--deep", action="store_true", help="also decode every image")
+    p.add_argument("--deep", action="store_true", help="also decode every image and check the hue bands' order")
     p.set_defaults(func=_cmd_check)
 
     p = sub.add_parser("bench", help="write a capture session (or, with --patterns, camera files) with the virtual bench")
-    p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1)")
+    p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1, rehearsal, ...)")
     p.add_argument("out", help="output session folder (with --periods: a folder for the sweep; with --patterns: "
                                "the folder of camera files)")
     p.add_argument("--preset", action="store_true", help="CONFIG names a packaged preset")
