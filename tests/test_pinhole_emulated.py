@@ -24,7 +24,8 @@ def test_pinhole_session_measures_with_the_lens_model(tmp_path: Path) -> None:
     out = {}
     for lens in (True, False):
         c = copy.deepcopy(CONFIG)
-        c["camera"] = {"lens_model": lens, "chromatic_registration": False}
+        c["camera"] = {**CONFIG["camera"], "lens_model": lens, "chromatic_registration": False,
+                       "colour_demixing": False}
         paths = process(pin, tmp_path / f"out-{lens}", config=c)
         s = paths["session"]
         model = pipeline.session_corrections(s, paths["camera"])[0]
