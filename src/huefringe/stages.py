@@ -32,7 +32,7 @@ from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
 from huefringe.session import Session, load_session
-from huefringe.uncertainty import LATERAL_PX, LATERAL_STEP_PX, add_lateral, noise_correlation, pixel_budget, texture_term
+from huefringe.uncertainty import LATERAL_PX, LATERAL_STEP_PX, add_lateral, noise_correlation, pixel_budget
 
 log = logging.getLogger("huefringe")
 
@@ -509,21 +509,15 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         if blur2 > 0 or blur_u > 0:
             raw = reader.rgb(path)
             clip = clipped_mask(raw, s.bit_depth)
-            if blur2 > 0:
-                rgb = texture.correct(raw, white, blur2, clipped=clip)
-            if blur_u > 0:
-                moved = texture.correct(raw, white, blur2 + blur_u, clipped=clip)
+            rgb, moved = texture.correct_pair(raw, white, blur2, blur2 + blur_u if blur_u > 0 else None, clipped=clip)
+            rgb = rgb if blur2 > 0 else None
         if rgb is None and reader.demixed:  # the demixed channels (camera.colour_demixing), to both chains
             rgb = reader.rgb(path)
         if fast:  # the kernel reads the sensor codes as read_rgb scales them
-            if moved is not None:  # first, on buffers of its own (a copy: the pass below reuses the kernel's)
-                moved_height = np.array(kernel.frame_maps(
-                    prep, moved, denoise_radius=measurement["denoise_radius"], denoise_adaptive=adaptive,
-                    want_maps=False, want_dphi=False, want_uncertainty=False).height)
             m = kernel.frame_maps(prep, reader.codes(path) if rgb is None else rgb, denoise_radius=measurement["denoise_radius"],
                                   denoise_adaptive=adaptive,
                                   want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty,
-                                  out=buffers)
+                                  out=buffers, texture_rgb=moved)
             px = m.valid.size  # frame_stats with unwrap's reference flags, in one compiled pass
             # the wrap flags on the pixels valid before the filter (measure_frame's unwrap call): the
             # kernel's dphi is NaN exactly where no phase was decoded; m.valid has lost the filter's rejects
@@ -532,23 +526,18 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                                           table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
                                           hue_model=hue_model, flag_valid=np.isfinite(m.dphi))
             height, phase, hue, u_map, support = m.height, m.phase, m.hue, m.uncertainty, m.support
-            if moved is not None:
-                tex_u = texture_term(height, moved_height)
+            tex_u = m.texture_u
         else:
             budget = pixel_budget(t, cal) if budget is None else budget
 
-            def reference(image: NDArray[np.floating]):
-                return measure_frame(image, white, t, cal, hue_model=hue_model, min_saturation=measurement["min_saturation"],
-                                     shadow=shadow, unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
-                                     denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
-                                     denoise_adaptive=adaptive, budget=budget,
-                                     own_noise=bool(measurement.get("own_noise", False)))
-
-            res = reference(reader.rgb(path) if rgb is None else rgb)
+            res = measure_frame(reader.rgb(path) if rgb is None else rgb, white, t, cal, hue_model=hue_model,
+                                min_saturation=measurement["min_saturation"], shadow=shadow,
+                                unwrap_mode=measurement["unwrap"], bit_depth=s.bit_depth,
+                                denoise_radius=measurement["denoise_radius"], predistortion=s.predistortion,
+                                denoise_adaptive=adaptive, budget=budget,
+                                own_noise=bool(measurement.get("own_noise", False)), texture_rgb=moved)
             height, phase, hue, stats, u_map = res.height, res.phase, res.hue, res.stats, res.uncertainty
-            support = res.support
-            if moved is not None:  # the same chain and budget (budget=None would rebuild it every frame)
-                tex_u = texture_term(height, reference(moved).height)
+            support, tex_u = res.support, res.texture_u
         jump = float(measurement.get("edge_jump_mm", 0.0) or 0.0)
         if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
             height, (phase, u_map), (support,), changed = remove_step_edges(

@@ -31,7 +31,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy import ndimage
 
-__all__ = ["blur_from_phases", "blur_from_white", "blur_uncertainty", "correct", "lean", "white_floor"]
+__all__ = ["blur_from_phases", "blur_from_white", "blur_uncertainty", "correct", "correct_pair", "lean", "white_floor"]
 
 #: white level (full scale 1) below which the normalised fringe is not formed (noise, shadow)
 WHITE_FLOOR = 0.02
@@ -88,6 +88,30 @@ def correct(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: 
     if clipped is not None:
         out[clipped] = b[clipped]
     return out.astype(np.float32)
+
+
+def correct_pair(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: float,
+                 moved_px2: float | None, clipped: NDArray[np.bool_] | None = None,
+                 ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+    """:func:`correct` at ``sigma2_px2`` and at ``moved_px2`` (None: not wanted) from one
+    :func:`lean` of the capture: the same arrays as two calls of :func:`correct`."""
+    b = np.asarray(rgb, np.float64)
+    if sigma2_px2 == 0 and moved_px2 is None:
+        return b.astype(np.float32), None
+    g = lean(b, white)
+    out = []
+    for s2 in (sigma2_px2, moved_px2):
+        if s2 is None:
+            out.append(None)
+            continue
+        if s2 == 0:
+            out.append(b.astype(np.float32))
+            continue
+        c = np.clip(b - s2 * g, 0.0, 1.0)
+        if clipped is not None:
+            c[clipped] = b[clipped]
+        out.append(c.astype(np.float32))
+    return out[0], out[1]
 
 
 def _fine(a: NDArray[np.float64], ok: NDArray[np.bool_], smooth_px: float) -> NDArray[np.float64]:

@@ -691,6 +691,36 @@ def texture_term(height: NDArray[np.floating], moved: NDArray[np.floating]) -> N
     return np.where(np.isfinite(h), np.nan_to_num(d, nan=0.0), np.nan).astype(np.float32)
 
 
+def texture_delta(moved_dphi: NDArray[np.floating], dphi: NDArray[np.floating]) -> NDArray[np.float32]:
+    """Each pixel's unfiltered phase change (rad, float32) when the texture correction's blur moves
+    by its uncertainty: ``wrap(moved_dphi - dphi)``, 0 where either is NaN. The filter carries it
+    through with its own weights and windows (``denoise_weighted``'s ``carry``)."""
+    m = np.asarray(moved_dphi, np.float64)
+    p = np.asarray(dphi, np.float64)
+    with np.errstate(invalid="ignore"):
+        d = np.pi - np.mod(np.pi - (m - p), 2.0 * np.pi)
+    return np.where(np.isfinite(d), d, 0.0).astype(np.float32)
+
+
+def texture_term_phase(dphi: NDArray[np.floating], delta: NDArray[np.floating], height: NDArray[np.floating],
+                       a: NDArray[np.floating], b: NDArray[np.floating]) -> NDArray[np.float32]:
+    """:func:`texture_term` to first order from one pass: ``|h(dphi + delta) - h(dphi)|`` (mm) with
+    ``h = dphi / (a + b dphi)``, ``dphi`` the filtered phase the height came from and ``delta`` the
+    filter's weighted mean of :func:`texture_delta` over each pixel's window (the moved capture's
+    phase change filtered with the weights and windows of the capture's own). The correction is
+    linear in the blur and the filter is, for fixed weights, linear in the phase, so this is the
+    height change of a blur wrong by one standard uncertainty without a second filtered pass.
+    NaN where ``height`` is NaN."""
+    d = np.asarray(dphi, np.float64)
+    e = d + np.asarray(delta, np.float64)
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        t = np.abs(e / (a + b * e) - d / (a + b * d))
+    ok = np.isfinite(np.asarray(height))
+    return np.where(ok, np.nan_to_num(t, nan=0.0, posinf=0.0), np.nan).astype(np.float32)
+
+
 def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArray[np.floating],
                 b: NDArray[np.floating], budget: PixelBudget) -> dict[str, NDArray[np.float64]]:
     """The five terms (mm) of a combined uncertainty map, recovered from ``u`` and the height.
