@@ -172,10 +172,10 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
 
 
 def test_adaptive_boxes_are_the_box_mean_where_one_level_and_rings_at_a_step() -> None:
-    """With ``box_chi_z`` the grown support is the whole box's weighted circular mean and weight
+    """With ``box_chi_z`` the grown support is the whole box's weighted mean and weight
     sum (O(1) per pixel from summed-area tables) where the box holds one level, and the ring pass's
     bits wherever a box would cross the step; both estimate the true level alike."""
-    from huefringe.phase import _adaptive_pass, _denoise_kernel, _denoise_weights, _phasor_tables
+    from huefringe.phase import _adaptive_pass, _denoise_kernel, _denoise_weights, _level_tables
 
     rng = np.random.default_rng(11)
     h, w = 40, 60
@@ -190,7 +190,7 @@ def test_adaptive_boxes_are_the_box_mean_where_one_level_and_rings_at_a_step() -
     _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst)
     tw, rw = np.float32(1 / 0.0007**2), np.float32(0.0)
     tables = [np.empty((h + 1, w + 1)) for _ in range(4)]
-    _phasor_tables(dz, inv, *tables)
+    _level_tables(dz, inv, *tables)
     got, got_w, got_rad = (np.empty_like(dz) for _ in range(3))
     _adaptive_pass(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, got, got_w, got_rad, True, *tables, 3.0)
     want, want_w, _ = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw)
@@ -198,13 +198,13 @@ def test_adaptive_boxes_are_the_box_mean_where_one_level_and_rings_at_a_step() -
     grown = ok & (wfirst < tw)
     vv, uu = np.nonzero(grown)
     boxes = 0
-    for v, u in zip(vv, uu, strict=True):  # a box: every valid pixel of it, weighted circular mean
+    for v, u in zip(vv, uu, strict=True):
         r = int(got_rad[v, u])
         sl = (slice(max(v - r, 0), v + r + 1), slice(max(u - r, 0), u + r + 1))
         wb = inv[sl].astype(np.float64)
-        mean = np.arctan2((wb * np.sin(dz[sl])).sum(), (wb * np.cos(dz[sl])).sum())
+        mean = (wb * dz[sl]).sum() / wb.sum()
         if abs(got[v, u] - mean) < 2e-6 and abs(got_w[v, u] / wb.sum() - 1) < 1e-6:
-            boxes += 1
+            boxes += 1  # a box: every valid pixel of it
             assert u - r >= 30 or u + r < 30  # no box crosses the step
         else:  # otherwise the ring pass's bits
             assert got[v, u].view(np.uint32) == want[v, u].view(np.uint32) and got_w[v, u] == want_w[v, u]

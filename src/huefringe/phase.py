@@ -346,10 +346,9 @@ def window_sums(inv: NDArray[np.float32], r2: NDArray[np.float32], rad: NDArray[
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _phasor_tables(d, inv, sw, sc, ss, sn):  # pragma: no cover - compiled
-    """Summed-area tables (float64, ``(H + 1, W + 1)``) of the weights ``w = inv``, the weighted
-    phasor ``w cos d``, ``w sin d`` and the valid pixels: rows summed in parallel, then the
-    columns in parallel."""
+def _level_tables(d, inv, sw, sc, ss, sn):  # pragma: no cover - compiled
+    """Summed-area tables (float64, ``(H + 1, W + 1)``) of the weights ``w = inv``, ``w d``,
+    ``w d^2`` and the valid pixels: rows summed in parallel, then the columns in parallel."""
     h, w = d.shape
     for v in prange(h):
         aw = 0.0
@@ -365,8 +364,8 @@ def _phasor_tables(d, inv, sw, sc, ss, sn):  # pragma: no cover - compiled
             if iv > 0:
                 x = np.float64(d[v, u])
                 aw += iv
-                ac += iv * np.cos(x)
-                a_s += iv * np.sin(x)
+                ac += iv * x
+                a_s += iv * x * x
                 an += 1.0
             sw[v + 1, u + 1] = aw
             sc[v + 1, u + 1] = ac
@@ -413,13 +412,13 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     ``du``), so the sums are those of a pixel-by-pixel loop, bit for bit.
 
     With ``chi_z > 0`` a pixel first tries whole boxes (half side ``radius .. max_radius``) in
-    O(1) each from the summed-area tables of :func:`_phasor_tables`: the box's weighted circular
-    mean ``atan2(sum w sin d, sum w cos d)`` is taken, with every valid pixel of the box and its
-    weight sum, when the box is consistent with one level (its weighted scatter
-    ``sum w - |sum w e^{i d}|^2 / sum w``, about ``sum w (d - mean)^2``, within ``chi_z``
-    standard deviations of its ``n - 1`` expectation) and its mean agrees with the pixel's
-    first-pass estimate within ``k`` combined sigma; at the first box that reaches ``target_w``
-    (or the last) it stops. A box that fails either test (a step, an outlier, a slope steep for
+    O(1) each from the summed-area tables of :func:`_level_tables`: the box's weighted mean
+    ``sum w d / sum w`` is taken, with every valid pixel of the box and its weight sum, when the
+    box is consistent with one level (its weighted scatter ``sum w d^2 - (sum w d)^2 / sum w =
+    sum w (d - mean)^2`` within ``chi_z`` standard deviations of its ``n - 1`` expectation: a box
+    across the wrap at +-pi fails it by far) and its mean agrees with the pixel's first-pass
+    estimate within ``k`` combined sigma; at the first box that reaches ``target_w`` (or the
+    last) it stops. A box that fails either test (a step, an outlier, a slope steep for
     the noise) sends the pixel through the ring pass above. Rows run in parallel (``prange``):
     each pixel's result depends only on the inputs, not on the threads."""
     h, w = d.shape
@@ -467,8 +466,8 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                     bs = _box(ss, v0, v1, u0, u1)
                     bn = _box(sn, v0, v1, u0, u1)
                     dof = bn - 1.0
-                    chi = bw - (bc * bc + bs * bs) / bw
-                    mean = np.arctan2(bs, bc)
+                    mean = bc / bw
+                    chi = bs - bc * mean
                     dm = mean - m
                     dm = dm - 2.0 * np.pi * np.floor((dm + np.pi) / (2.0 * np.pi))
                     if chi > dof + chi_z * np.sqrt(2.0 * max(dof, 1.0)) or dm * dm > k2 * (sf + 1.0 / bw):
@@ -598,7 +597,7 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         Pixels whose filtered sigma stays above this become NaN (invalid); 0 = never.
     box_chi_z : float
         > 0: the adaptive support grows by whole boxes, O(1) per pixel and radius from
-        summed-area tables of the weighted phasor, wherever the box is consistent with one level
+        summed-area tables of the weighted phase and its square, wherever the box is consistent with one level
         within this many standard deviations of its chi-square (:func:`_adaptive_pass`); the
         pixels where it is not (steps, outliers) grow ring by ring. 0 = rings everywhere.
     carry, carry_mean : float32 ndarray, optional
@@ -703,7 +702,7 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
         grows = max_radius > radius and target_sigma > 0 and box_chi_z > 0
         tables = [np.empty((h + 1, w + 1) if grows else (1, 1)) for h, w in [arrays[0].shape] for _ in range(4)]
         if grows:
-            _phasor_tables(arrays[0], arrays[2], *tables)
+            _level_tables(arrays[0], arrays[2], *tables)
         _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), k2, target_w, reject_w, final,
                        wfinal, rad, full, *tables, float(box_chi_z) if grows else 0.0)
         out, wsum = final, wfinal
@@ -726,7 +725,7 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
 
 #: ``measurement.denoise_adaptive`` defaults (sigmas in rad of phase)
 ADAPTIVE_DEFAULTS = {"enabled": True, "max_radius": 6, "target_sigma_rad": 0.002, "reject_sigma_rad": 0.03,
-                     "box_chi_z": 3.0}
+                     "box_chi_z": 0.0}
 
 
 def adaptive_kwargs(opts: dict | None) -> dict:
