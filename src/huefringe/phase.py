@@ -205,17 +205,16 @@ def _denoise_row(dj, di, sj2, si2, inv, k2, acc, wsum):  # pragma: no cover - co
         wsum[u] += wj
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _denoise_kernel(d, s2, inv, radius, k2, out, wout):  # pragma: no cover - compiled
     """Row by row, window offset by window offset (``dv`` then ``du``, the same order for every
     pixel); ``inv = 0`` marks invalid pixels, which then add nothing. ``wout``: each pixel's sum
-    of accepted weights (its filtered variance is ``1 / wout``; 0 where not valid)."""
+    of accepted weights (its filtered variance is ``1 / wout``; 0 where not valid). Rows in
+    parallel (``prange``)."""
     h, w = d.shape
-    acc = np.empty(w, np.float32)
-    wsum = np.empty(w, np.float32)
-    for v in range(h):
-        acc[:] = 0.0
-        wsum[:] = 0.0
+    for v in prange(h):
+        acc = np.zeros(w, np.float32)
+        wsum = np.zeros(w, np.float32)
         for dv in range(-radius, radius + 1):
             vv = v + dv
             if vv < 0 or vv >= h:
