@@ -5,6 +5,7 @@ Usage::
 
     ./run python benchmarks/bench_stages.py [--sizes 640x480,1280x1024] [--bands 64] [--rounds 5]
                                             [--threads 1] [--markdown OUT.md] [--json OUT.json] [--quick]
+                                            [--page docs/throughput.md]
 
 On the kernel benchmark's toy rig (``_kernel_case.py``: a hue table built from captured bands, a
 known surface with steps and a dome, coloured and dark reflectance patches, so that the texture
@@ -204,6 +205,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--threads", type=int, default=1, help="numba and OpenCV threads (default: one core)")
     ap.add_argument("--markdown", type=Path, default=None, help="also write the table here")
+    ap.add_argument("--page", type=Path, default=None,
+                    help="a manual page whose table between the stages:begin / stages:end markers is replaced")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--quick", action="store_true", help="smoke mode: 160 x 120, 16 bands, 2 rounds")
     a = ap.parse_args(argv)
@@ -229,6 +232,13 @@ def main(argv: list[str] | None = None) -> int:
     print(f"load average {os.getloadavg()[0]:.2f}; {time.perf_counter() - t0:.0f} s")
     if a.markdown:
         a.markdown.write_text(table)
+    if a.page:
+        text = a.page.read_text(encoding="utf-8")
+        begin, end = "<!-- stages:begin -->\n", "<!-- stages:end -->"
+        i, j = text.index(begin) + len(begin), text.index(end)
+        note = (f"*{results[0]['threads']} thread, CPU ms per frame, medians of {a.rounds} rounds, {a.bands} bands; "
+                f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.*\n\n")
+        a.page.write_text(text[:i] + note + table + text[j:], encoding="utf-8")
     if a.json:
         a.json.write_text(json.dumps(results, indent=2))
     return 0

@@ -691,15 +691,42 @@ def texture_term(height: NDArray[np.floating], moved: NDArray[np.floating]) -> N
     return np.where(np.isfinite(h), np.nan_to_num(d, nan=0.0), np.nan).astype(np.float32)
 
 
+@numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _texture_delta(m, p, out):  # pragma: no cover - compiled
+    h, w = m.shape
+    for v in numba.prange(h):
+        for u in range(w):
+            d = np.float64(m[v, u]) - np.float64(p[v, u])
+            d = np.pi - (np.pi - d) % (2.0 * np.pi)
+            out[v, u] = np.float32(d) if d - d == 0 else np.float32(0.0)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _texture_term_phase(dphi, delta, height, a, b, out):  # pragma: no cover - compiled
+    h, w = dphi.shape
+    for v in numba.prange(h):
+        for u in range(w):
+            hv = height[v, u]
+            if not hv - hv == 0:
+                out[v, u] = np.float32(np.nan)
+                continue
+            d = np.float64(dphi[v, u])
+            e = d + np.float64(delta[v, u])
+            av = np.float64(a[v, u])
+            bv = np.float64(b[v, u])
+            t = abs(e / (av + bv * e) - d / (av + bv * d))
+            out[v, u] = np.float32(t) if t - t == 0 else np.float32(0.0)
+
+
 def texture_delta(moved_dphi: NDArray[np.floating], dphi: NDArray[np.floating]) -> NDArray[np.float32]:
     """Each pixel's unfiltered phase change (rad, float32) when the texture correction's blur moves
-    by its uncertainty: ``wrap(moved_dphi - dphi)``, 0 where either is NaN. The filter carries it
-    through with its own weights and windows (``denoise_weighted``'s ``carry``)."""
-    m = np.asarray(moved_dphi, np.float64)
-    p = np.asarray(dphi, np.float64)
-    with np.errstate(invalid="ignore"):
-        d = np.pi - np.mod(np.pi - (m - p), 2.0 * np.pi)
-    return np.where(np.isfinite(d), d, 0.0).astype(np.float32)
+    by its uncertainty: ``wrap(moved_dphi - dphi)`` (float64, to [-pi, pi)), 0 where either is
+    NaN. The filter carries it through with its own weights and windows (``denoise_weighted``'s
+    ``carry``). Compiled, rows in parallel."""
+    m = np.asarray(moved_dphi)
+    out = np.empty(m.shape, np.float32)
+    _texture_delta(m, np.asarray(dphi), out)
+    return out
 
 
 def texture_term_phase(dphi: NDArray[np.floating], delta: NDArray[np.floating], height: NDArray[np.floating],
@@ -710,15 +737,11 @@ def texture_term_phase(dphi: NDArray[np.floating], delta: NDArray[np.floating], 
     phase change filtered with the weights and windows of the capture's own). The correction is
     linear in the blur and the filter is, for fixed weights, linear in the phase, so this is the
     height change of a blur wrong by one standard uncertainty without a second filtered pass.
-    NaN where ``height`` is NaN."""
-    d = np.asarray(dphi, np.float64)
-    e = d + np.asarray(delta, np.float64)
-    a = np.asarray(a, np.float64)
-    b = np.asarray(b, np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        t = np.abs(e / (a + b * e) - d / (a + b * d))
-    ok = np.isfinite(np.asarray(height))
-    return np.where(ok, np.nan_to_num(t, nan=0.0, posinf=0.0), np.nan).astype(np.float32)
+    NaN where ``height`` is NaN (float64 arithmetic; compiled, rows in parallel)."""
+    d = np.asarray(dphi)
+    out = np.empty(d.shape, np.float32)
+    _texture_term_phase(d, np.asarray(delta), np.asarray(height), np.asarray(a), np.asarray(b), out)
+    return out
 
 
 def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArray[np.floating],
