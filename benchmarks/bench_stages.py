@@ -10,7 +10,7 @@ Usage::
 On the kernel benchmark's toy rig (``_kernel_case.py``: a hue table built from captured bands, a
 known surface with steps and a dome, coloured and dark reflectance patches, so that the texture
 correction and the adaptive filter have edges to work on) it runs one frame through what
-``stages.frame_results`` runs for it with the default measurement settings, a texture blur of
+``pipeline.measure_one`` runs for it with the default measurement settings, a texture blur of
 0.4 px^2 and its uncertainty 0.1 px^2 (the demo's order), and times each stage:
 
 ``read``         decoding the frame's PNG (``session.read_rgb_codes``),
