@@ -151,23 +151,69 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
     k2 = np.float32(9.0)
     _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst)
     none = np.empty((1, 1), np.float32)
+    rings = [np.empty((1, 1)) for _ in range(4)]  # no summed-area tables: rings everywhere (box_chi_z = 0)
     ok = inv > 0
     for max_radius, target, reject in ((4, 0.0008, 0.002), (6, 0.0005, 0.001), (2, 0.0009, 0.0)):
         tw, rw = np.float32(1 / target**2), np.float32(1 / reject**2 if reject else 0.0)
         got, got_w, got_rad = (np.empty_like(dz) for _ in range(3))
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, got_rad, True)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, got_rad, True, *rings, 0.0)
         want, want_w, want_rad = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw)
         assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))  # the final weight sums too
         assert np.array_equal(got_rad[ok], want_rad[ok])  # and each pixel's final window
         assert got_rad[ok].max() > 1  # windows grew
         bare, bare_w = np.empty_like(dz), np.empty_like(dz)
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, False)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, False, *rings, 0.0)
         assert np.array_equal(bare.view(np.uint32), got.view(np.uint32))
         assert np.array_equal(bare_w.view(np.uint32), got_w.view(np.uint32))
         grown = (inv > 0) & (wfirst < tw)
         assert grown.sum() > 50  # the pass has work to do
         assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
         assert not np.array_equal(got[grown], first[grown])  # and it changed those pixels
+
+
+def test_adaptive_boxes_are_the_box_mean_where_one_level_and_rings_at_a_step() -> None:
+    """With ``box_chi_z`` the grown support is the whole box's weighted mean and weight
+    sum (O(1) per pixel from summed-area tables) where the box holds one level, and the ring pass's
+    bits wherever a box would cross the step; both estimate the true level alike."""
+    from huefringe.phase import _adaptive_pass, _denoise_kernel, _denoise_weights, _level_tables
+
+    rng = np.random.default_rng(11)
+    h, w = 40, 60
+    sigma = np.where(rng.random((h, w)) < 0.3, 0.02, 0.004) * rng.uniform(0.5, 2, (h, w))
+    truth = np.where(np.arange(w)[None, :] >= 30, 1.4, 0.4) * np.ones((h, 1))
+    d = wrap(truth + rng.normal(0, 1, (h, w)) * sigma)
+    valid = rng.random((h, w)) > 0.05
+    dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
+    _denoise_weights(d, sigma, valid, dz, s2, inv)
+    first, wfirst = np.empty_like(dz), np.empty_like(dz)
+    k2 = np.float32(9.0)
+    _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst)
+    tw, rw = np.float32(1 / 0.0007**2), np.float32(0.0)
+    tables = [np.empty((h + 1, w + 1)) for _ in range(4)]
+    _level_tables(dz, inv, *tables)
+    got, got_w, got_rad = (np.empty_like(dz) for _ in range(3))
+    _adaptive_pass(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, got, got_w, got_rad, True, *tables, 3.0)
+    want, want_w, _ = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw)
+    ok = inv > 0
+    grown = ok & (wfirst < tw)
+    vv, uu = np.nonzero(grown)
+    boxes = 0
+    for v, u in zip(vv, uu, strict=True):
+        r = int(got_rad[v, u])
+        sl = (slice(max(v - r, 0), v + r + 1), slice(max(u - r, 0), u + r + 1))
+        wb = inv[sl].astype(np.float64)
+        mean = (wb * dz[sl]).sum() / wb.sum()
+        if abs(got[v, u] - mean) < 2e-6 and abs(got_w[v, u] / wb.sum() - 1) < 1e-6:
+            boxes += 1  # a box: every valid pixel of it
+            assert u - r >= 30 or u + r < 30  # no box crosses the step
+        else:  # otherwise the ring pass's bits
+            assert got[v, u].view(np.uint32) == want[v, u].view(np.uint32) and got_w[v, u] == want_w[v, u]
+    assert boxes > 0.5 * grown.sum()  # most grown pixels took a box
+    near = ok & (np.abs(np.arange(w)[None, :] - 29.5) < 2)  # beside the step: the ring pass, bit for bit
+    assert np.array_equal(got[near].view(np.uint32), want[near].view(np.uint32))
+    err_box = np.abs(got[grown] - truth[grown])
+    err_ring = np.abs(want[grown] - truth[grown])
+    assert np.median(err_box) < 1.3 * np.median(err_ring) and err_box.max() < 0.01
 
 
 def _exact_sums(dz, s2, inv, r2, radius, k2):

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from huefringe import bench, kernel, perframe, stages
+from huefringe import bench, kernel, perframe, stages, uncertainty
 from huefringe.huetable import HueTable
 from huefringe.height import PlaneCalibration
 from huefringe.session import load_session, read_rgb
@@ -236,12 +236,17 @@ def test_lookup_matches_table_to_phase(n_bands: int) -> None:
 
 
 def test_quick_benchmark_runs(tmp_path: Path) -> None:
-    """``benchmarks/run_all.py --quick`` runs end to end (a smoke test: no speed is asserted)."""
+    """``benchmarks/bench_stages.py --quick`` (160 x 120, 16 bands) runs end to end and prints its
+    stage table and page (a smoke test: no speed is asserted, and no time limit either)."""
+    page = tmp_path / "page.md"
+    page.write_text("# t\n<!-- stages:begin -->\nold\n<!-- stages:end -->\n", encoding="utf-8")
     env = dict(os.environ, NUMBA_NUM_THREADS="1")
-    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "run_all.py"), "--quick", "--work", str(tmp_path)],
-                          capture_output=True, text=True, timeout=300, env=env, cwd=REPO)
+    proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bench_stages.py"), "--quick", "--page", str(page)],
+                          capture_output=True, text=True, env=env, cwd=REPO)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
-    assert "summary" in proc.stdout and "frames/s" in proc.stdout
+    assert "| adaptive |" in proc.stdout and "frames/s, 2 cores" in proc.stdout
+    text = page.read_text(encoding="utf-8")
+    assert "old" not in text and "| texture u |" in text and text.endswith("<!-- stages:end -->\n")
 
 
 @pytest.mark.parametrize("pd", [True, False])
@@ -265,3 +270,39 @@ def test_kernel_matches_reference_with_phase_error_and_adaptive_filter(rig: dict
         np.testing.assert_array_equal(m.valid, ref.valid)
         np.testing.assert_array_equal(m.height, ref.height)
         np.testing.assert_array_equal(m.phase, ref.phase)
+
+
+@pytest.mark.parametrize("denoise", [0, 2])
+def test_texture_term_in_one_pass_matches_reference_and_the_second_pass(rig: dict, denoise: int) -> None:
+    """The texture term carried through the frame's own filter (``texture_rgb``): the kernel's is
+    measure_frame's bit for bit. Without the filter it is the definition ``|h(s + u) - h(s)|`` (the
+    moved capture through the whole chain); with it, the first-order term (the frame's weights and
+    windows held fixed) has the definition's median (measured 0.81 / 0.59 um, u = 0.1 px^2) and
+    leaves out its tail of the filter's decisions flipping between the two passes (a neighbour
+    accepted in one and rejected in the other, a window grown to another radius: p99 15 / 86 um)."""
+    from huefringe import texture
+
+    shadow = perframe.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
+    prep = _prepare(rig, "hexcone", shadow)
+    table, cal = rig["hexcone"]
+    adaptive = CONFIG["measurement"]["denoise_adaptive"] if denoise else None
+    n = rig["session"].frame_ids[0]
+    raw = read_rgb(rig["session"].frames[n])
+    rgb, moved = texture.correct_pair(raw, rig["white"], 0.4, 0.5, clipped=perframe.clipped_mask(raw, 8))
+    ref = perframe.measure_frame(rgb, rig["white"], table, cal, shadow=shadow, bit_depth=8, denoise_radius=denoise,
+                                 predistortion=rig["session"].predistortion, denoise_adaptive=adaptive,
+                                 texture_rgb=moved)
+    m = kernel.frame_maps(prep, rgb, denoise_radius=denoise, denoise_adaptive=adaptive, texture_rgb=moved)
+    np.testing.assert_array_equal(m.height, ref.height)
+    np.testing.assert_array_equal(m.texture_u, ref.texture_u)
+    np.testing.assert_array_equal(np.isnan(m.texture_u), np.isnan(m.height))
+    two = uncertainty.texture_term(m.height, kernel.frame_maps(prep, moved, denoise_radius=denoise,
+                                                                 denoise_adaptive=adaptive).height)
+    ok = np.isfinite(m.texture_u) & np.isfinite(two)
+    one, full = m.texture_u[ok].astype(np.float64), two[ok].astype(np.float64)
+    if denoise == 0:
+        np.testing.assert_allclose(one, full, rtol=1e-4, atol=1e-6)
+    else:
+        assert 0.5 < np.median(one) / np.median(full) < 2.0
+        assert np.percentile(one, 99) < np.percentile(full, 99)
+    assert np.median(full) > 1e-4  # the term has something to say on this frame

@@ -79,7 +79,8 @@ from huefringe.perframe import (_hue_noise_kernel, capture_noise, noise_ratio2, 
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
-from huefringe.uncertainty import PixelBudget, edge_floor, height_uncertainty, pixel_budget
+from huefringe.uncertainty import (PixelBudget, edge_floor, height_uncertainty, pixel_budget, texture_delta,
+                                   texture_term_phase)
 
 __all__ = ["FrameMaps", "Prepared", "frame_maps", "frame_to_height", "prepare"]
 
@@ -969,6 +970,9 @@ class FrameMaps:
     support: NDArray[np.float32] | None = None
     """Pixels the filter averaged into each height, 0 where NaN (``want_uncertainty``;
     ``perframe.FrameResult.support``)."""
+    texture_u: NDArray[np.float32] | None = None
+    """The texture term of the uncertainty (mm, NaN where the height is;
+    :func:`huefringe.uncertainty.texture_term_phase`), with ``texture_rgb``."""
 
 
 def _check_frame(prep: Prepared, rgb: NDArray[Any]) -> tuple[NDArray[Any], float]:
@@ -997,6 +1001,7 @@ def frame_maps(
     want_uncertainty: bool = False,
     out: tuple[NDArray[np.float32], NDArray[np.bool_]] | None = None,
     denoise_adaptive: dict[str, Any] | None = None,
+    texture_rgb: NDArray[Any] | None = None,
 ) -> FrameMaps:
     """One frame through the kernel; :func:`frame_to_height` with optional phase and hue maps.
 
@@ -1006,8 +1011,14 @@ def frame_maps(
     uncertainty (from the filter's sums of weights); ``counts`` hold the pixel counts of the frame
     statistics. ``out`` = (height, valid) buffers to reuse (float32 and bool, shape (H, W)).
     ``denoise_adaptive``: the filter's sigma-adaptive support (``measurement.denoise_adaptive``,
-    :func:`huefringe.phase.adaptive_kwargs`), as ``measure_frame``'s.
+    :func:`huefringe.phase.adaptive_kwargs`), as ``measure_frame``'s. ``texture_rgb``: the capture
+    corrected with the texture blur moved by its uncertainty; its phase goes through the kernel
+    without the filter, and its change is carried through this frame's filter
+    (:func:`huefringe.uncertainty.texture_delta`, ``texture_term_phase``): ``texture_u``.
     """
+    moved_dphi = None
+    if texture_rgb is not None:  # first: the call below reuses nothing of it but its phase
+        moved_dphi = frame_maps(prep, texture_rgb, want_dphi=True).dphi
     a, scale = _check_frame(prep, rgb)
     h, w = prep.shape
     if out is None:
@@ -1020,7 +1031,7 @@ def frame_maps(
     denoise = int(denoise_radius) > 0
     phase = np.empty((h, w), dtype=np.float32) if want_maps else None
     hue = np.empty((h, w), dtype=np.float32) if want_maps else None
-    dphi = np.empty((h, w), dtype=np.float32) if denoise or want_dphi else None
+    dphi = np.empty((h, w), dtype=np.float32) if denoise or want_dphi or texture_rgb is not None else None
     # the filter's dz, s2, inv (also without the filter when the uncertainty needs them)
     weights = np.empty((3, h, w), dtype=np.float32) if denoise or want_uncertainty else None
     top = 1.0 - 0.5 / (2**prep.bit_depth - 1)
@@ -1048,12 +1059,15 @@ def frame_maps(
         _hue_noise_kernel(a, np.float32(scale), prep.gains, hsi, prep.u_sensor, prep.noise, own)
         ratio = noise_ratio2(own, prep.noise)
     sumw = rsum = support = None
+    delta = texture_delta(moved_dphi, dphi) if moved_dphi is not None else None
+    carried = np.empty((h, w), dtype=np.float32) if delta is not None and denoise else delta
     if denoise:
         if want_uncertainty:
             sumw, support = np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.float32)
             rsum = np.empty((h, w), dtype=np.float32) if ratio is not None else None
         smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k),
                                   weight_sum=sumw, ratio=ratio, ratio_sum=rsum, support=support,
+                                  carry=delta if denoise else None, carry_mean=carried if denoise else None,
                                   **adaptive_kwargs(denoise_adaptive))
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     elif want_uncertainty:  # no filter: the weights path, heights from the unfiltered dz
@@ -1070,7 +1084,10 @@ def frame_maps(
         support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
               "guess_far": int(n_far)}
-    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map, support)
+    tex_u = None
+    if delta is not None:
+        tex_u = texture_term_phase(smooth if denoise else dphi, carried, height, prep.a, prep.b)
+    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map, support, tex_u)
 
 
 def frame_to_height(

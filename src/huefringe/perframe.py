@@ -24,7 +24,8 @@ from huefringe.huetable import HueTable
 from huefringe import phase_error
 from huefringe.phase import adaptive_kwargs, denoise_phase, denoise_weight_sums, unwrap, wrap
 from huefringe.session import Predistortion
-from huefringe.uncertainty import PixelBudget, edge_floor, height_uncertainty, pixel_budget
+from huefringe.uncertainty import (PixelBudget, edge_floor, height_uncertainty, pixel_budget, texture_delta,
+                                   texture_term_phase)
 
 __all__ = [
     "FrameError",
@@ -304,6 +305,11 @@ class FrameResult:
     support: NDArray[np.float32] | None = None
     """Number of pixels the phase filter averaged into each height (1 without the filter; 0 where
     the height is NaN): what a step's mean shares between neighbours (:func:`~huefringe.uncertainty.step_budget`)."""
+    dphi: NDArray[np.float32] | None = None
+    """The phase difference before the filter (float32, NaN where not valid)."""
+    texture_u: NDArray[np.float32] | None = None
+    """The texture term of the uncertainty (mm, NaN where the height is), with ``texture_rgb``
+    (:func:`~huefringe.uncertainty.texture_term_phase`)."""
 
 
 def measure_frame(
@@ -323,6 +329,7 @@ def measure_frame(
     denoise_adaptive: Mapping[str, Any] | None = None,
     budget: PixelBudget | None = None,
     own_noise: bool = False,
+    texture_rgb: NDArray[np.floating] | None = None,
 ) -> FrameResult:
     """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
 
@@ -360,7 +367,17 @@ def measure_frame(
     budget : PixelBudget, optional
         Session inputs of the height uncertainty (:func:`huefringe.uncertainty.pixel_budget`,
         computed when not given); the result's ``uncertainty`` is the kernel's, bit for bit.
+    texture_rgb : ndarray, optional
+        The capture corrected with the texture blur moved by its uncertainty: its phase (this
+        chain without the filter) changes by :func:`~huefringe.uncertainty.texture_delta`, which
+        this frame's filter carries through; the result's ``texture_u`` is the kernel's.
     """
+    moved_dphi = None
+    if texture_rgb is not None:
+        moved_dphi = measure_frame(texture_rgb, white, table, cal, hue_model=hue_model, min_saturation=min_saturation,
+                                   shadow=shadow, unwrap_mode=unwrap_mode, bit_depth=bit_depth,
+                                   below_reference_mm=below_reference_mm, denoise_radius=0, predistortion=predistortion,
+                                   budget=budget, own_noise=own_noise).dphi
     balanced = white_balance(rgb, white)
     hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
     emitted, slope = table.to_phase_and_slope(hue)  # the phase's uncertainty needs the table slope
@@ -382,10 +399,13 @@ def measure_frame(
     sumw = np.zeros(valid.shape, np.float32)
     rsum = np.zeros(valid.shape, np.float32)
     support = np.zeros(valid.shape, np.float32)
+    raw_dphi = np.asarray(un.dphi, np.float32)
+    delta = texture_delta(moved_dphi, raw_dphi) if moved_dphi is not None else None
+    carried = np.empty(valid.shape, np.float32) if delta is not None and denoise_radius > 0 else delta
     if denoise_radius > 0:
         un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius, weight_sum=sumw, ratio=ratio,
                                 ratio_sum=rsum if ratio is not None else None, support=support,
-                                **adaptive_kwargs(denoise_adaptive))
+                                carry=delta, carry_mean=carried, **adaptive_kwargs(denoise_adaptive))
     else:  # one pixel's weight 1 / sigma^2, in the filter's float32 arithmetic
         sumw = denoise_weight_sums(un.dphi, sigma, valid)
         rsum = sumw * ratio if ratio is not None else rsum
@@ -398,6 +418,8 @@ def measure_frame(
     u_map = edge_floor(height, valid, height_uncertainty(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b,
                                                          budget, ratio_sum=rsum if ratio is not None else None))
     support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
+    tex_u = texture_term_phase(np.asarray(un.dphi, np.float32), carried, height, cal.a, cal.b) \
+        if delta is not None else None
     stats = frame_stats(
         valid, height, un.flags,
         clipped_fraction=float(clipped.mean()),
@@ -407,7 +429,7 @@ def measure_frame(
         hue_model=hue_model, unwrap_mode=unwrap_mode, below_reference_mm=below_reference_mm,
     )
     return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats,
-                       u_map, support)
+                       u_map, support, raw_dphi, tex_u)
 
 
 def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Mapping[str, NDArray[np.bool_]], *,

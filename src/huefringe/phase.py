@@ -21,7 +21,7 @@ from typing import Literal
 
 import numpy as np
 from numpy.typing import NDArray
-from numba import njit
+from numba import njit, prange
 
 from huefringe.patterns import TWO_PI, phase_shift_steps
 
@@ -205,17 +205,16 @@ def _denoise_row(dj, di, sj2, si2, inv, k2, acc, wsum):  # pragma: no cover - co
         wsum[u] += wj
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _denoise_kernel(d, s2, inv, radius, k2, out, wout):  # pragma: no cover - compiled
     """Row by row, window offset by window offset (``dv`` then ``du``, the same order for every
     pixel); ``inv = 0`` marks invalid pixels, which then add nothing. ``wout``: each pixel's sum
-    of accepted weights (its filtered variance is ``1 / wout``; 0 where not valid)."""
+    of accepted weights (its filtered variance is ``1 / wout``; 0 where not valid). Rows in
+    parallel (``prange``)."""
     h, w = d.shape
-    acc = np.empty(w, np.float32)
-    wsum = np.empty(w, np.float32)
-    for v in range(h):
-        acc[:] = 0.0
-        wsum[:] = 0.0
+    for v in prange(h):
+        acc = np.zeros(w, np.float32)
+        wsum = np.zeros(w, np.float32)
         for dv in range(-radius, radius + 1):
             vv = v + dv
             if vv < 0 or vv >= h:
@@ -345,9 +344,56 @@ def window_sums(inv: NDArray[np.float32], r2: NDArray[np.float32], rad: NDArray[
     return rsum, cnt
 
 
-@njit(cache=True, nogil=True, error_model="numpy")
+@njit(cache=True, nogil=True, parallel=True)
+def _level_tables(d, inv, sw, sc, ss, sn):  # pragma: no cover - compiled
+    """Summed-area tables (float64, ``(H + 1, W + 1)``) of the weights ``w = inv``, ``w d``,
+    ``w d^2`` and the valid pixels: rows summed in parallel, then the columns in parallel."""
+    h, w = d.shape
+    for v in prange(h):
+        aw = 0.0
+        ac = 0.0
+        a_s = 0.0
+        an = 0.0
+        sw[v + 1, 0] = 0.0
+        sc[v + 1, 0] = 0.0
+        ss[v + 1, 0] = 0.0
+        sn[v + 1, 0] = 0.0
+        for u in range(w):
+            iv = np.float64(inv[v, u])
+            if iv > 0:
+                x = np.float64(d[v, u])
+                aw += iv
+                ac += iv * x
+                a_s += iv * x * x
+                an += 1.0
+            sw[v + 1, u + 1] = aw
+            sc[v + 1, u + 1] = ac
+            ss[v + 1, u + 1] = a_s
+            sn[v + 1, u + 1] = an
+    for u in prange(w + 1):
+        sw[0, u] = 0.0
+        sc[0, u] = 0.0
+        ss[0, u] = 0.0
+        sn[0, u] = 0.0
+    for b in prange((w + 1 + 63) // 64):  # column blocks of 64 (contiguous loads down the rows)
+        u0 = b * 64
+        u1 = min(u0 + 64, w + 1)
+        for v in range(1, h + 1):
+            for u in range(u0, u1):
+                sw[v, u] += sw[v - 1, u]
+                sc[v, u] += sc[v - 1, u]
+                ss[v, u] += ss[v - 1, u]
+                sn[v, u] += sn[v - 1, u]
+
+
+@njit(cache=True, inline="always")
+def _box(t, v0, v1, u0, u1):  # pragma: no cover - compiled
+    return t[v1, u1] - t[v0, u1] - t[v1, u0] + t[v0, u0]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
-                   rad, full):
+                   rad, full, sw, sc, ss, sn, chi_z):
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
@@ -362,23 +408,35 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     The pixels of a row that need the pass go through it together, one window offset at a time
     across all of them (SIMD over the pixels), each leaving the list once its weights reach the
     target; each pixel still adds its neighbours in the same order (ring, then row ``dv``, then
-    ``du``), so the sums are those of a pixel-by-pixel loop, bit for bit."""
+    ``du``), so the sums are those of a pixel-by-pixel loop, bit for bit.
+
+    With ``chi_z > 0`` a pixel first tries whole boxes (half side ``radius .. max_radius``) in
+    O(1) each from the summed-area tables of :func:`_level_tables`: the box's weighted mean
+    ``sum w d / sum w`` is taken, with every valid pixel of the box and its weight sum, when the
+    box is consistent with one level (its weighted scatter ``sum w d^2 - (sum w d)^2 / sum w =
+    sum w (d - mean)^2`` within ``chi_z`` standard deviations of its ``n - 1`` expectation: a box
+    across the wrap at +-pi fails it by far) and its mean agrees with the pixel's first-pass
+    estimate within ``k`` combined sigma; at the first box that reaches ``target_w`` (or the
+    last) it stops. A box that fails either test (a step, an outlier, a slope steep for
+    the noise) sends the pixel through the ring pass above. Rows run in parallel (``prange``):
+    each pixel's result depends only on the inputs, not on the threads."""
     h, w = d.shape
     nan = np.float32(np.nan)
     two_pi = np.float32(2.0 * np.pi)
     inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
     pi = np.float32(np.pi)
     zero = np.float32(0.0)
-    pu = np.empty(w, np.int64)  # the row's pixels that need the pass, and their running state
-    pm = np.empty(w, np.float32)
-    psf = np.empty(w, np.float32)
-    pdc = np.empty(w, np.float32)
-    pacc = np.empty(w, np.float32)
-    pw = np.empty(w, np.float32)
-    xg = np.empty(w, np.float32)  # scratch: the gathered neighbours
-    ig = np.empty(w, np.float32)
-    sg = np.empty(w, np.float32)
-    for v in range(h):
+    boxes = chi_z > 0
+    for v in prange(h):
+        pu = np.empty(w, np.int64)  # the row's pixels that need the pass, and their running state
+        pm = np.empty(w, np.float32)
+        psf = np.empty(w, np.float32)
+        pdc = np.empty(w, np.float32)
+        pacc = np.empty(w, np.float32)
+        pw = np.empty(w, np.float32)
+        xg = np.empty(w, np.float32)  # scratch: the gathered neighbours
+        ig = np.empty(w, np.float32)
+        sg = np.empty(w, np.float32)
         n = 0
         if full:
             for u in range(w):
@@ -392,6 +450,44 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
             if ws >= target_w or max_radius <= radius:
                 out[v, u] = first[v, u] if ws >= reject_w else nan
                 continue
+            if boxes:
+                m = np.float64(first[v, u])
+                sf = 1.0 / np.float64(ws)
+                dc = d[v, u]
+                done = False
+                for r in range(radius, max_radius + 1):
+                    v0 = max(v - r, 0)
+                    v1 = min(v + r + 1, h)
+                    u0 = max(u - r, 0)
+                    u1 = min(u + r + 1, w)
+                    bw = _box(sw, v0, v1, u0, u1)
+                    bc = _box(sc, v0, v1, u0, u1)
+                    bs = _box(ss, v0, v1, u0, u1)
+                    bn = _box(sn, v0, v1, u0, u1)
+                    dof = bn - 1.0
+                    mean = bc / bw
+                    chi = bs - bc * mean
+                    dm = mean - m
+                    dm = dm - 2.0 * np.pi * np.floor((dm + np.pi) / (2.0 * np.pi))
+                    if chi > dof + chi_z * np.sqrt(2.0 * max(dof, 1.0)) or dm * dm > k2 * (sf + 1.0 / bw):
+                        break  # not one level: the ring pass decides
+                    if bw >= target_w or r == max_radius:
+                        wb = np.float32(bw)
+                        if wb < ws:  # (as the ring pass) never less support than the first pass
+                            wb = ws
+                            val = first[v, u]
+                        else:
+                            dd = np.float32(mean) - dc
+                            dd = dd - two_pi * np.floor((dd + pi) * inv_two_pi)
+                            val = dc + dd
+                            if full:
+                                rad[v, u] = r
+                        out[v, u] = val if wb >= reject_w else nan
+                        wout[v, u] = wb
+                        done = True
+                        break
+                if done:
+                    continue
             pu[n] = u
             n += 1
         if n == 0:
@@ -470,7 +566,9 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
                   *, radius: int = 2, k: float = 3.0, max_radius: int = 0, target_sigma: float = 0.0,
                   reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None,
                   ratio: NDArray[np.float32] | None = None, ratio_sum: NDArray[np.float32] | None = None,
-                  support: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+                  support: NDArray[np.float32] | None = None, box_chi_z: float = 0.0,
+                  carry: NDArray[np.float32] | None = None,
+                  carry_mean: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """Edge-preserving, uncertainty-weighted local mean of a phase map.
 
     Each valid pixel becomes the inverse-variance weighted mean of the valid pixels in its
@@ -496,6 +594,15 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         never crossed); 0 = fixed window.
     reject_sigma : float
         Pixels whose filtered sigma stays above this become NaN (invalid); 0 = never.
+    box_chi_z : float
+        > 0: the adaptive support grows by whole boxes, O(1) per pixel and radius from
+        summed-area tables of the weighted phase and its square, wherever the box is consistent with one level
+        within this many standard deviations of its chi-square (:func:`_adaptive_pass`); the
+        pixels where it is not (steps, outliers) grow ring by ring. 0 = rings everywhere.
+    carry, carry_mean : float32 ndarray, optional
+        ``carry_mean`` receives each pixel's weighted mean of ``carry`` (finite everywhere) over
+        its final window, ``sum(w carry) / sum(w)`` (:func:`window_sums`): another map filtered
+        with this phase's weights, e.g. a small change of the phase to first order.
     weight_sum : float32 ndarray, optional
         Receives each pixel's sum of the weights ``1 / sigma^2`` of the neighbours it averaged
         (0 where not valid): the filtered phase's variance from independent pixel noise is
@@ -531,7 +638,7 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     _denoise_weights(d, s, valid, dz, s2, inv)
     return denoise_weighted(dz, s2, inv, radius=radius, k=k, max_radius=max_radius, target_sigma=target_sigma,
                             reject_sigma=reject_sigma, weight_sum=weight_sum, ratio=ratio, ratio_sum=ratio_sum,
-                            support=support)
+                            support=support, box_chi_z=box_chi_z, carry=carry, carry_mean=carry_mean)
 
 
 def denoise_weight_sums(dphi: NDArray[np.floating], sigma: NDArray[np.floating],
@@ -551,7 +658,9 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
                      radius: int = 2, k: float = 3.0, max_radius: int = 0, target_sigma: float = 0.0,
                      reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None,
                      ratio: NDArray[np.float32] | None = None, ratio_sum: NDArray[np.float32] | None = None,
-                     support: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+                     support: NDArray[np.float32] | None = None, box_chi_z: float = 0.0,
+                     carry: NDArray[np.float32] | None = None,
+                     carry_mean: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """:func:`denoise_phase` on its prepared float32 inputs (for callers that compute them on
     the fly, like the fused kernel): ``ok = valid & finite(dphi) & finite(sigma) & sigma > 0``,
     ``dz = ok ? dphi : 0``, ``s2 = float32(clip(ok ? sigma : 1, 1e-9, 1e9)) ** 2`` and
@@ -568,7 +677,12 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
     for name, x in (("weight_sum", weight_sum), ("ratio_sum", ratio_sum), ("support", support)):
         if x is not None and (x.shape != out.shape or x.dtype != np.float32 or not x.flags.c_contiguous):
             raise ValueError(f"{name} must be a C-contiguous float32 array of the phase's shape")
-    full = ratio_sum is not None or support is not None
+    if (carry is None) != (carry_mean is None):
+        raise ValueError("carry and carry_mean go together")
+    if carry_mean is not None and (carry_mean.shape != out.shape or carry_mean.dtype != np.float32
+                                   or not carry_mean.flags.c_contiguous):
+        raise ValueError("carry_mean must be a C-contiguous float32 array of the phase's shape")
+    full = ratio_sum is not None or support is not None or carry is not None
     if ratio_sum is not None and ratio is None:
         raise ValueError("ratio_sum needs ratio")
     r2 = (np.ascontiguousarray(ratio, np.float32) if ratio is not None else np.ones(out.shape, np.float32)) \
@@ -584,8 +698,12 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
         target_w = np.float32(1.0 / target_sigma**2) if target_sigma > 0 else np.float32(0.0)
         reject_w = np.float32(1.0 / reject_sigma**2) if reject_sigma > 0 else np.float32(0.0)
         rad = np.empty(out.shape if full else (1, 1), np.float32)
+        grows = max_radius > radius and target_sigma > 0 and box_chi_z > 0
+        tables = [np.empty((h + 1, w + 1) if grows else (1, 1)) for h, w in [arrays[0].shape] for _ in range(4)]
+        if grows:
+            _level_tables(arrays[0], arrays[2], *tables)
         _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), k2, target_w, reject_w, final,
-                       wfinal, rad, full)
+                       wfinal, rad, full, *tables, float(box_chi_z) if grows else 0.0)
         out, wsum = final, wfinal
     else:
         rad = np.float32(radius)
@@ -596,16 +714,22 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
         for dst, src in ((ratio_sum, rsum), (support, cnt)):
             if dst is not None:
                 dst[...] = src
+        if carry is not None:
+            c = np.ascontiguousarray(carry, np.float32)
+            if c.shape != out.shape:
+                raise ValueError(f"carry has shape {c.shape}, the phase {out.shape}")
+            carry_mean[...] = window_sums(arrays[2], c, rad, np.ones(out.shape, np.float32))[0]
     return out
 
 
 #: ``measurement.denoise_adaptive`` defaults (sigmas in rad of phase)
-ADAPTIVE_DEFAULTS = {"enabled": True, "max_radius": 6, "target_sigma_rad": 0.002, "reject_sigma_rad": 0.03}
+ADAPTIVE_DEFAULTS = {"enabled": True, "max_radius": 6, "target_sigma_rad": 0.002, "reject_sigma_rad": 0.03,
+                     "box_chi_z": 0.0}
 
 
 def adaptive_kwargs(opts: dict | None) -> dict:
     """:func:`denoise_phase` / :func:`denoise_weighted` keywords of a ``measurement.denoise_adaptive``
-    block (``enabled``, ``max_radius``, ``target_sigma_rad``, ``reject_sigma_rad``); ``{}`` when
+    block (``enabled``, ``max_radius``, ``target_sigma_rad``, ``reject_sigma_rad``, ``box_chi_z``); ``{}`` when
     absent or disabled (the fixed window)."""
     if opts is None or opts is False:
         return {}
@@ -613,4 +737,4 @@ def adaptive_kwargs(opts: dict | None) -> dict:
     if not o["enabled"]:
         return {}
     return {"max_radius": int(o["max_radius"]), "target_sigma": float(o["target_sigma_rad"]),
-            "reject_sigma": float(o["reject_sigma_rad"])}
+            "reject_sigma": float(o["reject_sigma_rad"]), "box_chi_z": float(o["box_chi_z"])}

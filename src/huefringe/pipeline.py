@@ -29,7 +29,7 @@ from huefringe.height import PlaneCalibration, PlaneCalibrationError, calibrate_
 from huefringe.huetable import HueTable, HueTableError, build_table
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.session import Session
-from huefringe.uncertainty import PixelBudget, add_lateral, noise_correlation, phase_error_residual_rad, pixel_budget, texture_term
+from huefringe.uncertainty import PixelBudget, add_lateral, noise_correlation, phase_error_residual_rad, pixel_budget
 
 __all__ = ["Calibrated", "FramePipeline", "FrameResult", "bayer_noise_correlation", "frame_results", "measure_one",
            "noise_aware_adaptive", "prepare_frames", "prepare_session", "session_camera_record",
@@ -397,15 +397,17 @@ def prepare_frames(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: st
     return fp
 
 
-def _reference(fp: FramePipeline, image: NDArray[np.floating]):
-    """The NumPy reference chain on one image (:func:`~huefringe.perframe.measure_frame`)."""
+def _reference(fp: FramePipeline, image: NDArray[np.floating], texture_rgb: NDArray[np.floating] | None = None):
+    """The NumPy reference chain on one image (:func:`~huefringe.perframe.measure_frame`; the texture
+    term from ``texture_rgb``)."""
     m, s = fp.measurement, fp.session
     if fp.budget is None:  # once per session, not per frame
         fp.budget = pixel_budget(fp.table, fp.calibration)
     return measure_frame(image, fp.white, fp.table, fp.calibration, hue_model=fp.hue_model,
                          min_saturation=m["min_saturation"], shadow=fp.shadow, unwrap_mode=m["unwrap"],
                          bit_depth=s.bit_depth, denoise_radius=m["denoise_radius"], predistortion=s.predistortion,
-                         denoise_adaptive=fp.adaptive, budget=fp.budget, own_noise=bool(m["own_noise"]))
+                         denoise_adaptive=fp.adaptive, budget=fp.budget, own_noise=bool(m["own_noise"]),
+                         texture_rgb=texture_rgb)
 
 
 def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameResult:
@@ -419,7 +421,8 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
     :func:`~huefringe.perframe.plane_edge_mask` with ``edge_plane_tol_mm``; ``stats["edge_fraction"]``),
     so the kernel and :func:`~huefringe.perframe.measure_frame` stay identical to each other; the
     uncertainty then gains the texture term in quadrature (the heights' change when the blur moves
-    by its uncertainty, :func:`~huefringe.uncertainty.texture_term`) and the lateral term of the
+    by its uncertainty, carried through the frame's own filter: :func:`~huefringe.uncertainty.texture_term_phase`)
+    and the lateral term of the
     delivered heights (:func:`~huefringe.uncertainty.add_lateral`, ``measurement.lateral_uncertainty_px``,
     ``lateral_step_px``; 0 = off).
 
@@ -437,20 +440,15 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
     if fp.blur2 > 0 or fp.blur_u > 0:
         raw = reader.rgb(path)
         clip = clipped_mask(raw, s.bit_depth)
-        if fp.blur2 > 0:
-            rgb = texture.correct(raw, fp.white, fp.blur2, clipped=clip)
-        if fp.blur_u > 0:
-            moved = texture.correct(raw, fp.white, fp.blur2 + fp.blur_u, clipped=clip)
+        rgb, moved = texture.correct_pair(raw, fp.white, fp.blur2, fp.blur2 + fp.blur_u if fp.blur_u > 0 else None,
+                                          clipped=clip)
+        rgb = rgb if fp.blur2 > 0 else None
     if rgb is None and reader.demixed:  # the demixed channels (camera.colour_demixing), to both chains
         rgb = reader.rgb(path)
     if fp.prep is not None:  # the kernel reads the sensor codes as read_rgb scales them
-        if moved is not None:  # first, on buffers of its own (a copy: the pass below reuses the kernel's)
-            moved_height = np.array(kernel.frame_maps(
-                fp.prep, moved, denoise_radius=m["denoise_radius"], denoise_adaptive=fp.adaptive,
-                want_maps=False, want_dphi=False, want_uncertainty=False).height)
         k = kernel.frame_maps(fp.prep, reader.codes(path) if rgb is None else rgb, denoise_radius=m["denoise_radius"],
                               denoise_adaptive=fp.adaptive, want_maps=want_maps, want_dphi=True,
-                              want_uncertainty=fp.want_uncertainty, out=fp.buffers)
+                              want_uncertainty=fp.want_uncertainty, out=fp.buffers, texture_rgb=moved)
         px = k.valid.size  # frame_stats with unwrap's reference flags, in one compiled pass
         # the wrap flags on the pixels valid before the filter (measure_frame's unwrap call): the
         # kernel's dphi is NaN exactly where no phase was decoded; k.valid has lost the filter's rejects
@@ -459,13 +457,11 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
                                       table_invalid_fraction=fp.table_invalid, shadow_fraction=fp.shadow_fraction,
                                       hue_model=fp.hue_model, flag_valid=np.isfinite(k.dphi))
         height, phase, hue, u_map, support = k.height, k.phase, k.hue, k.uncertainty, k.support
-        if moved is not None:
-            tex_u = texture_term(height, moved_height)
+        tex_u = k.texture_u
     else:
-        res = _reference(fp, reader.rgb(path) if rgb is None else rgb)
+        res = _reference(fp, reader.rgb(path) if rgb is None else rgb, texture_rgb=moved)
         height, phase, hue, stats, u_map, support = res.height, res.phase, res.hue, res.stats, res.uncertainty, res.support
-        if moved is not None:  # the same chain and budget
-            tex_u = texture_term(height, _reference(fp, moved).height)
+        tex_u = res.texture_u
     jump = float(m["edge_jump_mm"] or 0.0)
     if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
         height, (phase, u_map), (support,), changed = remove_step_edges(

@@ -725,7 +725,8 @@ def stage_kwargs(func: Callable[..., None], smk: Any, **extra: Any) -> dict[str,
 def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> None:
     """Call ``func`` with the job's named inputs, outputs and params as keyword arguments.
 
-    Logging goes to the job's log file. Known input problems end the job with a one-paragraph
+    Logging goes to the job's log file; numba's parallel passes use the job's ``threads``. Known
+    input problems end the job with a one-paragraph
     message naming the file (no traceback); outputs are written atomically by the stages, so a
     failed job leaves none behind.
     """
@@ -739,6 +740,9 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
     for out in smk.output:
         for stale in remove_stale_parts(out):
             log.info("removed %s, left by an interrupted run", stale)
+    import numba  # the compiled passes' rows run on the job's threads (rule ``threads``), no more
+
+    numba.set_num_threads(max(1, min(int(getattr(smk, "threads", 1) or 1), numba.config.NUMBA_NUM_THREADS)))
     t0 = time.perf_counter()
     try:
         func(**kwargs)

@@ -29,9 +29,10 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
+from numba import njit, prange
 from scipy import ndimage
 
-__all__ = ["blur_from_phases", "blur_from_white", "blur_uncertainty", "correct", "lean", "white_floor"]
+__all__ = ["blur_from_phases", "blur_from_white", "blur_uncertainty", "correct", "correct_pair", "lean", "white_floor"]
 
 #: white level (full scale 1) below which the normalised fringe is not formed (noise, shadow)
 WHITE_FLOOR = 0.02
@@ -88,6 +89,53 @@ def correct(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: 
     if clipped is not None:
         out[clipped] = b[clipped]
     return out.astype(np.float32)
+
+
+@njit(cache=True, nogil=True, parallel=True)
+def _correct_pair(b, w, s1, s2, clipped, use_clip, out1, out2, want2):  # pragma: no cover - compiled
+    """:func:`lean` of every pixel (float64, the same operations in the same order) and the two
+    corrections ``clip(b - s lean, 0, 1)`` (float32; clipped pixels as captured), rows in parallel."""
+    h, wd, nc = b.shape
+    floor = WHITE_FLOOR
+    for v in prange(h):
+        for u in range(wd):
+            keep = use_clip and clipped[v, u]
+            for c in range(nc):
+                x = b[v, u, c]
+                g = 0.0
+                if 0 < v < h - 1:
+                    wa = max(w[v + 1, u, c], floor)
+                    wb = max(w[v - 1, u, c], floor)
+                    g += (wa - wb) * (b[v + 1, u, c] / wa - b[v - 1, u, c] / wb) / 4.0
+                if 0 < u < wd - 1:
+                    wa = max(w[v, u + 1, c], floor)
+                    wb = max(w[v, u - 1, c], floor)
+                    g += (wa - wb) * (b[v, u + 1, c] / wa - b[v, u - 1, c] / wb) / 4.0
+                y1 = x if keep else min(max(x - s1 * g, 0.0), 1.0)
+                out1[v, u, c] = np.float32(y1)
+                if want2:
+                    y2 = x if keep else min(max(x - s2 * g, 0.0), 1.0)
+                    out2[v, u, c] = np.float32(y2)
+
+
+def correct_pair(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: float,
+                 moved_px2: float | None, clipped: NDArray[np.bool_] | None = None,
+                 ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+    """:func:`correct` at ``sigma2_px2`` and at ``moved_px2`` (None: not wanted) from one pass of
+    :func:`lean` over the capture (compiled, rows in parallel): the arrays two calls of
+    :func:`correct` return."""
+    b = np.ascontiguousarray(rgb, np.float64)
+    if sigma2_px2 == 0 and moved_px2 is None:
+        return b.astype(np.float32), None
+    w = np.ascontiguousarray(white, np.float64)
+    if b.ndim != 3 or w.shape != b.shape:
+        raise ValueError(f"capture {b.shape} and white image {w.shape} must be the same (H, W, 3)")
+    out1 = np.empty(b.shape, np.float32)
+    out2 = np.empty(b.shape if moved_px2 is not None else (1, 1, 1), np.float32)
+    clip = np.ascontiguousarray(clipped, bool) if clipped is not None else np.zeros((1, 1), bool)
+    _correct_pair(b, w, float(sigma2_px2), float(moved_px2 or 0.0), clip, clipped is not None, out1, out2,
+                  moved_px2 is not None)
+    return out1, (out2 if moved_px2 is not None else None)
 
 
 def _fine(a: NDArray[np.float64], ok: NDArray[np.bool_], smooth_px: float) -> NDArray[np.float64]:

@@ -14,7 +14,8 @@ from numpy.typing import NDArray
 
 from huefringe.uncertainty.calibration import PixelBudget, TERMS, _INTERP_LUT, _encode_interp
 
-__all__ = ["add_lateral", "edge_floor", "height_uncertainty", "lateral_term", "split_terms", "texture_term"]
+__all__ = ["add_lateral", "edge_floor", "height_uncertainty", "lateral_term", "split_terms", "texture_delta",
+           "texture_term", "texture_term_phase"]
 
 
 def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.float64]:
@@ -431,3 +432,56 @@ def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArra
     out["noise"] = noise
     out["table"] = noise * math.sqrt(budget.table_factor)
     return {k: out[k] for k in TERMS}
+
+
+@numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _texture_delta(m, p, out):  # pragma: no cover - compiled
+    h, w = m.shape
+    for v in numba.prange(h):
+        for u in range(w):
+            d = np.float64(m[v, u]) - np.float64(p[v, u])
+            d = np.pi - (np.pi - d) % (2.0 * np.pi)
+            out[v, u] = np.float32(d) if d - d == 0 else np.float32(0.0)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _texture_term_phase(dphi, delta, height, a, b, out):  # pragma: no cover - compiled
+    h, w = dphi.shape
+    for v in numba.prange(h):
+        for u in range(w):
+            hv = height[v, u]
+            if not hv - hv == 0:
+                out[v, u] = np.float32(np.nan)
+                continue
+            d = np.float64(dphi[v, u])
+            e = d + np.float64(delta[v, u])
+            av = np.float64(a[v, u])
+            bv = np.float64(b[v, u])
+            t = abs(e / (av + bv * e) - d / (av + bv * d))
+            out[v, u] = np.float32(t) if t - t == 0 else np.float32(0.0)
+
+
+def texture_delta(moved_dphi: NDArray[np.floating], dphi: NDArray[np.floating]) -> NDArray[np.float32]:
+    """Each pixel's unfiltered phase change (rad, float32) when the texture correction's blur moves
+    by its uncertainty: ``wrap(moved_dphi - dphi)`` (float64, to [-pi, pi)), 0 where either is
+    NaN. The filter carries it through with its own weights and windows (``denoise_weighted``'s
+    ``carry``). Compiled, rows in parallel."""
+    m = np.asarray(moved_dphi)
+    out = np.empty(m.shape, np.float32)
+    _texture_delta(m, np.asarray(dphi), out)
+    return out
+
+
+def texture_term_phase(dphi: NDArray[np.floating], delta: NDArray[np.floating], height: NDArray[np.floating],
+                       a: NDArray[np.floating], b: NDArray[np.floating]) -> NDArray[np.float32]:
+    """:func:`texture_term` to first order from one pass: ``|h(dphi + delta) - h(dphi)|`` (mm) with
+    ``h = dphi / (a + b dphi)``, ``dphi`` the filtered phase the height came from and ``delta`` the
+    filter's weighted mean of :func:`texture_delta` over each pixel's window (the moved capture's
+    phase change filtered with the weights and windows of the capture's own). The correction is
+    linear in the blur and the filter is, for fixed weights, linear in the phase, so this is the
+    height change of a blur wrong by one standard uncertainty without a second filtered pass.
+    NaN where ``height`` is NaN (float64 arithmetic; compiled, rows in parallel)."""
+    d = np.asarray(dphi)
+    out = np.empty(d.shape, np.float32)
+    _texture_term_phase(d, np.asarray(delta), np.asarray(height), np.asarray(a), np.asarray(b), out)
+    return out

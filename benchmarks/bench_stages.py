@@ -1,0 +1,248 @@
+"""Benchmark: per-frame milliseconds of the measurement chain, stage by stage, against references
+measured in the same run.
+
+Usage::
+
+    ./run python benchmarks/bench_stages.py [--sizes 640x480,1280x1024] [--bands 64] [--rounds 5]
+                                            [--threads 1] [--markdown OUT.md] [--json OUT.json] [--quick]
+                                            [--page docs/throughput.md]
+
+On the kernel benchmark's toy rig (``_kernel_case.py``: a hue table built from captured bands, a
+known surface with steps and a dome, coloured and dark reflectance patches, so that the texture
+correction and the adaptive filter have edges to work on) it runs one frame through what
+``pipeline.measure_one`` runs for it with the default measurement settings, a texture blur of
+0.4 px^2 and its uncertainty 0.1 px^2 (the demo's order), and times each stage:
+
+``read``         decoding the frame's PNG (``session.read_rgb_codes``),
+``texture``      the texture-edge correction (``texture.correct``) of the capture,
+``kernel``       the fused kernel without the filter (``kernel.frame_maps``, phase difference),
+``filter``       the phase filter at ``denoise_radius`` (the kernel with it, minus without),
+``adaptive``     its sigma-adaptive support (with minus without),
+``uncertainty``  the uncertainty map (with minus without),
+``texture u``    the texture term of the uncertainty (``frame_maps``'s ``texture_rgb`` where the library
+                 has it, otherwise the second corrected capture through the filtered chain),
+``flags``        the frame statistics, the step-edge mask and the lateral term,
+``write``        the height, uncertainty and support TIFFs,
+
+and two references on the same frame: ``cv2.cvtColor(RGB2HSV)`` (one colour pass) and the **I/O
+floor** (decoding the PNG plus writing the float32 height TIFF: what a chain that computed
+nothing would cost). Stages are timed in interleaved rounds (medians over rounds), one core
+(``NUMBA_NUM_THREADS``, ``cv2.setNumThreads`` = ``--threads``), as CPU time of the process (so
+that time spent waiting for a core on a busy machine is left out; the best wall times are in the
+JSON). The table gives ms per frame and
+each stage's ratio to ``cvtColor``; the chain's frames/s on 2 cores is twice the one-core rate of
+two independent jobs (the workflow's plan).
+
+It prints and never fails on a slow machine: nothing is compared with a limit.
+``--quick`` runs 160 x 120 with 16 bands and 2 rounds (seconds; figures mean nothing).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+_pre = argparse.ArgumentParser(add_help=False)
+_pre.add_argument("--threads", type=int, default=1)
+_THREADS = max(1, _pre.parse_known_args()[0].threads)
+for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = str(_THREADS)
+
+import inspect  # noqa: E402
+import json  # noqa: E402
+import statistics  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+from typing import Any, Callable  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _kernel_case import KernelCase, make_case, tile_case  # noqa: E402
+
+from huefringe import kernel, perframe, texture  # noqa: E402
+from huefringe.io import write_tiff  # noqa: E402
+from huefringe.session import read_rgb_codes  # noqa: E402
+from huefringe.settings import defaults as load_defaults  # noqa: E402
+from huefringe.uncertainty import add_lateral, texture_term  # noqa: E402
+
+BLUR_PX2 = 0.4
+BLUR_U_PX2 = 0.1
+STAGES = ("read", "texture", "kernel", "filter", "adaptive", "uncertainty", "texture u", "flags", "write")
+
+
+def _clock(fn: Callable[[], Any]) -> tuple[float, float]:
+    """(CPU seconds of the process, all threads; wall seconds) of one call."""
+    c, t = time.process_time(), time.perf_counter()
+    fn()
+    return time.process_time() - c, time.perf_counter() - t
+
+
+def chain(rig: KernelCase, work: Path) -> dict[str, Callable[[], Any]]:
+    """The timed calls of one frame (each a closure over the frame's prepared inputs)."""
+    m_cfg = load_defaults()["measurement"]
+    adaptive = m_cfg["denoise_adaptive"]
+    radius = int(m_cfg["denoise_radius"])
+    h, w = rig.table.shape
+    png = work / "frame.png"
+    cv2.imwrite(str(png), cv2.cvtColor(rig.frame, cv2.COLOR_RGB2BGR))
+    shadow = perframe.shadow_mask(rig.white, m_cfg["shadow_fraction"])
+    prep = kernel.prepare(rig.table, rig.cal, rig.white, hue_model="hexcone", min_saturation=m_cfg["min_saturation"],
+                          shadow=shadow, bit_depth=8)
+    raw = rig.frame.astype(np.float32) * np.float32(1 / 255)
+    clip = perframe.clipped_mask(raw, 8)
+    rgb = texture.correct(raw, rig.white, BLUR_PX2, clipped=clip)
+    buf = (np.empty((h, w), np.float32), np.empty((h, w), bool))
+
+    def maps(**kw: Any) -> Any:
+        return kernel.frame_maps(prep, rgb, want_dphi=True, out=buf, **kw)
+
+    full = maps(denoise_radius=radius, denoise_adaptive=adaptive, want_uncertainty=True)
+    height, u_map, support = full.height.copy(), full.uncertainty, full.support
+
+    carried = "texture_rgb" in inspect.signature(kernel.frame_maps).parameters
+    if carried:  # the texture term carried through the filter: the moved capture's phase alone
+        _, moved = texture.correct_pair(raw, rig.white, BLUR_PX2, BLUR_PX2 + BLUR_U_PX2, clipped=clip)
+
+        def tex_u() -> Any:
+            return maps(denoise_radius=radius, denoise_adaptive=adaptive, want_uncertainty=True, texture_rgb=moved)
+    else:  # the second corrected capture through the whole filtered chain
+
+        def tex_u() -> Any:
+            mv = texture.correct(raw, rig.white, BLUR_PX2 + BLUR_U_PX2, clipped=clip)
+            mh = kernel.frame_maps(prep, mv, denoise_radius=radius, denoise_adaptive=adaptive).height
+            return maps(denoise_radius=radius, denoise_adaptive=adaptive, want_uncertainty=True), texture_term(height, mh)
+
+    def flags() -> Any:
+        px = full.valid.size
+        st = perframe.reference_frame_stats(full.dphi, full.valid, height, clipped_fraction=full.counts["clipped"] / px,
+                                            hue_undefined_fraction=full.counts["hue_undefined"] / px,
+                                            table_invalid_fraction=0.0, shadow_fraction=0.0, hue_model="hexcone",
+                                            flag_valid=np.isfinite(full.dphi))
+        hh, (uu,), (ss,), _ = perframe.remove_step_edges(
+            height, float(m_cfg["edge_jump_mm"]), nan_maps=(u_map,), zero_maps=(support,),
+            test=str(m_cfg["edge_test"]), tol_mm=float(m_cfg["edge_plane_tol_mm"]))
+        return st, add_lateral(hh, uu, lateral_px=float(m_cfg["lateral_uncertainty_px"]),
+                               step_px=float(m_cfg["lateral_step_px"]))
+
+    def write() -> None:
+        write_tiff(work / "h.tiff", height)
+        write_tiff(work / "u.tiff", u_map)
+        write_tiff(work / "s.tiff", np.rint(support).astype(np.uint16))
+
+    return {
+        "read": lambda: read_rgb_codes(png),
+        "texture": ((lambda: texture.correct_pair(raw, rig.white, BLUR_PX2, BLUR_PX2 + BLUR_U_PX2, clipped=clip))
+                    if carried else (lambda: texture.correct(raw, rig.white, BLUR_PX2, clipped=clip))),
+        "k0": lambda: maps(),
+        "k1": lambda: maps(denoise_radius=radius),
+        "k2": lambda: maps(denoise_radius=radius, denoise_adaptive=adaptive),
+        "k3": lambda: maps(denoise_radius=radius, denoise_adaptive=adaptive, want_uncertainty=True),
+        "texture u": tex_u,
+        "flags": flags,
+        "write": write,
+        "cvtColor": lambda: cv2.cvtColor(rig.frame, cv2.COLOR_RGB2HSV),
+        "floor": lambda: (read_rgb_codes(png), write_tiff(work / "f.tiff", height)),
+    }
+
+
+def bench_size(rig: KernelCase, rounds: int) -> dict[str, Any]:
+    cv2.setNumThreads(_THREADS)
+    with tempfile.TemporaryDirectory(prefix="hf-bench-stages-") as tmp:
+        calls = chain(rig, Path(tmp))
+        for fn in calls.values():  # warm-up: compiled paths, caches
+            fn()
+        per: dict[str, list[float]] = {k: [] for k in calls}
+        wall: dict[str, list[float]] = {k: [] for k in calls}
+        for _ in range(rounds):
+            for k, fn in calls.items():
+                reps = 5 if k in ("cvtColor", "read", "floor") else 1
+                best = min((_clock(fn) for _ in range(reps)), key=lambda x: x[0])
+                per[k].append(best[0])
+                wall[k].append(best[1])
+    med = {k: 1e3 * statistics.median(v) for k, v in per.items()}
+    wall_ms = {k: 1e3 * min(v) for k, v in wall.items()}
+    ms = {"read": med["read"], "texture": med["texture"], "kernel": med["k0"],
+          "filter": max(med["k1"] - med["k0"], 0.0), "adaptive": max(med["k2"] - med["k1"], 0.0),
+          "uncertainty": max(med["k3"] - med["k2"], 0.0), "texture u": max(med["texture u"] - med["k3"], 0.0),
+          "flags": med["flags"],
+          "write": med["write"]}
+    compute = sum(v for k, v in ms.items() if k not in ("read", "write"))
+    total = sum(ms.values())
+    return {"size": list(rig.frame.shape[1::-1]), "ms": ms, "compute_ms": compute, "total_ms": total,
+            "cvtColor_ms": med["cvtColor"], "floor_ms": med["floor"],
+            "fps_1core": 1e3 / total, "fps_2cores": 2e3 / total, "floor_fps_2cores": 2e3 / med["floor"],
+            "vs_floor": med["floor"] / total, "threads": _THREADS, "wall_best_ms": wall_ms}
+
+
+def markdown(results: list[dict[str, Any]], command: str) -> str:
+    sizes = [f"{r['size'][0]} × {r['size'][1]}" for r in results]
+    lines = ["| stage | " + " | ".join(f"{s}: ms | × cvtColor" for s in sizes) + " |",
+             "| --- | " + " | ".join("---: | ---:" for _ in sizes) + " |"]
+
+    def row(name: str, vals: list[float]) -> None:
+        cells = [f"{v:.1f} | {v / r['cvtColor_ms']:.1f}" for v, r in zip(vals, results, strict=True)]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+
+    for st in STAGES:
+        row(st, [r["ms"][st] for r in results])
+    row("**compute** (texture … flags)", [r["compute_ms"] for r in results])
+    row("**frame** (all stages)", [r["total_ms"] for r in results])
+    row("*cv2.cvtColor RGB→HSV*", [r["cvtColor_ms"] for r in results])
+    row("*I/O floor (PNG read + TIFF write)*", [r["floor_ms"] for r in results])
+    lines.append("| frames/s, 2 cores (two jobs) | " + " | ".join(
+        f"{r['fps_2cores']:.1f} | {r['vs_floor']:.2f} × floor" for r in results) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="640x480,1280x1024")
+    ap.add_argument("--bands", type=int, default=64)
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--threads", type=int, default=1, help="numba and OpenCV threads (default: one core)")
+    ap.add_argument("--markdown", type=Path, default=None, help="also write the table here")
+    ap.add_argument("--page", type=Path, default=None,
+                    help="a manual page whose table between the stages:begin / stages:end markers is replaced")
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--quick", action="store_true", help="smoke mode: 160 x 120, 16 bands, 2 rounds")
+    a = ap.parse_args(argv)
+    if a.quick:
+        a.sizes, a.bands, a.rounds = "160x120", 16, 2
+    sizes = [tuple(int(x) for x in s.split("x")) for s in a.sizes.split(",")]
+    t0 = time.perf_counter()
+    print(f"stage benchmark: {a.sizes}, {a.bands} bands, {a.rounds} rounds, {a.threads} thread(s); "
+          f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores", flush=True)
+    base = make_case(*sizes[0], n_bands=a.bands)
+    results = []
+    for w, h in sizes:
+        rig = base if (w, h) == sizes[0] else tile_case(base, w, h)
+        r = bench_size(rig, a.rounds)
+        results.append(r)
+        print(f"\n{w} x {h}: " + ", ".join(f"{k} {v:.1f}" for k, v in r["ms"].items()) + " ms", flush=True)
+        print(f"  compute {r['compute_ms']:.1f} ms, frame {r['total_ms']:.1f} ms; cvtColor {r['cvtColor_ms']:.2f} ms, "
+              f"I/O floor {r['floor_ms']:.2f} ms; 2 cores: {r['fps_2cores']:.1f} frames/s = {r['vs_floor']:.2f} of the "
+              f"floor ({r['floor_fps_2cores']:.0f} frames/s)", flush=True)
+    cmd = "./run python benchmarks/bench_stages.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    table = markdown(results, cmd.strip())
+    print("\n" + table)
+    print(f"load average {os.getloadavg()[0]:.2f}; {time.perf_counter() - t0:.0f} s")
+    if a.markdown:
+        a.markdown.write_text(table)
+    if a.page:
+        text = a.page.read_text(encoding="utf-8")
+        begin, end = "<!-- stages:begin -->\n", "<!-- stages:end -->"
+        i, j = text.index(begin) + len(begin), text.index(end)
+        note = (f"*{results[0]['threads']} thread, CPU ms per frame, medians of {a.rounds} rounds, {a.bands} bands; "
+                f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.*\n\n")
+        a.page.write_text(text[:i] + note + table + text[j:], encoding="utf-8")
+    if a.json:
+        a.json.write_text(json.dumps(results, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
