@@ -81,6 +81,7 @@ __all__ = [
     "COUNTS",
     "HueTableError",
     "RAD_PER_COUNT",
+    "NOISE_SOURCES",
     "REASONS",
     "HueTable",
     "band_smoothing_matrix",
@@ -103,6 +104,9 @@ REASONS: tuple[str, ...] = ("valid", "low_signal", "low_saturation", "noise", "c
 """Mask reasons; the index is the code stored in ``HueTable.reason`` (0 = valid)."""
 _R_LOW_SIGNAL, _R_LOW_SAT = 1, 2  # the kernels use the codes 3 (noise), 4 (coverage), 5 (order)
 _FORMAT = "huefringe-hue-table/1"
+NOISE_SOURCES: tuple[str, ...] = ("repeats", "band_second_difference")
+"""How a table's per-pixel noise was found (``stats["noise_rad"]["source"]``): the spread of the
+band repeats (``R >= 2``), or the second difference along the bands of the single repeat."""
 _TWO_PI_F32 = np.float32(TWO_PI)
 
 
@@ -209,6 +213,43 @@ def _accumulate_kernel(hues, plane, var_sum, dof, missing):  # pragma: no cover 
             while q >= 65536:
                 q -= 65536
             plane[v, u] = q
+
+
+@numba.njit(cache=True, nogil=True)
+def _band_noise_kernel(table, reason, out):  # pragma: no cover - numba
+    """Hue noise (rad) of one band mean per pixel from the second difference along the bands.
+
+    The captured hue is a smooth function of the band's code phase within each sextant of the
+    code (eq. 3 ramps one channel there; the curve kinks only at the sextant boundaries). The
+    second difference ``x[i-1] - 2 x[i] + x[i+1]`` of three bands of one sextant removes the
+    curve's level and slope and leaves noise of variance ``6 sigma^2`` for independent band
+    means of variance ``sigma^2``; triples crossing a sextant boundary (the wrap at band 0 is
+    one) are left out. ``out = sqrt(mean(d2^2) / 6)``; NaN where ``reason != 0`` or no triple.
+    """
+    n, h, w = table.shape
+    two_pi = 2.0 * np.pi
+    rad = two_pi / 65536.0
+    seg = np.empty(n, np.int64)
+    for i in range(n):
+        seg[i] = (6 * i) // n
+    for v in range(h):
+        for u in range(w):
+            if reason[v, u] != 0:
+                out[v, u] = np.nan
+                continue
+            ss = 0.0
+            cnt = 0
+            for i in range(1, n - 1):
+                if seg[i - 1] != seg[i] or seg[i + 1] != seg[i]:
+                    continue
+                a = (np.float64(table[i, v, u]) - np.float64(table[i - 1, v, u])) * rad
+                b = (np.float64(table[i + 1, v, u]) - np.float64(table[i, v, u])) * rad
+                a -= two_pi * math.floor((a + np.pi) / two_pi)  # steps wrapped to [-pi, pi)
+                b -= two_pi * math.floor((b + np.pi) / two_pi)
+                d2 = b - a
+                ss += d2 * d2
+                cnt += 1
+            out[v, u] = math.sqrt(ss / (6.0 * cnt)) if cnt > 0 else np.nan
 
 
 @numba.njit(cache=True, parallel=False)
@@ -890,6 +931,9 @@ def build_table(
     with np.errstate(divide="ignore", invalid="ignore"):
         sigma = np.where(dof_map > 0, np.sqrt(var_sum / np.maximum(dof_map, 1)) / math.sqrt(n_rep), np.nan).astype(np.float64)
     del var_sum, dof_map
+    if n_rep == 1:  # no repeats: the noise from the single repeat's structure along the bands
+        sigma = np.empty((h, w), np.float64)
+        _band_noise_kernel(tab, reason, sigma)
     step = TWO_PI / n
     coef = band_smoothing_matrix(n, smooth_window, smooth_order)
     start = np.zeros((h, w), dtype=np.uint16)
@@ -911,6 +955,7 @@ def build_table(
         "noise_rad": {
             "median": float(np.median(sv)) if sv.size else None,
             "p95": float(np.percentile(sv, 95)) if sv.size else None,
+            "source": NOISE_SOURCES[0] if n_rep >= 2 else NOISE_SOURCES[1],
         },
         "sensor_noise": repeat_stats.fit(),
         "table_bytes": int(table.nbytes),
