@@ -473,7 +473,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     phase filter averaged into each height (float32, 0 where NaN; None alike).
     After either chain, ``measurement.edge_jump_mm`` > 0 invalidates the mixed pixels of step edges
     (``measurement.edge_test``: :func:`~huefringe.perframe.step_edge_mask`, or
-    :func:`~huefringe.perframe.plane_edge_mask` with ``edge_plane_tol_mm``; ``stats["edge_fraction"]``),
+    :func:`~huefringe.perframe.plane_edge_mask` with ``edge_plane_tol_mm``; ``stats["edge_fraction"]``;
+    a jump within ``edge_noise_k`` of the heights' own noise, :func:`~huefringe.perframe.height_noise`, is kept),
     so the kernel and :func:`~huefringe.perframe.measure_frame` stay identical to each other; then the uncertainty
     gains the lateral term of the delivered heights (:func:`~huefringe.uncertainty.add_lateral`,
     ``measurement.lateral_uncertainty_px``; 0 = off).
@@ -497,6 +498,8 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
         shadow_fraction = float(shadow.mean())
         del t  # the kernel's pixel-major copy replaces the band-major table
         buffers = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))  # reused frame to frame
+    # a jump the heights' own noise explains is no step edge (measurement.edge_noise_k; the noise map needs the u pass)
+    noise_k = float(measurement["edge_noise_k"]) if float(measurement.get("edge_jump_mm", 0.0) or 0.0) > 0 else 0.0
     blur2 = float(cal.texture_blur_px2 or 0.0)  # the plane calibration's (calibration.texture_blur_px2)
     # the texture term of u: the heights' change when the correction's blur moves by its uncertainty
     blur_u = (float(cal.texture_blur_u_px2 or 0.0)
@@ -522,7 +525,7 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                     want_maps=False, want_dphi=False, want_uncertainty=False).height)
             m = kernel.frame_maps(prep, reader.codes(path) if rgb is None else rgb, denoise_radius=measurement["denoise_radius"],
                                   denoise_adaptive=adaptive,
-                                  want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty,
+                                  want_maps=n in maps, want_dphi=True, want_uncertainty=want_uncertainty or noise_k > 0,
                                   out=buffers)
             px = m.valid.size  # frame_stats with unwrap's reference flags, in one compiled pass
             # the wrap flags on the pixels valid before the filter (measure_frame's unwrap call): the
@@ -531,7 +534,9 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
                                           hue_undefined_fraction=m.counts["hue_undefined"] / px,
                                           table_invalid_fraction=table_invalid, shadow_fraction=shadow_fraction,
                                           hue_model=hue_model, flag_valid=np.isfinite(m.dphi))
-            height, phase, hue, u_map, support = m.height, m.phase, m.hue, m.uncertainty, m.support
+            height, phase, hue, u_map, support, noise_h = m.height, m.phase, m.hue, m.uncertainty, m.support, m.noise
+            if not want_uncertainty:
+                u_map = support = None
             if moved is not None:
                 tex_u = texture_term(height, moved_height)
         else:
@@ -546,14 +551,14 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
 
             res = reference(reader.rgb(path) if rgb is None else rgb)
             height, phase, hue, stats, u_map = res.height, res.phase, res.hue, res.stats, res.uncertainty
-            support = res.support
+            support, noise_h = res.support, res.noise
             if moved is not None:  # the same chain and budget (budget=None would rebuild it every frame)
                 tex_u = texture_term(height, reference(moved).height)
         jump = float(measurement.get("edge_jump_mm", 0.0) or 0.0)
         if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
             height, (phase, u_map), (support,), changed = remove_step_edges(
                 height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(measurement.get("edge_test", "plane")),
-                tol_mm=float(measurement.get("edge_plane_tol_mm", 0.1)))
+                tol_mm=float(measurement.get("edge_plane_tol_mm", 0.1)), noise=noise_h, noise_k=noise_k)
             stats = {**stats, **changed}
         if u_map is not None and moved is not None:  # the texture term, in quadrature (NaN where the height is)
             u_map = np.hypot(u_map, tex_u).astype(np.float32)
