@@ -104,9 +104,9 @@ REASONS: tuple[str, ...] = ("valid", "low_signal", "low_saturation", "noise", "c
 """Mask reasons; the index is the code stored in ``HueTable.reason`` (0 = valid)."""
 _R_LOW_SIGNAL, _R_LOW_SAT = 1, 2  # the kernels use the codes 3 (noise), 4 (coverage), 5 (order)
 _FORMAT = "huefringe-hue-table/1"
-NOISE_SOURCES: tuple[str, ...] = ("repeats", "band_second_difference")
+NOISE_SOURCES: tuple[str, ...] = ("repeats", "band_difference")
 """How a table's per-pixel noise was found (``stats["noise_rad"]["source"]``): the spread of the
-band repeats (``R >= 2``), or the second difference along the bands of the single repeat."""
+band repeats (``R >= 2``), or the third difference along the bands of the single repeat."""
 _TWO_PI_F32 = np.float32(TWO_PI)
 
 
@@ -215,16 +215,23 @@ def _accumulate_kernel(hues, plane, var_sum, dof, missing):  # pragma: no cover 
             plane[v, u] = q
 
 
+#: Order of the difference along the bands that the one-repeat noise estimate takes
+#: (:func:`_band_noise_kernel`): the third removes the hue curve's level, slope and curvature.
+BAND_DIFFERENCE_ORDER = 3
+
+
 @numba.njit(cache=True, nogil=True)
-def _band_noise_kernel(table, reason, out):  # pragma: no cover - numba
-    """Hue noise (rad) of one band mean per pixel from the second difference along the bands.
+def _band_noise_kernel(table, reason, order, out):  # pragma: no cover - numba
+    """Hue noise (rad) of one band mean per pixel from a difference of ``order`` along the bands.
 
     The captured hue is a smooth function of the band's code phase within each sextant of the
     code (eq. 3 ramps one channel there; the curve kinks only at the sextant boundaries). The
-    second difference ``x[i-1] - 2 x[i] + x[i+1]`` of three bands of one sextant removes the
-    curve's level and slope and leaves noise of variance ``6 sigma^2`` for independent band
-    means of variance ``sigma^2``; triples crossing a sextant boundary (the wrap at band 0 is
-    one) are left out. ``out = sqrt(mean(d2^2) / 6)``; NaN where ``reason != 0`` or no triple.
+    difference of order ``p`` of ``p + 1`` consecutive bands of one sextant (binomial weights
+    ``(-1)^j C(p, j)``) removes a polynomial of degree ``p - 1`` (``p = 3``: level, slope and
+    curvature, which projector gamma makes large where the noise is small) and leaves noise of
+    variance ``C(2p, p) sigma^2`` (20 for ``p = 3``) for independent band means of variance
+    ``sigma^2``; runs crossing a sextant boundary (the wrap at band 0 is one) are left out.
+    ``out = sqrt(mean(d^2) / C(2p, p))``; NaN where ``reason != 0`` or no run fits a sextant.
     """
     n, h, w = table.shape
     two_pi = 2.0 * np.pi
@@ -232,24 +239,39 @@ def _band_noise_kernel(table, reason, out):  # pragma: no cover - numba
     seg = np.empty(n, np.int64)
     for i in range(n):
         seg[i] = (6 * i) // n
+    coef = np.empty(order + 1)
+    var = 0.0
+    for j in range(order + 1):
+        c = 1.0
+        for m in range(j):
+            c = c * (order - m) / (m + 1)
+        coef[j] = c if j % 2 == 0 else -c
+        var += c * c
+    steps = np.empty(n)
     for v in range(h):
         for u in range(w):
             if reason[v, u] != 0:
                 out[v, u] = np.nan
                 continue
+            # the unwrapped curve from band 0 (steps wrapped to [-pi, pi))
+            acc = 0.0
+            steps[0] = 0.0
+            for i in range(1, n):
+                d = (np.float64(table[i, v, u]) - np.float64(table[i - 1, v, u])) * rad
+                d -= two_pi * math.floor((d + np.pi) / two_pi)
+                acc += d
+                steps[i] = acc
             ss = 0.0
             cnt = 0
-            for i in range(1, n - 1):
-                if seg[i - 1] != seg[i] or seg[i + 1] != seg[i]:
+            for i in range(0, n - order):
+                if seg[i] != seg[i + order]:
                     continue
-                a = (np.float64(table[i, v, u]) - np.float64(table[i - 1, v, u])) * rad
-                b = (np.float64(table[i + 1, v, u]) - np.float64(table[i, v, u])) * rad
-                a -= two_pi * math.floor((a + np.pi) / two_pi)  # steps wrapped to [-pi, pi)
-                b -= two_pi * math.floor((b + np.pi) / two_pi)
-                d2 = b - a
-                ss += d2 * d2
+                x = 0.0
+                for j in range(order + 1):
+                    x += coef[j] * steps[i + j]
+                ss += x * x
                 cnt += 1
-            out[v, u] = math.sqrt(ss / (6.0 * cnt)) if cnt > 0 else np.nan
+            out[v, u] = math.sqrt(ss / (var * cnt)) if cnt > 0 else np.nan
 
 
 @numba.njit(cache=True, parallel=False)
@@ -931,9 +953,9 @@ def build_table(
     with np.errstate(divide="ignore", invalid="ignore"):
         sigma = np.where(dof_map > 0, np.sqrt(var_sum / np.maximum(dof_map, 1)) / math.sqrt(n_rep), np.nan).astype(np.float64)
     del var_sum, dof_map
-    if n_rep == 1:  # no repeats: the noise from the single repeat's structure along the bands
+    if n_rep == 1:  # no repeats: the noise from the single repeat's differences along the bands
         sigma = np.empty((h, w), np.float64)
-        _band_noise_kernel(tab, reason, sigma)
+        _band_noise_kernel(tab, reason, BAND_DIFFERENCE_ORDER, sigma)
     step = TWO_PI / n
     coef = band_smoothing_matrix(n, smooth_window, smooth_order)
     start = np.zeros((h, w), dtype=np.uint16)
