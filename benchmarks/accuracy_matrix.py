@@ -335,16 +335,19 @@ def photo_region(cfg: dict, shape: tuple[int, int]) -> np.ndarray | None:
     return out
 
 
-def noise_score(paths: dict, region: np.ndarray | None) -> dict:
-    """Median, p95 |error| and coverage on ``region`` (None: the whole field), and the fraction of
-    valid pixels with ``|error| <= 2u`` in the region's dark and bright halves (split at the median
-    white-image intensity of the region's pixels with a defined truth)."""
+def noise_score(paths: dict, region: np.ndarray | None, lit: np.ndarray) -> dict:
+    """Median, p95 |error| and coverage on ``region`` (None: the whole field), the coverage of its
+    ``lit`` pixels (those the hue table and the shadow mask leave: what noise handling can reach),
+    and the fraction of valid pixels with ``|error| <= 2u`` in the region's dark and bright halves
+    (split at the median white-image intensity of the region's pixels with a defined truth)."""
     s = paths["session"]
     maps = [tifffile.imread(h).astype(np.float64) for h in paths["heights"]]
     truths = [tifffile.imread(s.ground_truth[n]).astype(np.float64) for n in s.frame_ids]
     us = [tifffile.imread(u).astype(np.float64) for u in paths["uncertainties"]]
     accs = [accuracy(m, t, region) for m, t in zip(maps, truths, strict=True)]
     out = {k: float(np.mean([a[k] for a in accs])) for k in ("median_abs_mm", "p95_abs_mm", "coverage")}
+    out["coverage_lit"] = float(np.mean([accuracy(m, t, lit if region is None else lit & region)["coverage"]
+                                         for m, t in zip(maps, truths, strict=True)]))
     level = np.asarray(read_rgb(s.object_white), np.float64).mean(axis=-1)
     where = np.isfinite(truths[0]) if region is None else np.isfinite(truths[0]) & region
     cut = float(np.median(level[where]))
@@ -365,8 +368,8 @@ def noise_cases(args: argparse.Namespace) -> None:
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
-        print("| case | set | field | median mm | p95 mm | coverage | 2u dark | 2u bright | table noise |")
-        print("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | --- |")
+        print("| case | set | field | median mm | p95 mm | coverage | coverage of lit | 2u dark | 2u bright | table noise |")
+        print("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | --- |")
         for name in names:
             case = NOISE_CASES[name]
             slug = "noise-" + _slug(name)
@@ -377,13 +380,16 @@ def noise_cases(args: argparse.Namespace) -> None:
                 src = f"{st.get('source', 'none (fallback 0.01)' if st.get('median') is None else 'repeats')}"
                 shape = tifffile.imread(paths["heights"][0]).shape
                 region = photo_region(case["cfg"], shape)
+                with np.load(next(tables.glob("*/table_object.maps.npz"))) as z:
+                    lit = z["valid"] & ~stages.shadow_mask(read_rgb(paths["session"].object_white),
+                                                           _config(VARIANTS[vname])["measurement"]["shadow_fraction"])
                 for field, reg in (("whole", None), ("photo region", region)):
                     if field != "whole" and (reg is None or reg.all()):
                         continue
-                    r = noise_score(paths, reg)
+                    r = noise_score(paths, reg, lit)
                     label = field if vname == "all on" else f"{field}, {vname}"
                     print(f"| {name} | {'hold-out' if case['holdout'] else 'tuning'} | {label} | {r['median_abs_mm']:.4f} | "
-                          f"{r['p95_abs_mm']:.4f} | {r['coverage']:.3f} | {r['cov2u_dark']:.3f} | {r['cov2u_bright']:.3f} "
+                          f"{r['p95_abs_mm']:.4f} | {r['coverage']:.3f} | {r['coverage_lit']:.3f} | {r['cov2u_dark']:.3f} | {r['cov2u_bright']:.3f} "
                           f"| {src} |", flush=True)
             print(f"<!-- {name}: {time.perf_counter() - t0:.0f} s so far -->", flush=True)
     print(f"\n{time.perf_counter() - t0:.0f} s")

@@ -75,7 +75,7 @@ html_show_sourcelink = False
 huefringe_sections = [
     ("User guide", ["guide", "capture*", "rig*", "method", "demo", "outputs", "archives*", "x3p*"]),
     ("Formats and configuration", ["spec/capture-session", "spec/results", "configuration"]),
-    ("Measured", ["accuracy*", "table1*", "uncertainty*", "throughput*", "hue-models*"]),
+    ("Measured", ["accuracy*", "table1*", "uncertainty*", "noise*", "throughput*", "hue-models*"]),
     ("Design", ["design*", "cluster*"]),
     ("API reference", ["api"]),
 ]

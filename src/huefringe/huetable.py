@@ -43,8 +43,9 @@ Pixels are masked for the first failing reason, in this order (``REASONS``):
 ``low_saturation``
     in some band no repeat had a defined hue (white-balanced saturation <= ``min_saturation``);
 ``noise``
-    the standard error of a band's mean hue (RMS spread over repeats / sqrt(R)) exceeds
-    ``max_noise_steps`` band steps ``2 pi / N`` (needs R >= 2);
+    the standard error of a band's mean hue (RMS spread over repeats / sqrt(R); with one repeat
+    the third difference along the bands, see below) exceeds ``max_noise_steps`` band steps
+    ``2 pi / N``;
 ``coverage``
     the captured hues do not wind exactly once round the circle, or leave a gap larger than
     ``max_gap`` between consecutive bands;
@@ -52,6 +53,16 @@ Pixels are masked for the first failing reason, in this order (``REASONS``):
     the captured hue falls back below its running maximum (over any run of bands, so slow
     reversals count as much as jumps) by more than ``max(order_steps band steps, order_sigmas
     sqrt(2) noise)`` (defaults 2 and 6), or the final quantised table is not circularly sorted.
+
+Per-pixel noise
+---------------
+``HueTable.noise_rad`` is always estimated, never assumed (``stats["noise_rad"]["source"]``,
+:data:`NOISE_SOURCES`): with ``R >= 2`` repeats the pooled spread of the repeats about their mean
+over all bands (``R - 1`` degrees of freedom per band), as the standard error of a band mean; with
+one repeat the third difference along the bands of each sextant (:func:`_band_noise_kernel`),
+which removes the captured-hue curve's level, slope and curvature and leaves ``20 sigma^2``:
+within 0.94-0.98 of six repeats' figure in every white-level bin of the bench's ``photo_sensor``
+(docs/noise.md).
 
 The Fig. 6 compensation of the projected pattern and the calibration QA figures are in
 :mod:`huefringe.compensation`, built on these tables.
@@ -490,7 +501,8 @@ class HueTable:
     reason : ndarray of uint8, shape (H, W)
         Mask reason code, index into :data:`REASONS` (0 = valid).
     noise_rad : ndarray of float32, shape (H, W)
-        Standard error of the per-band mean hue (NaN when R = 1).
+        Standard error of the per-band mean hue: from the repeats, or with one repeat from the
+        third difference along the bands (``stats["noise_rad"]["source"]``); NaN where masked.
     stats : dict
         Counts per reason, valid fraction, noise statistics, build parameters.
     """
@@ -870,7 +882,8 @@ def build_table(
         Local-polynomial window (odd, in bands) and degree along the band axis, not crossing the
         code's sextant boundaries (:func:`band_smoothing_matrix`); window <= 1 disables.
     max_noise_steps : float
-        Mask ``noise`` when the standard error of a band mean exceeds this many band steps.
+        Mask ``noise`` when the standard error of a band mean (from the repeats, or with one
+        repeat from the third difference along the bands) exceeds this many band steps.
     max_gap : float
         Mask ``coverage`` when two consecutive bands are more than this apart in captured hue.
     order_steps, order_sigmas : float

@@ -735,15 +735,19 @@ def _median_keys(keys, n):  # pragma: no cover - numba
 # --------------------------------------------------------------------------- sensor noise
 
 
-#: Bounds of :func:`noise_ratio2` (a pixel's own noise variance is never taken as more than 1000
-#: times below or above the pooled one: keeps the filter's float32 sums finite).
-_RATIO2_BOUNDS = (1e-6, 1e6)
+#: Bounds of :func:`noise_ratio2`: a pixel's own-signal noise only ever raises its variance above
+#: the table's measured per-pixel figure (the first-order propagation of the shot + read model
+#: through the hue reads the noise low where the chroma is small: with it alone, |e| <= 2u held for
+#: 0.71 of the dark half of photo_sensor with two repeats, docs/noise.md), and never more than
+#: 1000 times (keeps the filter's float32 sums finite).
+_RATIO2_BOUNDS = (1.0, 1e6)
 
 
 def noise_ratio2(own: NDArray[np.floating], pooled: NDArray[np.floating]) -> NDArray[np.float32]:
-    """``(own / pooled)^2`` per pixel, float32, clipped to ``[1e-6, 1e6]``: how much the frame's
-    own-signal noise variance (:func:`frame_hue_noise`) differs from the pooled one that weights
-    the phase filter (:func:`capture_noise`). The filter sums ``w`` times it
+    """``(own / pooled)^2`` per pixel, float32, clipped to ``[1, 1e6]``: how much the frame's
+    own-signal noise variance (:func:`frame_hue_noise`) exceeds the table's measured per-pixel one
+    that weights the phase filter (:func:`capture_noise`; a frame brighter than the bands keeps the
+    measured figure: the model's first-order propagation reads dark pixels low). The filter sums ``w`` times it
     (:func:`huefringe.phase.denoise_phase`'s ``ratio``), so that the uncertainty follows the
     frame's signal while the weights, and so the heights, do not."""
     o = np.ascontiguousarray(own, np.float64)
