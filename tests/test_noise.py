@@ -91,7 +91,8 @@ def test_noise_aware_edge_tests_equal_their_numpy_definitions(test: str, k: floa
 
 def test_a_jump_the_noise_explains_is_no_edge_a_step_still_is() -> None:
     """Noisy heights (sigma 0.1 mm) on a plane with a 2 mm step: the fixed tests cut a large part
-    of the noisy pixels as edges; with noise_k = 3 almost none, and both sides of the step go."""
+    of the noisy pixels as edges; with noise_k = 3 almost none, and both sides of the step go (all
+    rows with the pair test, more than 95 % with the plane test)."""
     rng = np.random.default_rng(11)
     shape = (60, 80)
     sigma = np.full(shape, 0.1, np.float32)
@@ -106,7 +107,9 @@ def test_a_jump_the_noise_explains_is_no_edge_a_step_still_is() -> None:
         flat[:, 37:43] = False
         assert fixed[flat].mean() > 0.15, (test, fixed[flat].mean())
         assert aware[flat].mean() < 0.03, (test, aware[flat].mean())
-        assert aware[:, 39].all() and aware[:, 40].all()
+        # the plane test's outlier line (3 z0 - 2 z1) carries 3.7 sigma of noise: k = 3 explains up to
+        # 1.1 mm of it, so a few rows of a 20-sigma step stay (2 of 60 here)
+        assert aware[:, 39].mean() > 0.95 and aware[:, 40].mean() > 0.95, (test, aware[:, 39:41].mean(axis=0))
 
 
 def test_height_noise_is_the_phase_noise_through_the_height_model() -> None:
@@ -138,3 +141,14 @@ def test_bench_read_noise_in_electrons() -> None:
     cfg["camera"]["full_well_e"] = None
     with pytest.raises(ValueError, match="full_well_e"):
         Rig.from_config(cfg)
+
+
+def test_refused_blur_estimate_uncertainty_is_bounded_by_the_largest_blur() -> None:
+    """A noise-dominated blur estimate (standard error 409 px^2, photo_sensor with two repeats)
+    does not make the texture term move the blur beyond MAX_BLUR_PX2 (rectangular: / sqrt 3)."""
+    from huefringe import texture
+
+    rec = {"sigma2_px2": 0.0, "raw_px2": 15.1, "stderr_px2": 409.0, "rejected": "not significant"}
+    assert texture.blur_uncertainty(rec) == pytest.approx(texture.MAX_BLUR_PX2 / np.sqrt(3.0))
+    small = {"sigma2_px2": 0.0, "raw_px2": 0.07, "stderr_px2": 0.26, "rejected": "not significant"}
+    assert texture.blur_uncertainty(small) == pytest.approx((0.07 + 0.78) / np.sqrt(3.0))
