@@ -218,6 +218,9 @@ VARIANTS.update({
     "edge test plane": {"measurement": {"edge_test": "plane"}},
     "edge test pair": {"measurement": {"edge_test": "pair"}},
     "edge test pair 0.15": {"measurement": {"edge_test": "pair", "edge_jump_mm": 0.15}},
+    # issue 35: the edge tests' thresholds from the heights' own noise, or the fixed ones alone (docs/noise.md)
+    "edge noise k 0": {"measurement": {"edge_noise_k": 0.0}},
+    "edge noise k 5": {"measurement": {"edge_noise_k": 5.0}},
     "shadow fraction 0.06": {"measurement": {"shadow_fraction": 0.06}},
     "shadow fraction 0.03": {"measurement": {"shadow_fraction": 0.03}},
 })
