@@ -171,7 +171,7 @@ def test_every_page_is_built_and_in_the_contents(manual: Path) -> None:
     else:
         assert "docs/capture.md, not in this checkout yet" in guide
     # measured pages start with the command that regenerates them
-    for name in ("accuracy", "table1", "uncertainty", "throughput", "hue-models"):
+    for name in ("accuracy", "table1", "uncertainty", "throughput", "hue-models", "real-captures"):
         first = (DOCS / f"{name}.md").read_text(encoding="utf-8").split("```", 2)
         assert first[1].startswith("bash\n./run "), name
 
