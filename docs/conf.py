@@ -73,7 +73,8 @@ html_show_sourcelink = False
 # pages of the manual in the order of the contents; a page of docs/ that no pattern names
 # lands under "More" (huefringe_docs.contents), so pages added by later work always appear
 huefringe_sections = [
-    ("Using huefringe", ["guide", "capture*", "rig*", "spec/capture-session", "spec/results", "outputs",
+    ("Using huefringe", ["guide", "capture*", "rig*", "spec/capture-session", "spec/results",
+                         "spec/structured-light-session", "outputs",
                          "configuration", "cluster*", "archives*", "x3p*", "api"]),
     ("Method and design", ["method", "design*"]),
     ("Measured", ["demo", "accuracy", "accuracy-texture", "accuracy-cameras", "accuracy-*", "uncertainty*", "noise*",

@@ -8,6 +8,9 @@ here="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 venv="$here/.venv"
 stamp="$venv/.huefringe-stamp"
 apt_pkgs=(libusb-1.0-0 libgl1 libegl1 libosmesa6 libgomp1 chromium fonts-dejavu-core)
+# a single-node SLURM for tests/test_slurm.py, which starts and stops its own daemons; as root only
+# (CI), since the packages bring system services a workstation should not get through sudo
+if [ "$(id -u)" -eq 0 ]; then apt_pkgs+=(slurm-wlm munge); fi
 
 key="$(cat "$here/pyproject.toml" "$here/tools/bootstrap.sh" "$here/tools/wait_for_apt.sh" | sha256sum | cut -c1-16)"
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$key" ]; then
@@ -42,6 +45,6 @@ if [ ! -x "$venv/bin/uv" ]; then
   "$venv/bin/python" -m pip install -q --disable-pip-version-check "uv>=0.4,<1"
 fi
 log "installing huefringe and its pinned dependencies"
-VIRTUAL_ENV="$venv" "$venv/bin/uv" pip install -q --python "$venv/bin/python" --compile-bytecode -e "$here[test,docs]"
+VIRTUAL_ENV="$venv" "$venv/bin/uv" pip install -q --python "$venv/bin/python" --compile-bytecode -e "$here[test,docs,slurm]"
 echo "$key" > "$stamp"
 log "done"

@@ -1,4 +1,4 @@
-"""Command-line entry point: ``huefringe check|bench|patterns|session|decode|archive|verify ...`` and ``--version``."""
+"""Command-line entry point: ``huefringe check|bench|patterns|session|sl-session|decode|archive|verify ...`` and ``--version``."""
 
 from __future__ import annotations
 
@@ -8,9 +8,40 @@ from collections.abc import Sequence
 from pathlib import Path
 
 
+def _cmd_check_sl(args: argparse.Namespace) -> int:
+    from huefringe.codecs import FlatBlock
+    from huefringe.session import SessionError
+    from huefringe.slsession import load_sl_session
+
+    try:
+        s = load_sl_session(args.session, deep=args.deep)
+    except SessionError as exc:
+        print(f"REFUSED: {args.session} is not a valid structured-light session ({len(exc.problems)} problem(s)):")
+        for p in exc.problems:
+            print(f"  - {p}")
+        return 1
+    blocks = ", ".join(b.level if isinstance(b, FlatBlock) else f"{type(b).__name__.removesuffix('Block').lower()} {b.axis}"
+                       for b in s.spec.blocks)
+    extras = []
+    if s.calibration is not None:
+        extras.append(f"calibration {s.calibration.relative_to(s.root)}")
+    if s.poses:
+        extras.append(f"{len(s.poses)} calibration poses")
+    if s.ground_truth:
+        extras.append(f"ground truth for {', '.join(s.ground_truth)}")
+    print(f"OK: structured-light session '{s.id}' at {s.root}: {s.width} x {s.height} px, {s.bit_depth}-bit, "
+          f"projector {s.spec.projector_width} x {s.spec.projector_height}, {len(s.captures)} captures ({blocks})"
+          + ("; " + ", ".join(extras) if extras else ""))
+    return 0
+
+
 def _cmd_check(args: argparse.Namespace) -> int:
     from huefringe.session import SessionError, load_session
+    from huefringe.slsession import FORMAT as SL_FORMAT
+    from huefringe.slsession import session_format
 
+    if session_format(args.session) == SL_FORMAT:
+        return _cmd_check_sl(args)
     try:
         s = load_session(args.session, deep=args.deep)
         if args.deep:  # the content: hue bands in their order
@@ -155,6 +186,22 @@ def _cmd_session(args: argparse.Namespace) -> int:
     return 0
 
 
+def _cmd_sl_session(args: argparse.Namespace) -> int:
+    from huefringe.session import SessionError
+    from huefringe.slsession import assemble_sl_session
+
+    try:
+        out = assemble_sl_session(args.captures, args.sequence, args.out, calibration=args.calibration,
+                                  poses=args.poses, session_id=args.id)
+    except SessionError as exc:
+        print(f"REFUSED: no session written ({len(exc.problems)} problem(s)):", file=sys.stderr)
+        for p in exc.problems:
+            print(f"  - {p}", file=sys.stderr)
+        return 2
+    print(f"OK: {out}")
+    return 0
+
+
 DESCRIPTION = """\
 huefringe: one-shot trapezoidal HSI fringe-projection profilometry.
 
@@ -192,9 +239,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="huefringe", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"huefringe {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,patterns,session,decode,archive,verify}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,patterns,session,sl-session,decode,archive,verify}")
 
-    p = sub.add_parser("check", help="validate a capture session; exit 1 if it is refused")
+    p = sub.add_parser("check", help="validate a capture session (capture-session/1 or structured-light-session/1); exit 1 if it is refused")
     p.add_argument("session", help="the session folder (holding session.yaml)")
     p.add_argument("--deep", action="store_true", help="also decode every image and check the hue bands' order")
     p.set_defaults(func=_cmd_check)
@@ -251,6 +298,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", help="the session folder to write (new or empty)")
     p.add_argument("--bayer", choices=["RGGB", "BGGR", "GRBG", "GBRG"], help="raw Bayer mosaics: demosaic with this pattern")
     p.set_defaults(func=_cmd_session)
+
+    p = sub.add_parser("sl-session", help="assemble a checked structured-light session (N-step, Gray code, multi-period "
+                                          "captures) from a folder of captures and a sequence YAML; exit 2 if refused")
+    p.add_argument("captures", help="folder of the captures (the sequence's frames glob, sorted by the number in their names)")
+    p.add_argument("sequence", help="sequence YAML: projector, frames, blocks (phase, gray, white, black) or kamino410; "
+                                    "optional id, calibration, poses, provenance")
+    p.add_argument("out", help="the session folder to write (new or empty)")
+    p.add_argument("--calibration", help="OpenCV FileStorage calibration of the rig (.yml/.yaml/.xml/.json), stored "
+                                         "in the session as calibration/rig.<ext> with its sha256")
+    p.add_argument("--poses", help="folder of calibration pose folders, each holding one full sequence of captures")
+    p.add_argument("--id", help="session id ([a-z0-9-]+; default the YAML's id, else OUT's name)")
+    p.set_defaults(func=_cmd_sl_session)
 
     p = sub.add_parser("decode", help="decode N-step / Gray-code / multi-period captures into projector coordinates; exit 2 if refused")
     p.add_argument("captures", help="folder of the captures (the sequence's frames glob, sorted by the number in their names)")

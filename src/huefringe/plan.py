@@ -104,21 +104,26 @@ def _from_bench(path: Path, cfg: dict[str, Any], cfg_path: Path, period_px: floa
     )
 
 
-def batch_frames(frames: list[int], cores: int, cap: int) -> list[list[int]]:
-    """Split a session's frames into measurement batches that keep ``cores`` cores busy.
+def batch_frames(frames: list[int], parallel: int, cap: int) -> list[list[int]]:
+    """Split a session's frames into measurement batches that keep ``parallel`` jobs busy.
 
-    The number of batches is the smallest multiple of ``cores`` that holds every frame with at
-    most ``cap`` frames per batch (a multiple, so the last round of jobs leaves no core idle),
-    but never more than one batch per frame; the frames are dealt out in order in batches
-    whose sizes differ by at most one. A session with at least two frames per core so runs on
-    every core, and ``cap`` (``measurement.frames_per_job``) only bounds a job's length.
+    The number of batches is the smallest multiple of ``parallel`` that holds every frame with
+    at most ``cap`` frames per batch (a multiple, so the last round of jobs leaves no core
+    idle), but never more than one batch per frame; the frames are dealt out in order in
+    batches whose sizes differ by at most one. A session with at least two frames per job so
+    runs on every core, and ``cap`` (``measurement.frames_per_job``) only bounds a job's length.
+
+    The result depends on its arguments only: the workflow takes them from the configuration
+    (``measurement.parallel_jobs``, ``measurement.frames_per_job``), never from the cores of
+    the Snakemake process that plans, so the submitting Snakemake and the job-side ones of a
+    cluster executor plan the same batches.
 
     Parameters
     ----------
     frames : list of int
         The session's frame numbers, in order.
-    cores : int
-        Cores the run was given (``snakemake --cores N``); values below 1 count as 1.
+    parallel : int
+        Jobs meant to run at once (``measurement.parallel_jobs``); values below 1 count as 1.
     cap : int
         Most frames per batch (>= 1).
 
@@ -129,11 +134,11 @@ def batch_frames(frames: list[int], cores: int, cap: int) -> list[list[int]]:
 
     Examples
     --------
-    >>> [len(b) for b in batch_frames(list(range(200)), cores=2, cap=250)]
+    >>> [len(b) for b in batch_frames(list(range(200)), parallel=2, cap=250)]
     [100, 100]
-    >>> [len(b) for b in batch_frames(list(range(600)), cores=2, cap=250)]
+    >>> [len(b) for b in batch_frames(list(range(600)), parallel=2, cap=250)]
     [150, 150, 150, 150]
-    >>> batch_frames([0, 1, 2], cores=4, cap=250)
+    >>> batch_frames([0, 1, 2], parallel=4, cap=250)
     [[0], [1], [2]]
     """
     if cap < 1:
@@ -141,9 +146,9 @@ def batch_frames(frames: list[int], cores: int, cap: int) -> list[list[int]]:
     n = len(frames)
     if n == 0:
         return []
-    cores = max(1, int(cores))
+    parallel = max(1, int(parallel))
     jobs = -(-n // cap)
-    jobs = min(n, -(-jobs // cores) * cores)
+    jobs = min(n, -(-jobs // parallel) * parallel)
     size, extra = divmod(n, jobs)
     out, start = [], 0
     for j in range(jobs):
@@ -153,11 +158,13 @@ def batch_frames(frames: list[int], cores: int, cap: int) -> list[list[int]]:
     return out
 
 
-def plan_sessions(config: dict[str, Any], base: str | Path = ".", cores: int = 1) -> dict[str, SessionPlan]:
+def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, SessionPlan]:
     """Plan every session of the configuration, keyed by session id.
 
-    ``cores`` is the number of cores the run was given: the frames are measured in batches of
-    :func:`batch_frames` (at least one per core, at most ``measurement.frames_per_job`` frames).
+    The frames are measured in batches of :func:`batch_frames` (a multiple of
+    ``measurement.parallel_jobs`` jobs, at most ``measurement.frames_per_job`` frames each): the
+    plan depends on the configuration and the session folders only, so every Snakemake process
+    of a run, wherever it evaluates the workflow, makes the same one.
 
     Raises
     ------
@@ -167,7 +174,6 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".", cores: int = 1
     """
     base = Path(base)
     bench_sessions = {str(Path(k)): v for k, v in (config.get("bench_sessions") or {}).items()}
-    per_job = int(config["measurement"]["frames_per_job"])
     plans: dict[str, SessionPlan] = {}
     refused: list[str] = []
     for entry in config["sessions"]:
@@ -186,23 +192,24 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".", cores: int = 1
         except bench.BenchConfigError as exc:
             refused.append(f"session {entry} cannot be written by the bench:\n{exc}")
             continue
-        _add(plans, plan, per_job, cores)
+        _add(plans, plan, config)
     if refused:
         head = f"{len(refused)} of {len(config['sessions'])} sessions refused:\n" if len(refused) > 1 else ""
         raise PlanError(head + "\n".join(refused))
     return plans
 
 
-def _add(plans: dict[str, SessionPlan], plan: SessionPlan, per_job: int, cores: int = 1) -> None:
+def _add(plans: dict[str, SessionPlan], plan: SessionPlan, config: dict[str, Any]) -> None:
     if plan.id in plans:
         raise PlanError(f"sessions {plans[plan.id].path} and {plan.path} share the id '{plan.id}'")
-    plan.batches = batch_frames(plan.frames, cores, per_job)
-    plan.phase_shift_batches = batch_frames(plan.phase_shift, cores, per_job)
+    m = config["measurement"]
+    parallel, per_job = int(m["parallel_jobs"]), int(m["frames_per_job"])
+    plan.batches = batch_frames(plan.frames, parallel, per_job)
+    plan.phase_shift_batches = batch_frames(plan.phase_shift, parallel, per_job)
     plans[plan.id] = plan
 
 
-def plan_table1(config: dict[str, Any], plans: dict[str, SessionPlan], base: str | Path = ".",
-                cores: int = 1) -> list[str]:
+def plan_table1(config: dict[str, Any], plans: dict[str, SessionPlan], base: str | Path = ".") -> list[str]:
     """Add the sessions of the paper's Table 1 experiment (a period sweep) to ``plans``.
 
     Returns their ids, in the configured period order. The sessions are written by the bench
@@ -226,6 +233,6 @@ def plan_table1(config: dict[str, Any], plans: dict[str, SessionPlan], base: str
             plan.path = path
         else:
             plan = _from_bench(path, cfg, bench_yaml(t1["bench"], base), float(period))
-        _add(plans, plan, int(config["measurement"]["frames_per_job"]), cores)
+        _add(plans, plan, config)
         ids.append(plan.id)
     return ids

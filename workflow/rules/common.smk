@@ -5,20 +5,12 @@ from pathlib import Path
 
 from huefringe.plan import PlanError, plan_sessions, plan_table1
 
-
-def _run_cores():
-    """Cores of this run (--cores N), to size the measurement batches; 1 when not given (a cluster)."""
-    try:
-        return max(1, int(workflow.cores))
-    except Exception:
-        return 1
-
-
-CORES = _run_cores()
-
+# The plan reads the configuration and the session folders only, never workflow.cores: the SLURM
+# executor's job-side Snakemake (--cores all on the node) must plan the same batches as the
+# submitting one (no --cores), or a batch job writes only part of its declared outputs.
 try:
-    PLANS = plan_sessions(config, base=Path.cwd(), cores=CORES)
-    TABLE1_IDS = plan_table1(config, PLANS, base=Path.cwd(), cores=CORES)
+    PLANS = plan_sessions(config, base=Path.cwd())
+    TABLE1_IDS = plan_table1(config, PLANS, base=Path.cwd())
 except PlanError as exc:
     sys.stderr.write(f"\nhuefringe: cannot start.\n{exc}\n\n")
     sys.exit(1)

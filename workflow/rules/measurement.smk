@@ -1,7 +1,7 @@
 # Height maps (with QA, and the phase and hue maps of the rendered frames, or of all with
 # measurement.maps: all), point clouds and the three-step baseline, in batches of frames per job
-# (one rule per session and batch, at least one batch per core, at most frames_per_job frames:
-# plan.batch_frames; a 1000-frame session on 2 cores costs 4 job start-ups, not 1000). The
+# (one rule per session and batch, a multiple of measurement.parallel_jobs, at most frames_per_job frames:
+# plan.batch_frames; a 1000-frame session costs 4 job start-ups, not 1000). The
 # clouds and the X3P files are jobs of their own (cloud_frames_*, x3p_frames_*), made from the
 # batch's height maps, so that the height maps do not wait for them.
 # Resources: config `resources: {measure_frames: {mem_mb: ..., runtime: ...}}` (also cloud_frames,

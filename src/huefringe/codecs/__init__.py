@@ -53,6 +53,8 @@ from huefringe.codecs.sequence import (
     load_sequence,
     opencv_gray_blocks,
     read_captures,
+    sequence_from_mapping,
+    sequence_to_mapping,
 )
 from huefringe.codecs.temporal import heterodyne, number_theoretic, orders_from_reference
 
@@ -84,5 +86,7 @@ __all__ = [
     "orders_from_reference",
     "profile_lut",
     "read_captures",
+    "sequence_from_mapping",
+    "sequence_to_mapping",
     "wrapped_phase",
 ]

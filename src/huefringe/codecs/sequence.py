@@ -69,6 +69,8 @@ __all__ = [
     "load_sequence",
     "opencv_gray_blocks",
     "read_captures",
+    "sequence_from_mapping",
+    "sequence_to_mapping",
 ]
 
 
@@ -381,6 +383,22 @@ def load_sequence(path: str | Path, captures: str | Path | None = None) -> Seque
         doc = yaml.safe_load(path.read_text(encoding="utf-8"))
     except (OSError, yaml.YAMLError) as exc:
         raise SequenceError(f"{path}: cannot read the sequence ({exc})") from None
+    return sequence_from_mapping(doc, path, base)
+
+
+def sequence_from_mapping(doc: Any, path: str | Path, base: str | Path) -> SequenceSpec:
+    """A :class:`SequenceSpec` from the parsed YAML form (module docstring) read from ``path``.
+
+    Parameters
+    ----------
+    doc : mapping
+        The parsed YAML document.
+    path : path
+        The file it came from (named in every refusal).
+    base : path
+        The folder a kamino410 ``config`` path is relative to.
+    """
+    path, base = Path(path), Path(base)
     if not isinstance(doc, dict):
         raise SequenceError(f"{path}: expected a mapping with projector and blocks (or kamino410)")
     if "kamino410" in doc:
@@ -722,3 +740,29 @@ def decode_sequence(
         if isinstance(b, FlatBlock) and b.level not in flats:
             flats[b.level] = stack[sl.start]
     return {axis: _decode_axis(stack, spec, axis, flats, noise, opts, full) for axis in spec.axes()}
+
+
+def sequence_to_mapping(spec: SequenceSpec) -> dict[str, Any]:
+    """The explicit YAML form of ``spec`` (``projector``, ``frames``, ``blocks``), read back by
+    :func:`sequence_from_mapping` into an equivalent spec (shifts in degrees to 12 significant digits).
+
+    Examples
+    --------
+    >>> spec = SequenceSpec((PhaseBlock("x", 16.0, tuple(equal_shifts(4))), FlatBlock("white")), 64, 8)
+    >>> sequence_to_mapping(spec)["blocks"][1]
+    'white'
+    """
+    blocks: list[Any] = []
+    for b in spec.blocks:
+        if isinstance(b, FlatBlock):
+            blocks.append(b.level)
+        elif isinstance(b, PhaseBlock):
+            blocks.append({"phase": {"axis": b.axis, "period_px": float(b.period_px),
+                                     "shifts_deg": [float(f"{np.degrees(d):.12g}") for d in b.shifts_rad],
+                                     "encoding_gamma": float(b.encoding_gamma), "origin_px": float(b.origin_px)}})
+        else:
+            blocks.append({"gray": {"axis": b.axis, "bits": int(b.bits), "cell_px": float(b.cell_px),
+                                    "inverse": bool(b.inverse)}})
+    return {"projector": {"width": int(spec.projector_width), "height": int(spec.projector_height),
+                          "gamma": float(spec.projector_gamma)},
+            "frames": spec.frames, "blocks": blocks}

@@ -1,0 +1,530 @@
+"""Structured-light sessions (``docs/spec/structured-light-session.md``, structured-light-session/1).
+
+A structured-light session is a folder holding one coded capture sequence (N-step phase shifting,
+Gray code, several periods, white/black frames: anything :mod:`huefringe.codecs` describes with a
+:class:`~huefringe.codecs.SequenceSpec`), the captures in sequence order, and optionally the rig's
+calibration (an OpenCV FileStorage file), the captures of calibration poses and ground truth.
+It sits beside capture-session/1 (:mod:`huefringe.session`), whose format and validation it does
+not touch: ``session.yaml``'s ``format`` tells the two apart (:func:`session_format`).
+
+:func:`load_sl_session` validates a folder and raises one :class:`~huefringe.session.SessionError`
+listing every problem with the file it concerns; :func:`assemble_sl_session` writes a new session
+from a folder of captures and a sequence YAML, refusing before anything is written.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from importlib import resources
+from pathlib import Path
+from typing import Any
+
+import cv2
+import jsonschema
+import numpy as np
+import tifffile
+import yaml
+from numpy.typing import NDArray
+
+from huefringe.codecs.sequence import (
+    GrayBlock,
+    PhaseBlock,
+    SequenceError,
+    SequenceSpec,
+    sequence_from_mapping,
+    sequence_to_mapping,
+)
+from huefringe.session import IMAGE_SUFFIXES, ImageInfo, Problem, SessionError, _normalise_dates, image_info
+
+__all__ = [
+    "FORMAT",
+    "SLSession",
+    "assemble_sl_session",
+    "calibration_problems",
+    "load_sl_session",
+    "session_format",
+]
+
+FORMAT = "structured-light-session/1"
+SEQUENCE_FILE = "sequence.yaml"
+CAPTURES = "captures"
+POSES = "poses"
+CALIBRATION = "calibration"
+GROUND_TRUTH = "ground_truth"
+ASSEMBLY_KEYS = ("id", "calibration", "poses", "provenance")
+"""Keys of an assembly YAML that describe the session; every other key is the sequence's."""
+
+_CAMERA_MATRIX_KEYS = ("camera_matrix", "Kc", "cam_K", "M1")
+_CAMERA_SIZE_KEYS = (("camera_width", "camera_height"), ("frameWidth", "frameHeight"), ("image_width", "image_height"))
+_CAPTURE_RE = re.compile(r"^(\d{4})$")
+_NUM = re.compile(r"(\d+)")
+
+
+@dataclass(frozen=True)
+class SLSession:
+    """A validated structured-light session: metadata, its sequence and the paths of its files."""
+
+    root: Path
+    meta: dict[str, Any]
+    spec: SequenceSpec
+    captures: tuple[Path, ...]
+    calibration: Path | None = None
+    poses: dict[str, tuple[Path, ...]] = field(default_factory=dict)
+    ground_truth: dict[str, Path] = field(default_factory=dict)
+    """Axis (``x``, ``y``) -> ``ground_truth/<axis>.tiff``: float32 (H, W) projector coordinate, NaN where unseen."""
+
+    @property
+    def id(self) -> str:
+        return str(self.meta["id"])
+
+    @property
+    def width(self) -> int:
+        return int(self.meta["camera"]["width"])
+
+    @property
+    def height(self) -> int:
+        return int(self.meta["camera"]["height"])
+
+    @property
+    def bit_depth(self) -> int:
+        return int(self.meta["camera"]["bit_depth"])
+
+    def read_captures(self, pose: str | None = None) -> list[NDArray[np.number]]:
+        """The captures (of ``pose``, else the measurement) as grey arrays in sequence order,
+        ready for :func:`huefringe.codecs.decode_sequence`."""
+        out = []
+        for p in self.captures if pose is None else self.poses[pose]:
+            im = _decode(p)
+            out.append(cv2.cvtColor(im[..., :3], cv2.COLOR_BGR2GRAY) if im.ndim == 3 else im)
+        return out
+
+    def input_files(self) -> list[Path]:
+        """Every file of the session, sorted."""
+        files = [self.root / "session.yaml", self.root / SEQUENCE_FILE, *self.captures, *self.ground_truth.values()]
+        files += [p for ps in self.poses.values() for p in ps]
+        if self.calibration is not None:
+            files.append(self.calibration)
+        return sorted(files)
+
+
+def session_format(root: str | Path) -> str | None:
+    """The ``format`` of ``root/session.yaml``, or None when it cannot be read or has none."""
+    try:
+        meta = yaml.safe_load((Path(root) / "session.yaml").read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError, UnicodeDecodeError):
+        return None
+    return meta.get("format") if isinstance(meta, dict) and isinstance(meta.get("format"), str) else None
+
+
+def _sha256(path: Path) -> str:
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+def _decode(path: Path) -> NDArray[np.number]:
+    try:  # OpenCV for PNG and TIFF alike: colour comes as B, G, R, as codecs.read_captures reads it
+        im = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except Exception as exc:
+        raise SessionError.at(path, f"cannot decode image ({exc.__class__.__name__}: {exc})") from None
+    if im is None:
+        raise SessionError.at(path, "cannot decode image (corrupt or truncated)")
+    return im
+
+
+# --------------------------------------------------------------------------- checks
+
+
+def sequence_problems(spec: SequenceSpec, where: Path) -> list[Problem]:
+    """Sequence keys out of range for its projector: a Gray code that does not cover the projector or
+    has non-positive cells, a fringe period below two projector pixels, a non-finite origin."""
+    problems = []
+    for i, b in enumerate(spec.blocks):
+        if isinstance(b, GrayBlock):
+            extent = spec.extent(b.axis)
+            if not b.cell_px > 0:
+                problems.append(Problem(where, f"blocks[{i}].gray.cell_px must be > 0, got {b.cell_px:g}"))
+            elif 2**b.bits * b.cell_px < extent:
+                problems.append(Problem(where, f"blocks[{i}].gray: {b.bits} bits of {b.cell_px:g} px cells cover "
+                                               f"{2**b.bits * b.cell_px:g} px, the projector has {extent} along {b.axis}"))
+        elif isinstance(b, PhaseBlock):
+            if b.period_px < 2:
+                problems.append(Problem(where, f"blocks[{i}].phase.period_px {b.period_px:g} is below 2 projector px "
+                                               "(no projector can show it)"))
+            if not np.isfinite(b.origin_px):
+                problems.append(Problem(where, f"blocks[{i}].phase.origin_px must be finite, got {b.origin_px}"))
+    return problems
+
+
+def calibration_problems(path: str | Path, width: int, height: int) -> list[Problem]:
+    """A calibration file that does not parse as OpenCV FileStorage, has no 3 x 3 camera matrix
+    (``camera_matrix``, ``Kc``, ``cam_K`` or ``M1``), or belongs to another camera size (its size
+    keys, or a principal point outside the ``width`` x ``height`` image)."""
+    path = Path(path)
+    if not path.is_file():
+        return [Problem(path, "missing calibration file")]
+    try:
+        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
+        opened = fs.isOpened()
+    except (cv2.error, SystemError) as exc:  # OpenCV's parser error surfaces as SystemError in some builds
+        lines = str(exc.__context__ or exc).strip().splitlines()
+        return [Problem(path, f"not an OpenCV FileStorage file ({lines[-1] if lines else exc})")]
+    if not opened:
+        return [Problem(path, "not an OpenCV FileStorage file")]
+    try:
+        root = fs.root()
+        keys = set(root.keys())
+        problems = []
+        name = next((k for k in _CAMERA_MATRIX_KEYS if k in keys), None)
+        k = root.getNode(name).mat() if name else None
+        if k is None or k.shape != (3, 3):
+            problems.append(Problem(path, f"no 3 x 3 camera matrix under {', '.join(_CAMERA_MATRIX_KEYS)} "
+                                          f"(keys found: {', '.join(sorted(keys)) or 'none'})"))
+        for wk, hk in _CAMERA_SIZE_KEYS:
+            if wk in keys and hk in keys:
+                cw, ch = int(root.getNode(wk).real()), int(root.getNode(hk).real())
+                if (cw, ch) != (width, height):
+                    problems.append(Problem(path, f"calibrated for a {cw} x {ch} camera ({wk}, {hk}), the captures "
+                                                  f"are {width} x {height}"))
+        if k is not None and k.shape == (3, 3) and not (0 < k[0, 2] < width and 0 < k[1, 2] < height):
+            problems.append(Problem(path, f"principal point ({k[0, 2]:g}, {k[1, 2]:g}) px lies outside the "
+                                          f"{width} x {height} captures: a calibration of another camera size"))
+        return problems
+    finally:
+        fs.release()
+
+
+def _capture_problems(files: list[Path], expect: ImageInfo | None, deep: bool) -> tuple[list[Problem], ImageInfo | None]:
+    """Headers (and with ``deep`` the pixels) of ``files`` against ``expect`` (else the first file)."""
+    problems: list[Problem] = []
+    ref, ref_path = expect, None
+    for p in files:
+        try:
+            info = image_info(p)
+        except SessionError as exc:
+            problems.extend(exc.problems)
+            continue
+        if info.channels not in (1, 3) or info.bit_depth not in (8, 16):
+            problems.append(Problem(p, f"{info.channels}-channel {abs(info.bit_depth)}-bit image; 8- or 16-bit grey or RGB expected"))
+            continue
+        if ref is None:
+            ref, ref_path = info, p
+            continue
+        against = "session.yaml declares" if ref_path is None else f"{ref_path.name} is"
+        if (info.width, info.height) != (ref.width, ref.height):
+            problems.append(Problem(p, f"image is {info.width} x {info.height}, {against} {ref.width} x {ref.height}"))
+        if info.bit_depth != ref.bit_depth:
+            problems.append(Problem(p, f"image is {info.bit_depth}-bit, {against} {ref.bit_depth}-bit"))
+        if info.channels != ref.channels:
+            problems.append(Problem(p, f"image has {info.channels} channel(s), {against} {ref.channels}"))
+    if deep and not problems:
+        for p in files:
+            try:
+                im = _decode(p)
+            except SessionError as exc:
+                problems.extend(exc.problems)
+                continue
+            if ref is not None and im.shape[:2] != (ref.height, ref.width):
+                problems.append(Problem(p, f"decodes to {im.shape[1]} x {im.shape[0]}, its header says {ref.width} x {ref.height}"))
+    return problems, ref
+
+
+def _numbered(folder: Path, n: int, problems: list[Problem]) -> list[Path]:
+    """``folder/0000.* .. (n-1)``; a missing, extra, duplicated or misnamed image is a problem."""
+    if not folder.is_dir():
+        problems.append(Problem(folder, f"missing folder of captures ({n} expected, 0000 .. {n - 1:04d})"))
+        return []
+    found: dict[int, Path] = {}
+    for p in sorted(folder.iterdir()):
+        if p.name.startswith("."):
+            continue
+        m = _CAPTURE_RE.match(p.stem)
+        if p.suffix.lower() not in IMAGE_SUFFIXES or not m:
+            problems.append(Problem(p, "unexpected file (NNNN.png or NNNN.tiff captures expected)"))
+        elif int(m.group(1)) in found:
+            problems.append(Problem(p, f"the same capture is stored twice ({found[int(m.group(1))].name} and {p.name})"))
+        elif int(m.group(1)) >= n:
+            problems.append(Problem(p, f"capture beyond the sequence's {n} frames (0000 .. {n - 1:04d})"))
+        else:
+            found[int(m.group(1))] = p
+    for i in range(n):
+        if i not in found:
+            problems.append(Problem(folder / f"{i:04d}.png", f"missing capture {i} of the sequence's {n} frames"))
+    return [found[i] for i in sorted(found)]
+
+
+def _schema_problems(meta: Any, yaml_path: Path) -> list[Problem]:
+    schema = json.loads(resources.files("huefringe").joinpath("schemas/structured-light-session.schema.json").read_text())
+    out = []
+    for err in sorted(jsonschema.Draft202012Validator(schema).iter_errors(meta), key=lambda e: list(map(str, e.absolute_path))):
+        where = "/".join(str(p) for p in err.absolute_path) or "(top level)"
+        msg = err.message
+        if err.validator == "additionalProperties" and "(" in msg:
+            msg = f"unknown key(s): {msg.split('(')[-1].rstrip(')')}"
+        out.append(Problem(yaml_path, f"at {where}: {msg}"))
+    return out
+
+
+def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
+    """Read and validate a structured-light session.
+
+    Parameters
+    ----------
+    root : path
+        The session folder (holding ``session.yaml`` with ``format: structured-light-session/1``).
+    deep : bool
+        Also decode every image (catches corruption inside well-formed files).
+
+    Raises
+    ------
+    SessionError
+        Listing every problem, each with the file concerned: session.yaml against its schema, the
+        sequence (unreadable, keys out of range, projector or frame count disagreeing with
+        session.yaml), missing / extra / misnamed captures, sizes, bit depths or channels other
+        than declared, truncated images, a calibration file that is missing, altered (sha256),
+        unparsable or of another camera size, pose folders and ground truth.
+    """
+    root = Path(root)
+    yaml_path = root / "session.yaml"
+    if not yaml_path.is_file():
+        raise SessionError.at(yaml_path, "missing file")
+    try:
+        meta = yaml.safe_load(yaml_path.read_text(encoding="utf-8"))
+    except (yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise SessionError.at(yaml_path, f"not valid YAML ({exc})") from None
+    meta = _normalise_dates(meta)
+    problems = _schema_problems(meta, yaml_path)
+    if problems:
+        raise SessionError(problems)
+    seq_path = root / SEQUENCE_FILE
+    spec = None
+    try:
+        doc = yaml.safe_load(seq_path.read_text(encoding="utf-8"))
+        spec = sequence_from_mapping(doc, seq_path, root)
+    except FileNotFoundError:
+        problems.append(Problem(seq_path, "missing file (the sequence the captures follow)"))
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
+        problems.append(Problem(seq_path, f"cannot read the sequence ({exc})"))
+    except SequenceError as exc:
+        problems.append(Problem(seq_path, str(exc).removeprefix(f"{seq_path}: ")))
+    n = int(meta["sequence"]["frames"])
+    if spec is not None:
+        problems += sequence_problems(spec, seq_path)
+        pw, ph = meta["projector"]["width"], meta["projector"]["height"]
+        if (spec.projector_width, spec.projector_height) != (pw, ph):
+            problems.append(Problem(seq_path, f"projector {spec.projector_width} x {spec.projector_height}, "
+                                              f"session.yaml declares {pw} x {ph}"))
+        if spec.n_frames != n:
+            problems.append(Problem(seq_path, f"{spec.n_frames} frames, session.yaml declares sequence/frames {n}"))
+    cam = meta["camera"]
+    expect = ImageInfo(cam["width"], cam["height"], cam["bit_depth"], cam.get("channels", 1))
+    captures = _numbered(root / CAPTURES, n, problems)
+    img_problems, _ = _capture_problems(captures, expect, deep)
+    problems += img_problems
+    poses: dict[str, tuple[Path, ...]] = {}
+    for name in meta.get("poses", []):
+        files = _numbered(root / POSES / name, n, problems)
+        problems += _capture_problems(files, expect, deep)[0]
+        poses[name] = tuple(files)
+    if (root / POSES).is_dir():
+        for d in sorted((root / POSES).iterdir()):
+            if d.name not in poses and not d.name.startswith("."):
+                problems.append(Problem(d, "pose folder not listed in session.yaml poses"))
+    calib = None
+    if "calibration" in meta:
+        calib = root / meta["calibration"]["file"]
+        if calib.is_file() and _sha256(calib) != meta["calibration"]["sha256"]:
+            problems.append(Problem(calib, "sha256 differs from session.yaml calibration/sha256: the file was altered"))
+        problems += calibration_problems(calib, cam["width"], cam["height"])
+    gt: dict[str, Path] = {}
+    gt_dir = root / GROUND_TRUTH
+    if gt_dir.is_dir():
+        axes = spec.axes() if spec is not None else ["x", "y"]
+        for p in sorted(gt_dir.iterdir()):
+            if p.name.startswith("."):
+                continue
+            if p.suffix.lower() not in (".tif", ".tiff") or p.stem not in axes:
+                problems.append(Problem(p, f"unexpected ground truth ({' or '.join(a + '.tiff' for a in axes)} expected)"))
+                continue
+            try:
+                with tifffile.TiffFile(p) as tif:
+                    shape, dtype = tif.series[0].shape, tif.series[0].dtype
+            except Exception as exc:
+                problems.append(Problem(p, f"cannot read ground truth TIFF ({exc})"))
+                continue
+            if tuple(shape) != (cam["height"], cam["width"]) or np.dtype(dtype) != np.float32:
+                problems.append(Problem(p, f"ground truth must be float32 {cam['height']} x {cam['width']}, got {dtype} {tuple(shape)}"))
+            gt[p.stem] = p
+    if problems or spec is None:
+        raise SessionError(problems)
+    return SLSession(root, meta, spec, tuple(captures), calib, poses, gt)
+
+
+# --------------------------------------------------------------------------- assembly
+
+
+def _frame_key(p: Path) -> tuple[int, str]:
+    nums = _NUM.findall(p.stem)
+    return (int(nums[-1]) if nums else -1, p.name)
+
+
+def _sequence_files(folder: Path, spec: SequenceSpec, where: Path, problems: list[Problem]) -> list[Path]:
+    """The captures of ``spec.frames`` in ``folder``, sorted by the last number in their names."""
+    if not folder.is_dir():
+        problems.append(Problem(folder, "not a folder of captures"))
+        return []
+    files = sorted((p for p in folder.glob(spec.frames) if p.is_file()), key=_frame_key)
+    if len(files) != spec.n_frames:
+        problems.append(Problem(folder, f"{len(files)} files match {spec.frames!r}, the sequence {where} has "
+                                        f"{spec.n_frames} frames"))
+    bad = [p for p in files if p.suffix.lower() not in IMAGE_SUFFIXES]
+    problems += [Problem(p, "not a PNG or TIFF capture") for p in bad]
+    for a, b in zip(files, files[1:], strict=False):
+        if _frame_key(a)[0] == _frame_key(b)[0]:
+            problems.append(Problem(b, f"has the same frame number as {a.name}: the order is ambiguous"))
+    return files
+
+
+def _slug(name: str) -> str:
+    return re.sub(r"[^a-z0-9-]+", "-", name.lower()).strip("-") or "session"
+
+
+def assemble_sl_session(
+    captures_dir: str | os.PathLike[str],
+    sequence_yaml: str | os.PathLike[str],
+    out_dir: str | os.PathLike[str],
+    *,
+    calibration: str | os.PathLike[str] | None = None,
+    poses: str | os.PathLike[str] | None = None,
+    session_id: str | None = None,
+) -> Path:
+    """Write a checked structured-light session at ``out_dir`` from a folder of captures.
+
+    Parameters
+    ----------
+    captures_dir : path
+        The captures of one sequence, matched by the sequence's ``frames`` glob and ordered by the
+        last number in their names (PNG or TIFF, 8 or 16 bit, grey or RGB). Never modified.
+    sequence_yaml : path
+        The sequence in :func:`huefringe.codecs.load_sequence`'s YAML form (explicit ``blocks``
+        or ``kamino410``, whose ``config`` is relative to ``captures_dir``), plus optional session
+        keys :data:`ASSEMBLY_KEYS`: ``id``, ``calibration`` and ``poses`` (paths relative to the
+        YAML's folder) and ``provenance``.
+    out_dir : path
+        The session folder to write; must not exist or be empty.
+    calibration, poses : path, optional
+        Override the YAML's: an OpenCV FileStorage calibration (copied to ``calibration/``), a
+        folder of pose folders each holding one full sequence (copied to ``poses/<name>/``).
+    session_id : str, optional
+        Overrides the YAML's ``id``; default the output folder's name in ``[a-z0-9-]``.
+
+    Returns
+    -------
+    Path
+        ``out_dir``, validated by :func:`load_sl_session`.
+
+    Raises
+    ------
+    SessionError
+        Before anything is written, every problem naming its file.
+    """
+    captures, seq_yaml, out = Path(captures_dir), Path(sequence_yaml), Path(out_dir)
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        raise SessionError.at(out, "already exists and is not empty; give a new folder")
+    if captures.is_dir() and out.resolve().is_relative_to(captures.resolve()):
+        raise SessionError.at(out, f"lies inside the captures folder {captures}, which is never modified")
+    try:
+        doc = yaml.safe_load(seq_yaml.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
+        raise SessionError.at(seq_yaml, f"cannot read the sequence ({exc})") from None
+    if not isinstance(doc, dict):
+        raise SessionError.at(seq_yaml, "expected a mapping with projector and blocks (or kamino410)")
+    extra = {k: doc.pop(k) for k in ASSEMBLY_KEYS if k in doc}
+    problems: list[Problem] = []
+    try:
+        spec = sequence_from_mapping(doc, seq_yaml, captures)
+    except SequenceError as exc:
+        raise SessionError.at(seq_yaml, str(exc).removeprefix(f"{seq_yaml}: ")) from None
+    problems += sequence_problems(spec, seq_yaml)
+    sid = session_id or extra.get("id") or _slug(out.name)
+    if not isinstance(sid, str) or not re.fullmatch(r"[a-z0-9-]{1,120}", sid):
+        problems.append(Problem(seq_yaml, f"id {sid!r} must match [a-z0-9-]+"))
+    provenance = extra.get("provenance")
+    if provenance is not None and not isinstance(provenance, dict):
+        problems.append(Problem(seq_yaml, "provenance must be a mapping (captured_at, operator, instrument, source, license, notes)"))
+    calib = Path(calibration) if calibration else (seq_yaml.parent / str(extra["calibration"]) if extra.get("calibration") else None)
+    poses_dir = Path(poses) if poses else (seq_yaml.parent / str(extra["poses"]) if extra.get("poses") else None)
+
+    files = _sequence_files(captures, spec, seq_yaml, problems)
+    img_problems, info = _capture_problems(files, None, deep=True)
+    problems += img_problems
+    suffixes = {".tiff" if p.suffix.lower() in (".tif", ".tiff") else p.suffix.lower() for p in files}
+    if len(suffixes) > 1:
+        problems.append(Problem(captures, f"captures of several file types {sorted(suffixes)}: one type per session"))
+    pose_files: dict[str, list[Path]] = {}
+    if poses_dir is not None:
+        if not poses_dir.is_dir():
+            problems.append(Problem(poses_dir, "not a folder of pose folders"))
+        else:
+            for d in sorted(p for p in poses_dir.iterdir() if p.is_dir() and not p.name.startswith(".")):
+                if not re.fullmatch(r"[A-Za-z0-9_-]+", d.name):
+                    problems.append(Problem(d, "pose folder names are letters, digits, _ and - only"))
+                    continue
+                fs = _sequence_files(d, spec, seq_yaml, problems)
+                problems += _capture_problems(fs, info, deep=True)[0]
+                pose_files[d.name] = fs
+            if not pose_files:
+                problems.append(Problem(poses_dir, "holds no pose folder"))
+    if calib is not None:
+        if calib.suffix.lower() not in (".yml", ".yaml", ".xml", ".json"):
+            problems.append(Problem(calib, "an OpenCV FileStorage file (.yml, .yaml, .xml or .json) expected"))
+        elif info is not None:
+            problems += calibration_problems(calib, info.width, info.height)
+        elif not calib.is_file():
+            problems.append(Problem(calib, "missing calibration file"))
+    if problems or info is None:
+        raise SessionError(problems or [Problem(captures, "no captures")])
+
+    suffix = suffixes.pop()
+    meta: dict[str, Any] = {
+        "format": FORMAT,
+        "id": sid,
+        "camera": {"width": info.width, "height": info.height, "bit_depth": info.bit_depth, "channels": info.channels},
+        "projector": {"width": spec.projector_width, "height": spec.projector_height},
+        "sequence": {"file": SEQUENCE_FILE, "frames": spec.n_frames},
+    }
+    stored = {**sequence_to_mapping(spec), "frames": "[0-9][0-9][0-9][0-9]" + suffix}
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.partial-", dir=out.parent))
+    try:
+        for folder, fs in [(tmp / CAPTURES, files), *((tmp / POSES / k, v) for k, v in pose_files.items())]:
+            folder.mkdir(parents=True)
+            for i, src in enumerate(fs):
+                shutil.copyfile(src, folder / f"{i:04d}{suffix}")
+        if pose_files:
+            meta["poses"] = sorted(pose_files)
+        if calib is not None:
+            (tmp / CALIBRATION).mkdir()
+            dst = tmp / CALIBRATION / f"rig{calib.suffix.lower()}"
+            shutil.copyfile(calib, dst)
+            meta["calibration"] = {"file": f"{CALIBRATION}/{dst.name}", "sha256": _sha256(dst)}
+        if provenance:
+            meta["provenance"] = provenance
+        (tmp / SEQUENCE_FILE).write_text(yaml.safe_dump(stored, sort_keys=False, default_flow_style=None), encoding="utf-8")
+        (tmp / "session.yaml").write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
+        load_sl_session(tmp)
+        if out.exists():
+            out.rmdir()
+        tmp.rename(out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
