@@ -120,7 +120,7 @@ def test_every_configuration_key_is_documented() -> None:
     assert [r[0] for r in rows if not r[3]] == []
     by_key = {r[0]: r for r in rows}
     # the text of a key comes from the comment of defaults.yaml, continued over its lines
-    assert by_key["measurement.own_noise"][3].endswith("The uncertainty uses the own signal either way")
+    assert by_key["measurement.own_noise"][3].endswith("along the bands of each sextant (stats noise_rad.source; docs/noise.md)")
     assert by_key["measurement.denoise_adaptive.max_radius"][2] == "6"
     assert by_key["calibration.plane_smooth_degree"][1] == "integer or null, >= 1, <= 6"
 

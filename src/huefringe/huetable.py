@@ -43,8 +43,9 @@ Pixels are masked for the first failing reason, in this order (``REASONS``):
 ``low_saturation``
     in some band no repeat had a defined hue (white-balanced saturation <= ``min_saturation``);
 ``noise``
-    the standard error of a band's mean hue (RMS spread over repeats / sqrt(R)) exceeds
-    ``max_noise_steps`` band steps ``2 pi / N`` (needs R >= 2);
+    the standard error of a band's mean hue (RMS spread over repeats / sqrt(R); with one repeat
+    the third difference along the bands, see below) exceeds ``max_noise_steps`` band steps
+    ``2 pi / N``;
 ``coverage``
     the captured hues do not wind exactly once round the circle, or leave a gap larger than
     ``max_gap`` between consecutive bands;
@@ -52,6 +53,16 @@ Pixels are masked for the first failing reason, in this order (``REASONS``):
     the captured hue falls back below its running maximum (over any run of bands, so slow
     reversals count as much as jumps) by more than ``max(order_steps band steps, order_sigmas
     sqrt(2) noise)`` (defaults 2 and 6), or the final quantised table is not circularly sorted.
+
+Per-pixel noise
+---------------
+``HueTable.noise_rad`` is always estimated, never assumed (``stats["noise_rad"]["source"]``,
+:data:`NOISE_SOURCES`): with ``R >= 2`` repeats the pooled spread of the repeats about their mean
+over all bands (``R - 1`` degrees of freedom per band), as the standard error of a band mean; with
+one repeat the third difference along the bands of each sextant (:func:`_band_noise_kernel`),
+which removes the captured-hue curve's level, slope and curvature and leaves ``20 sigma^2``:
+within 0.94-0.98 of six repeats' figure in every white-level bin of the bench's ``photo_sensor``
+(docs/noise.md).
 
 The Fig. 6 compensation of the projected pattern and the calibration QA figures are in
 :mod:`huefringe.compensation`, built on these tables.
@@ -81,6 +92,7 @@ __all__ = [
     "COUNTS",
     "HueTableError",
     "RAD_PER_COUNT",
+    "NOISE_SOURCES",
     "REASONS",
     "HueTable",
     "band_smoothing_matrix",
@@ -103,6 +115,9 @@ REASONS: tuple[str, ...] = ("valid", "low_signal", "low_saturation", "noise", "c
 """Mask reasons; the index is the code stored in ``HueTable.reason`` (0 = valid)."""
 _R_LOW_SIGNAL, _R_LOW_SAT = 1, 2  # the kernels use the codes 3 (noise), 4 (coverage), 5 (order)
 _FORMAT = "huefringe-hue-table/1"
+NOISE_SOURCES: tuple[str, ...] = ("repeats", "band_difference")
+"""How a table's per-pixel noise was found (``stats["noise_rad"]["source"]``): the spread of the
+band repeats (``R >= 2``), or the third difference along the bands of the single repeat."""
 _TWO_PI_F32 = np.float32(TWO_PI)
 
 
@@ -209,6 +224,65 @@ def _accumulate_kernel(hues, plane, var_sum, dof, missing):  # pragma: no cover 
             while q >= 65536:
                 q -= 65536
             plane[v, u] = q
+
+
+#: Order of the difference along the bands that the one-repeat noise estimate takes
+#: (:func:`_band_noise_kernel`): the third removes the hue curve's level, slope and curvature.
+BAND_DIFFERENCE_ORDER = 3
+
+
+@numba.njit(cache=True, nogil=True)
+def _band_noise_kernel(table, reason, order, out):  # pragma: no cover - numba
+    """Hue noise (rad) of one band mean per pixel from a difference of ``order`` along the bands.
+
+    The captured hue is a smooth function of the band's code phase within each sextant of the
+    code (eq. 3 ramps one channel there; the curve kinks only at the sextant boundaries). The
+    difference of order ``p`` of ``p + 1`` consecutive bands of one sextant (binomial weights
+    ``(-1)^j C(p, j)``) removes a polynomial of degree ``p - 1`` (``p = 3``: level, slope and
+    curvature, which projector gamma makes large where the noise is small) and leaves noise of
+    variance ``C(2p, p) sigma^2`` (20 for ``p = 3``) for independent band means of variance
+    ``sigma^2``; runs crossing a sextant boundary (the wrap at band 0 is one) are left out.
+    ``out = sqrt(mean(d^2) / C(2p, p))``; NaN where ``reason != 0`` or no run fits a sextant.
+    """
+    n, h, w = table.shape
+    two_pi = 2.0 * np.pi
+    rad = two_pi / 65536.0
+    seg = np.empty(n, np.int64)
+    for i in range(n):
+        seg[i] = (6 * i) // n
+    coef = np.empty(order + 1)
+    var = 0.0
+    for j in range(order + 1):
+        c = 1.0
+        for m in range(j):
+            c = c * (order - m) / (m + 1)
+        coef[j] = c if j % 2 == 0 else -c
+        var += c * c
+    steps = np.empty(n)
+    for v in range(h):
+        for u in range(w):
+            if reason[v, u] != 0:
+                out[v, u] = np.nan
+                continue
+            # the unwrapped curve from band 0 (steps wrapped to [-pi, pi))
+            acc = 0.0
+            steps[0] = 0.0
+            for i in range(1, n):
+                d = (np.float64(table[i, v, u]) - np.float64(table[i - 1, v, u])) * rad
+                d -= two_pi * math.floor((d + np.pi) / two_pi)
+                acc += d
+                steps[i] = acc
+            ss = 0.0
+            cnt = 0
+            for i in range(0, n - order):
+                if seg[i] != seg[i + order]:
+                    continue
+                x = 0.0
+                for j in range(order + 1):
+                    x += coef[j] * steps[i + j]
+                ss += x * x
+                cnt += 1
+            out[v, u] = math.sqrt(ss / (var * cnt)) if cnt > 0 else np.nan
 
 
 @numba.njit(cache=True, parallel=False)
@@ -427,7 +501,8 @@ class HueTable:
     reason : ndarray of uint8, shape (H, W)
         Mask reason code, index into :data:`REASONS` (0 = valid).
     noise_rad : ndarray of float32, shape (H, W)
-        Standard error of the per-band mean hue (NaN when R = 1).
+        Standard error of the per-band mean hue: from the repeats, or with one repeat from the
+        third difference along the bands (``stats["noise_rad"]["source"]``); NaN where masked.
     stats : dict
         Counts per reason, valid fraction, noise statistics, build parameters.
     """
@@ -807,7 +882,8 @@ def build_table(
         Local-polynomial window (odd, in bands) and degree along the band axis, not crossing the
         code's sextant boundaries (:func:`band_smoothing_matrix`); window <= 1 disables.
     max_noise_steps : float
-        Mask ``noise`` when the standard error of a band mean exceeds this many band steps.
+        Mask ``noise`` when the standard error of a band mean (from the repeats, or with one
+        repeat from the third difference along the bands) exceeds this many band steps.
     max_gap : float
         Mask ``coverage`` when two consecutive bands are more than this apart in captured hue.
     order_steps, order_sigmas : float
@@ -890,6 +966,9 @@ def build_table(
     with np.errstate(divide="ignore", invalid="ignore"):
         sigma = np.where(dof_map > 0, np.sqrt(var_sum / np.maximum(dof_map, 1)) / math.sqrt(n_rep), np.nan).astype(np.float64)
     del var_sum, dof_map
+    if n_rep == 1:  # no repeats: the noise from the single repeat's differences along the bands
+        sigma = np.empty((h, w), np.float64)
+        _band_noise_kernel(tab, reason, BAND_DIFFERENCE_ORDER, sigma)
     step = TWO_PI / n
     coef = band_smoothing_matrix(n, smooth_window, smooth_order)
     start = np.zeros((h, w), dtype=np.uint16)
@@ -911,6 +990,7 @@ def build_table(
         "noise_rad": {
             "median": float(np.median(sv)) if sv.size else None,
             "p95": float(np.percentile(sv, 95)) if sv.size else None,
+            "source": NOISE_SOURCES[0] if n_rep >= 2 else NOISE_SOURCES[1],
         },
         "sensor_noise": repeat_stats.fit(),
         "table_bytes": int(table.nbytes),

@@ -74,7 +74,7 @@ from numpy.typing import NDArray
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
-from huefringe.perframe import (_hue_noise_kernel, capture_noise, noise_ratio2, sensor_model,
+from huefringe.perframe import (_hue_noise_kernel, capture_noise, height_noise, noise_ratio2, sensor_model,
                                 shadow_mask, sigma_from_slope)
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
@@ -973,6 +973,9 @@ class FrameMaps:
     texture_u: NDArray[np.float32] | None = None
     """The texture term of the uncertainty (mm, NaN where the height is;
     :func:`huefringe.uncertainty.texture_term_phase`), with ``texture_rgb``."""
+    noise: NDArray[np.float32] | None = None
+    """Standard deviation (mm) of each height from the capture noise alone, NaN where the height is
+    NaN (``want_uncertainty``; ``perframe.height_noise``, as ``perframe.FrameResult.noise``)."""
 
 
 def _check_frame(prep: Prepared, rgb: NDArray[Any]) -> tuple[NDArray[Any], float]:
@@ -1075,19 +1078,20 @@ def frame_maps(
         rsum = sumw * ratio if ratio is not None else None
         support = (sumw > 0).astype(np.float32)
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
-    u_map = None
+    u_map = noise_h = None
     if want_uncertainty:
         if prep.budget is None:
             raise ValueError("the prepared calibration has no uncertainty budget (kernel.prepare sets it)")
         u_map = edge_floor(height, valid, height_uncertainty(smooth, sumw, valid, prep.a, prep.b, prep.budget,
                                                              ratio_sum=rsum))
         support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
+        noise_h = height_noise(smooth, sumw, valid, prep.a, prep.b)
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
               "guess_far": int(n_far)}
     tex_u = None
     if delta is not None:
         tex_u = texture_term_phase(smooth if denoise else dphi, carried, height, prep.a, prep.b)
-    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map, support, tex_u)
+    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map, support, tex_u, noise_h)
 
 
 def frame_to_height(

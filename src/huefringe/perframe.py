@@ -20,7 +20,7 @@ from numpy.typing import NDArray
 from huefringe.colour import hue as hue_of
 from huefringe.colour import intensity, white_balance, white_gains
 from huefringe.height import PlaneCalibration
-from huefringe.huetable import HueTable
+from huefringe.huetable import HueTable, HueTableError
 from huefringe import phase_error
 from huefringe.phase import adaptive_kwargs, denoise_phase, denoise_weight_sums, unwrap, wrap
 from huefringe.session import Predistortion
@@ -33,6 +33,7 @@ __all__ = [
     "capture_noise",
     "clipped_mask",
     "frame_hue_noise",
+    "height_noise",
     "noise_ratio2",
     "frame_stats",
     "measure_frame",
@@ -64,7 +65,8 @@ def shadow_mask(white: NDArray[np.floating], fraction: float) -> NDArray[np.bool
     return level < fraction * float(np.percentile(level, 99))
 
 
-def step_edge_mask(height: NDArray[np.floating], jump_mm: float) -> NDArray[np.bool_]:
+def step_edge_mask(height: NDArray[np.floating], jump_mm: float, noise: NDArray[np.floating] | None = None,
+                   noise_k: float = 0.0) -> NDArray[np.bool_]:
     """Valid pixels next to a height jump: the mixed pixels of a step edge.
 
     A pixel whose height differs from a valid 4-neighbour's by more than ``jump_mm`` sees (through
@@ -73,20 +75,31 @@ def step_edge_mask(height: NDArray[np.floating], jump_mm: float) -> NDArray[np.b
     to invalidate). Smooth slopes steeper than ``jump_mm`` per pixel are cut too, so ``jump_mm``
     must exceed the steepest real slope per pixel (0 returns an all-False mask).
 
+    With ``noise`` (each height's noise standard deviation, mm, :func:`height_noise`) a jump the
+    pair's own noise explains is no edge: a pair differs by more than ``max(jump_mm, noise_k
+    sqrt(s_a^2 + s_b^2))`` (``noise_k`` 0: ``jump_mm`` alone). Float32 arithmetic, as the compiled
+    pass (:func:`remove_step_edges`) computes it.
+
     Parameters
     ----------
     height : ndarray (H, W)
         Height map, NaN where invalid.
     jump_mm : float
         Largest height difference between 4-neighbours kept (mm).
+    noise : ndarray (H, W), optional
+        Standard deviation of each height from the capture noise (mm; NaN counts as 0).
+    noise_k : float
+        Jumps up to this many of the pair's combined noise standard deviations are kept.
     """
     h = np.asarray(height, np.float32)
     out = np.zeros(h.shape, bool)
     if jump_mm <= 0:
         return out
+    jump, k = np.float32(jump_mm), np.float32(noise_k)
+    s = _noise_map(noise, h.shape)
     with np.errstate(invalid="ignore"):
-        dx = np.abs(h[:, 1:] - h[:, :-1]) > jump_mm  # NaN compares False: only valid pairs
-        dy = np.abs(h[1:, :] - h[:-1, :]) > jump_mm
+        dx = np.abs(h[:, 1:] - h[:, :-1]) > np.maximum(jump, k * np.sqrt(s[:, 1:] * s[:, 1:] + s[:, :-1] * s[:, :-1]))
+        dy = np.abs(h[1:, :] - h[:-1, :]) > np.maximum(jump, k * np.sqrt(s[1:, :] * s[1:, :] + s[:-1, :] * s[:-1, :]))
     out[:, 1:] |= dx
     out[:, :-1] |= dx
     out[1:, :] |= dy
@@ -94,8 +107,24 @@ def step_edge_mask(height: NDArray[np.floating], jump_mm: float) -> NDArray[np.b
     return out
 
 
+def _noise_map(noise: NDArray[np.floating] | None, shape: tuple[int, ...]) -> NDArray[np.float32]:
+    """The edge tests' float32 noise map: 0 where ``noise`` is not finite (or without one)."""
+    if noise is None:
+        return np.zeros(shape, np.float32)
+    s = np.asarray(noise, np.float32)
+    if s.shape != shape:
+        raise ValueError(f"noise map {s.shape} differs from the height map {shape}")
+    return np.ascontiguousarray(np.where(np.isfinite(s), s, np.float32(0.0)))
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _pair_jump(dz, sa, sb, jump, k):  # pragma: no cover - numba
+    """A 4-neighbour pair's jump ``dz`` beyond ``max(jump, k sqrt(sa^2 + sb^2))`` (float32)."""
+    return abs(dz) > max(jump, k * np.sqrt(sa * sa + sb * sb))
+
+
 @numba.njit(cache=True, nogil=True)
-def _edge_kernel(h, jump, edge):  # pragma: no cover - numba
+def _edge_kernel(h, s, jump, k, edge):  # pragma: no cover - numba
     """:func:`step_edge_mask` into ``edge`` (float32 differences, NaN compares False); returns the
     number of pixels marked."""
     rows, cols = h.shape
@@ -103,15 +132,16 @@ def _edge_kernel(h, jump, edge):  # pragma: no cover - numba
     for v in range(rows):
         for u in range(cols):
             z = h[v, u]
+            sz = s[v, u]
             e = False
             if u > 0:
-                e |= abs(z - h[v, u - 1]) > jump
+                e |= _pair_jump(z - h[v, u - 1], sz, s[v, u - 1], jump, k)
             if u + 1 < cols:
-                e |= abs(h[v, u + 1] - z) > jump
+                e |= _pair_jump(h[v, u + 1] - z, sz, s[v, u + 1], jump, k)
             if v > 0:
-                e |= abs(z - h[v - 1, u]) > jump
+                e |= _pair_jump(z - h[v - 1, u], sz, s[v - 1, u], jump, k)
             if v + 1 < rows:
-                e |= abs(h[v + 1, u] - z) > jump
+                e |= _pair_jump(h[v + 1, u] - z, sz, s[v + 1, u], jump, k)
             edge[v, u] = e
             n += e
     return n
@@ -121,7 +151,8 @@ def _edge_kernel(h, jump, edge):  # pragma: no cover - numba
 EDGE_TESTS = ("pair", "plane")
 
 
-def plane_edge_mask(height: NDArray[np.floating], jump_mm: float, tol_mm: float) -> NDArray[np.bool_]:
+def plane_edge_mask(height: NDArray[np.floating], jump_mm: float, tol_mm: float,
+                    noise: NDArray[np.floating] | None = None, noise_k: float = 0.0) -> NDArray[np.bool_]:
     """Mixed pixels of step edges by the two-sided local-line test (``measurement.edge_test: plane``).
 
     Along u and along v, a valid pixel ``z0`` with neighbours ``z-2, z-1 | z1, z2`` is a
@@ -135,6 +166,12 @@ def plane_edge_mask(height: NDArray[np.floating], jump_mm: float, tol_mm: float)
     Otherwise it is returned (True = to invalidate): both pixels next to a real step (whose sides
     do not continue each other, as the pair test: a step's edge is only known to a pixel), the
     pixels between the two planes, and outliers. A missing neighbour explains nothing.
+
+    With ``noise`` (each height's noise standard deviation ``s``, mm, :func:`height_noise`) what
+    the pixels' own noise explains is no step: each threshold is at least ``noise_k`` standard
+    deviations of the difference it bounds, the jump ``max(jump_mm, noise_k sqrt(s0^2 + s1^2))``,
+    the line ``max(tol_mm, noise_k sqrt(s0^2 + 4 s1^2 + s2^2))`` and the outlier test
+    ``max(tol_mm, noise_k sqrt(s2^2 + 9 s0^2 + 4 s-1^2))`` (``noise_k`` 0: the fixed ones).
     Float32 arithmetic in this order (``2 zs1 - zs2 = zs1 + zs1 - zs2``,
     ``3 z0 - 2 z-s1 = z0 + d + d``, ``d = z0 - z-s1``), as the compiled pass
     (:func:`remove_step_edges`) computes it; ``jump_mm <= 0`` returns all False.
@@ -147,55 +184,69 @@ def plane_edge_mask(height: NDArray[np.floating], jump_mm: float, tol_mm: float)
         The candidate jump to a 4-neighbour (mm).
     tol_mm : float
         Largest departure from an extrapolated line that still counts as on it (mm).
+    noise : ndarray (H, W), optional
+        Standard deviation of each height from the capture noise (mm; NaN counts as 0).
+    noise_k : float
+        Differences up to this many of their noise standard deviations are explained by noise.
     """
     h = np.asarray(height, np.float32)
     out = np.zeros(h.shape, bool)
     if jump_mm <= 0:
         return out
-    jump, tol = np.float32(jump_mm), np.float32(tol_mm)
-    pad = np.full((h.shape[0] + 4, h.shape[1] + 4), np.nan, np.float32)
-    pad[2:-2, 2:-2] = h
+    jump, tol, k = np.float32(jump_mm), np.float32(tol_mm), np.float32(noise_k)
     rows, cols = h.shape
+    pad = np.full((rows + 4, cols + 4), np.nan, np.float32)
+    pad[2:-2, 2:-2] = h
+    spad = np.zeros((rows + 4, cols + 4), np.float32)
+    spad[2:-2, 2:-2] = _noise_map(noise, h.shape)
+    f4, f9 = np.float32(4.0), np.float32(9.0)
 
-    def at(dv: int, du: int) -> NDArray[np.float32]:
-        return pad[2 + dv:2 + dv + rows, 2 + du:2 + du + cols]
+    def at(a: NDArray[np.float32], dv: int, du: int) -> NDArray[np.float32]:
+        return a[2 + dv:2 + dv + rows, 2 + du:2 + du + cols]
 
+    s0 = at(spad, 0, 0)
     with np.errstate(invalid="ignore"):
         for dv, du in ((0, 1), (1, 0)):
-            m1, m2, p1, p2 = at(-dv, -du), at(-2 * dv, -2 * du), at(dv, du), at(2 * dv, 2 * du)
-            jump_l, jump_r = np.abs(h - m1) > jump, np.abs(p1 - h) > jump
-            on_l = np.abs(h - (m1 + m1 - m2)) <= tol
-            on_r = np.abs(h - (p1 + p1 - p2)) <= tol
+            m1, m2, p1, p2 = at(pad, -dv, -du), at(pad, -2 * dv, -2 * du), at(pad, dv, du), at(pad, 2 * dv, 2 * du)
+            sm1, sm2, sp1, sp2 = at(spad, -dv, -du), at(spad, -2 * dv, -2 * du), at(spad, dv, du), at(spad, 2 * dv, 2 * du)
+            jump_l = np.abs(h - m1) > np.maximum(jump, k * np.sqrt(s0 * s0 + sm1 * sm1))
+            jump_r = np.abs(p1 - h) > np.maximum(jump, k * np.sqrt(s0 * s0 + sp1 * sp1))
+            on_l = np.abs(h - (m1 + m1 - m2)) <= np.maximum(tol, k * np.sqrt(s0 * s0 + f4 * (sm1 * sm1) + sm2 * sm2))
+            on_r = np.abs(h - (p1 + p1 - p2)) <= np.maximum(tol, k * np.sqrt(s0 * s0 + f4 * (sp1 * sp1) + sp2 * sp2))
             dl, dr = h - m1, h - p1
-            iso_r = np.abs(p2 - (h + dl + dl)) <= tol  # z1 an outlier: z2 on the line through z-1, z0
-            iso_l = np.abs(m2 - (h + dr + dr)) <= tol
+            iso_r = np.abs(p2 - (h + dl + dl)) <= np.maximum(tol, k * np.sqrt(sp2 * sp2 + f9 * (s0 * s0) + f4 * (sm1 * sm1)))
+            iso_l = np.abs(m2 - (h + dr + dr)) <= np.maximum(tol, k * np.sqrt(sm2 * sm2 + f9 * (s0 * s0) + f4 * (sp1 * sp1)))
             keep = (~jump_l | on_l | iso_l) & (~jump_r | on_r | iso_r) & (on_l | on_r)
             out |= np.isfinite(h) & (jump_l | jump_r) & ~keep
     return out
 
 
 @numba.njit(cache=True, nogil=True, inline="always")
-def _plane_drop(z, m1, m2, p1, p2, jump, tol):  # pragma: no cover - numba
+def _plane_drop(z, m1, m2, p1, p2, s0, sm1, sm2, sp1, sp2, jump, tol, k):  # pragma: no cover - numba
     """One axis of :func:`plane_edge_mask` at a pixel: True = invalidate."""
-    jump_l = abs(z - m1) > jump
-    jump_r = abs(p1 - z) > jump
-    on_l = abs(z - (m1 + m1 - m2)) <= tol
-    on_r = abs(z - (p1 + p1 - p2)) <= tol
+    f4 = np.float32(4.0)
+    f9 = np.float32(9.0)
+    jump_l = abs(z - m1) > max(jump, k * np.sqrt(s0 * s0 + sm1 * sm1))
+    jump_r = abs(p1 - z) > max(jump, k * np.sqrt(s0 * s0 + sp1 * sp1))
+    on_l = abs(z - (m1 + m1 - m2)) <= max(tol, k * np.sqrt(s0 * s0 + f4 * (sm1 * sm1) + sm2 * sm2))
+    on_r = abs(z - (p1 + p1 - p2)) <= max(tol, k * np.sqrt(s0 * s0 + f4 * (sp1 * sp1) + sp2 * sp2))
     dl = z - m1
     dr = z - p1
-    iso_r = abs(p2 - (z + dl + dl)) <= tol
-    iso_l = abs(m2 - (z + dr + dr)) <= tol
+    iso_r = abs(p2 - (z + dl + dl)) <= max(tol, k * np.sqrt(sp2 * sp2 + f9 * (s0 * s0) + f4 * (sm1 * sm1)))
+    iso_l = abs(m2 - (z + dr + dr)) <= max(tol, k * np.sqrt(sm2 * sm2 + f9 * (s0 * s0) + f4 * (sp1 * sp1)))
     keep = (not jump_l or on_l or iso_l) and (not jump_r or on_r or iso_r) and (on_l or on_r)
     return (jump_l or jump_r) and not keep
 
 
 @numba.njit(cache=True, nogil=True)
-def _plane_edge_kernel(h, jump, tol, edge):  # pragma: no cover - numba
+def _plane_edge_kernel(h, s, jump, tol, k, edge):  # pragma: no cover - numba
     """:func:`plane_edge_mask` into ``edge`` (float32, NaN compares False; the frame padded by two
-    NaN pixels); returns the number of pixels marked."""
+    NaN pixels, the noise map by zeros); returns the number of pixels marked."""
     rows, cols = h.shape
     pad = np.full((rows + 4, cols + 4), np.float32(np.nan))
     pad[2:rows + 2, 2:cols + 2] = h
+    sp = np.zeros((rows + 4, cols + 4), np.float32)
+    sp[2:rows + 2, 2:cols + 2] = s
     n = 0
     for v in range(rows):
         r = v + 2
@@ -204,8 +255,11 @@ def _plane_edge_kernel(h, jump, tol, edge):  # pragma: no cover - numba
             z = pad[r, c]
             e = False
             if np.isfinite(z):
-                e = _plane_drop(z, pad[r, c - 1], pad[r, c - 2], pad[r, c + 1], pad[r, c + 2], jump, tol) or \
-                    _plane_drop(z, pad[r - 1, c], pad[r - 2, c], pad[r + 1, c], pad[r + 2, c], jump, tol)
+                s0 = sp[r, c]
+                e = _plane_drop(z, pad[r, c - 1], pad[r, c - 2], pad[r, c + 1], pad[r, c + 2],
+                                s0, sp[r, c - 1], sp[r, c - 2], sp[r, c + 1], sp[r, c + 2], jump, tol, k) or \
+                    _plane_drop(z, pad[r - 1, c], pad[r - 2, c], pad[r + 1, c], pad[r + 2, c],
+                                s0, sp[r - 1, c], sp[r - 2, c], sp[r + 1, c], sp[r + 2, c], jump, tol, k)
             edge[v, u] = e
             n += e
     return n
@@ -239,14 +293,17 @@ def _finite_keys(z, keys):  # pragma: no cover - numba
 
 def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: Sequence[NDArray[np.float32] | None] = (),
                       zero_maps: Sequence[NDArray[np.float32] | None] = (), test: str = "pair",
-                      tol_mm: float = 0.1) -> tuple[Any, ...]:
+                      tol_mm: float = 0.1, noise: NDArray[np.floating] | None = None,
+                      noise_k: float = 0.0) -> tuple[Any, ...]:
     """Invalidate the mixed pixels of step edges in a height map and the maps that go with it, in
     compiled passes: what ``measurement.edge_jump_mm`` / ``edge_test`` / ``edge_plane_tol_mm`` do
     per frame.
 
     ``test`` is ``"pair"`` (:func:`step_edge_mask`: both pixels of a 4-neighbour pair differing
     by more than ``jump_mm``) or ``"plane"`` (:func:`plane_edge_mask`: of such candidates, those
-    off both sides' extrapolated lines by more than ``tol_mm``). Returns
+    off both sides' extrapolated lines by more than ``tol_mm``); with ``noise`` (each height's
+    noise standard deviation, :func:`height_noise`) and ``noise_k`` > 0, what the pixels' own
+    noise explains is no step (``measurement.edge_noise_k``). Returns
     ``(height, nan_maps, zero_maps, stats)``: new float32 arrays (NaN on the edge pixels;
     0 in ``zero_maps``; None stays None) and the frame statistics that change, ``edge_fraction``,
     ``valid_fraction`` (finite heights) and ``median_height_mm`` (NumPy's ``nanmedian`` of the
@@ -258,10 +315,11 @@ def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: 
         raise ValueError(f"edge test must be one of {EDGE_TESTS}, got {test!r}")
     h = np.ascontiguousarray(height, np.float32)
     edge = np.empty(h.shape, bool)
+    sig = _noise_map(noise if noise_k > 0 else None, h.shape)
     if jump_mm > 0 and test == "plane":
-        n_edge = _plane_edge_kernel(h, np.float32(jump_mm), np.float32(tol_mm), edge)
+        n_edge = _plane_edge_kernel(h, sig, np.float32(jump_mm), np.float32(tol_mm), np.float32(noise_k), edge)
     elif jump_mm > 0:
-        n_edge = _edge_kernel(h, np.float32(jump_mm), edge)
+        n_edge = _edge_kernel(h, sig, np.float32(jump_mm), np.float32(noise_k), edge)
     else:  # as step_edge_mask: 0 switches it off
         edge[...] = False
         n_edge = 0
@@ -280,6 +338,37 @@ def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: 
              "valid_fraction": float(n_finite / h.size) if h.size else 0.0,
              "median_height_mm": float(_median_keys(keys, n)) if n_finite else None}
     return hz, [masked(x, np.nan) for x in nan_maps], [masked(x, 0.0) for x in zero_maps], stats
+
+
+def height_noise(dphi: NDArray[np.floating], sumw: NDArray[np.floating], valid: NDArray[np.bool_],
+                 a: NDArray[np.floating], b: NDArray[np.floating]) -> NDArray[np.float32]:
+    """Standard deviation (mm) of each height from the capture noise alone: ``|dh/dphi| / sqrt(sumw)``.
+
+    ``sumw`` is the phase filter's sum of inverse-variance weights (``1 / sigma^2`` of the pixel
+    itself without the filter), ``sigma`` each pixel's per-capture phase noise from the hue
+    table's per-pixel noise (:func:`phase_sigma`); ``h = dphi / (a + b dphi)`` gives
+    ``dh/dphi = a / (a + b dphi)^2``. NaN where not ``valid`` or without weight. What the
+    step-edge tests (:func:`remove_step_edges`) hold a jump against; both chains compute it from
+    the same float32 maps, in this compiled loop.
+    """
+    out = np.empty(np.shape(dphi), np.float32)
+    _height_noise_kernel(np.ascontiguousarray(dphi, np.float32), np.ascontiguousarray(sumw, np.float32),
+                         np.ascontiguousarray(valid, bool), np.ascontiguousarray(a, np.float32),
+                         np.ascontiguousarray(b, np.float32), out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _height_noise_kernel(dphi, sumw, valid, a, b, out):  # pragma: no cover - numba
+    """:func:`height_noise`'s loop (float32)."""
+    h, w = dphi.shape
+    nan = np.float32(np.nan)
+    for v in range(h):
+        for u in range(w):
+            sw = sumw[v, u]
+            q = a[v, u] + b[v, u] * dphi[v, u]
+            s = abs(a[v, u]) / (q * q) / np.sqrt(sw)
+            out[v, u] = s if valid[v, u] and sw > 0 and s - s == 0 else nan
 
 
 def clipped_mask(rgb: NDArray[np.floating], bit_depth: int) -> NDArray[np.bool_]:
@@ -310,6 +399,9 @@ class FrameResult:
     texture_u: NDArray[np.float32] | None = None
     """The texture term of the uncertainty (mm, NaN where the height is), with ``texture_rgb``
     (:func:`~huefringe.uncertainty.texture_term_phase`)."""
+    noise: NDArray[np.float32] | None = None
+    """Standard deviation (mm) of each height from the capture noise alone (:func:`height_noise`),
+    NaN where the height is NaN: what the step-edge tests hold a jump against."""
 
 
 def measure_frame(
@@ -420,6 +512,7 @@ def measure_frame(
     support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
     tex_u = texture_term_phase(np.asarray(un.dphi, np.float32), carried, height, cal.a, cal.b) \
         if delta is not None else None
+    noise_h = height_noise(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b)
     stats = frame_stats(
         valid, height, un.flags,
         clipped_fraction=float(clipped.mean()),
@@ -429,7 +522,7 @@ def measure_frame(
         hue_model=hue_model, unwrap_mode=unwrap_mode, below_reference_mm=below_reference_mm,
     )
     return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats,
-                       u_map, support, raw_dphi, tex_u)
+                       u_map, support, raw_dphi, tex_u, noise_h)
 
 
 def frame_stats(valid: NDArray[np.bool_], height: NDArray[np.float32], flags: Mapping[str, NDArray[np.bool_]], *,
@@ -490,14 +583,20 @@ def phase_sigma(table: HueTable, slope: NDArray[np.floating], floor_slope: float
 def capture_noise(table: HueTable) -> NDArray[np.float64]:
     """Per-pixel hue noise (rad) of one capture, from the table's band statistics.
 
-    The standard error of the bands' mean hue times ``sqrt(repeats)``; pixels without a finite,
-    positive figure get the median of the others (0.01 rad if there is none). Used by
-    :func:`phase_sigma` and by the fused kernel (:func:`huefringe.kernel.prepare`).
+    The standard error of the bands' mean hue times ``sqrt(repeats)``: the repeats' spread, or
+    with one repeat the second difference along the bands (``stats["noise_rad"]["source"]``,
+    :data:`huefringe.huetable.NOISE_SOURCES`). Pixels without a finite, positive figure (masked
+    table pixels, which are never measured) get the median of the others. A table without any
+    figure is refused (:class:`~huefringe.huetable.HueTableError`): no noise is ever assumed.
+    Used by :func:`phase_sigma` and by the fused kernel (:func:`huefringe.kernel.prepare`).
     """
     repeats = int(table.stats.get("repeats", 1) or 1)
     noise = np.asarray(table.noise_rad, np.float64) * np.sqrt(repeats)
-    fallback = float(np.nanmedian(noise)) if np.isfinite(noise).any() else 0.01
-    return np.ascontiguousarray(np.where(np.isfinite(noise) & (noise > 0), noise, fallback))
+    known = np.isfinite(noise) & (noise > 0)
+    if not known.any():
+        raise HueTableError("the hue table has no per-pixel noise figure (noise_rad is NaN or 0 everywhere: a table "
+                            "written by a build that did not estimate it from a single repeat); rebuild the hue table")
+    return np.ascontiguousarray(np.where(known, noise, float(np.median(noise[known]))))
 
 
 @numba.njit(cache=True, nogil=True)
@@ -658,15 +757,19 @@ def _median_keys(keys, n):  # pragma: no cover - numba
 # --------------------------------------------------------------------------- sensor noise
 
 
-#: Bounds of :func:`noise_ratio2` (a pixel's own noise variance is never taken as more than 1000
-#: times below or above the pooled one: keeps the filter's float32 sums finite).
-_RATIO2_BOUNDS = (1e-6, 1e6)
+#: Bounds of :func:`noise_ratio2`: a pixel's own-signal noise only ever raises its variance above
+#: the table's measured per-pixel figure (the first-order propagation of the shot + read model
+#: through the hue reads the noise low where the chroma is small: with it alone, |e| <= 2u held for
+#: 0.71 of the dark half of photo_sensor with two repeats, docs/noise.md), and never more than
+#: 1000 times (keeps the filter's float32 sums finite).
+_RATIO2_BOUNDS = (1.0, 1e6)
 
 
 def noise_ratio2(own: NDArray[np.floating], pooled: NDArray[np.floating]) -> NDArray[np.float32]:
-    """``(own / pooled)^2`` per pixel, float32, clipped to ``[1e-6, 1e6]``: how much the frame's
-    own-signal noise variance (:func:`frame_hue_noise`) differs from the pooled one that weights
-    the phase filter (:func:`capture_noise`). The filter sums ``w`` times it
+    """``(own / pooled)^2`` per pixel, float32, clipped to ``[1, 1e6]``: how much the frame's
+    own-signal noise variance (:func:`frame_hue_noise`) exceeds the table's measured per-pixel one
+    that weights the phase filter (:func:`capture_noise`; a frame brighter than the bands keeps the
+    measured figure: the model's first-order propagation reads dark pixels low). The filter sums ``w`` times it
     (:func:`huefringe.phase.denoise_phase`'s ``ratio``), so that the uncertainty follows the
     frame's signal while the weights, and so the heights, do not."""
     o = np.ascontiguousarray(own, np.float64)

@@ -418,7 +418,8 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
     ``want_maps``; the reference chain always gives them). After either chain,
     ``measurement.edge_jump_mm`` > 0 invalidates the mixed pixels of step edges
     (``measurement.edge_test``: :func:`~huefringe.perframe.step_edge_mask`, or
-    :func:`~huefringe.perframe.plane_edge_mask` with ``edge_plane_tol_mm``; ``stats["edge_fraction"]``),
+    :func:`~huefringe.perframe.plane_edge_mask` with ``edge_plane_tol_mm``; ``stats["edge_fraction"]``;
+    a jump within ``edge_noise_k`` of the heights' own noise, :func:`~huefringe.perframe.height_noise`, is kept),
     so the kernel and :func:`~huefringe.perframe.measure_frame` stay identical to each other; the
     uncertainty then gains the texture term in quadrature (the heights' change when the blur moves
     by its uncertainty, carried through the frame's own filter: :func:`~huefringe.uncertainty.texture_term_phase`)
@@ -445,10 +446,14 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
         rgb = rgb if fp.blur2 > 0 else None
     if rgb is None and reader.demixed:  # the demixed channels (camera.colour_demixing), to both chains
         rgb = reader.rgb(path)
+    jump = float(m["edge_jump_mm"] or 0.0)
+    # a jump the heights' own noise explains is no step edge (measurement.edge_noise_k; the noise map needs the u pass)
+    noise_k = float(m["edge_noise_k"]) if jump > 0 else 0.0
     if fp.prep is not None:  # the kernel reads the sensor codes as read_rgb scales them
         k = kernel.frame_maps(fp.prep, reader.codes(path) if rgb is None else rgb, denoise_radius=m["denoise_radius"],
                               denoise_adaptive=fp.adaptive, want_maps=want_maps, want_dphi=True,
-                              want_uncertainty=fp.want_uncertainty, out=fp.buffers, texture_rgb=moved)
+                              want_uncertainty=fp.want_uncertainty or noise_k > 0, out=fp.buffers,
+                              texture_rgb=moved)
         px = k.valid.size  # frame_stats with unwrap's reference flags, in one compiled pass
         # the wrap flags on the pixels valid before the filter (measure_frame's unwrap call): the
         # kernel's dphi is NaN exactly where no phase was decoded; k.valid has lost the filter's rejects
@@ -456,17 +461,19 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
                                       hue_undefined_fraction=k.counts["hue_undefined"] / px,
                                       table_invalid_fraction=fp.table_invalid, shadow_fraction=fp.shadow_fraction,
                                       hue_model=fp.hue_model, flag_valid=np.isfinite(k.dphi))
-        height, phase, hue, u_map, support = k.height, k.phase, k.hue, k.uncertainty, k.support
+        height, phase, hue, u_map, support, noise_h = k.height, k.phase, k.hue, k.uncertainty, k.support, k.noise
         tex_u = k.texture_u
+        if not fp.want_uncertainty:
+            u_map = support = None
     else:
         res = _reference(fp, reader.rgb(path) if rgb is None else rgb, texture_rgb=moved)
         height, phase, hue, stats, u_map, support = res.height, res.phase, res.hue, res.stats, res.uncertainty, res.support
         tex_u = res.texture_u
-    jump = float(m["edge_jump_mm"] or 0.0)
+        noise_h = res.noise
     if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
         height, (phase, u_map), (support,), changed = remove_step_edges(
             height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(m["edge_test"]),
-            tol_mm=float(m["edge_plane_tol_mm"]))
+            tol_mm=float(m["edge_plane_tol_mm"]), noise=noise_h, noise_k=noise_k)
         stats = {**stats, **changed}
     if u_map is not None and moved is not None:  # the texture term, in quadrature (NaN where the height is)
         u_map = np.hypot(u_map, tex_u).astype(np.float32)

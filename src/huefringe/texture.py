@@ -314,9 +314,11 @@ def blur_uncertainty(info: dict[str, Any], *, min_t: float = 3.0) -> float:
 
     Accepted (``sigma2_px2`` used): the estimate's jackknife standard error ``stderr_px2``.
     Refused (0 used: the correction off): the blur is somewhere between 0 and the largest value
-    the significance test could not tell from noise, ``max(raw_px2, 0) + min_t stderr_px2``; taken
-    as rectangular on that interval, the error of the 0 used has rms ``(max(raw, 0) + min_t se) /
-    sqrt(3)`` (GUM 4.3.7). A record without a standard error (a blur given in the config, one
+    the significance test could not tell from noise, ``max(raw_px2, 0) + min_t stderr_px2``, but
+    never above :data:`MAX_BLUR_PX2` (no camera in focus blurs more; a noise-dominated estimate's
+    standard error can be hundreds of px^2: 409 on photo_sensor with two repeats, docs/noise.md);
+    taken as rectangular on that interval, the error of the 0 used has rms
+    ``min(max(raw, 0) + min_t se, MAX_BLUR_PX2) / sqrt(3)`` (GUM 4.3.7). A record without a standard error (a blur given in the config, one
     frame, no texture signal) gives 0: no uncertainty is known.
 
     Read from the white image's edges instead (the phase estimate refused or one frame; the record's
@@ -333,5 +335,5 @@ def blur_uncertainty(info: dict[str, Any], *, min_t: float = 3.0) -> float:
         return 0.0
     se = float(se)
     if "rejected" in info:
-        return float((max(float(info.get("raw_px2", 0.0) or 0.0), 0.0) + min_t * se) / np.sqrt(3.0))
+        return float(min(max(float(info.get("raw_px2", 0.0) or 0.0), 0.0) + min_t * se, MAX_BLUR_PX2) / np.sqrt(3.0))
     return se

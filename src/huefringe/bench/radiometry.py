@@ -218,7 +218,7 @@ class Rig:
             crosstalk=np.asarray(c["crosstalk"], dtype=np.float64).reshape(3, 3),
             lens_blur_sigma_px=float(c["lens_blur_sigma_px"]),
             full_well_e=None if c["full_well_e"] is None else float(c["full_well_e"]),
-            read_noise_dn=float(c["read_noise_dn"]),
+            read_noise_dn=_read_noise_dn(c, int(s["bit_depth"])),
             bit_depth=int(s["bit_depth"]),
             ambient=rgb3(light["ambient"]),
             stray=rgb3(light["stray"]),
@@ -238,6 +238,17 @@ class Rig:
     def max_dn(self) -> int:
         """Full-scale digital number of the camera."""
         return (1 << self.bit_depth) - 1
+
+
+def _read_noise_dn(camera: dict[str, Any], bit_depth: int) -> float:
+    """The camera's read noise in DN: ``read_noise_e`` electrons at ``full_well_e`` electrons per
+    full scale (``2^bit_depth - 1`` DN) when given, else ``read_noise_dn``."""
+    e = camera.get("read_noise_e")
+    if e is None:
+        return float(camera["read_noise_dn"])
+    if camera.get("full_well_e") is None:
+        raise ValueError("camera.read_noise_e needs camera.full_well_e (electrons at full scale)")
+    return float(e) * ((1 << bit_depth) - 1) / float(camera["full_well_e"])
 
 
 def dmd_levels(pattern: Pattern, phi: ArrayLike | None, rig: Rig) -> NDArray[np.float64]:

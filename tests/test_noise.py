@@ -1,0 +1,154 @@
+"""Per-pixel noise that is estimated, never assumed (docs/noise.md): the single repeat's
+second-difference estimator, the refusal of a table without a figure, the noise-aware step-edge
+tests and the bench's electron read noise."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from huefringe import patterns
+from huefringe.huetable import HueTable, HueTableError, build_table
+from huefringe.perframe import capture_noise, height_noise, plane_edge_mask, remove_step_edges, step_edge_mask
+
+GAMMA = np.array([1.9, 2.4, 2.1])
+
+
+def _bands(n_bands: int, repeats: int, seed: int) -> tuple[list[list[tuple[int, int]]], object, np.ndarray]:
+    """Synthetic hue bands: per-channel gamma, a reflectance that darkens along u (0.08-0.9 of the
+    white), Gaussian read noise of 0.004 full scale; ``read((band, repeat))`` makes each image."""
+    h, w = 12, 60
+    refl = np.linspace(0.08, 0.9, w)[None, :, None] * np.ones((h, 1, 1))
+    rng = np.random.default_rng(seed)
+
+    def read(key: tuple[int, int]) -> np.ndarray:
+        i, r = key
+        rgb = patterns.band_rgb(i, n_bands) ** GAMMA
+        img = refl * (0.05 + 0.9 * rgb)[None, None, :]
+        return np.clip(img + rng.normal(0.0, 0.004, img.shape), 0.0, 1.0).astype(np.float32)
+
+    white = np.repeat(refl * 0.95, 3, axis=2).astype(np.float32)
+    return [[(i, r) for r in range(repeats)] for i in range(n_bands)], read, white
+
+
+def test_one_repeat_noise_from_the_second_difference_matches_the_repeats_figure() -> None:
+    """With one repeat the table's per-pixel noise is the third difference along the bands of
+    each sextant, sqrt(mean(d3^2) / 20): within 8 % of the spread of 12 repeats (dof 792) in each
+    brightness third, dark (0.4 rad) to bright (0.01 rad); its source is recorded."""
+    n = 72
+    paths, read, white = _bands(n, 12, seed=1)
+    many = build_table(paths, white, read=read, min_intensity=0.01)
+    truth = many.noise_rad.astype(np.float64) * np.sqrt(12)
+    paths1, read1, _ = _bands(n, 1, seed=2)
+    one = build_table(paths1, white, read=read1, min_intensity=0.01)
+    assert one.stats["noise_rad"]["source"] == "band_difference"
+    assert many.stats["noise_rad"]["source"] == "repeats"
+    est = one.noise_rad.astype(np.float64)
+    ok = one.valid & many.valid
+    assert ok.mean() > 0.9
+    thirds = np.array_split(np.arange(white.shape[1]), 3)
+    ratios = [np.sqrt(np.mean(est[:, c][ok[:, c]] ** 2) / np.mean(truth[:, c][ok[:, c]] ** 2)) for c in thirds]
+    assert all(abs(r - 1.0) < 0.08 for r in ratios), ratios
+    dark, bright = (np.median(truth[:, c][ok[:, c]]) for c in (thirds[0], thirds[-1]))
+    assert dark > 3 * bright  # the case spans a real range of noise
+
+
+def test_capture_noise_refuses_a_table_without_a_noise_figure() -> None:
+    """No constant is assumed: a table whose noise is NaN everywhere is refused with the cause."""
+    shape = (3, 4)
+    t = HueTable(model="hexcone", n_bands=6, table=np.zeros((6, *shape), np.uint16), valid=np.ones(shape, bool),
+                 start=np.zeros(shape, np.uint16), reason=np.zeros(shape, np.uint8),
+                 noise_rad=np.full(shape, np.nan, np.float32), stats={"repeats": 1})
+    with pytest.raises(HueTableError, match="no per-pixel noise"):
+        capture_noise(t)
+    t.noise_rad[0, 0] = 0.02
+    t.noise_rad[1, 1] = 0.04
+    got = capture_noise(t)
+    assert got[0, 0] == pytest.approx(0.02) and got[1, 1] == pytest.approx(0.04)
+    assert got[2, 3] == pytest.approx(0.03)  # the others: the median of the known ones
+
+
+@pytest.mark.parametrize("test, k", [("pair", 3.0), ("plane", 3.0), ("plane", 1.5), ("pair", 0.0)])
+def test_noise_aware_edge_tests_equal_their_numpy_definitions(test: str, k: float) -> None:
+    """The compiled passes with a noise map (NaN and inf among heights, NaN among the noise) mark
+    exactly the NumPy definitions' pixels; noise_k 0 is the fixed test."""
+    rng = np.random.default_rng(7)
+    for shape in ((48, 64), (47, 63), (3, 2)):
+        h = rng.normal(0.0, 0.08, shape).astype(np.float32) + np.linspace(0, 3, shape[1], dtype=np.float32)
+        h[10:30, 20:40] += 1.0
+        h[rng.random(shape) < 0.1] = np.nan
+        h[1, 1] = np.inf
+        s = rng.uniform(0.0, 0.12, shape).astype(np.float32)
+        s[rng.random(shape) < 0.05] = np.nan
+        got_h, (), (), st = remove_step_edges(h, 0.25, test=test, tol_mm=0.1, noise=s, noise_k=k)
+        want = (plane_edge_mask(h, 0.25, 0.1, s, k) if test == "plane" else step_edge_mask(h, 0.25, s, k))
+        assert np.array_equal(got_h, np.where(want, np.float32(np.nan), h), equal_nan=True)
+        assert st["edge_fraction"] == float(want.mean())
+        if k == 0:
+            fixed = plane_edge_mask(h, 0.25, 0.1) if test == "plane" else step_edge_mask(h, 0.25)
+            assert np.array_equal(want, fixed)
+
+
+def test_a_jump_the_noise_explains_is_no_edge_a_step_still_is() -> None:
+    """Noisy heights (sigma 0.1 mm) on a plane with a 2 mm step: the fixed tests cut a large part
+    of the noisy pixels as edges; with noise_k = 3 almost none, and both sides of the step go (all
+    rows with the pair test, more than 95 % with the plane test)."""
+    rng = np.random.default_rng(11)
+    shape = (60, 80)
+    sigma = np.full(shape, 0.1, np.float32)
+    h = rng.normal(0.0, 0.1, shape).astype(np.float32)
+    h[:, 40:] += 2.0
+    for test in ("pair", "plane"):
+        def mask(k: float) -> np.ndarray:
+            return remove_step_edges(h, 0.25, test=test, tol_mm=0.1, noise=sigma, noise_k=k)[0]
+
+        fixed, aware = ~np.isfinite(mask(0.0)), ~np.isfinite(mask(3.0))
+        flat = np.ones(shape, bool)
+        flat[:, 37:43] = False
+        assert fixed[flat].mean() > 0.15, (test, fixed[flat].mean())
+        assert aware[flat].mean() < 0.03, (test, aware[flat].mean())
+        # the plane test's outlier line (3 z0 - 2 z1) carries 3.7 sigma of noise: k = 3 explains up to
+        # 1.1 mm of it, so a few rows of a 20-sigma step stay (2 of 60 here)
+        assert aware[:, 39].mean() > 0.95 and aware[:, 40].mean() > 0.95, (test, aware[:, 39:41].mean(axis=0))
+
+
+def test_height_noise_is_the_phase_noise_through_the_height_model() -> None:
+    """sigma_h = |dh/dphi| / sqrt(sumw), dh/dphi = a / (a + b dphi)^2 (checked by a difference
+    quotient of the height model); NaN without weight or where invalid."""
+    a = np.full((2, 3), 0.8, np.float32)
+    b = np.full((2, 3), 0.05, np.float32)
+    dphi = np.array([[0.1, -0.4, 1.2], [0.0, 0.5, 0.3]], np.float32)
+    sumw = np.array([[1e4, 400.0, 2500.0], [0.0, 1e4, 1e4]], np.float32)
+    valid = np.array([[True, True, True], [True, True, False]])
+    got = height_noise(dphi, sumw, valid, a, b)
+    d = 1e-4
+    slope = ((dphi + d) / (a + b * (dphi + d)) - (dphi - d) / (a + b * (dphi - d))) / (2 * d)
+    with np.errstate(divide="ignore"):
+        want = np.abs(slope) / np.sqrt(sumw)
+    assert np.allclose(got[0], want[0], rtol=1e-3)
+    assert np.isnan(got[1, 0]) and np.isnan(got[1, 2]) and got[1, 1] == pytest.approx(want[1, 1], rel=1e-3)
+
+
+def test_bench_read_noise_in_electrons() -> None:
+    """camera.read_noise_e at full_well_e electrons per full scale gives read_noise_dn =
+    e * (2^bits - 1) / full_well_e; without full_well_e it is refused."""
+    from huefringe import bench
+    from huefringe.bench.radiometry import Rig
+
+    cfg = bench.load_bench_config(bench.preset_path("photo_sensor"))
+    rig = Rig.from_config(cfg)
+    assert rig.read_noise_dn == pytest.approx(25.0 * 65535 / 10000)
+    cfg["camera"]["full_well_e"] = None
+    with pytest.raises(ValueError, match="full_well_e"):
+        Rig.from_config(cfg)
+
+
+def test_refused_blur_estimate_uncertainty_is_bounded_by_the_largest_blur() -> None:
+    """A noise-dominated blur estimate (standard error 409 px^2, photo_sensor with two repeats)
+    does not make the texture term move the blur beyond MAX_BLUR_PX2 (rectangular: / sqrt 3)."""
+    from huefringe import texture
+
+    rec = {"sigma2_px2": 0.0, "raw_px2": 15.1, "stderr_px2": 409.0, "rejected": "not significant"}
+    assert texture.blur_uncertainty(rec) == pytest.approx(texture.MAX_BLUR_PX2 / np.sqrt(3.0))
+    small = {"sigma2_px2": 0.0, "raw_px2": 0.07, "stderr_px2": 0.26, "rejected": "not significant"}
+    assert texture.blur_uncertainty(small) == pytest.approx((0.07 + 0.78) / np.sqrt(3.0))
