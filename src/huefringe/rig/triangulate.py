@@ -6,7 +6,7 @@ undistorted projector line, found by a fixed-point iteration on the other (predi
 so that lens distortion bends the line exactly as the projector's model says. With both axes the
 point is the least-squares (midpoint) intersection of the camera ray and the projector ray.
 
-Camera rays come from ``cv2.undistortPoints`` (iterated to convergence); the uncertainty is propagated to ``X, Y, Z``
+Camera rays come from the undistorted pixels (:func:`undistort`, iterated to convergence); the uncertainty is propagated to ``X, Y, Z``
 to first order from the decoded coordinates' standard uncertainties through central differences
 of the same solution (the camera pixel is the sampling position, exact by definition).
 """
@@ -49,11 +49,36 @@ class Triangulated:
 
 
 def undistort(points: ArrayLike, K: F64, dist: F64) -> F64:
-    """Normalised undistorted coordinates ``(x, y)`` of pixel ``points`` (N, 2)."""
-    p = np.ascontiguousarray(np.asarray(points, dtype=np.float64).reshape(-1, 1, 2))
+    """Normalised undistorted coordinates ``(x, y)`` of pixel ``points`` (N, 2).
+
+    For OpenCV's five-coefficient model (``k1, k2, p1, p2, k3``) a vectorised fixed-point
+    iteration (OpenCV's own scheme) run to 1e-13 in normalised units; longer models go through
+    ``cv2.undistortPoints`` with the same criteria.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 2)
     if p.shape[0] == 0:
         return np.zeros((0, 2))
-    return cv2.undistortPoints(p, K, dist, None, None, None, _ITER).reshape(-1, 2)
+    d = np.zeros(5)
+    d[: min(len(dist), 5)] = np.asarray(dist, dtype=np.float64)[:5]
+    if len(dist) > 5 and np.any(np.asarray(dist)[5:] != 0):
+        return cv2.undistortPoints(np.ascontiguousarray(p.reshape(-1, 1, 2)), K, dist, None, None, None, _ITER).reshape(-1, 2)
+    k1, k2, p1, p2, k3 = d
+    xd = (p[:, 0] - K[0, 2] - K[0, 1] * (p[:, 1] - K[1, 2]) / K[1, 1]) / K[0, 0]
+    yd = (p[:, 1] - K[1, 2]) / K[1, 1]
+    x, y = xd.copy(), yd.copy()
+    if not d.any():
+        return np.column_stack([x, y])
+    for _ in range(_ITER[1]):
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        dx = 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        dy = p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        xn, yn = (xd - dx) / radial, (yd - dy) / radial
+        step = max(float(np.max(np.abs(xn - x))), float(np.max(np.abs(yn - y))))
+        x, y = xn, yn
+        if step < 1e-13:
+            break
+    return np.column_stack([x, y])
 
 
 def project(xyz: ArrayLike, K: F64, dist: F64, R: F64 | None = None, T: F64 | None = None) -> F64:
@@ -72,7 +97,7 @@ def camera_rays(calib: RigCalibration, pixels: ArrayLike) -> F64:
     return np.column_stack([xy, np.ones(len(xy))])
 
 
-def _plane_solve(calib: RigCalibration, d: F64, coord: F64, axis: int, iterations: int = 6) -> F64:
+def _plane_solve(calib: RigCalibration, d: F64, coord: F64, axis: int, iterations: int = 4) -> F64:
     """Intersection of rays ``d`` with the projector surface ``pixel[axis] = coord``."""
     Kp, dp, R, T = calib.projector_matrix, calib.projector_distortion, calib.R, calib.T
     other = np.full(len(coord), Kp[1 - axis, 2])
