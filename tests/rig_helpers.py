@@ -11,7 +11,7 @@ from huefringe.bench.rig import RIGS, pose_set
 from huefringe.rig import Board, PoseObservation, calibrate_rig, projector_corners
 
 BOARD = Board(9, 7, 12.0)
-CORNER_SIGMA_PX = 0.05      # corner detection noise per axis (findChessboardCornersSB on the bench's board: 0.02-0.04 px RMS)
+CORNER_SIGMA_PX = 0.03      # corner detection noise per axis (findChessboardCornersSB on the bench board with 2 DN noise: 0.02-0.04 px RMS in 2-D)
 COORD_SIGMA_PX = 0.05       # decoded projector coordinate noise (N-step, 8 bit)
 HALF_WINDOW_PX = 10
 MIN_PIXELS = 50

@@ -166,7 +166,7 @@ def _checker_image(local: F64, on: NDArray[np.bool_], board: Board) -> NDArray[n
 
 
 def pose_set(rig: BenchRig, board: Board, n: int, seed: int, *, distance_mm: tuple[float, float] = (340.0, 460.0),
-             tilt_deg: float = 30.0, margin_px: float = 20.0) -> list[tuple[F64, F64]]:
+             tilt_deg: float = 40.0, margin_px: float = 20.0) -> list[tuple[F64, F64]]:
     """``n`` board poses with every corner inside both images (``margin_px`` from the edges)."""
     rng = np.random.default_rng(seed)
     centre = np.array([(board.cols - 1) * board.pitch_mm / 2, (board.rows - 1) * board.pitch_mm / 2, 0.0])

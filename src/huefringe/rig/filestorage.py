@@ -76,8 +76,8 @@ def _read_nodes(path: Path) -> dict[str, Any]:
         raise CalibrationFileError(f"{path}: no such file")
     try:
         fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-    except cv2.error as exc:
-        raise CalibrationFileError(f"{path}: not an OpenCV FileStorage file ({str(exc).strip().splitlines()[-1]})") from None
+    except (cv2.error, SystemError):
+        raise CalibrationFileError(f"{path}: not an OpenCV FileStorage file (YAML with %YAML:1.0, XML or JSON)") from None
     if not fs.isOpened():
         raise CalibrationFileError(f"{path}: not an OpenCV FileStorage file")
     out: dict[str, Any] = {}
