@@ -185,7 +185,7 @@ VARIANTS.update({
     "texture correction off": {"calibration": {"texture_blur_px2": 0}},
     # the uncertainty's lateral term (docs/uncertainty.md): heights identical, u without it
     "lateral term off": {"measurement": {"lateral_uncertainty_px": 0.0, "lateral_step_px": 0.0}},
-    "lateral 1.75 px, no step part (session 8)": {"measurement": {"lateral_uncertainty_px": 1.75, "lateral_step_px": 0.0}},
+    "lateral 1.75 px, no step part": {"measurement": {"lateral_uncertainty_px": 1.75, "lateral_step_px": 0.0}},
     "texture term off": {"measurement": {"texture_uncertainty": False}},
 })
 VARIANTS.update({
@@ -198,7 +198,7 @@ VARIANTS.update({
 })
 VARIANTS.update({
     # issue 24, photo reliefs' noise (docs/accuracy-texture.md, Session 9): the adaptive phase filter's reach
-    "target 0.006 (session 8)": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.006}}},
+    "target 0.006": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.006}}},
     "target 0.004": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.004}}},
     "target 0.003": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.003}}},
     "target 0.002": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.002}}},

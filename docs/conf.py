@@ -73,9 +73,9 @@ html_show_sourcelink = False
 # pages of the manual in the order of the contents; a page of docs/ that no pattern names
 # lands under "More" (huefringe_docs.contents), so pages added by later work always appear
 huefringe_sections = [
-    ("User guide", ["guide", "capture*", "rig*", "method", "demo", "outputs", "archives*", "x3p*"]),
-    ("Formats and configuration", ["spec/capture-session", "spec/results", "configuration"]),
-    ("Measured", ["accuracy*", "table1*", "uncertainty*", "throughput*", "hue-models*"]),
-    ("Design", ["design*", "cluster*"]),
-    ("API reference", ["api"]),
+    ("Using huefringe", ["guide", "capture*", "rig*", "spec/capture-session", "spec/results", "outputs",
+                         "configuration", "cluster*", "archives*", "x3p*", "api"]),
+    ("Method and design", ["method", "design*"]),
+    ("Measured", ["demo", "accuracy", "accuracy-texture", "accuracy-cameras", "accuracy-*", "uncertainty*", "noise*",
+                  "table1*", "hue-models*", "throughput*", "real-captures*"]),
 ]

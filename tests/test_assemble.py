@@ -212,7 +212,9 @@ def test_refuses_missing_and_extra_captures(kit) -> None:
     shutil.copy(files[0], files[-1])
     shutil.copy(files[0], caps / "cap_999.png")
     msg = refused(kit)
-    assert "1 extra: cap_999.png" in msg
+    assert "75 captures for 74 manifest rows: 1 extra; 3 of the captures are copies of another" in msg
+    for name in ("cap_73.png", "cap_74.png", "cap_999.png"):
+        assert f"{name}: has the same pixel values as cap_1.png: a copy" in msg
 
 
 def test_refuses_size_and_bit_depth_mismatch(kit) -> None:
@@ -332,3 +334,115 @@ def test_refuses_a_manifest_that_breaks_the_layout(kit) -> None:
     (pat / "manifest.csv").write_text(text.replace("reference/hue/band_003_r1.png", "reference/hue/band_003_r2.png"))
     msg = refused(kit)
     assert str(tmp / "out") in msg and "nothing written" in msg and ".part" not in msg
+
+
+# --------------------------------------------------------------------------- what a user meets at the rig
+
+
+def session_cli(kit, *extra: str, out: str = "cli") -> tuple[int, str]:
+    """``huefringe session CAPTURES PATTERNS SPEC OUT [extra]`` as a user types it: exit code and stderr."""
+    caps, _, pat, spec, tmp = kit
+    import contextlib
+    import io
+
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        code = cli.main(["session", str(caps), str(pat), str(spec), str(tmp / out), *extra])
+    assert code == 0 or not (tmp / out).exists()
+    return code, err.getvalue()
+
+
+def test_a_copied_capture_is_named_as_the_copy_not_the_last_file(kit) -> None:
+    caps, files, *_ = kit
+    shutil.copy(files[40], caps / "cap_41 copy.png")  # a file manager's copy of one good capture
+    code, err = session_cli(kit)
+    assert code == 2
+    assert "75 captures for 74 manifest rows: 1 extra; 1 of the captures is a copy of another" in err
+    assert "cap_41 copy.png: has the same pixel values as cap_41.png: a copy, not a second capture" in err
+    assert "cap_74.png" not in err  # the last good file is not blamed
+    # re-saved in another format: the same pixels, still named
+    (caps / "cap_41 copy.png").unlink()
+    tifffile.imwrite(caps / "cap_41 copy.tiff", cv2.cvtColor(cv2.imread(str(files[40])), cv2.COLOR_BGR2RGB),
+                     photometric="rgb")
+    code, err = session_cli(kit)
+    assert "cap_41 copy.tiff: has the same pixel values as cap_41.png" in err
+    # near-identical: a handful of pixels one code apart (a re-encoded copy), and in place of a capture
+    (caps / "cap_41 copy.tiff").unlink()
+    img = cv2.imread(str(files[40]))
+    img[5, 7, 1] += 1
+    cv2.imwrite(str(files[41]), img)  # cap_42 (band 19 r1) overwritten by a near copy of cap_41
+    code, err = session_cli(kit)
+    assert code == 2 and "cap_42.png: is near-identical to" in err and "cap_41.png: a copy" in err
+
+
+def test_swapped_hue_bands_are_named_at_assembly(kit) -> None:
+    caps, files, *_ = kit
+    # reference band i repeat r is capture 2 + 2 i + r (cap_1 is the white): bands 3 and 9 swapped
+    for r in (0, 1):
+        a, b = files[1 + 2 * 3 + r], files[1 + 2 * 9 + r]
+        da, db = a.read_bytes(), b.read_bytes()
+        a.write_bytes(db)
+        b.write_bytes(da)
+    code, err = session_cli(kit)
+    assert code == 2
+    lines = [ln for ln in err.splitlines() if "hue band captured out of order" in ln]
+    assert len(lines) == 4, err
+    assert "cap_8.png: goes to reference/hue/band_003_r0.png (hue band 003) but its hue" in err
+    assert "is that of band 009" in err and "is that of band 003" in err
+    assert "cap_8.png: goes to" in err and "cap_9.png: goes to reference/hue/band_003_r1.png" in err
+    line9 = next(ln for ln in lines if "cap_9.png" in ln)
+    assert line9.endswith("swapped with cap_21.png?") and lines[0].endswith("swapped with cap_20.png?")
+
+
+def test_a_wrong_bayer_pattern_is_named_with_the_likely_one(kit, bench8: Session) -> None:
+    caps, files, *_ = kit
+    for (_, p), f in zip(capture_order(bench8), files):
+        assert cv2.imwrite(str(f), camera.mosaic(read_rgb_codes(p), "RGGB"))
+    code, err = session_cli(kit, "--bayer", "GBRG")
+    assert code == 2
+    assert "REFUSED: no session written (1 problem(s))" in err, err
+    assert "the Bayer pattern GBRG does not fit these mosaics" in err and "point to RGGB: give --bayer RGGB" in err
+    assert "out of order" not in err
+    for other in ("RGGB", "BGGR", "GRBG", "GBRG"):
+        assert f"{other} " in err.split("compared (")[1]
+    assert session_cli(kit, "--bayer", "RGGB", out="ok")[0] == 0
+
+
+def test_a_mixed_folder_is_reported_in_one_pass(kit) -> None:
+    caps, files, *_ = kit
+    files[3].write_bytes(files[3].read_bytes()[:200])  # truncated
+    img = cv2.imread(str(files[7]), cv2.IMREAD_UNCHANGED)
+    cv2.imwrite(str(files[7]), img[:, :158])  # another size
+    cv2.imwrite(str(files[9]), cv2.imread(str(files[9]), cv2.IMREAD_UNCHANGED).astype(np.uint16) * 257)  # 16-bit
+    code, err = session_cli(kit)
+    assert code == 2
+    assert "cap_4.png: cannot decode image" in err
+    assert "cap_8.png: 158 x 120 px, 3 channel(s), 8-bit differs from 71 of the 73 captures (160 x 120 px" in err
+    assert "cap_10.png: 160 x 120 px, 3 channel(s), 16-bit differs from 71 of the 73" in err
+
+
+def test_a_full_disk_is_refused_before_writing(kit, monkeypatch) -> None:
+    import collections
+
+    from huefringe import assemble
+
+    usage = collections.namedtuple("usage", "total used free")
+    monkeypatch.setattr(assemble.shutil, "disk_usage", lambda p: usage(10**9, 10**9 - 1000, 1000))
+    code, err = session_cli(kit)
+    assert code == 2 and "cli: needs about 0.0 GB" in err and "has 0.0 GB free" in err
+
+
+def test_check_deep_names_swapped_hue_bands_of_a_session(bench8: Session, tmp_path: Path, capsys) -> None:
+    sess = tmp_path / "s"
+    shutil.copytree(bench8.root, sess)
+    assert cli.main(["check", "--deep", str(sess)]) == 0
+    a, b = sess / "object/hue/band_002_r0.png", sess / "object/hue/band_011_r0.png"
+    da, db = a.read_bytes(), b.read_bytes()
+    a.write_bytes(db)
+    b.write_bytes(da)
+    assert cli.main(["check", str(sess)]) == 0  # the quick check reads headers only
+    capsys.readouterr()
+    assert cli.main(["check", "--deep", str(sess)]) == 1
+    out = capsys.readouterr().out
+    assert "band_002_r0.png: object hue band 002, but its hue" in out and "is that of band 011" in out
+    assert "band_011_r0.png: object hue band 011, but its hue" in out and "is that of band 002" in out

@@ -171,7 +171,7 @@ def test_every_page_is_built_and_in_the_contents(manual: Path) -> None:
     else:
         assert "docs/capture.md, not in this checkout yet" in guide
     # measured pages start with the command that regenerates them
-    for name in ("accuracy", "table1", "uncertainty", "throughput", "hue-models"):
+    for name in ("accuracy", "table1", "uncertainty", "throughput", "hue-models", "real-captures"):
         first = (DOCS / f"{name}.md").read_text(encoding="utf-8").split("```", 2)
         assert first[1].startswith("bash\n./run "), name
 
@@ -204,3 +204,17 @@ def test_readme_front_page() -> None:
     for target in re.findall(r"\]\((?!https?://|#)([^)#\s]+)", readme):
         if target != "docs/capture.md":
             assert (REPO / target).exists(), target
+
+
+def test_the_manual_states_what_is_true_now() -> None:
+    """No work-session history in the manual or the README: no "Session 9" headings, no dated
+    runs, no "before = main at <hash>"; how the figures moved is CHANGELOG.md's (and git's)."""
+    history = re.compile(r"\b[Ss]ession [0-9]+\b|\b[0-9]{1,2} (?:Jan|Feb|Mar|Apr|May|Jun|Jul|Aug|Sep|Oct|Nov|Dec)[a-z]* 20[0-9]{2}\b"
+                         r"|\bmain at [0-9a-f]{7,40}\b|\bHEAD [0-9a-f]{7,40}\b")
+    pages = [p for p in DOCS.rglob("*.md") if p.relative_to(DOCS).parts[0] not in ("spec", "api", "_build")]
+    found = [f"{p.relative_to(REPO)}:{i}: {m[0]}" for p in [*pages, REPO / "README.md"]
+             for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) for m in [history.search(line)] if m]
+    assert found == [], "\n".join(found)
+    # and the test sees what it looks for
+    assert history.search("## Session 9, after every merge (3 Dec 2026, 17:25 UTC)")
+    assert history.search("before = main at f821a46") and not history.search("a capture session with 3 planes, 10 frames")

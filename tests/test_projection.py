@@ -284,3 +284,35 @@ def test_compensated_refuses_a_folder_without_the_table(tmp_path: Path) -> None:
     assert not (tmp_path / "p").exists()
     with pytest.raises(PatternsError, match="not a folder"):
         write_patterns(tmp_path / "p", width=W, height=H, period_px=T, compensated=tmp_path / "nowhere")
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["--width", "100000", "--height", "100000", "--period-px", "40"], "--width: must be in 1..16384, got 100000"),
+    (["--width", "1", "--height", "1", "--period-px", "40"], "--height: must be in 2..16384, got 1"),
+    (["--width", "1", "--height", "8", "--period-px", "40"], "--width: the fringe must repeat at least 2 times across "
+                                                             "the projector's 1 px"),
+    (["--width", "1024", "--height", "768", "--period-px", "600"], "--period-px: the fringe must repeat at least 2 "
+                                                                   "times across the projector's 1024 px"),
+    (["--width", "1024", "--height", "768", "--camera-period-px", "900", "--magnification", "1.5"],
+     "--camera-period-px: the fringe must repeat at least 2 times"),
+])
+def test_patterns_refuses_impossible_sizes_before_any_work(argv, needle, tmp_path: Path, capsys) -> None:
+    out = tmp_path / "pat"
+    assert cli.main(["patterns", str(out), *argv]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and "Traceback" not in err
+    assert not out.exists() and not list(tmp_path.iterdir())
+
+
+def test_patterns_refuses_an_image_larger_than_the_memory(tmp_path: Path, capsys, monkeypatch) -> None:
+    monkeypatch.setattr(projection, "_available_memory", lambda: 2**30)  # a machine with 1 GiB free
+    assert cli.main(["patterns", str(tmp_path / "p"), "--width", "16384", "--height", "16384", "--period-px", "40"]) == 2
+    err = capsys.readouterr().err
+    assert "--width: one 16384 x 16384 image needs about 2.2 GiB of memory while it is written, and 1.0 GiB" in err
+    assert not list(tmp_path.iterdir())
+
+
+def test_bench_names_an_unknown_preset(tmp_path: Path, capsys) -> None:
+    assert cli.main(["bench", "--preset", "nosuchpreset", str(tmp_path / "s")]) == 1
+    err = capsys.readouterr().err
+    assert "REFUSED: --preset: no bench preset 'nosuchpreset'; available: bayer_gauge, demo" in err

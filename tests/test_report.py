@@ -20,6 +20,7 @@ from huefringe.report import (
     ReportError,
     build_report_json,
     collect_provenance,
+    run_summary,
     load_schema,
     per_frame_figure,
     render_report_html,
@@ -261,7 +262,7 @@ def test_html_is_self_contained(html_file):
     # escaped text, provenance content
     assert "&lt;script&gt;alert(1)&lt;/script&gt;" in text
     assert prov["inputs_sha256"]["height.png"] in text
-    assert ">PASS<" in text and "three-step-phase-shift" in text
+    assert 'class="verdict-word">UNDECIDED<' in text and "three-step-phase-shift" in text
     for s in ("±3σ", "Error / nominal (%)", "Error / range (%)", "green", "blue", "red"):
         assert s in text
     # capture provenance in the header, before the verdict; operator absent -> said so
@@ -285,9 +286,19 @@ def test_html_iso_zone_beside_the_contract_pass(html_file, u_report):
     assert zones == {"green": "pass", "blue": "undecided", "red": "pass"}
     assert u_report["verdict"] == "PASS" and u_report["verdict_with_uncertainty"] == "UNDECIDED"
     verdict = text[text.index('id="verdict"'):text.index("</section>")]
-    assert 'class="verdict-word">PASS<' in verdict
-    assert 'With measurement uncertainty (ISO 14253-1): <span class="zone undecided">UNDECIDED</span>' in verdict
-    assert "2 pass, 1 undecided" in verdict
+    # the headline is the ISO 14253-1 decision with its reason, never a bare PASS beside an UNDECIDED
+    assert 'class="verdict verdict-undecided" id="verdict"' in text and 'class="verdict-word">UNDECIDED<' in verdict
+    assert ">PASS<" not in verdict
+    blue = next(st for st in u_report["steps"] if st["name"] == "blue")
+    e, big_u = abs(blue["error_mm"]), blue["U_mm"]
+    assert (f"ISO 14253-1 decision with the measurement uncertainty: blue: |error| {e:.4f} mm lies between "
+            f"T - U = {tol - big_u:.4f} mm and T + U = {tol + big_u:.4f} mm: the uncertainty U does not allow a "
+            "decision (2 of 3 steps conform).") in verdict
+    assert u_report["conformity"]["decision"] == "undecided" and u_report["conformity"]["undecided"] == ["blue"]
+    assert "Tolerance test without U (the results contract's <code>pass</code>, not a conformance decision): " \
+           "3 of 3 step heights within ±0.05 mm" in verdict
+    assert '<span class="zone undecided">UNDECIDED</span>' in verdict and "2 pass, 1 undecided" in verdict
+    assert "<title>UNDECIDED: metrology report" in text
     # steps table: the contract's pass and the zone, side by side
     assert "ISO 14253‑1 zone (with U)" in text
     blue = _row(text, "steps", "blue")
@@ -309,7 +320,9 @@ def test_html_fail_zone(method_result):
     green, red = r["steps"][0], r["steps"][2]
     assert red["error_mm"] > SPECIMEN["tolerance_mm"] + 0.01 and red["conformance"] == "fail" and not red["pass"]
     text = render_report_html(r, {}, {})
-    assert 'class="verdict-word">FAIL<' in text and '<span class="zone fail">FAIL</span>' in text
+    assert 'class="verdict-word">DOES NOT CONFORM<' in text and '<span class="zone fail">FAIL</span>' in text
+    assert r["conformity"]["decision"] == "does not conform" and r["conformity"]["nonconforming"] == ["red"]
+    assert f"red: |error| {abs(red['error_mm']):.4f} mm &gt; T + U = {0.05 + red['U_mm']:.4f} mm: non-conformance proven" in text
     assert "1 pass, 1 undecided, 1 fail" in text
     assert '<td class="bad">FAIL</td><td class="bad">fail</td>' in _row(text, "steps", "red")
     # U larger than the tolerance: no pass zone at all, whatever the error
@@ -384,7 +397,9 @@ def test_html_fail_verdict_and_escaping(method_result, tmp_path):
     r = build_report_json("s2", spec, res)
     assert r["verdict"] == "FAIL"
     text = render_report_html(r, {}, {})
-    assert 'class="verdict-word">FAIL<' in text and "verdict-fail" in text
+    # no uncertainty in this report: ISO 14253-1 cannot decide, and the headline says why
+    assert 'class="verdict-word">UNDECIDED<' in text and "verdict-undecided" in text
+    assert "no expanded uncertainty U for the step heights" in text and "holds for 0 of 3 steps" in text
     assert "&lt;b&gt;green &amp; co&lt;/b&gt;" in text and "<b>green" not in text
     assert "<img" not in text and "<h2>Figures</h2>" not in text  # figures only if given
 
@@ -429,13 +444,13 @@ def test_html_renders_in_headless_chromium(html_file, tmp_path):
     assert img.std() > 0.05
     non_white = (img < 0.9).any(axis=-1).mean()
     assert non_white > 0.05
-    green = np.all(np.abs(img - np.array([0x1B, 0x6E, 0x35]) / 255) < 0.03, axis=-1).mean()
-    assert green > 0.005  # the PASS banner is drawn
+    amber = np.all(np.abs(img - np.array([0x8A, 0x5A, 0x00]) / 255) < 0.03, axis=-1).mean()
+    assert amber > 0.005  # the UNDECIDED banner is drawn
     dom = subprocess.run(
         [str(CHROMIUM), *flags, f"--user-data-dir={tmp_path / 'profile-b'}", "--dump-dom", url],
         capture_output=True, text=True, timeout=180,
     )  # fmt: skip
-    assert 'class="verdict-word">PASS</div>' in dom.stdout, dom.stderr[-2000:]
+    assert 'class="verdict-word">UNDECIDED</div>' in dom.stdout, dom.stderr[-2000:]
     assert dom.stdout.count("data:image/png;base64,") == 3
     assert "<strong>Simulated data.</strong>" in dom.stdout
     # the new items are laid out visibly at 1280 px: a copy of the page with a probe script that
@@ -487,3 +502,14 @@ pre.id = "probe";
 pre.textContent = JSON.stringify(out);
 document.body.appendChild(pre);
 </script>"""
+
+
+def test_run_summary_says_each_sessions_decision_and_where_the_report_is(u_report, tmp_path):
+    d = tmp_path / "results" / "gauge-blocks-p60" / "metrology"
+    d.mkdir(parents=True)
+    (d / "report.json").write_text(json.dumps(u_report))
+    text = run_summary({"gauge-blocks-p60": d / "report.json", "flat-board": None})
+    lines = text.splitlines()
+    assert lines[0].startswith("  gauge-blocks-p60: UNDECIDED (ISO 14253-1) - blue: |error| ")
+    assert lines[1] == f"      report: {d / 'report.html'}"
+    assert lines[2] == "  flat-board: no step-height report (the session has no specimen)"

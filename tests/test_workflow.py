@@ -57,8 +57,23 @@ def workdir_with_config(tmp_path: Path, **overrides) -> Path:
 @pytest.fixture(scope="module")
 def e2e(tmp_path_factory: pytest.TempPathFactory) -> Path:
     work = workdir_with_config(tmp_path_factory.mktemp("e2e"))
-    run_snakemake(work)
+    proc = run_snakemake(work)
+    (work / "run.stderr").write_text(proc.stderr)  # what the user saw at the end of the run
     return work
+
+
+def test_the_end_of_a_run_says_each_verdict_and_where_the_report_is(e2e: Path) -> None:
+    from huefringe.io import tiff_pixel_pitch_mm
+
+    tail = (e2e / "run.stderr").read_text().split("huefringe: results")[-1]
+    doc = json.loads((e2e / "results" / "e2e-demo" / "metrology" / "report.json").read_text())
+    decision = doc["conformity"]["decision"]
+    assert f"  e2e-demo: {decision.upper()} (ISO 14253-1) - {doc['conformity']['reason']}" in tail
+    assert "      report: results/e2e-demo/metrology/report.html" in tail
+    # height and uncertainty TIFFs carry their lateral scale (resolution tags), not only the X3P
+    res = e2e / "results" / "e2e-demo"
+    for rel in ("height/frame_0000.tiff", "uncertainty/frame_0002.tiff", "baseline/height/frame_0000.tiff"):
+        assert tiff_pixel_pitch_mm(res / rel) == pytest.approx(0.2, rel=1e-9), rel
 
 
 def test_results_contract(e2e: Path) -> None:

@@ -9,7 +9,7 @@ venv="$here/.venv"
 stamp="$venv/.huefringe-stamp"
 apt_pkgs=(libusb-1.0-0 libgl1 libegl1 libosmesa6 libgomp1 chromium fonts-dejavu-core)
 
-key="$(cat "$here/pyproject.toml" "$here/tools/bootstrap.sh" | sha256sum | cut -c1-16)"
+key="$(cat "$here/pyproject.toml" "$here/tools/bootstrap.sh" "$here/tools/wait_for_apt.sh" | sha256sum | cut -c1-16)"
 if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$key" ]; then
   exit 0
 fi
@@ -24,8 +24,11 @@ if [ "${#missing[@]}" -gt 0 ]; then
   sudo=""
   [ "$(id -u)" -eq 0 ] || sudo="sudo"
   log "installing Debian packages: ${missing[*]}"
-  $sudo apt-get update -qq
-  DEBIAN_FRONTEND=noninteractive $sudo apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+  # another apt or dpkg (automatic updates) may hold the lock: wait for it, saying so, rather than fail
+  "$here/tools/wait_for_apt.sh"
+  $sudo apt-get -o DPkg::Lock::Timeout=1800 update -qq
+  DEBIAN_FRONTEND=noninteractive $sudo apt-get -o DPkg::Lock::Timeout=1800 install -y -qq --no-install-recommends \
+    "${missing[@]}" >/dev/null
 fi
 
 py="$(command -v python3.11 || command -v python3)"

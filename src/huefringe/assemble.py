@@ -4,21 +4,27 @@ A real rig shows the projector images of a patterns folder (``manifest.csv`` + `
 written by ``huefringe patterns``, contract in docs/guide.md) one after another and saves one
 camera file per image. :func:`assemble_session` matches capture ``k`` (natural order of file
 name) to manifest row ``k``, converts it (Bayer demosaic, 12-bit scaling) and writes the session
-folder with its ``session.yaml``, after checking everything it can before writing anything:
-counts, sizes, bit depths, the Bayer pattern, the spec YAML, and the content (the white
-capture is the brightest, fringe captures show a fringe, uniform captures do not, and the
-fringe period on the reference plane agrees with the declared ``period_px`` within 5 %).
+folder with its ``session.yaml``, after checking everything it can before writing anything, in
+one reading pass that reports every problem together: counts, unreadable files, sizes and bit
+depths (against the majority), copies (:mod:`huefringe.capture_checks`: same or near-identical
+pixel values, named as copies), the Bayer pattern against the mosaic's statistics (the four
+patterns compared), the spec YAML, the content (the white capture is the brightest, fringe
+captures show a fringe, uniform captures do not, each hue band's hue rises with its band
+number, and the fringe period on the reference plane agrees with the declared ``period_px``
+within 5 %), and the free disk.
 
-Layer: above :mod:`huefringe.session` and :mod:`huefringe.camera`.
+Layer: above :mod:`huefringe.session`, :mod:`huefringe.camera` and :mod:`huefringe.capture_checks`.
 """
 
 from __future__ import annotations
 
 import csv
+import hashlib
 import os
 import re
 import shutil
 import tempfile
+from collections import Counter
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -31,8 +37,10 @@ import yaml
 from numpy.typing import NDArray
 
 from huefringe.camera import BAYER_PATTERNS, bayer_problem, demosaic
+from huefringe.capture_checks import NEAR_IDENTICAL_FRACTION, band_order_problems, bayer_fit, duplicate_groups, \
+    site_means
 from huefringe.io import atomic_path, publish_dir
-from huefringe.session import Problem, SessionError, decode_image, load_session, read_predistortion
+from huefringe.session import Problem, Session, SessionError, decode_image, load_session, read_predistortion
 
 CAPTURE_SUFFIXES = (".png", ".tif", ".tiff")
 PREDISTORTION = "predistortion.csv"
@@ -135,7 +143,8 @@ def read_patterns(patterns_dir: str | os.PathLike[str]) -> tuple[dict[str, Any],
     return meta, rows
 
 
-def _count_problem(files: list[Path], rows: list[_Row], captures_dir: Path) -> SessionError | None:
+def _count_problem(files: list[Path], rows: list[_Row], captures_dir: Path,
+                   duplicates: list[tuple[list[int], bool]] = ()) -> SessionError | None:
     if len(files) == len(rows):
         return None
     if len(files) < len(rows):
@@ -147,10 +156,174 @@ def _count_problem(files: list[Path], rows: list[_Row], captures_dir: Path) -> S
                  f"; if the last captures are missing, {names}{more}")
         return SessionError.at(captures_dir, f"{len(files)} captures for {len(rows)} manifest rows: "
                                              f"{len(missing)} missing{where}")
+    n_extra = len(files) - len(rows)
+    n_copies = sum(len(g) - 1 for g, _ in duplicates)
+    if n_copies:
+        why = (f"{n_copies} of the captures {'is a copy' if n_copies == 1 else 'are copies'} of another "
+               "(named below): remove the copies" + ("" if n_copies == n_extra else
+                                                     f", then {n_extra - n_copies:+d} capture(s) remain extra"))
+        return SessionError.at(captures_dir, f"{len(files)} captures for {len(rows)} manifest rows: "
+                                             f"{n_extra} extra; {why}")
+    gaps = _numbering_gaps(files)
     extra = files[len(rows):]
     names = ", ".join(p.name for p in extra[:10]) + (f" and {len(extra) - 10} more" if len(extra) > 10 else "")
+    where = (f"the numbering breaks at {', '.join(gaps[:5])}" if gaps else
+             f"the last in name order are {names}, but the extra capture may be anywhere: check the "
+             "captures against manifest.csv")
     return SessionError.at(captures_dir, f"{len(files)} captures for {len(rows)} manifest rows: "
-                                         f"{len(extra)} extra: {names}")
+                                         f"{n_extra} extra; no two captures have the same content; {where}")
+
+
+def _duplicate_problems(files: list[Path], duplicates: list[tuple[list[int], bool]]) -> list[Problem]:
+    out = []
+    for group, identical in duplicates:
+        # the original: the plainest name (a copy gets " (1)", " copy", ...), else the first in order
+        first = min(group, key=lambda k: (len(files[k].name), natural_key(files[k].name)))
+        copies = [k for k in group if k != first]
+        for k in copies:
+            how = ("has the same pixel values as" if identical else
+                   f"is near-identical to (at most {100 * NEAR_IDENTICAL_FRACTION:g} % of the pixels differ, by one code)")
+            out.append(Problem(files[k], f"{how} {files[first].name}: a copy, not a second capture (two exposures "
+                                         "never agree that well); remove the copy"))
+    return out
+
+
+@dataclass
+class _Scan:
+    """What the one reading pass of a captures folder keeps: problems, shapes, fingerprints, profiles."""
+
+    problems: list[Problem]
+    shape: tuple[int, ...] | None
+    dtype: np.dtype | None
+    duplicates: list[tuple[list[int], bool]]
+    profiles: dict[str, NDArray[np.float64]]
+    sites: dict[str, NDArray[np.float64]]
+
+
+def _scan(files: list[Path], rows: list[_Row], *, bayer: str | None, bit_in: int | None) -> _Scan:
+    """Read every capture once: every file's problems (unreadable, size, bit depth, channels,
+    12-bit range), content digests and signatures for duplicates, and, when the count matches the
+    manifest, column profiles (and Bayer photosite means of the reference white and bands)."""
+    paths = [r.session_path for r in rows] if len(files) == len(rows) else [None] * len(files)
+    problems: list[Problem] = []
+    shapes: list[tuple[tuple[int, ...], np.dtype] | None] = []
+    digests: list[bytes | None] = []
+    sigs = np.zeros((len(files), 32))
+    profiles: dict[str, NDArray[np.float64]] = {}
+    sites: dict[str, NDArray[np.float64]] = {}
+    per_file: dict[int, str] = {}
+    for k, (p, key) in enumerate(zip(files, paths)):
+        try:
+            r = read_capture(p)
+        except SessionError as exc:
+            problems += exc.problems
+            shapes.append(None)
+            digests.append(None)
+            continue
+        shapes.append((r.shape, r.dtype))
+        digests.append(hashlib.sha256(repr((r.shape, r.dtype.str)).encode() + r.tobytes()).digest())
+        file_bits = 8 if r.dtype == np.uint8 else (bit_in or 16)
+        raw_profile = r.mean(axis=0, dtype=np.float64)  # (W,) or (W, C): the column means as stored
+        col = raw_profile.reshape(r.shape[1], -1).mean(axis=1)
+        sigs[k] = [b.mean() for b in np.array_split(col, 32)] if col.size >= 32 else np.resize(col, 32)
+        if bayer and (why := bayer_problem(r.shape, r.dtype)):
+            per_file[k] = f"does not fit Bayer pattern {bayer}: {why}"
+        elif not bayer and (r.ndim != 3 or r.shape[2] != 3):
+            per_file[k] = (f"not an RGB image (array shape {r.shape}); a raw Bayer mosaic needs "
+                           "--bayer or bayer: in the spec")
+        elif file_bits == 12 and int(r.max()) > 4095:
+            per_file[k] = f"value {int(r.max())} exceeds 4095, not 12-bit data (bit_depth_in: 12)"
+        elif key is not None:
+            # without a demosaic or a 12-bit scaling the stored values are the session's: reuse their profile
+            profiles[key] = (raw_profile if not bayer and file_bits != 12 else
+                             column_profile(convert_capture(r, bayer=bayer, bit_depth_in=file_bits)))
+            if bayer and key.startswith("reference/") and ("/hue/" in key or key.endswith("white.png")):
+                sites[key] = site_means(r)
+    seen = [s for s in shapes if s is not None]
+    shape = dtype = None
+    if seen:
+        (shape, dtype), _ = Counter(seen).most_common(1)[0]
+        n_like = sum(1 for s in seen if s == (shape, dtype))
+        ref = next(files[k] for k, s in enumerate(shapes) if s == (shape, dtype))
+        for k, s in enumerate(shapes):
+            if s is not None and s != (shape, dtype):
+                problems.append(Problem(files[k], f"{_describe_shape(*s)} differs from {n_like} of the "
+                                                  f"{len(seen)} captures ({_describe_shape(shape, dtype)}, e.g. "
+                                                  f"{ref.name})"))
+                per_file.pop(k, None)
+                if paths[k] is not None:
+                    profiles.pop(paths[k], None)
+    problems += [Problem(files[k], msg) for k, msg in sorted(per_file.items())]
+    step = 1.0 if dtype == np.uint8 or dtype is None else (16.0 if bit_in == 12 else 1.0)
+
+    def differ(i: int, j: int) -> float:
+        a, b = read_capture(files[i]).astype(np.int64), read_capture(files[j]).astype(np.int64)
+        if a.shape != b.shape:
+            return 1.0
+        d = np.abs(a - b)
+        return 1.0 if d.max() > step else float(np.count_nonzero(d) / d.size)
+
+    dups = duplicate_groups(digests, sigs, step, differ)
+    return _Scan(sorted(problems, key=lambda q: natural_key(q.path.name)), shape, dtype, dups, profiles, sites)
+
+
+def _describe_shape(shape: tuple[int, ...], dtype: np.dtype) -> str:
+    chans = 1 if len(shape) == 2 else shape[2]
+    return f"{shape[1]} x {shape[0]} px, {chans} channel(s), {np.dtype(dtype).itemsize * 8}-bit"
+
+
+def _band_index(session_path: str) -> int:
+    return int(session_path.rsplit("/band_", 1)[1][:3])
+
+
+def _bayer_problems(scan: _Scan, bayer: str, rows: list[_Row], files: list[Path], hue_bands: int) -> list[Problem]:
+    white = scan.sites.get("reference/white.png")
+    keys = [r.session_path for r in rows if r.session_path.startswith("reference/hue/") and r.session_path in scan.sites]
+    if white is None or len(keys) < 6:
+        return []
+    fit = bayer_fit(white, np.stack([scan.sites[k] for k in keys]), [_band_index(k) for k in keys], hue_bands)
+    if fit.fits(bayer):
+        return []
+    where = {r.session_path: p for r, p in zip(rows, files)}
+    return [Problem(where["reference/white.png"].parent,
+                    f"the Bayer pattern {bayer} does not fit these mosaics: read as {bayer}, the reference hue "
+                    f"bands' hue departs from their code phase by {fit.rms_rad[bayer]:.2f} rad RMS; the four patterns "
+                    f"compared ({fit.describe()}) point to {fit.best}: give --bayer {fit.best} (or bayer: "
+                    f"{fit.best} in the spec)")]
+
+
+def _band_problems(profiles: dict[str, NDArray[np.float64]], where: dict[str, Path], hue_bands: int) -> list[Problem]:
+    out = []
+    for part in ("reference", "object"):
+        white = profiles.get(f"{part}/white.png")
+        keys = [k for k in where if k.startswith(f"{part}/hue/") and k in profiles]
+        if white is None or not keys:
+            continue
+        w = np.maximum(white, 1e-9)
+        rgb = np.stack([(profiles[k] / w).mean(axis=0) for k in keys])
+        bands = [_band_index(k) for k in keys]
+        found = band_order_problems(rgb, bands, hue_bands)
+        for m in found:
+            key = keys[m.index]
+            rep = key.rsplit("_r", 1)[1]  # the same repeat of the other band first
+            partner = sorted((keys[o.index] for o in found if o.band == m.fits and o.fits == m.band),
+                             key=lambda k: k.rsplit("_r", 1)[1] != rep)
+            swap = f"; swapped with {where[partner[0]].name}?" if partner else ""
+            out.append(Problem(where[key], f"goes to {key} (hue band {m.band:03d}) but its hue, {m.hue_rad:.3f} rad, is "
+                                           f"that of band {m.fits:03d}: the captured hue must rise with the band "
+                                           f"number; hue band captured out of order{swap}"))
+    return out
+
+
+def _check_space(files: list[Path], out: Path, *, bayer: str | None) -> None:
+    """Refuse before writing when the session would not fit on the disk of ``out``."""
+    need = int(sum(p.stat().st_size for p in files) * (3.0 if bayer else 1.0) * 1.2)
+    parent = out.parent
+    while not parent.exists():
+        parent = parent.parent
+    free = shutil.disk_usage(parent).free
+    if need > free:
+        raise SessionError.at(out, f"needs about {need / 1e9:.1f} GB, {parent} has {free / 1e9:.1f} GB free")
 
 
 def _numbering_gaps(files: list[Path]) -> list[str]:
@@ -287,9 +460,10 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
     Raises
     ------
     SessionError
-        Before anything is written, naming the file: count mismatch, size/bit depth/Bayer
-        problems, a bad spec or patterns folder, content out of order, a period disagreeing by
-        more than 5 %, or an existing non-empty ``out_dir``.
+        Before anything is written, naming each file, all problems of the folder at once: count
+        mismatch, copies, unreadable files, size/bit depth/Bayer problems, a bad spec or patterns
+        folder, content or hue bands out of order, a period disagreeing by more than 5 %, too
+        little disk, or an existing non-empty ``out_dir``.
     """
     captures, out = Path(captures_dir), Path(out_dir)
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
@@ -311,41 +485,32 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
         raise SessionError.at(predistortion, "missing: patterns.yaml says the trapezoid was pre-distorted "
                                              "(compensated), and the session cannot decode without this file")
     files = capture_files(captures)
-    if (err := _count_problem(files, rows, captures)) is not None:
-        raise err
-
-    # pass 1: every file read once, checked, and reduced to its column profile (memory O(width));
-    # pass 2, after every check passed: read again, converted and written.
-    first = read_capture(files[0])
-    container = 8 if first.dtype == np.uint8 else 16
-    bit_in = container if bit_in is None else bit_in
-    if (bit_in == 8) != (container == 8):
-        raise SessionError.at(spec_yaml, f"bit_depth_in {bit_in} does not fit {container}-bit capture files "
-                                         f"({files[0].name})")
-    problems = []
-    profiles: dict[str, NDArray[np.float64]] = {}
-    for row, p in zip(rows, files):
-        r = first if p == files[0] else read_capture(p)
-        if r.shape != first.shape or r.dtype != first.dtype:
-            problems.append(Problem(p, f"{_describe(r)} differs from the first capture {files[0].name} "
-                                       f"({_describe(first)})"))
-        elif bayer and (why := bayer_problem(r.shape, r.dtype)):
-            problems.append(Problem(p, f"does not fit Bayer pattern {bayer}: {why}"))
-        elif not bayer and (r.ndim != 3 or r.shape[2] != 3):
-            problems.append(Problem(p, f"not an RGB image (array shape {r.shape}); a raw Bayer mosaic needs "
-                                       "--bayer or bayer: in the spec"))
-        elif bit_in == 12 and int(r.max()) > 4095:
-            problems.append(Problem(p, f"value {int(r.max())} exceeds 4095, not 12-bit data (bit_depth_in: 12)"))
+    planes_mm = [float(z) for z in patterns["planes_mm"]]
+    scan = _scan(files, rows, bayer=bayer, bit_in=bit_in)
+    problems: list[Problem] = []
+    if (err := _count_problem(files, rows, captures, scan.duplicates)) is not None:
+        problems += err.problems
+    problems += _duplicate_problems(files, scan.duplicates)
+    problems += scan.problems
+    if scan.dtype is not None and bit_in is not None and (bit_in == 8) != (scan.dtype == np.uint8):
+        problems.append(Problem(Path(spec_yaml), f"bit_depth_in {bit_in} does not fit {scan.dtype.itemsize * 8}-bit "
+                                                 f"capture files ({files[0].name})"))
+    if len(files) == len(rows):  # the rows' meaning is known: check the content of every readable capture
+        where = {row.session_path: p for row, p in zip(rows, files)}
+        if bayer and (bp := _bayer_problems(scan, bayer, rows, files, int(patterns["hue_bands"]))):
+            problems += bp  # the content checks would only repeat it, capture by capture
         else:
-            profiles[row.session_path] = column_profile(convert_capture(r, bayer=bayer, bit_depth_in=bit_in))
+            problems += _content_problems(scan.profiles, where, float(spec["period_px"]), planes_mm)
+            problems += _band_problems(scan.profiles, where, int(patterns["hue_bands"]))
     if problems:
         raise SessionError(problems)
-    where = {row.session_path: p for row, p in zip(rows, files)}
-    planes_mm = [float(z) for z in patterns["planes_mm"]]
-    if problems := _content_problems(profiles, where, float(spec["period_px"]), planes_mm):
-        raise SessionError(problems)
+    if bit_in is None:
+        bit_in = 8 if scan.dtype == np.uint8 else 16
+    first_shape = scan.shape
+    assert first_shape is not None
+    _check_space(files, out, bayer=bayer)
 
-    height, width = first.shape[:2]
+    height, width = first_shape[:2]
     camera = {"width": int(width), "height": int(height), "bit_depth": 8 if bit_in == 8 else 16,
               "pixel_pitch_mm": spec["pixel_pitch_mm"], **spec.get("camera", {})}
     if bayer:  # the pattern the images were demosaiced from: the method re-demosaics them (config camera.demosaic)
@@ -387,8 +552,20 @@ def assemble_session(captures_dir: str | os.PathLike[str], patterns_dir: str | o
     return out
 
 
-def _describe(a: NDArray) -> str:
-    chans = 1 if a.ndim == 2 else a.shape[2]
-    return f"{a.shape[1]} x {a.shape[0]} px, {chans} channel(s), {a.dtype.itemsize * 8}-bit"
+def session_band_problems(session: Session) -> list[Problem]:
+    """Hue-band images of a written session whose hue is another band's (``huefringe check --deep``).
 
-
+    The check :func:`assemble_session` makes at assembly (:func:`huefringe.capture_checks.band_order_problems`),
+    on each band image's mean colour over its white's, for a session however it was written.
+    """
+    out = []
+    for part, white, bands in (("reference", session.reference_white, session.reference_bands),
+                               ("object", session.object_white, session.object_bands)):
+        paths = [(i, p) for i, reps in enumerate(bands) for p in reps]
+        w = decode_image(white).mean(axis=(0, 1), dtype=np.float64)
+        rgb = np.stack([decode_image(p).mean(axis=(0, 1), dtype=np.float64) for _, p in paths]) / np.maximum(w, 1e-9)
+        for m in band_order_problems(rgb, [i for i, _ in paths], session.hue_bands):
+            out.append(Problem(paths[m.index][1], f"{part} hue band {m.band:03d}, but its hue ({m.hue_rad:.3f} rad) "
+                                                  f"is that of band {m.fits:03d}: the captured hue must rise with the "
+                                                  "band number; bands out of order"))
+    return out

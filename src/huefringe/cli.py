@@ -1,4 +1,4 @@
-"""Command-line entry point: ``huefringe check|bench|patterns|session|archive|verify ...`` and ``--version``."""
+"""Command-line entry point: ``huefringe check|bench|patterns|session|decode|archive|verify ...`` and ``--version``."""
 
 from __future__ import annotations
 
@@ -13,6 +13,11 @@ def _cmd_check(args: argparse.Namespace) -> int:
 
     try:
         s = load_session(args.session, deep=args.deep)
+        if args.deep:  # the content: hue bands in their order
+            from huefringe.assemble import session_band_problems
+
+            if problems := session_band_problems(s):
+                raise SessionError(problems)
     except SessionError as exc:
         print(f"REFUSED: {args.session} is not a valid capture session ({len(exc.problems)} problem(s)):")
         for p in exc.problems:
@@ -45,6 +50,9 @@ def _cmd_bench(args: argparse.Namespace) -> int:
 
     try:
         cfg = bench.load_bench_config(bench.preset_path(args.config) if args.preset else args.config)
+    except FileNotFoundError as exc:  # no such preset: the message lists the available ones
+        print(f"REFUSED: --preset: {exc}", file=sys.stderr)
+        return 1
     except bench.BenchConfigError as exc:
         print(f"REFUSED: {exc}", file=sys.stderr)
         return 1
@@ -155,9 +163,27 @@ Measuring runs through Snakemake, not through this command:
   snakemake --cores 2 --configfile my-sessions.yaml    your own sessions
   snakemake --cores 2 archive                          results/<id>.archive.zip per session
 
-This command checks sessions, writes bench sessions and packs or verifies archives
-(subcommands below; huefringe SUBCOMMAND --help for each).
+This command checks sessions, writes bench sessions, decodes N-step / Gray-code / multi-period
+captures into projector coordinates and packs or verifies archives (subcommands below;
+huefringe SUBCOMMAND --help for each).
 """
+
+
+def _cmd_decode(args: argparse.Namespace) -> int:
+    from huefringe.codecs import SequenceError
+    from huefringe.codecs.output import decode_folder
+
+    try:
+        summary = decode_folder(args.captures, args.sequence, args.out, projector_gamma=args.projector_gamma,
+                                estimate_gamma=args.estimate_gamma)
+    except SequenceError as exc:
+        print(f"REFUSED: {exc}", file=sys.stderr)
+        return 2
+    axes = ", ".join(f"{a}: {v['valid_fraction']:.1%} valid, median u {v['median_sigma_px'] or float('nan'):.3f} px"
+                     for a, v in summary["axes"].items())
+    print(f"OK: {args.out}: {summary['frames']} frames decoded in {summary['decode_seconds']:.1f} s "
+          f"(projector gamma {summary['projector']['gamma']:.3f}, {summary['projector']['gamma_source']}); {axes}")
+    return 0
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -166,15 +192,15 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="huefringe", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"huefringe {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,patterns,session,archive,verify}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,patterns,session,decode,archive,verify}")
 
     p = sub.add_parser("check", help="validate a capture session; exit 1 if it is refused")
     p.add_argument("session", help="the session folder (holding session.yaml)")
-    p.add_argument("--deep", action="store_true", help="also decode every image")
+    p.add_argument("--deep", action="store_true", help="also decode every image and check the hue bands' order")
     p.set_defaults(func=_cmd_check)
 
     p = sub.add_parser("bench", help="write a capture session (or, with --patterns, camera files) with the virtual bench")
-    p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1)")
+    p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1, rehearsal, ...)")
     p.add_argument("out", help="output session folder (with --periods: a folder for the sweep; with --patterns: "
                                "the folder of camera files)")
     p.add_argument("--preset", action="store_true", help="CONFIG names a packaged preset")
@@ -225,6 +251,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("out", help="the session folder to write (new or empty)")
     p.add_argument("--bayer", choices=["RGGB", "BGGR", "GRBG", "GBRG"], help="raw Bayer mosaics: demosaic with this pattern")
     p.set_defaults(func=_cmd_session)
+
+    p = sub.add_parser("decode", help="decode N-step / Gray-code / multi-period captures into projector coordinates; exit 2 if refused")
+    p.add_argument("captures", help="folder of the captures (the sequence's frames glob, sorted by the number in their names)")
+    p.add_argument("sequence", help="sequence YAML: projector, frames, blocks (phase, gray, white, black) or kamino410")
+    p.add_argument("out", help="new (or empty) folder for coord/sigma/modulation TIFFs, valid PNGs, quality.png, decode.json")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--projector-gamma", type=float, help="the projector's gamma (overrides the sequence's)")
+    g.add_argument("--estimate-gamma", action="store_true", help="estimate the projector's gamma from the captures")
+    p.set_defaults(func=_cmd_decode)
     return parser
 
 

@@ -96,10 +96,33 @@ def source_date_epoch() -> dt.datetime | None:
         raise ValueError(f"SOURCE_DATE_EPOCH={epoch!r} is not a Unix time in seconds") from exc
 
 
-def write_tiff(path: str | os.PathLike[str], data: np.ndarray) -> None:
-    """Write an array as an uncompressed TIFF, atomically and byte-reproducibly."""
+def write_tiff(path: str | os.PathLike[str], data: np.ndarray, *, pixel_pitch_mm: float | None = None) -> None:
+    """Write an array as an uncompressed TIFF, atomically and byte-reproducibly.
+
+    With ``pixel_pitch_mm`` the lateral scale goes into the TIFF resolution tags
+    (``XResolution`` = ``YResolution`` = ``10 / pixel_pitch_mm`` pixels per centimetre,
+    ``ResolutionUnit`` centimetre), which image tools (Fiji/ImageJ, Gwyddion, GIMP) read as the
+    pixel size; :func:`tiff_pixel_pitch_mm` reads it back.
+    """
+    extra: dict[str, Any] = {}
+    if pixel_pitch_mm is not None:
+        per_cm = 10.0 / float(pixel_pitch_mm)
+        extra = {"resolution": (per_cm, per_cm), "resolutionunit": "CENTIMETER"}
     with atomic_path(path) as tmp:
-        tifffile.imwrite(tmp, data, photometric="minisblack" if data.ndim == 2 else "rgb", software=False)
+        tifffile.imwrite(tmp, data, photometric="minisblack" if data.ndim == 2 else "rgb", software=False, **extra)
+
+
+def tiff_pixel_pitch_mm(path: str | os.PathLike[str]) -> float | None:
+    """The pixel pitch in mm of a TIFF's resolution tags (centimetre or inch units), or None without them."""
+    with tifffile.TiffFile(path) as tif:
+        tags = tif.pages[0].tags
+        if "XResolution" not in tags or "ResolutionUnit" not in tags:
+            return None
+        num, den = tags["XResolution"].value
+        unit = int(tags["ResolutionUnit"].value)
+    if not num or unit not in (2, 3):
+        return None
+    return (25.4 if unit == 2 else 10.0) * den / num
 
 
 def read_tiff(path: str | os.PathLike[str]) -> np.ndarray:

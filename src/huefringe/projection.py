@@ -64,6 +64,15 @@ MANIFEST_HEADER = ("order", "image", "session_path")
 #: Smallest projector period accepted: below 6 px the six linear pieces of eq. 3 get < 1 px each.
 MIN_PERIOD_PX = 6.0
 
+#: Fewest fringe periods across the projector's width (``huefringe session`` measures the period from them).
+MIN_PERIODS = 2
+
+#: Largest projector side accepted (8K projectors are 8192 px wide).
+MAX_SIDE_PX = 16384
+
+#: Smallest projector height accepted.
+MIN_HEIGHT_PX = 2
+
 _UMASK = os.umask(0)
 os.umask(_UMASK)
 
@@ -107,8 +116,8 @@ def _check(
         if value < lo or (hi is not None and value > hi):
             raise PatternsError(name, f"must be in {lo}..{hi if hi is not None else 'inf'}, got {value}")
 
-    positive_int("width", width)
-    positive_int("height", height)
+    positive_int("width", width, 1, MAX_SIDE_PX)
+    positive_int("height", height, MIN_HEIGHT_PX, MAX_SIDE_PX)
     positive_int("hue_bands", hue_bands, 6, 999)  # capture-session/1: pattern.hue_bands 6..999
     positive_int("repeats", repeats, 1, 99)  # pattern.repeats 1..99
     positive_int("frames", frames, 1, 10000)  # frame_NNNN: four digits
@@ -131,6 +140,15 @@ def _check(
         period, where, name = float(period_px), f"{float(period_px):g} px", "period_px"
     if period < MIN_PERIOD_PX:
         raise PatternsError(name, f"the projector period must be at least {MIN_PERIOD_PX:g} px, got {where}")
+    if width < MIN_PERIODS * period:
+        raise PatternsError("width" if width < MIN_PERIODS * MIN_PERIOD_PX else name,
+                            f"the fringe must repeat at least {MIN_PERIODS} times across the projector's {width} px "
+                            f"(the period is measured from the repeats), got a period of {where}: "
+                            f"a projector of at least {math.ceil(MIN_PERIODS * period)} px, or a shorter period")
+    need = _peak_bytes(width, height, bit_depth)
+    if (avail := _available_memory()) is not None and need > avail:
+        raise PatternsError("width", f"one {width} x {height} image needs about {need / 2**30:.1f} GiB of memory "
+                                     f"while it is written, and {avail / 2**30:.1f} GiB are available")
     try:
         planes = [float(z) for z in planes_mm]
     except (TypeError, ValueError) as exc:
@@ -147,6 +165,36 @@ def _check(
     if out_dir.exists() and (not out_dir.is_dir() or any(out_dir.iterdir())):
         raise PatternsError("out_dir", f"{out_dir} already exists and is not an empty folder")
     return period, planes
+
+
+def _peak_bytes(width: int, height: int, bit_depth: int) -> int:
+    """Memory one image takes while written: the RGB codes, the BGR copy for OpenCV and the PNG buffer."""
+    return 3 * int(width) * int(height) * 3 * (1 if bit_depth == 8 else 2)
+
+
+def _available_memory() -> int | None:
+    """``MemAvailable`` of ``/proc/meminfo`` in bytes, None where the system does not say."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as fh:
+            for line in fh:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError):
+        return None
+    return None
+
+
+def _check_disk(out: Path, n_images: int, width: int, height: int, bit_depth: int) -> None:
+    """Refuse before writing when even the compressed images would not fit (uniform images
+    compress to almost nothing; the trapezoid and the sinusoids to about a third)."""
+    parent = out.parent if not out.exists() else out
+    while not parent.exists():
+        parent = parent.parent
+    need = 4 * width * height * 3 * (1 if bit_depth == 8 else 2) // 3 + n_images * 4096
+    free = shutil.disk_usage(parent).free
+    if need > free:
+        raise PatternsError("out_dir", f"the images need about {need / 2**30:.1f} GiB, {parent} has "
+                                       f"{free / 2**30:.1f} GiB free")
 
 
 def capture_plan(hue_bands: int, repeats: int, planes_mm: Sequence[float], frames: int,
@@ -358,6 +406,7 @@ def write_patterns(
     files: dict[str, str] = {}
     for name, _ in plan:
         files.setdefault(name, f"{len(files):04d}_{name}.png")
+    _check_disk(out, len(files), width, height, bit_depth)
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".part", dir=out.parent))
     try:

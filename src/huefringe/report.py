@@ -9,7 +9,9 @@
 
     - top level: ``tolerance_mm``, ``range_mm``, ``edge_exclusion``, ``min_coverage``,
       ``distance`` (``"vertical"``/``"normal"``), ``verdict`` (``"PASS"`` when every step of
-      ``method`` passes; the baseline does not vote), ``base`` (base ROIs, coverage, per-frame
+      ``method`` is within the tolerance, U ignored; the baseline does not vote), ``conformity``
+      (the ISO 14253-1 decision with U for the whole specimen, with its reason: :func:`conformity`,
+      the report's headline), ``base`` (base ROIs, coverage, per-frame
       plane coefficients, residual rms) and any ``extras`` given by the caller (``hue_model``,
       ``provenance``, ...), which may not replace a key set here;
     - per step: ``repeatability_3sigma_mm`` (``3 * std_mm``), ``error_pct_of_range``,
@@ -25,7 +27,8 @@
     ``data:image/png;base64`` URIs, no script and no external reference, so it opens offline in
     any browser. Rendered from the Jinja2 templates in ``huefringe/templates/`` (package data,
     autoescaped). Order: header (capture date, operator, instrument, simulated-data notice),
-    verdict (and the ISO 14253-1 decision with U), step-height table (baseline side by side,
+    the headline: the ISO 14253-1 decision (conforms, does not conform, undecided) with its
+    reason, then the tolerance test without U, step-height table (baseline side by side,
     the ISO 14253-1 zone beside the contract's pass), uncertainty and conformance, measurement
     conditions (the method and the hue model in words), flatness/coverage with the evaluated
     boxes in pixels and mm, figures, provenance (collapsible).
@@ -54,6 +57,7 @@ from huefringe.io import atomic_path, write_figure_png
 __all__ = [
     "BASELINE_METHOD",
     "CONTRACT_STEP_KEYS",
+    "CONFORMITY_DECISIONS",
     "CONTRACT_TOP_KEYS",
     "FIGURE_ORDER",
     "HUE_MODEL_WORDS",
@@ -61,6 +65,8 @@ __all__ = [
     "ReportError",
     "build_report_json",
     "collect_provenance",
+    "conformity",
+    "run_summary",
     "load_schema",
     "per_frame_figure",
     "render_report_html",
@@ -206,6 +212,7 @@ def build_report_json(
         if key in method_result:
             report[key] = _plain(method_result[key])
     report["verdict"] = "PASS" if all(s["pass"] for s in report["steps"]) else "FAIL"
+    report["conformity"] = conformity(report["steps"], tol)
     if "base" in method_result:
         report["base"] = _plain(method_result["base"])
     for key, value in (extras or {}).items():
@@ -214,6 +221,66 @@ def build_report_json(
         report[str(key)] = _plain(value)
     validate_report(report)
     return report
+
+
+CONFORMITY_DECISIONS: tuple[str, ...] = ("conforms", "does not conform", "undecided")
+
+
+def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float) -> dict[str, Any]:
+    """The report's headline: the ISO 14253-1 decision for the whole specimen, with its reason.
+
+    Parameters
+    ----------
+    steps : sequence of mapping
+        The report's steps (``name``, ``error_mm`` and, with the uncertainty, ``U_mm``).
+    tolerance_mm : float
+        T, the tolerance on each step's mean height.
+
+    Returns
+    -------
+    dict
+        ``decision``: ``"conforms"`` when every step's ``|error| <= T - U`` (conformance proven),
+        ``"does not conform"`` when any step's ``|error| > T + U`` (non-conformance proven),
+        otherwise ``"undecided"`` (the uncertainty allows no decision, or no step carries ``U_mm``);
+        ``reason``: the steps that decide it, in words, with their numbers; ``rule``; and
+        ``conforming``, ``undecided``, ``nonconforming``: the step names in each zone. The
+        contract's per-step ``pass`` (``|error| <= T``, U ignored) is not a conformance decision.
+    """
+    t = float(tolerance_mm)
+    rule = "ISO 14253-1: conforms when |error| <= T - U, does not conform when |error| > T + U, else undecided (U = 2u)"
+    if not steps or any("U_mm" not in st for st in steps):
+        n_in = sum(1 for st in steps if st.get("pass"))
+        return {"decision": "undecided", "rule": rule, "conforming": [], "undecided": [st["name"] for st in steps],
+                "nonconforming": [],
+                "reason": f"no expanded uncertainty U for the step heights, and ISO 14253-1 decides only with it; "
+                          f"the tolerance alone (U ignored) holds for {n_in} of {len(steps)} steps"}
+    zone: dict[str, list[Mapping[str, Any]]] = {"pass": [], "undecided": [], "fail": []}
+    for st in steps:
+        e, u = abs(float(st["error_mm"])), float(st["U_mm"])
+        zone["pass" if e <= t - u else "fail" if e > t + u else "undecided"].append(st)
+
+    def says(st: Mapping[str, Any], how: str) -> str:
+        e, u = abs(float(st["error_mm"])), float(st["U_mm"])
+        if how == "fail":
+            return f"{st['name']}: |error| {e:.4f} mm > T + U = {t + u:.4f} mm"
+        low = f"T - U = {t - u:.4f} mm" if u < t else f"0 (U = {u:.4f} mm >= T)"
+        return f"{st['name']}: |error| {e:.4f} mm lies between {low} and T + U = {t + u:.4f} mm"
+
+    n = len(steps)
+    if zone["fail"]:
+        decision = "does not conform"
+        reason = "; ".join(says(st, "fail") for st in zone["fail"]) + ": non-conformance proven"
+    elif zone["undecided"]:
+        decision = "undecided"
+        reason = ("; ".join(says(st, "undecided") for st in zone["undecided"])
+                  + ": the uncertainty U does not allow a decision"
+                  + (f" ({len(zone['pass'])} of {n} steps conform)" if zone["pass"] else ""))
+    else:
+        decision = "conforms"
+        reason = f"every step's |error| <= T - U: conformance proven for all {n} steps"
+    return {"decision": decision, "reason": reason, "rule": rule,
+            "conforming": [st["name"] for st in zone["pass"]], "undecided": [st["name"] for st in zone["undecided"]],
+            "nonconforming": [st["name"] for st in zone["fail"]]}
 
 
 def _close(a: float, b: float) -> bool:
@@ -280,6 +347,10 @@ def validate_report(report: Mapping[str, Any]) -> None:
         want = "PASS" if all(s["pass"] for s in report["steps"]) else "FAIL"
         if report["verdict"] != want:
             problems.append(f"verdict {report['verdict']} but the steps say {want}")
+    if "conformity" in report and tol_f is not None:
+        want_c = conformity(report["steps"], tol_f)["decision"]
+        if report["conformity"].get("decision") != want_c:
+            problems.append(f"conformity decision {report['conformity'].get('decision')!r} but the steps say {want_c!r}")
     if "baseline" in report:
         b = report["baseline"]
         problems += _check_steps(b["steps"], "baseline.steps", b.get("frames"), tol_f)
@@ -654,10 +725,13 @@ def _context(report: Mapping[str, Any], figures: Mapping[str, str | os.PathLike[
         decision = {"word": word, "counts": [(z, zones.count(z)) for z in ("pass", "undecided", "fail") if z in zones]}
     pitch = None if pixel_pitch_mm is None else float(pixel_pitch_mm)
     base = report.get("base") if isinstance(report.get("base"), Mapping) else {}
+    tol = report.get("tolerance_mm")
+    headline = report.get("conformity") or (conformity(report.get("steps", []), float(tol)) if tol is not None else None)
     return {
         "report": report,
         "css": _css(),
         "verdict": _verdict(report),
+        "headline": headline,
         "steps": steps,
         "npass": sum(1 for s in steps if s.get("pass")),
         "failing": [s for s in steps if not s.get("pass")],
@@ -771,3 +845,38 @@ def write_report_html(
     with atomic_path(path) as tmp:
         tmp.write_text(text, encoding="utf-8")
     return Path(path)
+
+
+def run_summary(reports: Mapping[str, str | os.PathLike[str] | None]) -> str:
+    """What the end of a workflow run prints: each session's decision and where its report is.
+
+    Parameters
+    ----------
+    reports : mapping of str to path or None
+        Session id to its ``metrology/report.json`` (None or a missing file: no specimen, or not
+        made by this run).
+
+    Returns
+    -------
+    str
+        One block per session: ``<id>: CONFORMS|DOES NOT CONFORM|UNDECIDED (ISO 14253-1) - <reason>``
+        and the path of ``report.html``, or the results folder when there is no report.
+    """
+    lines = []
+    for sid, path in reports.items():
+        p = None if path is None else Path(path)
+        if p is None or not p.is_file():
+            where = p.parent.parent if p is not None else None
+            lines.append(f"  {sid}: no step-height report (the session has no specimen"
+                         f"{'' if p is None else ', or this run did not make it'})"
+                         + (f"; results in {where}/" if where is not None else ""))
+            continue
+        try:
+            doc = json.loads(p.read_text(encoding="utf-8"))
+            c = doc.get("conformity") or conformity(doc["steps"], float(doc["tolerance_mm"]))
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            lines.append(f"  {sid}: cannot read {p} ({exc})")
+            continue
+        lines.append(f"  {sid}: {c['decision'].upper()} (ISO 14253-1) - {c['reason']}")
+        lines.append(f"      report: {p.with_suffix('.html')}")
+    return "\n".join(lines)

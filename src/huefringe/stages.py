@@ -446,9 +446,9 @@ def measure_frames(session: str, frames: Sequence[int], table: str, model: str, 
                             set(maps), want_uncertainty=bool(uncertainties), reader=session_corrections(s, camera_json)[1])
     for i, (n, height, phase, hue, stats, u_map, support) in enumerate(results):
         path = s.frames[n]
-        write_tiff(heights[i], height)
+        write_tiff(heights[i], height, pixel_pitch_mm=s.pixel_pitch_mm)
         if uncertainties:
-            write_tiff(uncertainties[i], u_map)
+            write_tiff(uncertainties[i], u_map, pixel_pitch_mm=s.pixel_pitch_mm)
         if supports:
             write_tiff(supports[i], np.rint(support).astype(np.uint16))
         if n in maps:
@@ -679,7 +679,7 @@ def baseline_frames(session: str, frames: Sequence[int], model: str, object_tabl
         un = unwrap(wrap(phi.astype(np.float64) - cal.phi_ref), valid, measurement["unwrap"])
         h = cal.height(un.dphi)
         h = np.where(valid & np.isfinite(h), h, np.nan).astype(np.float32)
-        write_tiff(heights[i], h)
+        write_tiff(heights[i], h, pixel_pitch_mm=s.pixel_pitch_mm)
         write_json(qa[i], {"frame": n, "method": "three-step-phase-shift", "valid_fraction": float(np.isfinite(h).mean()),
                            "median_modulation": float(np.median(mod))})
 

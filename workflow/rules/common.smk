@@ -148,3 +148,16 @@ def session_results(sid):
     """Every declared result of session ``sid`` (the part of all_targets() under results/<sid>/)."""
     prefix = R(sid, "")
     return [p for p in all_targets() if p.startswith(prefix)]
+
+
+onsuccess:
+    # the end of a run: each session's ISO 14253-1 decision and where its report is
+    from huefringe.report import run_summary
+
+    _reports = {
+        sid: (R(sid, "metrology", "report.json") if plan.specimen else None)
+        for sid, plan in PLANS.items()
+        if sid not in TABLE1_IDS
+    }
+    if _reports:
+        print(f"\nhuefringe: results\n{run_summary(_reports)}\n", file=sys.stderr)

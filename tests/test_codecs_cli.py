@@ -1,0 +1,81 @@
+"""``huefringe decode``: a folder of captures and a sequence YAML in, maps out; refusals name the file."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from codecs_helpers import render, warp
+from huefringe.cli import main
+from huefringe.codecs import load_sequence
+from huefringe.io import read_tiff
+
+SEQ = {
+    "projector": {"width": 512, "height": 384},
+    "frames": "cap_*.png",
+    "blocks": [
+        {"phase": {"axis": "x", "period_px": 16, "steps": 4}},
+        {"gray": {"axis": "x", "cells": 64, "cell_px": 8}},
+        {"phase": {"axis": "y", "period_px": 16, "shifts_deg": [-120, 0, 120]}},
+        {"gray": {"axis": "y", "cells": 48, "cell_px": 8}},
+        "white",
+        "black",
+    ],
+}
+
+
+@pytest.fixture()
+def folder(tmp_path: Path) -> tuple[Path, Path, np.ndarray, np.ndarray]:
+    seq = tmp_path / "seq.yaml"
+    seq.write_text(yaml.safe_dump(SEQ))
+    spec = load_sequence(seq)
+    ux, uy = warp((48, 64), spec, 2)
+    caps = tmp_path / "caps"
+    caps.mkdir()
+    for i, im in enumerate(render(spec, ux, uy, seed=2)):
+        cv2.imwrite(str(caps / f"cap_{i + 1}.png"), im)  # natural order: cap_2 before cap_10
+    return caps, seq, ux, uy
+
+
+def test_decode_writes_the_maps(folder, tmp_path, capsys):
+    caps, seq, ux, uy = folder
+    out = tmp_path / "out"
+    assert main(["decode", str(caps), str(seq), str(out)]) == 0
+    assert "OK:" in capsys.readouterr().out
+    assert sorted(p.name for p in out.iterdir()) == sorted(
+        [f"{k}_{a}.tif" for k in ("coord", "sigma", "modulation") for a in "xy"]
+        + ["valid_x.png", "valid_y.png", "quality.png", "decode.json"]
+    )
+    for a, u in (("x", ux), ("y", uy)):
+        c = read_tiff(out / f"coord_{a}.tif")
+        v = cv2.imread(str(out / f"valid_{a}.png"), cv2.IMREAD_GRAYSCALE) > 0
+        assert v.mean() > 0.99
+        assert np.sqrt(np.mean((c - u)[v] ** 2)) < 0.05
+        assert np.isnan(c[~v]).all()
+
+
+def test_refusals_name_the_file_and_write_nothing(folder, tmp_path, capsys):
+    caps, seq, _, _ = folder
+    (caps / "cap_3.png").unlink()
+    out = tmp_path / "out"
+    assert main(["decode", str(caps), str(seq), str(out)]) == 2
+    err = capsys.readouterr().err
+    assert f"{caps}: 32 files match 'cap_*.png', the sequence has 33 frames" in err
+    assert not out.exists() and not list(tmp_path.glob(".out.*"))
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({"projector": {"width": 512}, "blocks": [{"phase": {"axis": "z", "period_px": -1, "steps": 2}}, "grey"]}))
+    assert main(["decode", str(caps), str(bad), str(out)]) == 2
+    err = capsys.readouterr().err
+    for part in (str(bad), "width and height must be integers", "axis must be x", "period_px must be > 0", "steps must be an integer >= 3", "blocks[1]"):
+        assert part in err, part
+
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "keep.txt").write_text("mine")
+    assert main(["decode", str(caps), str(seq), str(tmp_path / "full")]) == 2
+    assert "exists and is not an empty folder" in capsys.readouterr().err
+    assert (tmp_path / "full" / "keep.txt").read_text() == "mine"
