@@ -30,7 +30,7 @@ from huefringe.rig.calibrate import Board
 from huefringe.rig.model import RigCalibration
 from huefringe.rig.triangulate import camera_rays, project
 
-__all__ = ["RIGS", "BenchRig", "PlaneScene", "SphereScene", "StepsScene", "pose_set", "rot"]
+__all__ = ["RIGS", "BenchRig", "PlaneScene", "SphereScene", "StepsScene", "pose_set", "rot", "write_captures", "write_pose_folders"]
 
 F64 = NDArray[np.float64]
 
@@ -277,3 +277,34 @@ RIGS: dict[str, BenchRig] = {
 }
 """Named rigs: ``tune`` (the one the defaults were chosen on) and hold-outs varying the baseline,
 convergence, focal lengths, principal points and distortion."""
+
+
+def write_captures(rig: BenchRig, spec: Any, folder: Any, u: F64, v: F64, valid: NDArray[np.bool_],
+                   rng: np.random.Generator, *, noise_dn: float = 1.0) -> None:
+    """Write the camera frames of ``spec`` (a :class:`huefringe.codecs.SequenceSpec`) as PNGs ``cap_NN.png``."""
+    from pathlib import Path
+
+    from huefringe.codecs import generate
+
+    out = Path(folder)
+    out.mkdir(parents=True, exist_ok=True)
+    frames = rig.capture(generate(spec), u, v, valid, rng, noise_dn=noise_dn)
+    for k, f in enumerate(frames):
+        cv2.imwrite(str(out / f"cap_{k:02d}.png"), f)
+
+
+def write_pose_folders(rig: BenchRig, board: Board, spec: Any, n: int, seed: int, out: Any, *,
+                       corner_image: bool = True) -> list[tuple[F64, F64]]:
+    """Board-pose folders ``pose_NN`` under ``out``: coded captures and (``corner_image``) ``board.png``."""
+    from pathlib import Path
+
+    rng = np.random.default_rng(seed)
+    poses = pose_set(rig, board, n, seed)
+    for i, (R, t) in enumerate(poses):
+        p = rig.board_pose(board, R, t, rng, corner_sigma_px=0.0, coord_sigma_px=0.0, image=corner_image)
+        folder = Path(out) / f"pose_{i:02d}"
+        write_captures(rig, spec, folder, p["u_true"], p["v_true"], p["valid"], rng)
+        if corner_image:
+            img = np.clip(p["image"] + rng.normal(0, 2, p["image"].shape), 0, 255).astype(np.uint8)
+            cv2.imwrite(str(folder / "board.png"), img)
+    return poses
