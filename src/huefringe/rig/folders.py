@@ -17,7 +17,7 @@ from typing import Any
 import cv2
 import numpy as np
 from numpy.typing import NDArray
-from scipy.interpolate import griddata
+from scipy.spatial import cKDTree
 
 from huefringe.codecs import DecodeOptions, SequenceError, decode_sequence, load_sequence, read_captures
 from huefringe.rig.calibrate import Board, CalibrationReport, PoseObservation, calibrate_rig, detect_corners, projector_corners
@@ -96,6 +96,18 @@ def calibrate_folders(poses_dir: str | os.PathLike[str], sequence: str | os.Path
     return calib, report
 
 
+def _resample(s: F64, q: F64, z: F64, S: F64, Q: F64, pitch: float) -> NDArray[np.float32]:
+    """Inverse-distance mean of the 4 nearest points within 1.5 pitch of each grid node (NaN beyond)."""
+    dist, idx = cKDTree(np.column_stack([s, q])).query(np.column_stack([S.ravel(), Q.ravel()]), k=4,
+                                                        distance_upper_bound=1.5 * pitch)
+    ok = np.isfinite(dist)
+    w = np.where(ok, 1.0 / np.maximum(dist, 1e-6 * pitch), 0.0)
+    zz = np.where(ok, z[np.minimum(idx, len(z) - 1)], 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = (w * zz).sum(axis=1) / w.sum(axis=1)
+    return out.reshape(S.shape).astype(np.float32)
+
+
 def _write_json(path: Path, doc: dict[str, Any]) -> None:
     tmp = path.with_name(path.name + ".tmp")
     tmp.write_text(json.dumps(doc, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
@@ -109,7 +121,8 @@ def measure_folder(captures: str | os.PathLike[str], sequence: str | os.PathLike
     """Decode, triangulate and write cloud, height map, X3P, mesh and a JSON report into ``outdir``.
 
     The height map is the points' distance from their fitted plane, resampled on a square grid
-    of the plane's own axes (pitch: the median camera-pixel footprint). ``boxes`` (camera pixels
+    of the plane's own axes (pitch: the median camera-pixel footprint; inverse-distance mean of
+    the 4 nearest points within 1.5 pitch). ``boxes`` (camera pixels
     ``x0, y0, x1, y1``) report each box's mean height above the plane (a step height).
     """
     from huefringe.cloud import write_points
@@ -159,7 +172,7 @@ def measure_folder(captures: str | os.PathLike[str], sequence: str | os.PathLike
     gs = np.arange(s.min(), s.max(), pitch)
     gq = np.arange(q.min(), q.max(), pitch)
     S, Q = np.meshgrid(gs, gq)
-    height = griddata((s, q), dist[t.valid], (S, Q), method="linear").astype(np.float32)
+    height = _resample(s, q, dist[t.valid], S, Q, pitch)
     out = Path(outdir)
     out.mkdir(parents=True, exist_ok=True)
     sig = t.sigma[t.valid]
