@@ -97,10 +97,15 @@ def camera_rays(calib: RigCalibration, pixels: ArrayLike) -> F64:
     return np.column_stack([xy, np.ones(len(xy))])
 
 
-def _plane_solve(calib: RigCalibration, d: F64, coord: F64, axis: int, iterations: int = 4) -> F64:
-    """Intersection of rays ``d`` with the projector surface ``pixel[axis] = coord``."""
+def _plane_solve(calib: RigCalibration, d: F64, coord: F64, axis: int, iterations: int = 4,
+                 other: F64 | None = None) -> tuple[F64, F64]:
+    """Intersection of rays ``d`` with the projector surface ``pixel[axis] = coord``, and the other coordinate.
+
+    ``other`` starts the fixed-point iteration on the other projector coordinate (default: the
+    principal point's).
+    """
     Kp, dp, R, T = calib.projector_matrix, calib.projector_distortion, calib.R, calib.T
-    other = np.full(len(coord), Kp[1 - axis, 2])
+    other = np.full(len(coord), Kp[1 - axis, 2]) if other is None else other.copy()
     xyz = np.full((len(coord), 3), np.nan)
     for _ in range(iterations):
         pix = np.empty((len(coord), 2))
@@ -114,7 +119,7 @@ def _plane_solve(calib: RigCalibration, d: F64, coord: F64, axis: int, iteration
         ok = np.isfinite(xyz).all(axis=1)
         if ok.any():
             other[ok] = project(xyz[ok], Kp, dp, R, T)[:, 1 - axis]
-    return xyz
+    return xyz, other
 
 
 def _ray_solve(calib: RigCalibration, d: F64, u: F64, v: F64) -> F64:
@@ -193,10 +198,15 @@ def triangulate(
     idx = np.flatnonzero(ok)
     d = camera_rays(calib, pix[idx])
 
+    start: dict[str, F64] = {}
+
     def solve(c: dict[str, F64]) -> F64:
         if mode == "both":
             return _ray_solve(calib, d, c["u"], c["v"])
-        return _plane_solve(calib, d, c[mode], 0 if mode == "u" else 1)
+        if "other" in start:       # a small step from the solution: two iterations from its other coordinate
+            return _plane_solve(calib, d, c[mode], 0 if mode == "u" else 1, 2, start["other"])[0]
+        xyz, start["other"] = _plane_solve(calib, d, c[mode], 0 if mode == "u" else 1)
+        return xyz
 
     sub = {k: coords[k][idx] for k in need}
     pts = solve(sub)
