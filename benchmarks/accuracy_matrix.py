@@ -46,7 +46,7 @@ import tifffile
 import yaml
 from scipy import ndimage
 
-from huefringe import bench, metrology, stages
+from huefringe import bench, metrology, pipeline, stages
 from huefringe.camera import CameraModel
 from huefringe.session import SessionError, read_rgb
 from huefringe.settings import load_config
@@ -300,7 +300,7 @@ def zones(truth: np.ndarray, white: np.ndarray) -> dict[str, np.ndarray]:
 
 def score(paths: dict) -> dict:
     s = paths["session"]
-    lens = stages.session_corrections(s, paths["camera"])[0]
+    lens = pipeline.session_corrections(s, paths["camera"])[0]
     maps = [tifffile.imread(h) for h in paths["heights"]]
     accs = [accuracy(m, tifffile.imread(s.ground_truth[n])) for n, m in zip(s.frame_ids, maps, strict=True)]
     out = {k: float(np.mean([a[k] for a in accs])) for k in ("median_abs_mm", "p95_abs_mm", "coverage")}

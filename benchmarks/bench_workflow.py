@@ -238,7 +238,7 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
 
     from huefringe import kernel, perframe
     from huefringe.huetable import HueTable
-    from huefringe.cloud import _check_colours, colour_bytes, write_height_cloud
+    from huefringe.cloud import check_colours, colour_bytes, write_height_cloud
     from huefringe.height import PlaneCalibration
     from huefringe.io import read_tiff, write_json, write_tiff
     from huefringe.phase import unwrap
@@ -253,7 +253,7 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
     shadow = perframe.shadow_mask(white, m_cfg["shadow_fraction"])
     prep = kernel.prepare(t, cal, white, hue_model="hexcone", min_saturation=m_cfg["min_saturation"], shadow=shadow,
                           bit_depth=s.bit_depth, predistortion=s.predistortion)
-    rgb = colour_bytes(_check_colours(white, white.shape[:2]).reshape(-1, 3))
+    rgb = colour_bytes(check_colours(white, white.shape[:2]).reshape(-1, 3))
     buf = (np.empty(prep.shape, np.float32), np.empty(prep.shape, bool))
     out = Path(tempfile.mkdtemp(prefix="hf-stages-"))
     names = ("decode", "kernel", "filter", "uncertainty", "flags+stats", "step edges", "height tiff", "u+support tiff",
@@ -267,7 +267,7 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
         kernel.frame_maps(prep, codes, denoise_radius=0, want_dphi=True, out=buf)
         c.append(time.perf_counter())
         m = kernel.frame_maps(prep, codes, denoise_radius=m_cfg["denoise_radius"], want_dphi=True, out=buf,
-                              denoise_adaptive=m_cfg.get("denoise_adaptive"))  # as stages.frame_results
+                              denoise_adaptive=m_cfg.get("denoise_adaptive"))  # as pipeline.measure_one
         t_filter = time.perf_counter() - c[-1] - (c[-1] - c[-2])  # kernel with the filter minus without
         t0 = time.perf_counter()
         mu = kernel.frame_maps(prep, codes, denoise_radius=m_cfg["denoise_radius"], want_dphi=True, out=buf,
@@ -278,7 +278,7 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
         px = m.valid.size
         qa = dict(clipped_fraction=m.counts["clipped"] / px, hue_undefined_fraction=m.counts["hue_undefined"] / px,
                   table_invalid_fraction=0.0, shadow_fraction=0.0, hue_model="hexcone")
-        if hasattr(perframe, "reference_frame_stats"):  # what stages.frame_results calls
+        if hasattr(perframe, "reference_frame_stats"):  # what pipeline.measure_one calls
             if "flag_valid" in perframe.reference_frame_stats.__code__.co_varnames:  # flags before the filter
                 qa["flag_valid"] = np.isfinite(m.dphi)
             st = perframe.reference_frame_stats(m.dphi, m.valid, m.height, **qa)
@@ -286,7 +286,7 @@ def stage_breakdown(session: Path, results: Path, frames: int = 40) -> dict[str,
             st = perframe.frame_stats(m.valid, m.height, unwrap(m.dphi, m.valid, "reference").flags,
                                       unwrap_mode="reference", **qa)
         c.append(time.perf_counter())
-        if jump > 0 and hasattr(perframe, "remove_step_edges"):  # as stages.frame_results
+        if jump > 0 and hasattr(perframe, "remove_step_edges"):  # as pipeline.measure_one
             edge_kw = ({"test": m_cfg.get("edge_test", "pair"), "tol_mm": m_cfg.get("edge_plane_tol_mm", 0.1)}
                        if "test" in inspect.signature(perframe.remove_step_edges).parameters else {})
             perframe.remove_step_edges(m.height, jump, nan_maps=(m.uncertainty,), zero_maps=(m.support,), **edge_kw)

@@ -14,7 +14,7 @@ import yaml
 from scipy.ndimage import gaussian_filter1d
 
 import huefringe
-from huefringe import bench, camera, metrology, patterns, stages, uncertainty
+from huefringe import bench, camera, metrology, patterns, pipeline, uncertainty
 from huefringe.colour import hue
 from huefringe.height import accuracy
 from huefringe.session import SessionError, load_session, read_rgb_codes
@@ -91,10 +91,10 @@ def test_noise_aware_filter_settings() -> None:
         stats: dict = {}
 
     adaptive = {"enabled": True, "max_radius": 6, "target_sigma_rad": 0.006, "reject_sigma_rad": 0.03}
-    assert stages.noise_aware_adaptive(adaptive, T()) == {**adaptive, "target_sigma_rad": 0.003, "reject_sigma_rad": 0.015}
-    assert stages.noise_aware_adaptive(adaptive, Plain()) is adaptive
+    assert pipeline.noise_aware_adaptive(adaptive, T()) == {**adaptive, "target_sigma_rad": 0.003, "reject_sigma_rad": 0.015}
+    assert pipeline.noise_aware_adaptive(adaptive, Plain()) is adaptive
     T.stats = {"noise_correlation": {"factor": 0.8}}  # below 1: as given
-    assert stages.noise_aware_adaptive(adaptive, T()) == adaptive
+    assert pipeline.noise_aware_adaptive(adaptive, T()) == adaptive
 
 
 @pytest.mark.parametrize("driver", ["edge_aware", "bilinear"])

@@ -17,7 +17,14 @@ from huefringe import api, camera, cloud, metrology
 from huefringe.camera import CameraModel, CaptureReader, ChannelRegistration
 from huefringe.io import read_tiff
 from huefringe.session import load_session, read_rgb, read_rgb_codes
-from huefringe.stages import session_camera_record
+from huefringe.pipeline import session_camera_record
+
+
+def _camera(registration: object) -> dict:
+    """The configuration's camera block with ``chromatic_registration`` set, colour demixing off
+    (the registration on the camera channels alone)."""
+    return {**CONFIG["camera"], "chromatic_registration": registration, "colour_demixing": False}
+
 
 
 @pytest.fixture(scope="module")
@@ -51,17 +58,17 @@ def test_estimate_recovers_a_known_magnification(gauge: Path, aberrated) -> None
     """R +0.5 px and B -0.4 px at the corners, estimated back within 0.05 px there; the plain
     session reads below the auto threshold (registration not applied)."""
     target, sr, sb = aberrated
-    rec = session_camera_record(load_session(target), {"chromatic_registration": "auto"}, CONFIG["calibration"])
+    rec = session_camera_record(load_session(target), _camera("auto"), CONFIG["calibration"])
     est = rec["chromatic_registration"]["estimate"]
     r = est["corner_radius_px"]
     assert abs(est["scale"]["R"] - sr) * r < 0.05
     assert abs(est["scale"]["B"] - sb) * r < 0.05
     assert rec["chromatic_registration"]["applied"]
-    plain = session_camera_record(load_session(gauge), {"chromatic_registration": "auto"}, CONFIG["calibration"])
+    plain = session_camera_record(load_session(gauge), _camera("auto"), CONFIG["calibration"])
     reg = plain["chromatic_registration"]
     assert max(reg["estimate"]["corner_displacement_px"].values()) < 0.5 * camera.CA_AUTO_THRESHOLD_PX
     assert not reg["applied"]
-    off = session_camera_record(load_session(gauge), {"chromatic_registration": False}, CONFIG["calibration"])
+    off = session_camera_record(load_session(gauge), _camera(False), CONFIG["calibration"])
     assert "estimate" not in off["chromatic_registration"] and not off["chromatic_registration"]["applied"]
 
 
@@ -207,14 +214,14 @@ def test_auto_does_not_register_from_a_strip_too_narrow_for_the_period(tmp_path:
     narrower than three periods is not estimable at all, and auto leaves it alone."""
     cfg = bench_config("flat", width=200, height=150, hue_bands=48, frames=1, id="small")
     s = load_session(write(cfg, tmp_path))
-    rec = session_camera_record(s, {"chromatic_registration": "auto"}, CONFIG["calibration"])["chromatic_registration"]
+    rec = session_camera_record(s, _camera("auto"), CONFIG["calibration"])["chromatic_registration"]
     assert max(rec["estimate"]["corner_displacement_px"].values()) > 10 * camera.CA_AUTO_THRESHOLD_PX  # the misread
     assert rec["reach"] < camera.CA_AUTO_MIN_REACH
     assert not rec["applied"] and "field's half-width" in rec["not_applied_because"]
-    assert session_camera_record(s, {"chromatic_registration": True}, CONFIG["calibration"])["chromatic_registration"]["applied"]
+    assert session_camera_record(s, _camera(True), CONFIG["calibration"])["chromatic_registration"]["applied"]
     narrow = load_session(write(bench_config("dental", width=160, height=120, hue_bands=16, frames=1, id="narrow"),
                                 tmp_path / "narrow"))
-    rec = session_camera_record(narrow, {"chromatic_registration": "auto"}, CONFIG["calibration"])["chromatic_registration"]
+    rec = session_camera_record(narrow, _camera("auto"), CONFIG["calibration"])["chromatic_registration"]
     assert not rec["estimate"]["estimable"] and rec["estimate"]["scale"] == {"R": 0.0, "B": 0.0}
     assert not rec["applied"]
 
@@ -244,7 +251,7 @@ def test_mixing_and_magnification_match_the_bench_lens(bench_lens) -> None:
     camera channels themselves (no bands: the estimate before the mixing) read it 0.04 px too large."""
     ca, clean, cfg = bench_lens
     s = load_session(ca)
-    rec = session_camera_record(s, {"chromatic_registration": "auto"}, CONFIG["calibration"])["chromatic_registration"]
+    rec = session_camera_record(s, _camera("auto"), CONFIG["calibration"])["chromatic_registration"]
     est = rec["estimate"]
     xt = np.asarray(cfg["camera"]["crosstalk"], np.float64)
     assert est["mixing"]["estimable"]
@@ -260,7 +267,7 @@ def test_mixing_and_magnification_match_the_bench_lens(bench_lens) -> None:
     for c in "RB":
         assert abs(old["scale"][c] - truth[c]) * r > 0.03  # crosstalk biases the camera channels' phases
     # a camera without CA stays untouched by auto (its estimate, unmixed, reads a few thousandths of a px)
-    plain = session_camera_record(load_session(clean), {"chromatic_registration": "auto"}, CONFIG["calibration"])
+    plain = session_camera_record(load_session(clean), _camera("auto"), CONFIG["calibration"])
     assert max(plain["chromatic_registration"]["estimate"]["corner_displacement_px"].values()) < 0.02
     assert not plain["chromatic_registration"]["applied"]
 

@@ -13,7 +13,7 @@ from bench_helpers import CONFIG, bench_config, write
 from huefringe import camera
 from huefringe.patterns import band_rgb
 from huefringe.session import load_session
-from huefringe.stages import session_camera_record
+from huefringe.pipeline import session_camera_record
 
 #: test_rig_chain's coarse plain gauge: 160 x 120 px at 0.5 mm, period 24 px, 16 bands x 2 repeats
 COARSE = {"width": 160, "height": 120, "pixel_pitch_mm": 0.5, "period_px": 24, "hue_bands": 16, "repeats": 2,

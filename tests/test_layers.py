@@ -67,7 +67,9 @@ def find_cycle(graph: dict[str, set[str]]) -> list[str] | None:
 def test_graph_sees_known_edges() -> None:
     g = import_graph()
     assert "huefringe.perframe" in g["huefringe.kernel"]
-    assert "huefringe.kernel" in g["huefringe.stages"]
+    assert "huefringe.kernel" in g["huefringe.pipeline"]  # the pipeline chooses the chain
+    assert {"huefringe.pipeline"} <= g["huefringe.stages"] and "huefringe.pipeline" in g["huefringe.api"]
+    assert "huefringe.kernel" not in g["huefringe.stages"] and "huefringe.stages" not in g["huefringe.api"]
     assert "huefringe.huetable" in g["huefringe.compensation"]
     assert {"huefringe.io", "huefringe.settings"} <= g["huefringe.x3p"]  # x3p sits beside cloud, above io
     # above patterns and io, and (--compensated: the plate's hue table) above compensation and session
@@ -88,7 +90,7 @@ def test_no_import_circle() -> None:
 
 @pytest.mark.parametrize("module", ["colour", "phase", "height", "huetable", "compensation", "perframe", "kernel",
                                     "mesh", "cloud", "metrology", "render", "session", "io", "patterns",
-                                    "camera", "x3p", "projection", "assemble"])
+                                    "camera", "x3p", "projection", "assemble", "uncertainty", "pipeline", "api"])
 def test_measuring_modules_do_not_reach_the_bench(module: str) -> None:
     g = import_graph()
     seen, todo = set(), [f"huefringe.{module}"]

@@ -88,8 +88,8 @@ def test_predistorted_projection_beats_plain_trapezoid(tmp_path: Path) -> None:
     from bench_helpers import CONFIG
 
     mcfg = copy.deepcopy(CONFIG)
-    mcfg["calibration"]["phase_error"] = {"enabled": False}
-    mcfg["measurement"]["denoise_adaptive"] = {"enabled": False}
+    mcfg["calibration"]["phase_error"]["enabled"] = False
+    mcfg["measurement"]["denoise_adaptive"]["enabled"] = False
     errors = {}
     for comp in (False, True):
         cfg = bench_config("flat", width=200, height=150, hue_bands=48, frames=1, id=f"flat-{int(comp)}")

@@ -142,8 +142,8 @@ def test_holdout_check_applies_a_real_error_and_refuses_noise() -> None:
     ones = {z: np.ones(u.shape, bool) for z in noisy}
     check = phase_error.holdout_check(noisy, ones, bins=512, smooth_bins=1.5)
     assert not check["helps"], check
-    cal = {"plane_smooth_degree": 3, "phase_error": {"enabled": "auto", "smooth_bins": 1.5}}
+    cal = load_config({"calibration": {"phase_error": {"enabled": "auto", "smooth_bins": 1.5}}})["calibration"]
     assert phase_error.from_calibration(noisy, ones, cal) is None
     assert phase_error.from_calibration(phases, valid, cal) is not None
     with pytest.raises(ValueError, match="true, false or auto"):
-        phase_error.from_calibration(phases, valid, {"phase_error": {"enabled": "yes"}})
+        phase_error.from_calibration(phases, valid, load_config({"calibration": {"phase_error": {"enabled": "yes"}}})["calibration"])

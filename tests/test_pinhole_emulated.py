@@ -10,7 +10,7 @@ import numpy as np
 
 from bench_helpers import CONFIG, bench_config, process, write
 from pinhole_helpers import pinhole_copy
-from huefringe import metrology, stages
+from huefringe import metrology, pipeline, stages
 from huefringe.height import accuracy
 from huefringe.io import read_tiff
 
@@ -27,7 +27,7 @@ def test_pinhole_session_measures_with_the_lens_model(tmp_path: Path) -> None:
         c["camera"] = {"lens_model": lens, "chromatic_registration": False}
         paths = process(pin, tmp_path / f"out-{lens}", config=c)
         s = paths["session"]
-        model = stages.session_corrections(s, paths["camera"])[0]
+        model = pipeline.session_corrections(s, paths["camera"])[0]
         h = read_tiff(paths["heights"][0])
         ev = metrology.evaluate_session([h], s.specimen, s.pixel_pitch_mm, range_mm=6.0, camera=model)
         out[lens] = (accuracy(h, read_tiff(s.ground_truth[0])), ev, stages.xy_block(s, model, paths["heights"]))

@@ -15,7 +15,8 @@ import yaml
 from huefringe import cli, projection
 from huefringe.colour import hue_hexcone, hue_hsi, wrap_pi
 from huefringe.patterns import TWO_PI, band_phase, trapezoid_rgb
-from huefringe.projection import PatternsError, projector_period, read_manifest, write_patterns
+from huefringe.assemble import read_patterns
+from huefringe.projection import PatternsError, projector_period, write_patterns
 from huefringe.session import load_session
 
 W, H, T, N, R = 240, 4, 37.0, 12, 2
@@ -53,7 +54,7 @@ def written(request: pytest.FixtureRequest, tmp_path_factory: pytest.TempPathFac
 
 def test_manifest_rows_follow_the_contract(written: tuple[Path, int]) -> None:
     out, _ = written
-    rows = read_manifest(out / "manifest.csv")
+    rows = read_patterns(out)[1]
     assert (out / "manifest.csv").read_text().splitlines()[0] == "order,image,session_path"
     assert len(rows) == 1 + N * R + len(PLANES) + 1 + N * R + F + 3 == 59
     assert [r.order for r in rows] == list(range(len(rows)))
@@ -128,7 +129,7 @@ def test_magnification_sets_the_projector_period(tmp_path: Path) -> None:
     assert (asked["period_px"], asked["camera_period_px"], asked["magnification"]) == (40.0, 60.0, 1.5)
     rgb, _ = _read_rgb(out / "0007_trapezoid.png")
     assert abs(wrap_pi(float(hue_hexcone(rgb[0, 10])) - TWO_PI * 10 / 40.0)) <= _bounds(255)[0]
-    assert len(read_manifest(out / "manifest.csv")) == 1 + 6 + 2 + 1 + 6 + 1
+    assert len(read_patterns(out)[1]) == 1 + 6 + 2 + 1 + 6 + 1
 
 
 @pytest.mark.parametrize(
@@ -219,7 +220,7 @@ def test_manifest_paths_make_a_session_that_check_accepts(tmp_path: Path) -> Non
                          planes_mm=[0.0, 1.0, 2.5], frames=2)
     asked = yaml.safe_load((pat / "patterns.yaml").read_text())
     ses = tmp_path / "ses"
-    for row in read_manifest(pat / "manifest.csv"):
+    for row in read_patterns(pat)[1]:
         (ses / row.session_path).parent.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(pat / row.image, ses / row.session_path)
     meta = {"format": "capture-session/1", "id": "projected-1to1",

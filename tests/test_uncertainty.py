@@ -15,6 +15,7 @@ from huefringe.height import PlaneCalibration
 from huefringe.io import read_tiff
 from huefringe.phase import denoise_phase
 from huefringe.session import load_session
+from huefringe.uncertainty.steps import _groups, _spread
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = load_config(REPO / "config.yaml")
@@ -299,7 +300,7 @@ def test_step_uncertainty_in_report(still: dict) -> None:
     method = metrology.evaluate_session(hs, s.specimen, s.pixel_pitch_mm, range_mm=6.0, edge_exclusion=0.2)
     stages.add_step_uncertainty(method, hs, us, s.specimen, s.pixel_pitch_mm, PlaneCalibration.load(str(out / "model.npz")),
                                   HueTable.load(out / "table_object.json"), edge_exclusion=0.2, denoise_radius=0,
-                                  lateral_px=0.0)  # the still session's maps have no lateral term
+                                  lateral_px=0.0, lateral_step_px=0.0)  # the still session's maps have no lateral term
     tol = method["tolerance_mm"]
     for st in method["steps"]:
         assert st["U_mm"] == pytest.approx(2 * st["u_mm"])
@@ -504,7 +505,7 @@ def test_step_budget_crops_and_threads_change_nothing(base_roi: list | None) -> 
     spec = _specimen()
     if base_roi is not None:
         spec["base_roi"] = base_roi
-        assert len(uncertainty._groups([tuple(b) for b in base_roi], 6, (h, w))) == 2
+        assert len(_groups([tuple(b) for b in base_roi], 6, (h, w))) == 2
     a = np.ones((h, w), np.float32)
     b = np.full((h, w), 0.01, np.float32)
     bud = uncertainty.PixelBudget(rng.uniform(0, 1e-3, (5, h, w)).astype(np.float32), 0.1,
@@ -543,8 +544,8 @@ def test_step_budget_crops_and_threads_change_nothing(base_roi: list | None) -> 
         tmask &= valid
         vt, ut = np.nonzero(tmask)
         cb = np.array([1.0, ut.mean() * 0.2, vt.mean() * 0.2]) @ pinv
-        a_top = uncertainty._spread(vt, ut, np.full(vt.size, 1.0 / vt.size), n[tmask], (h, w))
-        a_base = uncertainty._spread(vb, ub, cb, n[bmask], (h, w))
+        a_top = _spread(vt, ut, np.full(vt.size, 1.0 / vt.size), n[tmask], (h, w))
+        a_base = _spread(vb, ub, cb, n[bmask], (h, w))
         row = {}
         for term in uncertainty.TERMS:
             if uncertainty.GROUPS[term] == "correlated":
@@ -650,7 +651,9 @@ def test_bench_gauge_coverage_per_zone_and_steps_within_u(tmp_path: Path) -> Non
                                 HueTable.load(tmp_path / "out" / "table_object.json"),
                                 edge_exclusion=CONFIG["metrology"]["edge_exclusion"],
                                 denoise_radius=CONFIG["measurement"]["denoise_radius"],
-                                supports=[read_tiff(x) for x in p["supports"]])
+                                supports=[read_tiff(x) for x in p["supports"]],
+                                lateral_px=CONFIG["measurement"]["lateral_uncertainty_px"],
+                                lateral_step_px=CONFIG["measurement"]["lateral_step_px"])
     for st in method["steps"]:
         assert abs(st["error_mm"]) <= st["U_mm"], st
         assert st["uncertainty_budget"]["coating_mm"] > 0

@@ -3,7 +3,7 @@
 :func:`measure` (also ``huefringe.measure``) runs what the workflow's ``hue_table``,
 ``plane_calibration`` and ``measure_frames`` jobs run, with the same numbers, without writing
 anything: the defaults come packaged with the library (:mod:`huefringe.settings`), ``config``
-overrides them. (The per-frame algorithm itself is :mod:`huefringe.perframe`.)
+overrides them. Both call :mod:`huefringe.pipeline`.
 """
 
 from __future__ import annotations
@@ -21,8 +21,8 @@ from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
 from huefringe.session import Session, load_session
 from huefringe.settings import load_config
-from huefringe.camera import CameraModel, corrections
-from huefringe.stages import frame_results, session_camera_record, session_hue_table, session_plane_calibration
+from huefringe.camera import CameraModel
+from huefringe.pipeline import frame_results, prepare_session
 
 __all__ = ["Measurement", "measure"]
 
@@ -102,23 +102,18 @@ def measure(session: str | os.PathLike[str] | Session,
     """
     cfg = load_config(config)
     s = session if isinstance(session, Session) else load_session(Path(session))
-    hue_model, calibration, measurement = cfg["hue_model"], cfg["calibration"], cfg["measurement"]
-    record = session_camera_record(s, cfg.get("camera", {}), calibration)
-    model, reader = corrections(record, s.meta)
-    tables = {w: session_hue_table(s, w, hue_model, calibration, reader=reader) for w in ("reference", "object")}
-    cal = session_plane_calibration(s, tables["reference"], hue_model, calibration, reader=reader,
-                                    object_table=tables["object"])
+    prepared = prepare_session(s, cfg)
     frames = s.frame_ids if frames is None else list(frames)
     heights = np.empty((len(frames), s.height, s.width), np.float32)
     u = np.empty_like(heights)
     support = np.empty(heights.shape, np.uint16)
     stats = []
-    for i, (_, h, _, _, st, u_map, sup) in enumerate(frame_results(s, tables["object"], cal, frames, hue_model,
-                                                                   measurement, map_frames=set(), reader=reader)):
-        heights[i] = h  # copied: the kernel reuses its buffers
-        u[i] = u_map
-        support[i] = np.rint(sup)
-        stats.append(st)
-    return Measurement(session=s, frames=frames, heights=heights, valid=np.isfinite(heights), calibration=cal,
-                       tables=tables, stats=stats, config=cfg, uncertainty=u, support=support, camera=model,
-                       camera_record=record)
+    for i, r in enumerate(frame_results(s, prepared.tables["object"], prepared.calibration, frames, cfg["hue_model"],
+                                        cfg["measurement"], map_frames=set(), reader=prepared.reader)):
+        heights[i] = r.height  # copied: the kernel reuses its buffers
+        u[i] = r.uncertainty
+        support[i] = np.rint(r.support)
+        stats.append(r.stats)
+    return Measurement(session=s, frames=frames, heights=heights, valid=np.isfinite(heights),
+                       calibration=prepared.calibration, tables=prepared.tables, stats=stats, config=cfg, uncertainty=u,
+                       support=support, camera=prepared.camera, camera_record=prepared.camera_record)

@@ -64,8 +64,8 @@ from urllib.parse import quote, unquote
 
 import yaml
 
-from huefringe.io import atomic_path, source_date_epoch
-from huefringe.report import sha256_file, software_versions
+from huefringe.io import atomic_path, sha256_file, source_date_epoch
+from huefringe.report import software_versions
 from huefringe.settings import software_identity
 
 __all__ = [
@@ -251,6 +251,89 @@ def _contextual_id(given: str | None, local: str) -> str:
     return given if given else local
 
 
+def _entity(crate: Any, eid: str, etype: str, props: dict[str, Any]) -> dict[str, str]:
+    """Add a contextual entity to ``crate``; its reference."""
+    from rocrate.model import ContextEntity
+
+    crate.add(ContextEntity(crate, eid, properties={"@type": etype, **props}))
+    return {"@id": eid}
+
+
+def _organization(crate: Any, org: Mapping[str, Any], local: str) -> dict[str, str]:
+    """An Organization entity (``{"name", "id"?, "url"?}``; ``local`` the id without one)."""
+    props = {"name": str(org["name"])}
+    if org.get("url"):
+        props["url"] = str(org["url"])
+    return _entity(crate, _contextual_id(org.get("id"), local), "Organization", props)
+
+
+def _author(crate: Any, author: Mapping[str, Any]) -> dict[str, str]:
+    """The author entity (``{"name", "id"?, "type"?, "url"?, "affiliation"?}``, Person by default)."""
+    props: dict[str, Any] = {"name": str(author["name"])}
+    if author.get("url"):
+        props["url"] = str(author["url"])
+    if author.get("affiliation"):
+        props["affiliation"] = _organization(crate, author["affiliation"], "#affiliation")
+    return _entity(crate, _contextual_id(author.get("id"), "#author"), str(author.get("type", "Person")), props)
+
+
+def _software_id(software: Mapping[str, str], name: str, software_url: str | None) -> tuple[str, str | None]:
+    """The ``@id`` and home page of distribution ``name`` (huefringe: ``software_url`` or local)."""
+    version = quote(software[name], safe="")
+    if name == "huefringe":
+        return (software_url, software_url) if software_url else ("#software/huefringe", None)
+    if name == "python":
+        return f"https://www.python.org/downloads/release/python-{version.replace('.', '')}/", "https://www.python.org/"
+    return f"https://pypi.org/project/{quote(name, safe='')}/{version}/", f"https://pypi.org/project/{quote(name, safe='')}/"
+
+
+def _add_software(crate: Any, software: Mapping[str, str], software_url: str | None) -> dict[str, str] | None:
+    """A SoftwareApplication per distribution; huefringe's reference (the run's instrument), if listed."""
+    platform_name = software.get("platform")
+    sw_ids = {}
+    for name in sorted(n for n in software if n != "platform"):
+        sid, url = _software_id(software, name, software_url)
+        sw_ids[name] = sid
+        props: dict[str, Any] = {"name": "Python" if name == "python" else name, "version": software[name]}
+        if url:
+            props["url"] = url
+        if name == "huefringe" and platform_name:
+            props["operatingSystem"] = platform_name
+        _entity(crate, sid, "SoftwareApplication", props)
+    instrument = {"@id": sw_ids["huefringe"]} if "huefringe" in sw_ids else None
+    if instrument:  # the other distributions are what huefringe ran on
+        crate.dereference(sw_ids["huefringe"])["softwareRequirements"] = [
+            {"@id": sid} for name, sid in sw_ids.items() if name != "huefringe"]
+    return instrument
+
+
+def _add_file(crate: Any, m: _Member, description: str | None = None) -> dict[str, str]:
+    """A File data entity of member ``m`` (name, size, format, SHA-256); its reference."""
+    props: dict[str, Any] = {
+        "name": PurePosixPath(m.name).name,
+        "contentSize": str(m.size),
+        "encodingFormat": encoding_format(m.name),
+        "sha256": m.sha256,
+    }
+    if description:
+        props["description"] = description
+    crate.add_file(dest_path=m.name, properties=props)
+    return _ref(m.name)
+
+
+def _provenance_sentences(prov: Mapping[str, Any]) -> list[str]:
+    """What the session's provenance block tells about the capture, as sentences."""
+    told = []
+    if prov.get("instrument"):
+        told.append(f"Instrument: {prov['instrument']}.")
+    if "simulated" in prov:
+        told.append("SIMULATED: written by a virtual bench, not captured by a physical rig." if prov["simulated"]
+                    else "Captured by a physical rig (not simulated).")
+    if prov.get("notes"):
+        told.append(f"Notes: {prov['notes']}")
+    return told
+
+
 def build_crate(
     session_id: str,
     inputs: list[_Member],
@@ -274,7 +357,6 @@ def build_crate(
     ``publisher`` ``{"name", "id"?, "url"?}`` (always an Organization); ``provenance`` the
     session's provenance block, recorded on the root dataset and the run.
     """
-    from rocrate.model import ContextEntity
     from rocrate.rocrate import ROCrate
 
     crate = ROCrate(version=RO_CRATE_VERSION, gen_preview=False)
@@ -283,8 +365,7 @@ def build_crate(
     prov = dict(provenance or {})
 
     def entity(eid: str, etype: str, props: dict[str, Any]) -> dict[str, str]:
-        crate.add(ContextEntity(crate, eid, properties={"@type": etype, **props}))
-        return {"@id": eid}
+        return _entity(crate, eid, etype, props)
 
     # contextual entities: profile, licence, author, publisher
     profile_ref = entity(PROCESS_RUN_PROFILE, "CreativeWork", {"name": "Process Run Crate", "version": "0.5"})
@@ -293,64 +374,16 @@ def build_crate(
     else:
         license_ref = entity("#license", "CreativeWork", {
             "name": "licence not specified", "description": str(license or DEFAULT_LICENSE)})
-    def organization(org: Mapping[str, Any], local: str) -> dict[str, str]:
-        props = {"name": str(org["name"])}
-        if org.get("url"):
-            props["url"] = str(org["url"])
-        return entity(_contextual_id(org.get("id"), local), "Organization", props)
-
-    author_ref = None
-    if author:
-        props = {"name": str(author["name"])}
-        if author.get("url"):
-            props["url"] = str(author["url"])
-        if author.get("affiliation"):
-            props["affiliation"] = organization(author["affiliation"], "#affiliation")
-        author_ref = entity(_contextual_id(author.get("id"), "#author"), str(author.get("type", "Person")), props)
+    author_ref = _author(crate, author) if author else None
     pub = dict(publisher or {"name": "not specified (set archive.publisher in the configuration)"})
-    publisher_ref = organization(pub, "#publisher")
-
-    # software: SoftwareApplication per distribution, huefringe first
-    def software_id(name: str) -> tuple[str, str | None]:
-        version = quote(software[name], safe="")
-        if name == "huefringe":
-            return (software_url, software_url) if software_url else ("#software/huefringe", None)
-        if name == "python":
-            return f"https://www.python.org/downloads/release/python-{version.replace('.', '')}/", "https://www.python.org/"
-        return f"https://pypi.org/project/{quote(name, safe='')}/{version}/", f"https://pypi.org/project/{quote(name, safe='')}/"
-
-    platform_name = software.get("platform")
-    sw_ids = {}
-    for name in sorted(n for n in software if n != "platform"):
-        sid, url = software_id(name)
-        sw_ids[name] = sid
-        props: dict[str, Any] = {"name": "Python" if name == "python" else name, "version": software[name]}
-        if url:
-            props["url"] = url
-        if name == "huefringe" and platform_name:
-            props["operatingSystem"] = platform_name
-        entity(sid, "SoftwareApplication", props)
-    instrument = {"@id": sw_ids["huefringe"]} if "huefringe" in sw_ids else None
-    if instrument:  # the other distributions are what huefringe ran on
-        crate.dereference(sw_ids["huefringe"])["softwareRequirements"] = [
-            {"@id": sid} for name, sid in sw_ids.items() if name != "huefringe"]
+    publisher_ref = _organization(crate, pub, "#publisher")
+    instrument = _add_software(crate, software, software_url)
 
     # data entities
-    def add_file(m: _Member, description: str | None = None) -> dict[str, str]:
-        props: dict[str, Any] = {
-            "name": PurePosixPath(m.name).name,
-            "contentSize": str(m.size),
-            "encodingFormat": encoding_format(m.name),
-            "sha256": m.sha256,
-        }
-        if description:
-            props["description"] = description
-        crate.add_file(dest_path=m.name, properties=props)
-        return _ref(m.name)
-
-    config_ref = add_file(config, "Workflow configuration used for the run (keys of config.yaml).") if config else None
-    input_refs = [add_file(m) for m in inputs]
-    output_refs = [add_file(m) for m in outputs]
+    config_ref = (_add_file(crate, config, "Workflow configuration used for the run (keys of config.yaml).")
+                  if config else None)
+    input_refs = [_add_file(crate, m) for m in inputs]
+    output_refs = [_add_file(crate, m) for m in outputs]
     session_props: dict[str, Any] = {
         "name": f"capture session {session_id} (inputs)",
         "description": "The capture-session folder the workflow read (capture-session/1).",
@@ -360,14 +393,7 @@ def build_crate(
         session_props["dateCreated"] = str(prov["captured_at"])
     if prov.get("operator"):
         session_props["creator"] = entity("#operator", "Person", {"name": str(prov["operator"])})
-    told = []
-    if prov.get("instrument"):
-        told.append(f"Instrument: {prov['instrument']}.")
-    if "simulated" in prov:
-        told.append("SIMULATED: written by a virtual bench, not captured by a physical rig." if prov["simulated"]
-                    else "Captured by a physical rig (not simulated).")
-    if prov.get("notes"):
-        told.append(f"Notes: {prov['notes']}")
+    told = _provenance_sentences(prov)
     if told:
         session_props["description"] += " " + " ".join(told)
     crate.add_dataset(dest_path=SESSION_DIR, properties=session_props)

@@ -40,12 +40,12 @@ from huefringe.camera import BAYER_PATTERNS, bayer_problem, demosaic
 from huefringe.capture_checks import NEAR_IDENTICAL_FRACTION, band_order_problems, bayer_fit, duplicate_groups, \
     site_means
 from huefringe.io import atomic_path, publish_dir
+from huefringe.patterns import MANIFEST_HEADER
 from huefringe.session import Problem, Session, SessionError, decode_image, load_session, read_predistortion
 
 CAPTURE_SUFFIXES = (".png", ".tif", ".tiff")
 PREDISTORTION = "predistortion.csv"
 """A patterns folder's pre-distortion (``huefringe patterns --compensated``), copied into the session."""
-MANIFEST_HEADER = ["order", "image", "session_path"]
 PERIOD_TOLERANCE = 0.05
 """Largest relative disagreement between the declared and the measured reference-plane period."""
 FRINGE_LEVEL = 0.1
@@ -127,7 +127,7 @@ def read_patterns(patterns_dir: str | os.PathLike[str]) -> tuple[dict[str, Any],
             lines = list(csv.reader(fh))
     except (OSError, UnicodeDecodeError) as exc:
         raise SessionError.at(mcsv, f"cannot read the manifest ({exc})") from exc
-    if not lines or lines[0] != MANIFEST_HEADER:
+    if not lines or tuple(lines[0]) != MANIFEST_HEADER:
         raise SessionError.at(mcsv, f"header must be exactly {','.join(MANIFEST_HEADER)}")
     rows = []
     for k, line in enumerate(lines[1:]):

@@ -29,7 +29,7 @@ from huefringe.io import atomic_path
 __all__ = ["colour_bytes", "height_to_cloud", "height_to_points", "write_cloud", "write_height_cloud", "write_points"]
 
 
-def _check_height(height: ArrayLike, pitch_mm: float) -> NDArray[np.floating]:
+def check_height(height: ArrayLike, pitch_mm: float) -> NDArray[np.floating]:
     h = np.asarray(height)
     if h.ndim != 2:
         raise ValueError(f"height must be a 2-D (H, W) array, got shape {h.shape}")
@@ -40,7 +40,7 @@ def _check_height(height: ArrayLike, pitch_mm: float) -> NDArray[np.floating]:
     return h
 
 
-def _check_colours(colours: ArrayLike, shape: tuple[int, int]) -> NDArray[np.float64]:
+def check_colours(colours: ArrayLike, shape: tuple[int, int]) -> NDArray[np.float64]:
     """Return ``colours`` as float64 ``(H, W, 3)`` in [0, 1] (uint8/uint16 are rescaled)."""
     c = np.asarray(colours)
     if c.ndim == 2:  # grey image
@@ -76,7 +76,7 @@ def height_to_points(height: ArrayLike, pitch_mm: float,
     pixel : ndarray, shape (N,), intp
         Flat (row-major) pixel index ``v * W + u`` of each point.
     """
-    h = _check_height(height, pitch_mm)
+    h = check_height(height, pitch_mm)
     pixel = np.flatnonzero(np.isfinite(h))
     v, u = np.divmod(pixel, h.shape[1])
     points = np.empty((pixel.size, 3), dtype=np.float64)
@@ -137,7 +137,7 @@ def height_to_cloud(
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(points))
     if colours is not None:
         shape = np.shape(height)
-        rgb = _check_colours(colours, (shape[0], shape[1])).reshape(-1, 3)[pixel]
+        rgb = check_colours(colours, (shape[0], shape[1])).reshape(-1, 3)[pixel]
         pcd.colors = o3d.utility.Vector3dVector(np.ascontiguousarray(rgb))
     return pcd
 
@@ -342,7 +342,7 @@ def write_height_cloud(
     path = Path(path)
     if path.suffix.lower() != ".ply":
         raise ValueError(f"{path}: write_height_cloud writes PLY; use a .ply file name")
-    h = _check_height(height, pitch_mm)
+    h = check_height(height, pitch_mm)
     shape = h.shape
     rgb = None
     if colours is not None:
@@ -350,7 +350,7 @@ def write_height_cloud(
         if c.dtype == np.uint8 and c.ndim == 2 and c.shape == (shape[0] * shape[1], 3):
             rgb = np.ascontiguousarray(c)
         else:
-            rgb = np.ascontiguousarray(colour_bytes(_check_colours(c, (shape[0], shape[1])).reshape(-1, 3)))
+            rgb = np.ascontiguousarray(colour_bytes(check_colours(c, (shape[0], shape[1])).reshape(-1, 3)))
     extra = {}
     fields: list[tuple[str, str]] = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
     if rgb is not None:

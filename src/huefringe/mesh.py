@@ -49,7 +49,7 @@ import scipy.sparse.csgraph
 import trimesh
 from numpy.typing import ArrayLike, NDArray
 
-from huefringe.cloud import _check_colours, _check_height
+from huefringe.cloud import check_colours, check_height
 from huefringe.io import atomic_path, write_json
 
 __all__ = [
@@ -193,7 +193,7 @@ def height_to_mesh(
     Fully vectorised; a fully valid flat ``H x W`` map gives ``2 (H-1)(W-1)`` faces. One
     invalid interior pixel removes exactly the 6 faces that would touch it.
     """
-    h = _check_height(height, pitch_mm)
+    h = check_height(height, pitch_mm)
     H, W = h.shape
     if jump_mm is None:
         if noise_mm is None:
@@ -206,7 +206,7 @@ def height_to_mesh(
         raise ValueError(f"jump_mm must be > 0, got {jump_mm!r}")
     rgba = None
     if colours is not None:
-        rgb = _check_colours(colours, (H, W)).reshape(-1, 3)
+        rgb = check_colours(colours, (H, W)).reshape(-1, 3)
         rgba = np.empty((H * W, 4), dtype=np.uint8)
         rgba[:, :3] = np.rint(rgb * 255.0).astype(np.uint8)
         rgba[:, 3] = 255

@@ -46,6 +46,7 @@ range (e.g. ``max(planes_mm)``), and ``pass = |error_mm| <= tolerance_mm``. The 
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from typing import Any
@@ -571,11 +572,8 @@ def evaluate_session(
     central_box((0, 0, 3, 3), edge_exclusion)  # validates edge_exclusion early
     # one frame at a time (a generator of maps read from disk keeps one map in memory: 1000
     # frames of 640 x 480 would be 1.2 GB held at once)
-    maps = iter(heights)
-    first = next(maps, None)
-    if first is None:
-        raise MetrologyError("no height map given: nothing to evaluate")
-    z0 = _height_map(first, 0)
+    maps = _height_maps(heights)
+    _, z0 = next(maps)
     shape = z0.shape
 
     base_boxes = [check_box(b, shape, f"base_roi[{i}]") for i, b in enumerate(base)]
@@ -589,18 +587,8 @@ def evaluate_session(
     cov_roi_l: list[list[float]] = []
     cov_eval_l: list[list[float]] = []
     flat_l: list[list[list[float]]] = []
-    flat_keys = ("Sa_mm", "Sq_mm", "Sp_mm", "Sv_mm", "Sz_mm")
-
-    def frames() -> Iterator[tuple[int, NDArray[np.floating[Any]]]]:
-        yield 0, z0
-        for i, h in enumerate(maps, start=1):
-            z = _height_map(h, i)
-            if z.shape != shape:
-                raise MetrologyError(f"height map shape {z.shape} differs from frame 0's {shape}", frame=i)
-            yield i, z
-
     lens = camera is not None and not camera.plain
-    for f, z in frames():
+    for f, z in itertools.chain([(0, z0)], maps):
         xy = camera.xy(z) if lens else None  # type: ignore[union-attr]
         plane_f, res = fit_plane(z, base_boxes, pitch, min_coverage=min_coverage, frame=f, xy=xy)
         plane = np.empty(3)
@@ -608,17 +596,8 @@ def evaluate_session(
         planes_l.append(plane)
         rms_l.append(res)
         base_cov_l.append([coverage(z, b) for b in base_boxes])
-        pf, cr, ce, fls = [], [], [], []
-        for k, (s, box) in enumerate(zip(steps, step_boxes, strict=True)):
-            name = str(s["name"])
-            pf.append(step_height(
-                z, plane, box, pitch, edge_exclusion,
-                name=name, min_coverage=min_coverage, normal=normal, frame=f, xy=xy,
-            ))  # fmt: skip
-            cr.append(coverage(z, box))
-            ce.append(coverage(z, eval_boxes[k]))
-            fl = flatness(z, box, pitch, edge_exclusion, name=name, min_coverage=min_coverage, frame=f, xy=xy)
-            fls.append([fl[key] for key in flat_keys])
+        pf, cr, ce, fls = _frame_steps(z, plane, steps, step_boxes, eval_boxes, pitch, edge_exclusion,
+                                       min_coverage=min_coverage, normal=normal, frame=f, xy=xy)
         per_frame_l.append(pf)
         cov_roi_l.append(cr)
         cov_eval_l.append(ce)
@@ -634,35 +613,8 @@ def evaluate_session(
     cov_eval = np.array(cov_eval_l, dtype=np.float64).reshape(n, len(steps)).T
     flat = np.array(flat_l, dtype=np.float64).reshape(n, len(steps), 5).transpose(1, 0, 2)
 
-    step_out: list[dict[str, Any]] = []
-    for k, s in enumerate(steps):
-        values = [float(v) for v in per_frame[k]]
-        nominal = float(s["nominal_mm"])
-        mean = float(np.mean(per_frame[k]))
-        std = float(np.std(per_frame[k], ddof=1)) if n > 1 else None
-        error = mean - nominal
-        step_out.append(
-            {
-                "name": str(s["name"]),
-                "nominal_mm": nominal,
-                "mean_mm": mean,
-                "std_mm": std,
-                "repeatability_3sigma_mm": None if std is None else 3.0 * std,
-                "error_mm": error,
-                "error_pct": 100.0 * (mean - nominal) / nominal,
-                "error_pct_of_range": 100.0 * error / rng,
-                "pass": bool(abs(error) <= tol),
-                "per_frame_mm": values,
-                "roi": list(step_boxes[k]),
-                "evaluated_roi": list(eval_boxes[k]),
-                "coverage": {
-                    "roi": float(cov_roi[k].mean()),
-                    "evaluated": float(cov_eval[k].mean()),
-                    "evaluated_min": float(cov_eval[k].min()),
-                },
-                "flatness": {key: float(flat[k, :, j].mean()) for j, key in enumerate(flat_keys)},
-            }
-        )
+    step_out = [_step_summary(s, per_frame[k], step_boxes[k], eval_boxes[k], cov_roi[k], cov_eval[k], flat[k],
+                              tolerance_mm=tol, range_mm=rng) for k, s in enumerate(steps)]
     return {
         "method": str(method),
         "frames": n,
@@ -681,4 +633,73 @@ def evaluate_session(
             "residual_rms_mm_max": float(rms.max()),
         },
         "steps": step_out,
+    }
+
+
+#: The flatness parameters of each step's evaluated box (:func:`flatness`), in the report's order.
+_FLAT_KEYS = ("Sa_mm", "Sq_mm", "Sp_mm", "Sv_mm", "Sz_mm")
+
+
+def _height_maps(heights: Iterable[ArrayLike]) -> Iterator[tuple[int, NDArray[np.floating[Any]]]]:
+    """``(frame, map)`` of each height map, checked as read: one at a time, each the first's shape."""
+    maps = iter(heights)
+    first = next(maps, None)
+    if first is None:
+        raise MetrologyError("no height map given: nothing to evaluate")
+    z0 = _height_map(first, 0)
+    yield 0, z0
+    for i, h in enumerate(maps, start=1):
+        z = _height_map(h, i)
+        if z.shape != z0.shape:
+            raise MetrologyError(f"height map shape {z.shape} differs from frame 0's {z0.shape}", frame=i)
+        yield i, z
+
+
+def _frame_steps(z: NDArray[np.floating[Any]], plane: NDArray[np.float64], steps: Sequence[Mapping[str, Any]],
+                 step_boxes: Sequence[Box], eval_boxes: Sequence[Box], pitch: float, edge_exclusion: float, *,
+                 min_coverage: float, normal: bool, frame: int, xy: Any
+                 ) -> tuple[list[float], list[float], list[float], list[list[float]]]:
+    """One frame's step heights, ROI and evaluated-box coverage, and flatness parameters, step by step."""
+    pf, cr, ce, fls = [], [], [], []
+    for s, box, ebox in zip(steps, step_boxes, eval_boxes, strict=True):
+        name = str(s["name"])
+        pf.append(step_height(
+            z, plane, box, pitch, edge_exclusion,
+            name=name, min_coverage=min_coverage, normal=normal, frame=frame, xy=xy,
+        ))  # fmt: skip
+        cr.append(coverage(z, box))
+        ce.append(coverage(z, ebox))
+        fl = flatness(z, box, pitch, edge_exclusion, name=name, min_coverage=min_coverage, frame=frame, xy=xy)
+        fls.append([fl[key] for key in _FLAT_KEYS])
+    return pf, cr, ce, fls
+
+
+def _step_summary(s: Mapping[str, Any], per_frame: NDArray[np.float64], box: Box, ebox: Box,
+                  cov_roi: NDArray[np.float64], cov_eval: NDArray[np.float64], flat: NDArray[np.float64], *,
+                  tolerance_mm: float, range_mm: float) -> dict[str, Any]:
+    """One step's block of :func:`evaluate_session` from its per-frame figures (``flat``: frames x 5)."""
+    n = per_frame.size
+    nominal = float(s["nominal_mm"])
+    mean = float(np.mean(per_frame))
+    std = float(np.std(per_frame, ddof=1)) if n > 1 else None
+    error = mean - nominal
+    return {
+        "name": str(s["name"]),
+        "nominal_mm": nominal,
+        "mean_mm": mean,
+        "std_mm": std,
+        "repeatability_3sigma_mm": None if std is None else 3.0 * std,
+        "error_mm": error,
+        "error_pct": 100.0 * (mean - nominal) / nominal,
+        "error_pct_of_range": 100.0 * error / range_mm,
+        "pass": bool(abs(error) <= tolerance_mm),
+        "per_frame_mm": [float(v) for v in per_frame],
+        "roi": list(box),
+        "evaluated_roi": list(ebox),
+        "coverage": {
+            "roi": float(cov_roi.mean()),
+            "evaluated": float(cov_eval.mean()),
+            "evaluated_min": float(cov_eval.min()),
+        },
+        "flatness": {key: float(flat[:, j].mean()) for j, key in enumerate(_FLAT_KEYS)},
     }

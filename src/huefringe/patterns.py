@@ -13,6 +13,9 @@ from numpy.typing import ArrayLike, NDArray
 
 TWO_PI = 2.0 * np.pi
 
+#: Header of a patterns folder's ``manifest.csv`` (``huefringe patterns`` writes it, ``huefringe session`` reads it).
+MANIFEST_HEADER = ("order", "image", "session_path")
+
 #: Eq. 3 sextant by sextant (``s = 3 phi / pi`` in ``[k, k + 1)``, :func:`trapezoid_rgb`): the one
 #: channel on a ramp (0 R, 1 G, 2 B) and its direction (+1 rising, -1 falling); the other two sit
 #: at 0 and 1. What the hue bands of a segment show about one primary alone (the camera's channel

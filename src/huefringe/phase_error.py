@@ -300,9 +300,6 @@ def qa_figure(lut: PhaseErrorLUT, path: str, *, title: str = "") -> None:
     plt.close(fig)
 
 
-DEFAULTS: dict[str, Any] = {"enabled": "auto", "bins": 512, "iterations": 3, "smooth_bins": 8.0}
-
-
 def holdout_check(plane_phases: dict[float, NDArray[np.floating]], plane_valid: dict[float, NDArray[np.bool_]], *,
                   degree: int = 3, **kw: Any) -> dict[str, Any]:
     """Leave-one-plane-out test of the table: does it lower the error of a plane it did not see?
@@ -318,7 +315,7 @@ def holdout_check(plane_phases: dict[float, NDArray[np.floating]], plane_valid: 
     if len(zs) < 2:
         return {"planes": len(zs)}
     rms_b, rms_a, bin_b, bin_a = [], [], [], []
-    bins = int(kw.get("bins", 512))
+    bins = int(kw["bins"])
     unwrapped = unwrap_planes(plane_phases, plane_valid, degree, 4)
     for z in zs:
         train = {k: plane_phases[k] for k in zs if k != z}
@@ -351,8 +348,8 @@ def from_calibration(plane_phases: dict[float, NDArray[np.floating]], plane_vali
     learned from the other planes lowers a plane's residual. The decision and its figures are in
     the summary (``applied``, ``holdout``).
     """
-    opts = {**DEFAULTS, **dict(calibration.get("phase_error") or {})}
-    degree = int(calibration.get("plane_smooth_degree") or 3)
+    opts = calibration["phase_error"]
+    degree = int(calibration["plane_smooth_degree"] or 3)  # null (raw plane pixels): the table still fits degree 3
     kw = {"bins": int(opts["bins"]), "iterations": int(opts["iterations"]), "smooth_bins": float(opts["smooth_bins"])}
     lut = estimate(plane_phases, plane_valid, degree=degree, **kw)
     mode = opts["enabled"]

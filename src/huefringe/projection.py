@@ -47,7 +47,7 @@ from .compensation import GammaFit, GammaFitError, emitted_columns, linearised_l
     predistortion, projector_gamma
 from .huetable import HueTable
 from .io import atomic_path, write_png_rgb
-from .patterns import TWO_PI, band_rgb, phase_shift_intensity, projector_image, quantise
+from .patterns import MANIFEST_HEADER, TWO_PI, band_rgb, phase_shift_intensity, projector_image, quantise
 from .session import SessionError, format_predistortion, read_predistortion
 
 #: The hue table of the reference plate that ``--compensated`` reads from a calibration folder.
@@ -58,8 +58,6 @@ PHASE_SHIFT_LEVELS = "phase_shift_levels.csv"
 
 #: Rows of ``phase_shift_levels.csv``: wanted grey level ``j / PHASE_SHIFT_LEVEL_STEPS``.
 PHASE_SHIFT_LEVEL_STEPS = 256
-
-MANIFEST_HEADER = ("order", "image", "session_path")
 
 #: Smallest projector period accepted: below 6 px the six linear pieces of eq. 3 get < 1 px each.
 MIN_PERIOD_PX = 6.0
@@ -84,15 +82,6 @@ class PatternsError(ValueError):
         self.argument = argument
         self.problem = problem
         super().__init__(f"{argument}: {problem}")
-
-
-@dataclass(frozen=True)
-class Capture:
-    """One manifest row: capture ``order`` shows projector file ``image``, stored at ``session_path``."""
-
-    order: int
-    image: str
-    session_path: str
 
 
 def projector_period(camera_period_px: float, magnification: float) -> float:
@@ -462,11 +451,3 @@ def write_patterns(
         raise
     return out
 
-
-def read_manifest(path: str | os.PathLike[str]) -> list[Capture]:
-    """The rows of a ``manifest.csv`` written by :func:`write_patterns`."""
-    with open(path, newline="", encoding="utf-8") as fh:
-        rows = list(csv.reader(fh))
-    if not rows or tuple(rows[0]) != MANIFEST_HEADER:
-        raise ValueError(f"{path}: header must be {','.join(MANIFEST_HEADER)}")
-    return [Capture(int(o), i, s) for o, i, s in rows[1:]]

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import base64
 import functools
-import hashlib
 import importlib.metadata
 import importlib.resources
 import json
@@ -52,7 +51,7 @@ from typing import Any
 import jsonschema
 import numpy as np
 
-from huefringe.io import atomic_path, write_figure_png
+from huefringe.io import atomic_path, sha256_file, write_figure_png
 
 __all__ = [
     "BASELINE_METHOD",
@@ -70,7 +69,6 @@ __all__ = [
     "load_schema",
     "per_frame_figure",
     "render_report_html",
-    "sha256_file",
     "software_versions",
     "validate_report",
     "write_report_html",
@@ -431,15 +429,6 @@ def per_frame_figure(report: Mapping[str, Any], out_png: str | os.PathLike[str])
 # --------------------------------------------------------------------------------------------
 # provenance helpers
 # --------------------------------------------------------------------------------------------
-
-
-def sha256_file(path: str | os.PathLike[str], chunk: int = 1 << 20) -> str:
-    """Hex SHA-256 of a file, read in chunks."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        while block := fh.read(chunk):
-            h.update(block)
-    return h.hexdigest()
 
 
 def software_versions(packages: Iterable[str] = ("huefringe", "numpy", "scipy", "matplotlib", "jsonschema")) -> dict[str, str]:

@@ -16,7 +16,7 @@ which makes ``B'_c / W_c = F_c`` to first order. ``sigma^2`` is the camera's blu
 session does not record; :func:`blur_from_phases` finds it from the session's own object frames
 measured with and without the correction: the true surface does not follow the texture, so the
 ``sigma^2`` that removes the phase's texture-correlated fine structure is the blur
-(``huefringe.stages.session_texture_blur`` runs it). Where that estimate is refused (a surface
+(``huefringe.pipeline.session_texture_blur`` runs it). Where that estimate is refused (a surface
 with little texture, e.g. gauge blocks: a few sharp coating edges, too few for the phase's
 statistics) or the session has one frame, :func:`blur_from_white` reads the blur from the white
 image's sharp edges instead. Pure functions, no I/O.

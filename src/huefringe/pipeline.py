@@ -1,0 +1,497 @@
+"""The measuring pipeline in memory: prepare a session once, then measure one frame at a time.
+
+:func:`prepare_session` runs what the workflow's calibration jobs run (the camera corrections,
+both hue tables, the plane calibration with its phase-error table and texture blur);
+:func:`prepare_frames` readies the per-frame chain (the object's white image, shadow, the fused
+kernel or the NumPy reference chain) and :func:`measure_one` turns one capture into one
+:class:`FrameResult`, the only shape a frame's result has. :func:`huefringe.measure` and the
+workflow's stages (:mod:`huefringe.stages`, which read files, call these and write files) share
+them, so both give the same numbers. The chains themselves are :mod:`huefringe.kernel` and
+:mod:`huefringe.perframe`; their own result records are converted here.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe import kernel, phase_error, texture
+from huefringe.camera import CameraModel, CaptureReader, bayer_resampling, camera_record, corrections, mixing_band_pairs
+from huefringe.colour import hue as hue_of
+from huefringe.colour import white_balance
+from huefringe.height import PlaneCalibration, PlaneCalibrationError, calibrate_planes
+from huefringe.huetable import HueTable, HueTableError, build_table
+from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
+from huefringe.session import Session
+from huefringe.uncertainty import PixelBudget, add_lateral, noise_correlation, phase_error_residual_rad, pixel_budget, texture_term
+
+__all__ = ["Calibrated", "FramePipeline", "FrameResult", "bayer_noise_correlation", "frame_results", "measure_one",
+           "noise_aware_adaptive", "prepare_frames", "prepare_session", "session_camera_record",
+           "session_corrections", "session_hue_table", "session_plane_calibration", "session_texture_blur"]
+
+
+@dataclass
+class FrameResult:
+    """One frame measured: what :func:`measure_one` returns, for the workflow and :func:`huefringe.measure` alike."""
+
+    frame: int
+    """The frame number (``session.yaml``)."""
+    height: NDArray[np.float32]
+    """Height (mm) above the reference plane, NaN where invalid."""
+    stats: dict[str, Any] = field(default_factory=dict)
+    """The frame's QA figures (``qa/frames/frame_NNNN.json``)."""
+    phase: NDArray[np.float32] | None = None
+    """Corrected code phase, wrapped to [0, 2 pi), NaN where invalid (None where maps were not asked for)."""
+    hue: NDArray[np.float32] | None = None
+    """White-balanced captured hue, NaN where undefined (None alike)."""
+    uncertainty: NDArray[np.float32] | None = None
+    """Standard uncertainty of the height (mm), NaN where the height is NaN (:mod:`huefringe.uncertainty`);
+    None without ``want_uncertainty``."""
+    support: NDArray[np.float32] | None = None
+    """Pixels the phase filter averaged into each height, 0 where NaN (None alike)."""
+
+    @property
+    def valid(self) -> NDArray[np.bool_]:
+        """Pixels with a height."""
+        return np.isfinite(self.height)
+
+
+def session_camera_record(s: Session, camera: Mapping[str, Any], calibration: Mapping[str, Any]) -> dict[str, Any]:
+    """The ``calib/camera.json`` record of a session in memory (:func:`camera_calibration` writes it)."""
+    read = CaptureReader(bayer=bayer_resampling(s.meta, camera["demosaic"])).rgb
+    white = read(s.reference_white)
+    mode = camera["chromatic_registration"]
+    planes = [] if mode is False or mode == "false" else [read(p) for p in s.planes.values()]
+    demix = camera["colour_demixing"]
+    bands: dict[int, NDArray[np.floating]] = {}
+    if planes or not (demix is False or demix == "false"):
+        # the hue bands the channel-mixing estimate reads (repeats averaged): the registration's and the demixing's
+        for _, first, last, _ in mixing_band_pairs(s.hue_bands):
+            for i in (first, last):
+                if i not in bands:
+                    bands[i] = np.mean([read(p) for p in s.reference_bands[i]], axis=0)
+    return camera_record(s.meta, camera, planes, white, shadow=shadow_mask(white, calibration["shadow_fraction"]),
+                         bands=bands)
+
+
+def session_corrections(s: Session, camera_json: str | Path | None = "") -> tuple[CameraModel, CaptureReader]:
+    """The X, Y model and capture reader of ``calib/camera.json`` (:func:`camera_calibration`);
+    without one: the session's own lens model and no channel registration."""
+    record = json.loads(Path(camera_json).read_text()) if camera_json else None
+    return corrections(record, s.meta)
+
+
+def _calibration_opts(calibration: Mapping[str, Any]) -> dict[str, Any]:
+    return {"min_saturation": calibration["min_saturation"], "min_intensity": calibration["min_intensity"]}
+
+#: A hue table usable for fewer pixels than this is refused: the bands are not what they claim.
+MIN_TABLE_VALID_FRACTION = 0.2
+
+_TABLE_HINTS = {
+    "low_signal": "the white image is too dark there (projector off, lens cap, exposure too short?)",
+    "low_saturation": "the bands carry no colour there (projector off, or the sensor saturated?)",
+    "noise": "the repeats of a band disagree (vibration, flicker or a changing exposure?)",
+    "coverage": "the captured hue does not go once round the colour circle with the band index "
+                "(bands mislabelled, out of order or captured with another pattern?)",
+    "order": "the captured hue does not rise monotonically with the band index "
+             "(bands mislabelled, out of order or captured with another pattern?)",
+}
+
+
+def _refuse_bad_table(folder: Path, stats: Mapping[str, Any], min_valid: float = MIN_TABLE_VALID_FRACTION) -> None:
+    if stats["valid_fraction"] >= min_valid:
+        return
+    masked = stats["masked_by_reason"]
+    worst = max(masked, key=masked.get)
+    raise HueTableError(
+        f"{folder}: the hue table is usable for only {100 * stats['valid_fraction']:.1f} % of the pixels "
+        f"(limit {100 * min_valid:.0f} %); {100 * masked[worst] / stats['n_pixels']:.1f} % are masked as "
+        f"'{worst}': {_TABLE_HINTS.get(worst, '')}"
+    )
+
+
+def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mapping[str, Any], *,
+                      reader: CaptureReader | None = None) -> HueTable:
+    """The hue table of a session's reference plate or object, in memory (:func:`hue_table` writes it);
+    the captures read through ``reader`` (the camera corrections; default: as stored).
+
+    Raises
+    ------
+    HueTableError
+        Naming the white image (too many clipped pixels) or the band folder (too few usable pixels).
+    """
+    bands = s.reference_bands if which == "reference" else s.object_bands
+    white_path = s.reference_white if which == "reference" else s.object_white
+    reader = reader or CaptureReader()
+    white = reader.rgb(white_path)
+    clipped = float(clipped_mask(white, s.bit_depth).mean())
+    limit = float(calibration["max_white_clipped_fraction"])
+    if clipped > limit:
+        raise HueTableError(
+            f"{white_path}: {100 * clipped:.1f} % of the pixels are clipped (sensor saturated; limit "
+            f"{100 * limit:g} %, calibration.max_white_clipped_fraction): white balance needs the unclipped level; "
+            "reduce the exposure"
+        )
+    built = build_table(bands, white, model=hue_model, progress=False, read=reader.rgb, **_calibration_opts(calibration))
+    _refuse_bad_table(s.root / which / "hue", built.stats)
+    if reader.bayer is not None and len(bands[0]) >= 2:  # re-demosaiced: its noise is correlated between neighbours
+        built.stats["noise_correlation"] = bayer_noise_correlation(bands, white, reader, hue_model, calibration)
+    return built
+
+
+def noise_aware_adaptive(adaptive: Mapping[str, Any] | None, table: HueTable) -> Mapping[str, Any] | None:
+    """The adaptive phase filter's settings (``measurement.denoise_adaptive``) for noise correlated
+    between neighbours: ``target_sigma_rad`` and ``reject_sigma_rad`` over ``sqrt(k)``, ``k`` the
+    table's ``noise_correlation`` factor (a re-demosaiced Bayer session, :func:`bayer_noise_correlation`;
+    at least 1). The filter's sigma ``1 / sqrt(sum w)`` assumes independent pixels, so it reads
+    ``sqrt(k)`` too low and stops growing too early. A table without the factor (three-chip): as given."""
+    corr = (table.stats or {}).get("noise_correlation")
+    if not adaptive or not corr:
+        return adaptive
+    scale = 1.0 / float(np.sqrt(max(1.0, float(corr["factor"]))))
+    out = dict(adaptive)
+    for key in ("target_sigma_rad", "reject_sigma_rad"):
+        if out.get(key) is not None:
+            out[key] = float(out[key]) * scale
+    return out
+
+
+#: hue bands (evenly spread) whose first two repeats give a Bayer session's noise correlation
+NOISE_CORRELATION_BANDS = 12
+
+
+def bayer_noise_correlation(bands: Sequence[Sequence[Path]], white: NDArray[np.floating], reader: CaptureReader,
+                            hue_model: str, calibration: Mapping[str, Any]) -> dict[str, Any]:
+    """:func:`huefringe.uncertainty.noise_correlation` of the hue differences between the first two
+    repeats of :data:`NOISE_CORRELATION_BANDS` bands, read as the chain reads them (``reader``)."""
+    picks = np.unique(np.linspace(0, len(bands) - 1, min(NOISE_CORRELATION_BANDS, len(bands))).round().astype(int))
+    diffs = []
+    for k in picks:
+        h0, h1 = (hue_of(white_balance(reader.rgb(bands[k][r]), white), hue_model,
+                         min_saturation=calibration["min_saturation"]) for r in (0, 1))
+        diffs.append(np.angle(np.exp(1j * (np.asarray(h1, np.float64) - h0))))
+    return noise_correlation(diffs)
+
+
+def _plane_phases(s: Session, table: HueTable, hue_model: str, calibration: Mapping[str, Any],
+                  reader: CaptureReader | None = None):
+    reader = reader or CaptureReader()
+    white = reader.rgb(s.reference_white)
+    shadow = shadow_mask(white, calibration["shadow_fraction"])
+    phases, valid = {}, {}
+    for z, path in s.planes.items():
+        hue = hue_of(white_balance(reader.rgb(path), white), hue_model, min_saturation=calibration["min_saturation"])
+        phi = table.to_phase(hue)
+        if s.predistortion is not None:
+            phi = s.predistortion.decode(phi)
+        phases[z] = phi
+        valid[z] = np.isfinite(phi) & ~shadow
+    return phases, valid
+
+
+def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibration: Mapping[str, Any], *,
+                              phase_error_table: str | None = None, phase_error_figure: str | None = None,
+                              phase_error_summary: str | None = None,
+                              reader: CaptureReader | None = None,
+                              object_table: HueTable | None = None) -> PlaneCalibration:
+    """The plane calibration of a session from its reference table, in memory (:func:`plane_calibration` writes it).
+
+    The planes' phases are first corrected with the phase-error table learned from them
+    (:mod:`huefringe.phase_error`, as ``calibration.phase_error.enabled`` decides); the table is kept
+    in ``cal.phase_error`` (applied to every frame) and its figures in ``cal.stats["phase_error"]``.
+    The table, its summary and QA figure are written to the paths given.
+
+    Raises
+    ------
+    PlaneCalibrationError
+        Naming the plane folder, the plane images and ``session.yaml``.
+    """
+    phases, valid = _plane_phases(s, t, hue_model, calibration, reader)
+    lut = phase_error.from_calibration(phases, valid, calibration, phase_error=phase_error_table,
+                                       figure=phase_error_figure, summary=phase_error_summary)
+    phases = {z: phase_error.correct(p, None if lut is None else lut.error) for z, p in phases.items()}
+    try:
+        cal = calibrate_planes(phases, valid, smooth_degree=calibration["plane_smooth_degree"])
+    except PlaneCalibrationError as exc:
+        files = ", ".join(f"z = {z:g} mm: {p.name}" for z, p in s.planes.items())
+        raise PlaneCalibrationError(
+            f"{s.root / 'reference' / 'planes'}: {exc} (plane images {files}; heights from planes_mm in "
+            f"{s.root / 'session.yaml'})"
+        ) from exc
+    cal.phase_error = None if lut is None else lut.error
+    cal.stats["phase_error"] = None if lut is None else lut.stats
+    blur = calibration["texture_blur_px2"]
+    if blur == "auto":  # the camera's blur from the session's own object frames (needs the object table)
+        info = (session_texture_blur(s, object_table, cal, hue_model, calibration, reader=reader) if object_table is not None
+                else {"sigma2_px2": 0.0, "source": "auto, no object table given: off"})
+    else:
+        info = {"sigma2_px2": float(blur or 0.0), "source": "calibration.texture_blur_px2"}
+    cal.texture_blur_px2 = float(info["sigma2_px2"])
+    cal.texture_blur_u_px2 = texture.blur_uncertainty(info)  # the per-pixel texture term (docs/uncertainty.md)
+    info = {**info, "u_px2": cal.texture_blur_u_px2}
+    cal.stats["texture_blur"] = info
+    if lut is not None:  # its residual on the planes (reported; not added to u: docs/uncertainty.md)
+        cal.stats.setdefault("uncertainty", {})["phase_error_residual_u_rad"] = phase_error_residual_rad(lut.stats)
+    return cal
+
+
+#: object frames the texture-blur estimate reads (pairs of them)
+TEXTURE_BLUR_FRAMES = 4
+
+
+def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str,
+                         calibration: Mapping[str, Any], *, reader: CaptureReader | None = None) -> dict[str, Any]:
+    """The camera's blur variance (px^2) for the texture-edge correction, from the session's first
+    object frames (up to :data:`TEXTURE_BLUR_FRAMES`, two at least): each frame's raw phase
+    difference (the kernel, no phase filter) as captured and after :func:`huefringe.texture.correct`
+    with ``sigma^2 = 1``, through :func:`huefringe.texture.blur_from_phases`. With one frame the
+    estimate is 0 (off): the instrumental variable needs two.
+
+    Where that estimate is refused (not significant or not plausible: a surface with little
+    texture, such as gauge blocks) or the session has one frame, the blur is read from the white
+    image's sharp edges instead (:func:`huefringe.texture.blur_from_white`); when that is refused
+    too (no sharp edges: a flat plate) the correction is off.
+
+    Returns the record kept in ``calib/planes.json`` (``texture_blur``): ``sigma2_px2``,
+    ``raw_px2``, ``stderr_px2``, ``samples``, ``pairs``, ``frames``, ``source``, ``rejected`` when
+    the phase estimate was refused and then ``white_edges`` (the white-image estimate's record:
+    ``sigma2_px2``, ``edges``, ``quartiles_px2``, ``rejected`` when refused as well).
+    """
+    frames = s.frame_ids[:TEXTURE_BLUR_FRAMES]
+    read = (reader or CaptureReader()).rgb  # the frames as the chains read them (re-demosaic, registration)
+    white = read(s.object_white)
+
+    def fallback(rec: dict[str, Any], why: str) -> dict[str, Any]:
+        edges = texture.blur_from_white(white)
+        rec = {**rec, "white_edges": edges, "sigma2_px2": float(edges["sigma2_px2"])}
+        rec["source"] = (f"auto: {why}; read from the white image's edges" if "rejected" not in edges
+                         else f"auto: {why}, and no white-image estimate (see white_edges): correction off")
+        return rec
+
+    if len(frames) < 2:
+        return fallback({"sigma2_px2": 0.0, "samples": 0, "pairs": 0, "frames": list(frames)}, "one frame, no phase estimate")
+    prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=calibration["min_saturation"],
+                          shadow=shadow_mask(white, calibration["shadow_fraction"]), bit_depth=s.bit_depth,
+                          predistortion=s.predistortion)
+    plain, unit = [], []
+    for n in frames:
+        rgb = read(s.frames[n])
+        for sigma2, out in ((0.0, plain), (1.0, unit)):
+            m = kernel.frame_maps(prep, texture.correct(rgb, white, sigma2), denoise_radius=0, want_dphi=True)
+            out.append(np.where(m.valid, m.dphi, np.nan))
+    est = {**texture.blur_from_phases(plain, unit), "frames": [int(n) for n in frames]}
+    if "rejected" in est:
+        return fallback(est, "phase estimate refused (see rejected)")
+    return {**est, "source": "auto: estimated from the object frames"}
+
+
+def _refuse_bad_frame(path: Path, stats: Mapping[str, Any], measurement: Mapping[str, Any]) -> None:
+    if stats["clipped_fraction"] > measurement["max_clipped_fraction"]:
+        raise FrameError(
+            f"{path}: {100 * stats['clipped_fraction']:.1f} % of the pixels are clipped (sensor saturated), "
+            f"above the limit of {100 * measurement['max_clipped_fraction']:.1f} %; reduce the exposure"
+        )
+    if stats["valid_fraction"] < measurement["min_valid_fraction"]:
+        raise FrameError(
+            f"{path}: only {100 * stats['valid_fraction']:.1f} % of the pixels carry a usable fringe "
+            f"(limit {100 * measurement['min_valid_fraction']:.1f} %): lens cap, projector off or no fringe?"
+        )
+
+
+
+@dataclass
+class Calibrated:
+    """A session prepared once (:func:`prepare_session`): its corrections, hue tables and plane calibration."""
+
+    session: Session
+    camera_record: dict[str, Any]
+    """What ``calib/camera.json`` holds: the X, Y model and the channel registration."""
+    camera: CameraModel
+    reader: CaptureReader
+    """Reads every capture through the camera corrections."""
+    tables: dict[str, HueTable]
+    """The hue tables of the ``"reference"`` plate and of the ``"object"``."""
+    calibration: PlaneCalibration
+    """The plane calibration, with its phase-error table and texture blur."""
+
+
+def prepare_session(s: Session, config: Mapping[str, Any]) -> Calibrated:
+    """Prepare a session once, in memory: camera corrections, both hue tables, plane calibration.
+
+    ``config`` is a full configuration (packaged defaults with overrides:
+    :func:`huefringe.settings.load_config`); ``hue_model``, ``calibration`` and ``camera`` are read.
+    The workflow's ``camera_calibration``, ``hue_table`` and ``plane_calibration`` jobs compute the
+    same, one file each.
+    """
+    hue_model, calibration = config["hue_model"], config["calibration"]
+    record = session_camera_record(s, config["camera"], calibration)
+    model, reader = corrections(record, s.meta)
+    tables = {w: session_hue_table(s, w, hue_model, calibration, reader=reader) for w in ("reference", "object")}
+    cal = session_plane_calibration(s, tables["reference"], hue_model, calibration, reader=reader,
+                                    object_table=tables["object"])
+    return Calibrated(session=s, camera_record=record, camera=model, reader=reader, tables=tables, calibration=cal)
+
+
+@dataclass
+class FramePipeline:
+    """The per-frame chain of a session, ready to measure frames (:func:`prepare_frames`)."""
+
+    session: Session
+    calibration: PlaneCalibration
+    hue_model: str
+    measurement: Mapping[str, Any]
+    reader: CaptureReader
+    white: NDArray[np.floating]
+    shadow: NDArray[np.bool_]
+    adaptive: Mapping[str, Any] | None
+    want_uncertainty: bool
+    blur2: float
+    """The texture-edge correction's blur variance (px^2, ``calibration.texture_blur_px2``)."""
+    blur_u: float
+    """Its uncertainty (px^2) when the texture term of u is on, else 0."""
+    table: HueTable | None = None
+    """The object's hue table (the NumPy chain; None with the kernel, whose pixel-major copy replaces it)."""
+    prep: kernel.Prepared | None = None
+    """The fused kernel's prepared tables (None: the NumPy reference chain)."""
+    buffers: tuple[NDArray[np.float32], NDArray[np.bool_]] | None = None
+    table_invalid: float = 0.0
+    shadow_fraction: float = 0.0
+    budget: PixelBudget | None = None
+
+    @property
+    def fast(self) -> bool:
+        """Frames go through the fused kernel."""
+        return self.prep is not None
+
+
+def prepare_frames(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str, measurement: Mapping[str, Any], *,
+                   want_uncertainty: bool = True, reader: CaptureReader | None = None) -> FramePipeline:
+    """Ready the per-frame chain of a session: the fused kernel with ``measurement.kernel`` and
+    reference-relative unwrapping (prepared once), :func:`~huefringe.perframe.measure_frame` otherwise.
+
+    Every capture is read through ``reader`` (the camera corrections, :class:`~huefringe.camera.CaptureReader`:
+    both chains read the same registered sensor codes); default: as stored.
+    """
+    reader = reader or CaptureReader()
+    white = reader.rgb(s.object_white)
+    shadow = shadow_mask(white, measurement["shadow_fraction"])
+    blur_u = float(cal.texture_blur_u_px2 or 0.0) if want_uncertainty and measurement["texture_uncertainty"] else 0.0
+    fp = FramePipeline(session=s, calibration=cal, hue_model=hue_model, measurement=measurement, reader=reader,
+                       white=white, shadow=shadow, adaptive=noise_aware_adaptive(measurement["denoise_adaptive"], t),
+                       want_uncertainty=want_uncertainty, blur2=float(cal.texture_blur_px2 or 0.0), blur_u=blur_u)
+    if bool(measurement["kernel"]) and measurement["unwrap"] == "reference":
+        fp.prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=measurement["min_saturation"],
+                                 shadow=shadow, bit_depth=s.bit_depth, predistortion=s.predistortion,
+                                 own_noise=bool(measurement["own_noise"]))
+        fp.table_invalid = float(np.mean(~t.valid))
+        fp.shadow_fraction = float(shadow.mean())
+        fp.buffers = (np.empty(fp.prep.shape, np.float32), np.empty(fp.prep.shape, bool))  # reused frame to frame
+    else:
+        fp.table = t
+    return fp
+
+
+def _reference(fp: FramePipeline, image: NDArray[np.floating]):
+    """The NumPy reference chain on one image (:func:`~huefringe.perframe.measure_frame`)."""
+    m, s = fp.measurement, fp.session
+    if fp.budget is None:  # once per session, not per frame
+        fp.budget = pixel_budget(fp.table, fp.calibration)
+    return measure_frame(image, fp.white, fp.table, fp.calibration, hue_model=fp.hue_model,
+                         min_saturation=m["min_saturation"], shadow=fp.shadow, unwrap_mode=m["unwrap"],
+                         bit_depth=s.bit_depth, denoise_radius=m["denoise_radius"], predistortion=s.predistortion,
+                         denoise_adaptive=fp.adaptive, budget=fp.budget, own_noise=bool(m["own_noise"]))
+
+
+def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameResult:
+    """Measure frame ``n`` of the session into a :class:`FrameResult`.
+
+    The texture-edge correction (:mod:`huefringe.texture`) once, before either chain; then the
+    fused kernel or :func:`~huefringe.perframe.measure_frame` (``phase`` and ``hue`` with
+    ``want_maps``; the reference chain always gives them). After either chain,
+    ``measurement.edge_jump_mm`` > 0 invalidates the mixed pixels of step edges
+    (``measurement.edge_test``: :func:`~huefringe.perframe.step_edge_mask`, or
+    :func:`~huefringe.perframe.plane_edge_mask` with ``edge_plane_tol_mm``; ``stats["edge_fraction"]``),
+    so the kernel and :func:`~huefringe.perframe.measure_frame` stay identical to each other; the
+    uncertainty then gains the texture term in quadrature (the heights' change when the blur moves
+    by its uncertainty, :func:`~huefringe.uncertainty.texture_term`) and the lateral term of the
+    delivered heights (:func:`~huefringe.uncertainty.add_lateral`, ``measurement.lateral_uncertainty_px``,
+    ``lateral_step_px``; 0 = off).
+
+    The kernel's arrays are reused from frame to frame: copy what you keep.
+
+    Raises
+    ------
+    FrameError
+        Naming the capture: too many clipped pixels or too few valid ones.
+    """
+    s, m, reader = fp.session, fp.measurement, fp.reader
+    path = s.frames[n]
+    rgb = None
+    moved = None  # the capture corrected with the blur moved by its uncertainty (texture term)
+    if fp.blur2 > 0 or fp.blur_u > 0:
+        raw = reader.rgb(path)
+        clip = clipped_mask(raw, s.bit_depth)
+        if fp.blur2 > 0:
+            rgb = texture.correct(raw, fp.white, fp.blur2, clipped=clip)
+        if fp.blur_u > 0:
+            moved = texture.correct(raw, fp.white, fp.blur2 + fp.blur_u, clipped=clip)
+    if rgb is None and reader.demixed:  # the demixed channels (camera.colour_demixing), to both chains
+        rgb = reader.rgb(path)
+    if fp.prep is not None:  # the kernel reads the sensor codes as read_rgb scales them
+        if moved is not None:  # first, on buffers of its own (a copy: the pass below reuses the kernel's)
+            moved_height = np.array(kernel.frame_maps(
+                fp.prep, moved, denoise_radius=m["denoise_radius"], denoise_adaptive=fp.adaptive,
+                want_maps=False, want_dphi=False, want_uncertainty=False).height)
+        k = kernel.frame_maps(fp.prep, reader.codes(path) if rgb is None else rgb, denoise_radius=m["denoise_radius"],
+                              denoise_adaptive=fp.adaptive, want_maps=want_maps, want_dphi=True,
+                              want_uncertainty=fp.want_uncertainty, out=fp.buffers)
+        px = k.valid.size  # frame_stats with unwrap's reference flags, in one compiled pass
+        # the wrap flags on the pixels valid before the filter (measure_frame's unwrap call): the
+        # kernel's dphi is NaN exactly where no phase was decoded; k.valid has lost the filter's rejects
+        stats = reference_frame_stats(k.dphi, k.valid, k.height, clipped_fraction=k.counts["clipped"] / px,  # type: ignore[arg-type]
+                                      hue_undefined_fraction=k.counts["hue_undefined"] / px,
+                                      table_invalid_fraction=fp.table_invalid, shadow_fraction=fp.shadow_fraction,
+                                      hue_model=fp.hue_model, flag_valid=np.isfinite(k.dphi))
+        height, phase, hue, u_map, support = k.height, k.phase, k.hue, k.uncertainty, k.support
+        if moved is not None:
+            tex_u = texture_term(height, moved_height)
+    else:
+        res = _reference(fp, reader.rgb(path) if rgb is None else rgb)
+        height, phase, hue, stats, u_map, support = res.height, res.phase, res.hue, res.stats, res.uncertainty, res.support
+        if moved is not None:  # the same chain and budget
+            tex_u = texture_term(height, _reference(fp, moved).height)
+    jump = float(m["edge_jump_mm"] or 0.0)
+    if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
+        height, (phase, u_map), (support,), changed = remove_step_edges(
+            height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(m["edge_test"]),
+            tol_mm=float(m["edge_plane_tol_mm"]))
+        stats = {**stats, **changed}
+    if u_map is not None and moved is not None:  # the texture term, in quadrature (NaN where the height is)
+        u_map = np.hypot(u_map, tex_u).astype(np.float32)
+    lateral, step = float(m["lateral_uncertainty_px"]), float(m["lateral_step_px"])
+    if u_map is not None and (lateral > 0 or step > 0):  # the lateral term on the heights as delivered (after the edge mask)
+        u_map = add_lateral(height, u_map, lateral_px=lateral, step_px=step)
+    _refuse_bad_frame(path, stats, m)
+    return FrameResult(frame=n, height=height, stats=stats, phase=phase, hue=hue, uncertainty=u_map, support=support)
+
+
+def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequence[int], hue_model: str,
+                  measurement: Mapping[str, Any], map_frames: set[int] | None = None, want_uncertainty: bool = True,
+                  reader: CaptureReader | None = None) -> Iterator[FrameResult]:
+    """Measure frames of a session one by one (:func:`prepare_frames`, then :func:`measure_one` each).
+
+    ``phase`` and ``hue`` are asked for the frames in ``map_frames`` (default: all). Each frame is
+    refused (:class:`~huefringe.perframe.FrameError`, naming it) before it is yielded. The kernel's
+    arrays are reused from frame to frame: copy what you keep.
+    """
+    maps = set(frames) if map_frames is None else set(map_frames)
+    fp = prepare_frames(s, t, cal, hue_model, measurement, want_uncertainty=want_uncertainty, reader=reader)
+    del t  # with the kernel, its pixel-major copy replaces the band-major table
+    for n in frames:
+        yield measure_one(fp, n, want_maps=n in maps)

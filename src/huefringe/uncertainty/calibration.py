@@ -1,0 +1,261 @@
+"""The calibration terms of the per-pixel height uncertainty, once per session: the table's and
+the planes' terms, the interpolation bins, the pixel budget (:class:`PixelBudget`) and the
+noise correlation of re-demosaiced captures.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.ndimage import uniform_filter
+
+from huefringe.huetable import band_smoothing_matrix
+
+__all__ = ["PixelBudget", "TERMS", "calibration_terms", "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "table_interpolation_rad", "table_variance_factor"]
+
+
+TERMS = ("noise", "table", "interpolation", "reference", "model")
+"""Names of the per-pixel terms, in the order of :func:`split_terms`."""
+GROUPS = {"noise": "independent", "table": "pixel", "interpolation": "pixel", "reference": "correlated",
+          "model": "correlated"}
+
+#: Phase bins of the interpolation term: each pixel's error is taken in the bin its phase falls in.
+INTERP_BINS = 12
+#: Log code of the binned interpolation errors (uint8): ``q > 0`` means ``E0 2^(q / 16)`` rad.
+_INTERP_E0 = 1e-5
+_INTERP_LUT = np.concatenate([[0.0], _INTERP_E0 * 2.0 ** (np.arange(1, 256) / 16.0)]).astype(np.float32)
+
+#: Side (px) of the box over which the planes' residuals are averaged to tell their systematic
+#: part (a calibration error) from their pixel noise.
+RESIDUAL_BOX_PX = 31
+
+
+# calibration terms (once per session)
+def _box_mean(x: NDArray[np.floating], valid: NDArray[np.bool_], size: int) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Mean of ``x`` over the valid pixels of a ``size`` box around each pixel, and their count."""
+    from scipy import ndimage
+
+    v = valid & np.isfinite(x)
+    s = ndimage.uniform_filter(np.where(v, x, 0.0).astype(np.float64), size, mode="constant")
+    c = ndimage.uniform_filter(v.astype(np.float64), size, mode="constant")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.where(c > 0, s / c, np.nan), c * size * size
+
+
+def systematic_rms(residual: NDArray[np.floating], valid: NDArray[np.bool_], *, n_terms: int,
+                   size: int = RESIDUAL_BOX_PX) -> tuple[NDArray[np.float64], float]:
+    """Per-pixel uncertainty of a smoothed (polynomial-fitted) map from the raw map's residual.
+
+    ``residual`` = raw - fitted. Its box mean over ``size`` pixels is the fit's local misfit
+    (systematic, kept) plus the pixel noise that leaks through the box (``sigma^2 / n``,
+    removed in quadrature); the polynomial's own noise adds ``sigma^2 n_terms / N`` (its mean
+    leverage over ``N`` valid pixels). ``sigma`` is the robust spread of the residual about its
+    box mean. Returns the map (rad, NaN where no valid pixel is near) and ``sigma``.
+    """
+    r = np.where(valid, np.asarray(residual, np.float64), np.nan)
+    mean, count = _box_mean(r, valid, size)
+    dev = (r - mean)[np.isfinite(r) & np.isfinite(mean)]
+    sigma = float(1.4826 * np.median(np.abs(dev))) if dev.size else 0.0
+    n = max(int(np.count_nonzero(np.isfinite(r))), 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sys2 = np.maximum(mean**2 - sigma**2 / np.maximum(count, 1.0), 0.0)
+    return np.sqrt(sys2 + sigma**2 * n_terms / n), sigma
+
+
+def calibration_terms(
+    solve: Any,
+    dphis: Mapping[float, NDArray[np.floating]],
+    u_dphi: Mapping[float, NDArray[np.floating]],
+    *,
+    eps: float = 1e-4,
+) -> dict[str, NDArray[np.float32]]:
+    """Covariance of the per-pixel model parameters ``(a, b)`` from the planes' phase errors.
+
+    ``solve(dphis) -> (a, b)`` is the fit of :func:`huefringe.height.calibrate_planes`; its
+    Jacobian with respect to each plane's phase difference is taken by forward differences
+    (``eps`` rad, the model is smooth), and ``C = sum_j g_j g_j^T u_j^2`` (planes independent).
+    """
+    a0, b0 = solve(dphis)
+    caa = np.zeros(np.shape(a0))
+    cab = np.zeros_like(caa)
+    cbb = np.zeros_like(caa)
+    for z in dphis:
+        moved = dict(dphis)
+        moved[z] = np.asarray(dphis[z], np.float64) + eps
+        a1, b1 = solve(moved)
+        ga, gb = (a1 - a0) / eps, (b1 - b0) / eps
+        u2 = np.nan_to_num(np.asarray(u_dphi[z], np.float64)) ** 2
+        caa += ga * ga * u2
+        cab += ga * gb * u2
+        cbb += gb * gb * u2
+    return {"cov_aa": caa.astype(np.float32), "cov_ab": cab.astype(np.float32), "cov_bb": cbb.astype(np.float32)}
+
+
+def table_variance_factor(n_bands: int, window: int, order: int, repeats: int) -> float:
+    """Variance of a smoothed table entry over the variance of one capture's hue.
+
+    An entry is the mean of ``repeats`` captures (variance / R), smoothed along the band axis by
+    :func:`huefringe.huetable.band_smoothing_matrix` (variance times the sum of its squared
+    coefficients; the mean over the bands, since the windows are one-sided near sextant
+    boundaries). Interpolating between two neighbouring entries, whose smoothing windows share
+    almost all bands, keeps that variance.
+    """
+    window = min(int(window), int(n_bands) - (1 - int(n_bands) % 2))  # the smoother never exceeds N
+    if window > 1:
+        coef = band_smoothing_matrix(int(n_bands), int(window), int(order))
+        g = float(np.mean(np.sum(coef**2, axis=1)))
+    else:
+        g = 1.0
+    return g / max(int(repeats), 1)
+
+
+def table_interpolation_rad(table: Any, *, rows: int = 64) -> NDArray[np.float32]:
+    """Per-pixel rms error (rad) of interpolating the hue table linearly between bands.
+
+    Between two bands, a curved hue curve departs from its chord by ``f (1 - f) D2 / 2`` (``f``
+    the fraction of the band width, ``D2`` the second difference of the entries); over a uniform
+    ``f`` that has rms ``D2 / sqrt(120)``, which in code phase is ``D2 / D1 * step / sqrt(120)``
+    (``D1`` the first difference: hue counts per band). The rms over the pixel's bands.
+    """
+    t = np.asarray(table.table)
+    n = t.shape[0]
+    step = 2.0 * np.pi / n
+    out = np.zeros(t.shape[1:], np.float32)
+    for v0 in range(0, t.shape[1], rows):
+        c = t[:, v0 : v0 + rows].astype(np.int32)
+        d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768  # counts per band, circular
+        d2 = np.roll(d1, -1, axis=0) - d1
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e = np.where(d1 > 0, np.abs(d2) / d1, 0.0) * step / math.sqrt(120.0)
+        out[v0 : v0 + rows] = np.sqrt(np.mean(np.minimum(e, step) ** 2, axis=0))
+    return np.where(np.asarray(table.valid, bool), out, 0.0).astype(np.float32)
+
+
+def interpolation_bins(table: Any, *, bins: int = INTERP_BINS, rows: int = 64) -> NDArray[np.float32]:
+    """Per-pixel rms linear-interpolation error (rad) in each of ``bins`` equal code-phase bins,
+    ``(H, W, bins)``: the error of interval ``k`` (between entries ``k`` and ``k + 1``) is
+    ``|D2| / D1 * step / sqrt(120)`` with ``D2`` the mean of the second differences at its two
+    entries (see :func:`table_interpolation_rad`), and a bin holds the rms over its intervals.
+    A pixel's term is then the value of the bin its phase falls in, not the rms over its whole
+    table (where a few flattened bands near the sextant starts would dominate)."""
+    t = np.asarray(table.table)
+    n = t.shape[0]
+    step = 2.0 * np.pi / n
+    which = (np.arange(n) * bins) // n
+    out = np.zeros((*t.shape[1:], bins), np.float32)
+    for v0 in range(0, t.shape[1], rows):
+        c = t[:, v0 : v0 + rows].astype(np.int32)
+        d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768  # interval k: entries k, k + 1
+        d2 = np.roll(d1, -1, axis=0) - d1  # at entry k + 1
+        curv = 0.5 * (np.roll(d2, 1, axis=0) + d2)  # at the interval's two entries
+        with np.errstate(divide="ignore", invalid="ignore"):
+            e = np.minimum(np.where(d1 > 0, np.abs(curv) / d1, 0.0) * step / math.sqrt(120.0), step)
+        for j in range(bins):
+            out[v0 : v0 + rows, :, j] = np.sqrt(np.mean(e[which == j] ** 2, axis=0))
+    return np.where(np.asarray(table.valid, bool)[..., None], out, 0.0).astype(np.float32)
+
+
+def _encode_interp(e: NDArray[np.floating]) -> NDArray[np.uint8]:
+    """Log code of :data:`_INTERP_LUT` (4.4 % steps; 0 below ``E0``), nearest in log."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        q = np.rint(16.0 * np.log2(np.asarray(e, np.float64) / _INTERP_E0))
+    return np.clip(np.nan_to_num(q, nan=0.0, neginf=0.0), 0, 255).astype(np.uint8)
+
+
+def phase_error_residual_rad(stats: Mapping[str, Any] | None) -> float:
+    """What the phase-error table leaves on the planes (rad), from its QA figures: the rms over
+    the bins of the median plane residual after the correction (``binned_rms_after_rad``),
+    less in quadrature its noise part (a median of ``samples / bins`` residuals of rms
+    ``residual_rms_after_rad``: variance ``(pi / 2) s^2 bins / samples``). Reported in
+    ``planes.json``; not added to u (``docs/uncertainty.md``: on the bench it over-predicts,
+    the planes' spatial misfit that the reference and model terms carry shows in its bins)."""
+    if not stats:
+        return 0.0
+    b = float(stats.get("binned_rms_after_rad", 0.0))
+    s = float(stats.get("residual_rms_after_rad", 0.0))
+    leak = 0.5 * math.pi * s * s * float(stats.get("bins", 0)) / max(float(stats.get("samples", 0)), 1.0)
+    return math.sqrt(max(b * b - leak, 0.0))
+
+
+@dataclass(eq=False)
+class PixelBudget:
+    """Per-session inputs of the per-pixel budget: ``terms`` ``(5, H, W)`` float32 (planes, so
+    that the kernel's rows vectorise) holding the
+    reference phase's uncertainty (rad), the (a, b) covariance ``aa, ab, bb`` and the table's
+    interpolation error (rad); ``table_factor`` (:func:`table_variance_factor`)."""
+
+    terms: NDArray[np.float32]
+    table_factor: float
+    interp_bins: NDArray[np.uint8] | None = None
+    """``(H, W, INTERP_BINS)`` log codes of :func:`interpolation_bins` (None: ``terms[4]`` for
+    every phase)."""
+    phi_ref: NDArray[np.float32] | None = None
+    """The reference phase: a pixel's code phase is ``phi_ref + dphi``, which picks its bin."""
+    noise_factor: float = 1.0
+    """Variance factor of the noise and table terms for noise correlated between neighbours (a
+    re-demosaiced Bayer session: :func:`noise_correlation`, the table's ``noise_correlation``
+    stats); the filter's ``1 / sum w`` assumes independent pixels. 1 for a three-chip camera."""
+
+    @property
+    def u_ref_rad(self) -> NDArray[np.float32]:
+        return self.terms[0]
+
+    @property
+    def u_interp_rad(self) -> NDArray[np.float32]:
+        return self.terms[4]
+
+
+def pixel_budget(table: Any, cal: Any) -> PixelBudget:
+    """The per-pixel budget's session inputs from the object's hue table and the plane calibration.
+
+    ``cal.budget`` (written by :func:`huefringe.height.calibrate_planes`) gives the reference and
+    model terms; a calibration without it (an older model file) gives zeros for them.
+    """
+    h, w = table.shape
+    terms = np.zeros((5, h, w), np.float32)
+    bud = getattr(cal, "budget", None) or {}
+    for k, name in enumerate(("u_ref_rad", "cov_aa", "cov_ab", "cov_bb")):
+        if name in bud:
+            terms[k] = np.nan_to_num(np.asarray(bud[name], np.float32))
+    terms[4] = table_interpolation_rad(table)
+    bins = _encode_interp(interpolation_bins(table))
+    st = table.stats or {}
+    opts = st.get("params", {}) if isinstance(st.get("params"), dict) else {}
+    window = int(opts.get("smooth_window", 15))
+    order = int(opts.get("smooth_order", 2))
+    factor = table_variance_factor(table.n_bands, window, order, int(st.get("repeats", 1) or 1))
+    corr = st.get("noise_correlation") or {}
+    return PixelBudget(np.ascontiguousarray(terms), factor, np.ascontiguousarray(bins),
+                       np.ascontiguousarray(cal.phi_ref, np.float32), max(1.0, float(corr.get("factor", 1.0))))
+
+
+def noise_correlation(differences: Sequence[NDArray[np.floating]], box: int = 5) -> dict[str, Any]:
+    """How much less a box mean of neighbours averages noise than independent pixels would.
+
+    ``differences``: hue differences (rad) between two repeats of the same band (pure noise; NaN
+    where undefined). Per image, pixels beyond 5 MADs are left out; the factor is
+    ``box^2 var(box mean) / var(pixel)`` over the pixels whose whole ``box x box`` window is
+    used, the median over the images (1 for independent noise; a re-demosaiced Bayer capture reads
+    1.66 for 5 x 5, docs/accuracy-cameras.md). Returns ``factor``, ``box``, ``images``.
+    """
+    vals = []
+    for d in differences:
+        d = np.asarray(d, np.float64)
+        ok = np.isfinite(d)
+        if ok.sum() < 100:
+            continue
+        d = d - np.median(d[ok])
+        mad = 1.4826 * np.median(np.abs(d[ok]))
+        ok &= np.abs(d) <= 5.0 * max(mad, 1e-12)
+        x = np.where(ok, d, 0.0)
+        full = uniform_filter(ok.astype(np.float64), box, mode="constant") > 1.0 - 1e-9
+        if full.sum() < 100:
+            continue
+        mean = uniform_filter(x, box, mode="constant")
+        vals.append(float(box * box * np.mean(mean[full] ** 2) / np.mean(x[ok] ** 2)))
+    return {"factor": float(np.median(vals)) if vals else 1.0, "box": int(box), "images": len(vals)}

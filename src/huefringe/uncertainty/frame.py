@@ -1,0 +1,433 @@
+"""The per-frame height uncertainty, called identically by :func:`huefringe.perframe.measure_frame`
+and :func:`huefringe.kernel.frame_maps`: the root sum of squares of the terms, the edge floor,
+the lateral and texture terms, and the split into terms.
+"""
+
+from __future__ import annotations
+
+import math
+
+import cv2
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe.uncertainty.calibration import PixelBudget, TERMS, _INTERP_LUT, _encode_interp
+
+__all__ = ["add_lateral", "edge_floor", "height_uncertainty", "lateral_term", "split_terms", "texture_term"]
+
+
+def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.float64]:
+    """Interpolation error (rad) at each pixel's phase, as the kernel picks it (float32 bin)."""
+    if budget.interp_bins is None:
+        return budget.terms[4].astype(np.float64)
+    k = budget.interp_bins.shape[-1]
+    d = np.nan_to_num(np.asarray(dphi, np.float32))
+    t = (budget.phi_ref + d) * np.float32(k / (2.0 * np.pi))
+    t = t - np.float32(k) * np.floor(t / np.float32(k))
+    kb = np.minimum(t.astype(np.int64), k - 1)
+    q = np.take_along_axis(budget.interp_bins, kb[..., None], axis=-1)[..., 0]
+    return _INTERP_LUT[q].astype(np.float64)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut, phi_ref, out, rsum, nf):  # pragma: no cover
+    """Branch-free rows (LLVM vectorises them); NaN where not valid or without weight. The
+    interpolation error is that of the phase bin of ``phi_ref + dphi`` (``bins``, ``lut``). The
+    noise variance is ``rsum / sumw^2`` (``rsum = sumw``: ``1 / sumw``, bit for bit), times ``nf``
+    with the table's (``nf = 1``: the same bits)."""
+    h, w = dphi.shape
+    nb = bins.shape[2]
+    kf = np.float32(nb)
+    to_bin = np.float32(nb / (2.0 * np.pi))
+    t4row = np.empty(w, np.float32)
+    kbrow = np.empty(w, np.int32)
+    tf = np.float32(1.0) + np.float32(table_factor)
+    nan32 = np.float32(np.nan)
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    two = np.float32(2.0)
+    for v in range(h):
+        dv = dphi[v]
+        sv = sumw[v]
+        rv = rsum[v]
+        okv = valid[v]
+        av = a[v]
+        bv = b[v]
+        t0, t1, t2, t3 = terms[0, v], terms[1, v], terms[2, v], terms[3, v]
+        bv_ = bins[v]
+        pr = phi_ref[v]
+        ov = out[v]
+        for u in range(w):  # each pixel's bin (vectorised) ...
+            ok = okv[u] & (sv[u] * (sv[u] / rv[u]) > zero)
+            d = dv[u] if ok else zero
+            t = (pr[u] + d) * to_bin
+            t = t - kf * np.floor(t / kf)
+            kbrow[u] = max(min(np.int32(t), np.int32(nb - 1)), np.int32(0))
+        for u in range(w):  # ... its gather alone (scalar), so that the loops around it vectorise
+            t4row[u] = lut[bv_[u, kbrow[u]]]
+        for u in range(w):
+            sw = sv[u] * (sv[u] / rv[u])  # the effective weight sum (sum w)^2 / sum(w r)
+            ok = okv[u] & (sw > zero)
+            d = dv[u] if ok else zero
+            sw = sw if ok else one
+            aa = av[u]
+            den = aa + bv[u] * d
+            inv2 = one / (den * den)
+            g = abs(aa) * inv2
+            ja = -d * inv2
+            jb = ja * d
+            var = g * g / sw * tf * nf + (g * t0[u]) ** 2 + (g * t4row[u]) ** 2
+            var += ja * ja * t1[u] + two * ja * jb * t2[u] + jb * jb * t3[u]
+            r = np.sqrt(max(var, zero))
+            ov[u] = r if ok else nan32
+
+
+def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], valid: NDArray[np.bool_],
+                       a: NDArray[np.float32], b: NDArray[np.float32], budget: PixelBudget,
+                       out: NDArray[np.float32] | None = None,
+                       ratio_sum: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+    """Combined standard uncertainty (mm) of each pixel's height; NaN where not ``valid``.
+
+    Parameters
+    ----------
+    dphi : float32 (H, W)
+        The (filtered) phase difference the height was computed from.
+    sumw : float32 (H, W)
+        Sum of the inverse-variance weights the phase filter averaged (``1 / sigma^2`` without
+        the filter): the filtered phase's variance from frame noise is ``1 / sumw``.
+    valid : bool (H, W)
+        Pixels with a finite height.
+    a, b : float32 (H, W)
+        The height model.
+    budget : PixelBudget
+        From :func:`pixel_budget`.
+    ratio_sum : float32 (H, W), optional
+        The filter's ``sum w r`` (:func:`huefringe.phase.denoise_phase`'s ``ratio_sum``), when the
+        pixels' noise variance is ``r`` times the one that weighted them: the filtered phase's
+        variance is then ``ratio_sum / sumw^2``.
+    """
+    if out is None:
+        out = np.empty(np.shape(dphi), np.float32)
+    if budget.interp_bins is None:  # one bin: the table-wide figure for every phase
+        bins = _encode_interp(budget.terms[4])[..., None]
+        phi_ref = np.zeros(np.shape(dphi), np.float32)
+    else:
+        bins, phi_ref = budget.interp_bins, budget.phi_ref
+    sw = np.ascontiguousarray(sumw, np.float32)
+    _uncertainty_kernel(np.ascontiguousarray(dphi, np.float32), sw,
+                        np.ascontiguousarray(valid, bool), np.ascontiguousarray(a, np.float32),
+                        np.ascontiguousarray(b, np.float32), budget.terms, np.float32(budget.table_factor), bins,
+                        _INTERP_LUT, phi_ref, out, sw if ratio_sum is None else np.ascontiguousarray(ratio_sum, np.float32),
+                        np.float32(budget.noise_factor))
+    return out
+
+
+#: The edge floor acts where the 3 x 3 residual exceeds this many u: noise alone (6 degrees of
+#: freedom) gets there with probability 6e-4, a mixed pixel next to a step of height H >> u does.
+EDGE_SIGNIFICANCE = np.float32(2.0)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _edge_floor_kernel(height, valid, u):  # pragma: no cover - numba
+    """In place: ``u = s`` where ``s > EDGE_SIGNIFICANCE u``, ``s`` the rms residual (``n - 3`` degrees of freedom) of the
+    valid heights of the 3 x 3 window about their least-squares plane (at least 5 pixels). A pixel counts as valid
+    where ``valid`` holds and its height is finite (both callers: the height is NaN exactly where not valid)."""
+    h, w = height.shape
+    if h < 3 or w < 3:
+        return
+    zero = np.float32(0.0)
+    sixth = np.float32(1.0 / 6.0)
+    ninth = np.float32(1.0 / 9.0)
+    nan32 = np.float32(np.nan)
+    ring = np.empty((3, w), np.float32)  # the window's three rows, NaN where not valid
+    rrow = np.empty(w, np.float32)
+    part = np.empty(w, np.int64)
+    good = np.zeros(3, np.int64)  # valid pixels of each ring row
+    for j in range(2):
+        hj, mj, rj = height[j], valid[j], ring[j]
+        g = 0
+        for x in range(w):
+            hv = hj[x] if mj[x] else nan32
+            rj[x] = hv
+            g += np.int32(hv == hv)
+        good[j] = g
+    for v in range(1, h - 1):
+        h0, h1, h2 = ring[(v - 1) % 3], ring[v % 3], ring[(v + 1) % 3]
+        hn, mn = height[v + 1], valid[v + 1]
+        g = 0
+        for x in range(w):
+            hv = hn[x] if mn[x] else nan32
+            h2[x] = hv
+            g += np.int32(hv == hv)
+        good[(v + 1) % 3] = g
+        uv = u[v]
+        # full windows (the common case): x, y in {-1, 0, 1}, sum x^2 = sum y^2 = 6, the plane's
+        # residual sum of squares in closed form. Branch-free, so that LLVM vectorises the row; a
+        # window with an invalid pixel gives NaN, which raises nothing and marks it for below.
+        for x in range(1, w - 1):
+            hc = h1[x]
+            za = h0[x - 1] - hc
+            zb = h0[x] - hc
+            zc = h0[x + 1] - hc
+            zd = h1[x - 1] - hc
+            ze = h1[x + 1] - hc
+            zf = h2[x - 1] - hc
+            zg = h2[x] - hc
+            zh = h2[x + 1] - hc
+            sh = ((za + zb) + (zc + zd)) + ((ze + zf) + (zg + zh))
+            sxh = (zc + ze + zh) - (za + zd + zf)
+            syh = (zf + zg + zh) - (za + zb + zc)
+            # the residuals themselves (not shh - sh^2 / 9 - ...: on a slope that cancels in float32)
+            c = sh * ninth
+            gx = sxh * sixth
+            gy = syh * sixth
+            gp = gx + gy
+            gm = gx - gy
+            ea = (za - c) + gp
+            eb = (zb - c) + gy
+            ec = (zc - c) - gm
+            ed = (zd - c) + gx
+            ee = (ze - c) - gx
+            ef = (zf - c) + gm
+            eg = (zg - c) - gy
+            eh = (zh - c) - gp
+            ss = (((ea * ea + eb * eb) + (ec * ec + ed * ed)) + ((ee * ee + ef * ef) + (eg * eg + eh * eh))) + c * c
+            r = np.sqrt(ss * sixth)
+            rrow[x] = r
+            ux = uv[x]
+            uv[x] = r if r > EDGE_SIGNIFICANCE * ux else ux  # NaN (not valid) stays NaN
+        # windows with invalid pixels around a valid centre (rows with any): listed
+        # (branch-free), then the general least squares
+        if good[0] + good[1] + good[2] == 3 * w:
+            continue
+        n = 0
+        for x in range(1, w - 1):
+            part[n] = x
+            n += (rrow[x] != rrow[x]) & (h1[x] == h1[x])
+        for i in range(n):
+            x = part[i]
+            _edge_partial(h0, h1, h2, x, uv)
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy", inline="always")
+def _edge_partial(h0, h1, h2, x, uv):  # pragma: no cover - numba
+    """The general least-squares residual of one window with invalid (NaN) pixels; raises ``uv[x]``."""
+    zero = np.float32(0.0)
+    n = zero
+    sx = zero
+    sy = zero
+    sxx = zero
+    syy = zero
+    sxy = zero
+    sh = zero
+    sxh = zero
+    syh = zero
+    hc = h1[x]
+    for dv in range(-1, 2):
+        row = h0 if dv == -1 else (h1 if dv == 0 else h2)
+        for du in range(-1, 2):
+            hv = row[x + du]
+            m = hv == hv
+            z = hv - hc if m else zero
+            wgt = np.float32(1.0) if m else zero
+            fx = np.float32(du) * wgt
+            fy = np.float32(dv) * wgt
+            n += wgt
+            sx += fx
+            sy += fy
+            sxx += fx * du
+            syy += fy * dv
+            sxy += fx * dv
+            sh += z
+            sxh += fx * z
+            syh += fy * z
+    # normal equations of z = c + gx x + gy y, by Cramer's rule
+    a11, a12, a13, a22, a23, a33 = n, sx, sy, sxx, sxy, syy
+    c11 = a22 * a33 - a23 * a23
+    c12 = a13 * a23 - a12 * a33
+    c13 = a12 * a23 - a13 * a22
+    det = a11 * c11 + a12 * c12 + a13 * c13
+    if n < np.float32(5.0) or det <= np.float32(1e-3):
+        return
+    c22 = a11 * a33 - a13 * a13
+    c23 = a12 * a13 - a11 * a23
+    c33 = a11 * a22 - a12 * a12
+    b0 = (c11 * sh + c12 * sxh + c13 * syh) / det
+    b1 = (c12 * sh + c22 * sxh + c23 * syh) / det
+    b2 = (c13 * sh + c23 * sxh + c33 * syh) / det
+    ss = zero  # the residuals themselves (shh - b . s cancels in float32 on a slope)
+    for dv in range(-1, 2):
+        row = h0 if dv == -1 else (h1 if dv == 0 else h2)
+        for du in range(-1, 2):
+            hv = row[x + du]
+            e = (hv - hc) - b0 - b1 * du - b2 * dv
+            ss += e * e if hv == hv else zero
+    s2 = ss / (n - np.float32(3.0))
+    r = np.float32(np.sqrt(s2))
+    uv[x] = r if r > EDGE_SIGNIFICANCE * uv[x] else uv[x]
+
+
+def edge_floor(height: NDArray[np.float32], valid: NDArray[np.bool_], u: NDArray[np.float32]) -> NDArray[np.float32]:
+    """Mixed pixels: raise ``u`` (in place) to the local scatter of the heights about their 3 x 3
+    least-squares plane where that exceeds ``EDGE_SIGNIFICANCE`` (2) times ``u`` (noise alone
+    rarely does: with unfiltered heights it would otherwise count the noise twice).
+
+    At a step edge or a cast-shadow border a pixel sees both surfaces (lens blur), and its hue,
+    phase and height lie between them: an error the noise and calibration terms do not hold. A
+    smooth surface (plane or gentle slope) leaves the residual at its noise, below ``u``; a step
+    of height ``H`` gives ``H / sqrt(12) = 0.29 H`` next to it. Called by the reference chain and
+    the kernel alike on the float32 height map, which is NaN exactly where not ``valid`` (a pixel
+    counts where ``valid`` holds and its height is finite). The border rows and columns are left
+    as they are. The residuals are summed themselves, in float32: the closed form
+    ``sum z^2 - (sum z)^2 / 9 - ...`` cancels on a slope (up to 4e-3 relative off the float64
+    least squares on the tests' maps; now 2e-6).
+    """
+    _edge_floor_kernel(np.ascontiguousarray(height, np.float32), np.ascontiguousarray(valid, bool), u)
+    return u
+
+
+#: Lateral position uncertainty (px) of a height on a locally linear surface: a symmetric footprint
+#: (camera blur, the phase filter's window) returns a plane's height exactly, so only its shift
+#: moves the height there: the filter's weights follow the signal (noise) and the texture lean's
+#: first-order remainder. Measured on the tuning cases (docs/uncertainty.md, "Lateral term"):
+#: with :data:`LATERAL_STEP_PX` it puts the smooth reliefs' and the tooth's steep flanks at
+#: |error| <= 2u for 0.96-0.97 (1.75 px alone, session 8: 0.98-0.99).
+LATERAL_PX = 0.5
+#: Lateral reach (px) of a footprint where the slope changes within it (a step left by the edge
+#: mask, a shadow border, a sharp bend): the camera blur (sigma 0.6-0.9 px on the bench) plus the
+#: phase filter's radius (2 px); there the mixed pixels' error (hue mixing of two surfaces,
+#: nonlinear in the heights) follows the slope that the blur leaves. Times
+#: ``|grad h~ - grad h~_coarse|`` (:func:`lateral_term`).
+LATERAL_STEP_PX = 2.0
+#: Gaussian scale (px) of the normalised average of the valid heights whose gradient is the slope.
+LATERAL_SMOOTH_PX = 1.5
+#: Gaussian scale (px) of the coarse slope: what a locally linear surface keeps over the footprint's
+#: reach (a step's slope is spread over it, a smooth flank's is not).
+LATERAL_COARSE_PX = 5.0
+
+
+def _gaussian_kernel(smooth_px: float) -> NDArray[np.float64]:
+    """``scipy.ndimage``'s Gaussian (truncate 4) with one extra tap each side (for the difference kernel)."""
+    r = int(4.0 * smooth_px + 0.5)
+    t = np.arange(-r - 1, r + 2, dtype=np.float64)
+    g_ext = np.exp(-0.5 * (t / smooth_px) ** 2)
+    g_ext /= g_ext[1:-1].sum()
+    return g_ext
+
+
+def _sep(img: NDArray[np.float32], kx: NDArray[np.floating], ky: NDArray[np.floating]) -> NDArray[np.float32]:
+    """Separable correlation, edges replicated (``scipy.ndimage``'s ``mode="nearest"``); OpenCV: 4-8 x faster."""
+    return cv2.sepFilter2D(img, cv2.CV_32F, np.asarray(kx, np.float32), np.asarray(ky, np.float32),
+                           borderType=cv2.BORDER_REPLICATE)
+
+
+def _smoothed_slope(h: NDArray[np.float32], ok: NDArray[np.bool_], smooth_px: float):
+    """The gradient (mm/px, central differences) of the normalised Gaussian average of the valid
+    heights, and that average's weight sum (NaN heights carry no weight)."""
+    g = _gaussian_kernel(smooth_px)[1:-1]
+    num = _sep(np.where(ok, h, np.float32(0.0)), g, g)
+    den = _sep(ok.astype(np.float32), g, g)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        hm = np.where(den > 1e-3, num / np.maximum(den, np.float32(1e-3)), np.float32(np.nan))
+    gy, gx = np.gradient(hm)
+    return np.nan_to_num(gx), np.nan_to_num(gy), den
+
+
+def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = None, *,
+                 lateral_px: float = LATERAL_PX, smooth_px: float = LATERAL_SMOOTH_PX,
+                 step_px: float = 0.0, coarse_px: float = LATERAL_COARSE_PX) -> NDArray[np.float32]:
+    """The height error of a lateral position uncertainty (mm), per pixel::
+
+        u_lat^2 = (lateral_px |g|)^2 + (step_px min(|g - g_coarse|, |g|))^2
+
+    A pixel's height is a weighted mean over a footprint (camera blur, the phase filter's window,
+    the mixed pixels beside a step or a reflectance edge that the first-order texture correction
+    leaves). On a locally linear surface a symmetric footprint returns the height exactly; only
+    its shift (``lateral_px``: the filter's noise weights, the texture lean's remainder) moves it,
+    by ``dx |grad h|``. Where the slope changes within the footprint's reach (a step left after
+    the edge mask, a shadow border) the mixed pixels' error follows the part of the slope that is
+    not linear there: ``g - g_coarse``, the slope ``g`` (Gaussian ``smooth_px``) less the coarse
+    one (``coarse_px``), which a smooth flank keeps and a step spreads, times ``step_px`` (the
+    reach: blur plus filter radius). ``step_px = 0`` (the default) gives the first term alone.
+
+    The slopes are those of the measured heights, normalised-Gaussian averaged over the valid
+    pixels (NaN pixels carry no weight), by central differences in mm per px. With ``u`` (the
+    per-pixel uncertainty without this term) the fine slope's own noise is removed in
+    quadrature: the smoothed central difference is a linear filter ``K`` of the heights, so its
+    variance from pixel errors of standard uncertainty ``u`` is ``sum K^2 u^2`` (taken
+    independent: on unfiltered heights exact, on filtered ones it removes a little more than the
+    noise holds); the step part never exceeds that noise-free slope (on a noisy flat top both
+    are ~0). NaN where the height is NaN.
+    """
+    h = np.asarray(height, np.float32)
+    ok = np.isfinite(h)
+    gx, gy, den = _smoothed_slope(h, ok, smooth_px)
+    slope2 = gx**2 + gy**2
+    if u is not None:  # the noise of the slope itself: sum K^2 u^2 of the separable kernels
+        g_ext = _gaussian_kernel(smooth_px)
+        d2 = (0.5 * (g_ext[:-2] - g_ext[2:])) ** 2  # central difference of the smoothed map
+        g2 = g_ext[1:-1] ** 2
+        u2 = np.where(ok, np.nan_to_num(np.asarray(u, np.float32)) ** 2, np.float32(0.0))
+        var = _sep(u2, d2, g2) + _sep(u2, g2, d2)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            var = var / np.maximum(den, np.float32(1e-3)) ** 2
+        slope2 = np.maximum(slope2 - var, np.float32(0.0))
+    lat2 = np.float32(lateral_px) ** 2 * slope2
+    if step_px > 0:
+        cx, cy, _ = _smoothed_slope(h, ok, coarse_px)
+        bend2 = np.minimum((gx - cx) ** 2 + (gy - cy) ** 2, slope2)
+        lat2 = lat2 + np.float32(step_px) ** 2 * bend2
+    return np.where(ok, np.sqrt(lat2), np.nan).astype(np.float32)
+
+
+def add_lateral(height: NDArray[np.floating], u: NDArray[np.floating], **kwargs: float) -> NDArray[np.float32]:
+    """``sqrt(u^2 + lateral_term(height, u, **kwargs)^2)`` (a new float32 map; NaN where either is NaN)."""
+    lat = lateral_term(height, u, **kwargs).astype(np.float64)
+    return np.sqrt(np.asarray(u, np.float64) ** 2 + lat**2).astype(np.float32)
+
+
+def texture_term(height: NDArray[np.floating], moved: NDArray[np.floating]) -> NDArray[np.float32]:
+    """The texture-edge correction's residual (mm) per pixel: ``|h(s + u_s) - h(s)|``.
+
+    ``height`` is measured from the capture corrected with the blur ``s`` the session uses
+    (:func:`huefringe.texture.correct`, ``B - s grad W . grad(B / W)``), ``moved`` from the
+    same capture corrected with ``s + u_s`` (``u_s``: :func:`huefringe.texture.blur_uncertainty`),
+    through the same chain. The correction is linear in ``s``, so their difference is the height
+    error of a blur wrong by one standard uncertainty, to first order: largest exactly where
+    ``|grad W . grad(B / W)|`` is (reflectance edges across the fringe), about 0 on a uniform
+    reflectance. 0 where only ``moved`` is NaN, NaN where ``height`` is.
+    """
+    h = np.asarray(height, np.float32)
+    d = np.abs(np.asarray(moved, np.float32) - h)
+    return np.where(np.isfinite(h), np.nan_to_num(d, nan=0.0), np.nan).astype(np.float32)
+
+
+def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArray[np.floating],
+                b: NDArray[np.floating], budget: PixelBudget) -> dict[str, NDArray[np.float64]]:
+    """The five terms (mm) of a combined uncertainty map, recovered from ``u`` and the height.
+
+    ``dphi = a h / (1 - b h)`` inverts the model; the calibration terms are recomputed, and the
+    noise term is what remains: ``u_noise^2 = (u^2 - u_interp^2 - u_ref^2 - u_model^2) /
+    (1 + f_table)``. Keys: :data:`TERMS`.
+    """
+    h = np.asarray(height, np.float64)
+    a = np.asarray(a, np.float64)
+    b = np.asarray(b, np.float64)
+    t = budget.terms.astype(np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        d = a * h / (1.0 - b * h)
+        den = a + b * d
+        g = np.abs(a) / den**2
+        ja = -d / den**2
+        jb = ja * d
+    out = {
+        "interpolation": g * _interp_of(d, budget),
+        "reference": g * t[0],
+        "model": np.sqrt(np.maximum(ja * ja * t[1] + 2 * ja * jb * t[2] + jb * jb * t[3], 0.0)),
+    }
+    rest = np.asarray(u, np.float64) ** 2 - out["interpolation"] ** 2 - out["reference"] ** 2 - out["model"] ** 2
+    noise = np.sqrt(np.maximum(rest, 0.0) / (1.0 + budget.table_factor))
+    out["noise"] = noise
+    out["table"] = noise * math.sqrt(budget.table_factor)
+    return {k: out[k] for k in TERMS}
