@@ -28,7 +28,7 @@ from numpy.typing import NDArray
 
 from huefringe.rig.calibrate import Board
 from huefringe.rig.model import RigCalibration
-from huefringe.rig.triangulate import camera_rays, project
+from huefringe.rig.triangulation import camera_rays, project
 
 __all__ = ["RIGS", "BenchRig", "PlaneScene", "SphereScene", "StepsScene", "pose_set", "rot", "write_captures", "write_pose_folders"]
 

@@ -17,7 +17,7 @@ Modules
 ``calibrate``
     Corner detection, projector corners by local homographies, the stereo calibration and its
     per-pose report.
-``triangulate``
+``triangulation``
     Ray-plane and ray-ray triangulation with first-order uncertainty propagation.
 """
 
@@ -33,7 +33,7 @@ from huefringe.rig.calibrate import (
 )
 from huefringe.rig.filestorage import KEY_MAPS, CalibrationFileError, read_calibration, write_calibration
 from huefringe.rig.model import RigCalibration
-from huefringe.rig.triangulate import Triangulated, triangulate
+from huefringe.rig.triangulation import Triangulated, triangulate
 
 __all__ = [
     "KEY_MAPS",

@@ -7,16 +7,15 @@ the layout whose required keys are all present, never a guess from partial keys.
 
 Key map (every layout stores the projector's pose as ``X_p = R X_c + T``, camera first; mm):
 
-================  ===============  ===========  ===========  ========  ========  ================================
-layout            camera K, dist   proj. K      proj. dist   R         T         sizes (optional)
-================  ===============  ===========  ===========  ========  ========  ================================
-``huefringe``     camera_matrix,   projector_   projector_   R         T         camera_width/height,
-                  camera_          matrix       distortion                       projector_width/height
-                  distortion
-``slstudio``      Kc, kc           Kp           kp           Rp        Tp        frameWidth/Height, screenResX/Y
-``scan3d``        cam_K, cam_kc    proj_K       proj_kc      R         T         --
-``opencv-stereo`` M1, D1           M2           D2           R         T         --
-================  ===============  ===========  ===========  ========  ========  ================================
+- ``huefringe``: ``camera_matrix``, ``camera_distortion``, ``projector_matrix``,
+  ``projector_distortion``, ``R``, ``T``; optional ``camera_width``, ``camera_height``,
+  ``projector_width``, ``projector_height``, ``camera_rms_px``, ``projector_rms_px``,
+  ``stereo_rms_px``.
+- ``slstudio``: ``Kc``, ``kc``, ``Kp``, ``kp``, ``Rp``, ``Tp``; optional ``frameWidth``,
+  ``frameHeight``, ``screenResX``, ``screenResY``, ``cam_error``, ``proj_error``, ``stereo_error``.
+- ``scan3d``: ``cam_K``, ``cam_kc``, ``proj_K``, ``proj_kc``, ``R``, ``T``; optional ``cam_error``,
+  ``proj_error``, ``stereo_error``.
+- ``opencv-stereo``: ``M1``, ``D1`` (camera), ``M2``, ``D2`` (projector), ``R``, ``T``.
 
 ``slstudio`` is SLStudio's ``CalibrationData`` (also its ``*_error`` scalars); ``scan3d`` is
 Moreno & Taubin's *scan3d-capture* ``calibration.yml`` (``cam_error``, ``proj_error``,

@@ -24,7 +24,7 @@ from huefringe.rig.calibrate import Board, CalibrationReport, PoseObservation, c
 from huefringe.rig.filestorage import read_calibration, write_calibration
 from huefringe.rig.forms import fit_plane, form_deviation
 from huefringe.rig.model import RigCalibration
-from huefringe.rig.triangulate import triangulate
+from huefringe.rig.triangulation import triangulate
 from huefringe.settings import defaults
 
 __all__ = ["RigError", "calibrate_folders", "decode_folder_uv", "measure_folder"]
