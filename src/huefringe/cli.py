@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+from typing import Any
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -233,13 +234,81 @@ def _cmd_decode(args: argparse.Namespace) -> int:
     return 0
 
 
+def _board(text: str, pitch: float, kind: str) -> Any:
+    from huefringe.rig import Board
+
+    cols, rows = (int(v) for v in text.lower().split("x"))
+    return Board(cols, rows, pitch, kind)
+
+
+def _cmd_rig_calibrate(args: argparse.Namespace) -> int:
+    from huefringe.rig.folders import RigError, calibrate_folders
+
+    try:
+        board = _board(args.board, args.pitch_mm, args.kind)
+    except ValueError:
+        print(f"REFUSED: --board {args.board!r}: COLSxROWS of inner corners expected (e.g. 9x7)", file=sys.stderr)
+        return 2
+    try:
+        calib, report = calibrate_folders(args.poses, args.sequence, args.out, board)
+    except RigError as exc:
+        print(f"REFUSED: {exc}", file=sys.stderr)
+        return 2
+    for p in report.poses:
+        flag = "" if p["used"] else "  DOES NOT FIT: left out"
+        print(f"  {p['name']}: camera {p['camera_rms_px']:.3f} px, projector {p['projector_rms_px']:.3f} px{flag}")
+    print(f"OK: {args.out}: RMS camera {report.rms_px['camera']:.3f} px, projector {report.rms_px['projector']:.3f} px, "
+          f"stereo {report.rms_px['stereo']:.3f} px; baseline {calib.baseline_mm:.1f} mm"
+          + (f"; poses left out: {', '.join(report.rejected)}" if report.rejected else ""))
+    return 0
+
+
+def _cmd_rig_measure(args: argparse.Namespace) -> int:
+    from huefringe.rig.folders import RigError, measure_folder
+
+    boxes = {}
+    for i, text in enumerate(args.box or []):
+        try:
+            boxes[f"box{i}"] = tuple(int(v) for v in text.split(","))
+            assert len(boxes[f"box{i}"]) == 4
+        except (ValueError, AssertionError):
+            print(f"REFUSED: --box {text!r}: x0,y0,x1,y1 in camera pixels expected", file=sys.stderr)
+            return 2
+    try:
+        rep = measure_folder(args.captures, args.sequence, args.calibration, args.outdir, boxes=boxes)
+    except RigError as exc:
+        print(f"REFUSED: {exc}", file=sys.stderr)
+        return 2
+    print(f"OK: {args.outdir}: {rep['points']} points ({rep['coverage']:.1%} of pixels), plane RMS "
+          f"{rep['plane']['rms_mm']:.4f} mm, form deviation {rep['plane']['form_deviation_mm']:.4f} mm, "
+          f"median sigma_z {rep['median_sigma_mm'][2]:.4f} mm")
+    return 0
+
+
 def build_parser() -> argparse.ArgumentParser:
     from huefringe import __version__
 
     parser = argparse.ArgumentParser(prog="huefringe", description=DESCRIPTION,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--version", action="version", version=f"huefringe {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,patterns,session,sl-session,decode,archive,verify}")
+    sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,patterns,session,sl-session,decode,rig-calibrate,rig-measure,archive,verify}")
+
+    p = sub.add_parser("rig-calibrate", help="calibrate a projector-camera rig from board-pose folders of coded captures")
+    p.add_argument("poses", help="folder of pose folders, each with the sequence's captures (and optionally board.png)")
+    p.add_argument("sequence", help="the sequence YAML (both projector axes)")
+    p.add_argument("out", help="the calibration to write (OpenCV FileStorage: .yml, .xml or .json); report beside it")
+    p.add_argument("--board", required=True, help="inner corners (circles) COLSxROWS, e.g. 9x7")
+    p.add_argument("--pitch-mm", type=float, required=True, help="square size (circle spacing), mm")
+    p.add_argument("--kind", choices=["chessboard", "circles", "acircles"], default="chessboard")
+    p.set_defaults(func=_cmd_rig_calibrate)
+
+    p = sub.add_parser("rig-measure", help="triangulate a capture folder with a rig calibration: cloud, mesh, height map, X3P, report")
+    p.add_argument("captures", help="folder of the sequence's captures of the object")
+    p.add_argument("sequence", help="the sequence YAML")
+    p.add_argument("calibration", nargs="+", help="calibration file(s): huefringe, SLStudio, scan3d-capture or OpenCV stereo layout")
+    p.add_argument("outdir", help="the output folder")
+    p.add_argument("--box", action="append", help="x0,y0,x1,y1 camera pixels: report the mean height above the plane there")
+    p.set_defaults(func=_cmd_rig_measure)
 
     p = sub.add_parser("check", help="validate a capture session (capture-session/1 or structured-light-session/1); exit 1 if it is refused")
     p.add_argument("session", help="the session folder (holding session.yaml)")

@@ -1,0 +1,262 @@
+"""Projector-camera calibration from checkerboard (or circle-grid) poses captured with fringe codes.
+
+For each pose of the board the camera sees the board's corners (:func:`detect_corners`:
+``cv2.findChessboardCornersSB`` or ``cv2.findCirclesGrid``) and, under the coded sequence, the
+decoded projector coordinates ``u, v`` at every camera pixel. The projector's pixel at a corner
+is the local homography from camera to projector pixels, fitted by least squares to the decoded
+pixels in a window around the corner and applied to the corner (:func:`projector_corners`,
+Moreno & Taubin 2012). The camera and the projector are then calibrated each with
+``cv2.calibrateCameraExtended`` and jointly refined with ``cv2.stereoCalibrateExtended``
+(:func:`calibrate_rig`); poses whose reprojection RMS exceeds a multiple of the median are
+named and left out of a second fit.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from huefringe.rig.model import RigCalibration
+
+__all__ = ["Board", "CalibrationReport", "PoseObservation", "calibrate_rig", "detect_corners", "projector_corners"]
+
+F64 = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class Board:
+    """A planar calibration target.
+
+    Parameters
+    ----------
+    cols, rows : int
+        Inner corners (chessboard) or circles per row and per column.
+    pitch_mm : float
+        Square size (chessboard) or circle spacing.
+    kind : {'chessboard', 'circles', 'acircles'}
+        Chessboard, symmetric or asymmetric circle grid (OpenCV's layouts).
+    """
+
+    cols: int
+    rows: int
+    pitch_mm: float
+    kind: Literal["chessboard", "circles", "acircles"] = "chessboard"
+
+    def object_points(self) -> NDArray[np.float32]:
+        """Corner (circle) positions on the board, mm, ``z = 0``, in OpenCV's detection order."""
+        j, i = np.mgrid[0 : self.rows, 0 : self.cols]
+        x = i.astype(np.float64)
+        if self.kind == "acircles":
+            x = 2 * i + (j % 2)
+        pts = np.column_stack([x.ravel(), j.ravel(), np.zeros(j.size)]) * self.pitch_mm
+        return pts.astype(np.float32)
+
+
+@dataclass
+class PoseObservation:
+    """One board pose: its name (a file or folder), camera corners and projector corners, pixels."""
+
+    name: str
+    camera: F64
+    projector: F64
+
+
+@dataclass
+class CalibrationReport:
+    """Per-pose reprojection errors and the poses that did not fit.
+
+    Attributes
+    ----------
+    poses : list of dict
+        ``name``, ``camera_rms_px``, ``projector_rms_px`` (against the final calibration) and
+        ``used``.
+    rejected : list of str
+        Poses left out: reprojection RMS above ``outlier_factor`` x the median.
+    rms_px : dict
+        ``camera``, ``projector`` (each device alone) and ``stereo`` (joint) RMS of the final fit.
+    """
+
+    poses: list[dict[str, Any]] = field(default_factory=list)
+    rejected: list[str] = field(default_factory=list)
+    rms_px: dict[str, float] = field(default_factory=dict)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready form."""
+        return {"rms_px": self.rms_px, "rejected": self.rejected, "poses": self.poses}
+
+
+def detect_corners(image: ArrayLike, board: Board) -> F64 | None:
+    """The board's corners (circle centres) in ``image``, (N, 2) pixels, or ``None`` if not found."""
+    img = np.asarray(image)
+    if img.ndim == 3:
+        img = img.mean(axis=2)
+    if img.dtype != np.uint8:
+        lo, hi = float(np.nanmin(img)), float(np.nanmax(img))
+        img = np.clip((img - lo) / max(hi - lo, 1e-12) * 255 + 0.5, 0, 255).astype(np.uint8)
+    size = (board.cols, board.rows)
+    if board.kind == "chessboard":
+        ok, c = cv2.findChessboardCornersSB(img, size, flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY)
+    else:
+        flag = cv2.CALIB_CB_SYMMETRIC_GRID if board.kind == "circles" else cv2.CALIB_CB_ASYMMETRIC_GRID
+        ok, c = cv2.findCirclesGrid(img, size, flags=flag)
+    return c.reshape(-1, 2).astype(np.float64) if ok else None
+
+
+def projector_corners(
+    corners: ArrayLike,
+    u: ArrayLike,
+    v: ArrayLike,
+    valid: ArrayLike,
+    half_window_px: int,
+    min_pixels: int,
+) -> tuple[F64, NDArray[np.bool_]]:
+    """Projector pixels at camera ``corners`` by local homographies (Moreno & Taubin 2012).
+
+    Parameters
+    ----------
+    corners : array_like, shape (N, 2)
+        Camera corners, pixels.
+    u, v, valid : array_like, shape (H, W)
+        Decoded projector column and row at every camera pixel and where they are valid.
+    half_window_px : int
+        The window around each corner: ``2 half_window_px + 1`` pixels square.
+    min_pixels : int
+        Fewest valid decoded pixels a window needs.
+
+    Returns
+    -------
+    proj : ndarray, shape (N, 2)
+        Projector pixels (NaN where a window had too few pixels).
+    ok : ndarray of bool, shape (N,)
+    """
+    c = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    U, V, M = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64), np.asarray(valid, dtype=bool)
+    M = M & np.isfinite(U) & np.isfinite(V)
+    h, w = U.shape
+    out = np.full_like(c, np.nan)
+    ok = np.zeros(len(c), dtype=bool)
+    for k, (x, y) in enumerate(c):
+        x0, x1 = max(int(round(x)) - half_window_px, 0), min(int(round(x)) + half_window_px + 1, w)
+        y0, y1 = max(int(round(y)) - half_window_px, 0), min(int(round(y)) + half_window_px + 1, h)
+        m = M[y0:y1, x0:x1]
+        if m.sum() < max(min_pixels, 4):
+            continue
+        yy, xx = np.nonzero(m)
+        src = np.column_stack([xx + x0 - x, yy + y0 - y])           # about the corner: well conditioned
+        dst = np.column_stack([U[y0:y1, x0:x1][m], V[y0:y1, x0:x1][m]])
+        H, _ = cv2.findHomography(src, dst, 0)
+        if H is None or abs(H[2, 2]) < 1e-12:
+            continue
+        out[k] = H[:2, 2] / H[2, 2]                                     # the corner is the origin
+        ok[k] = True
+    return out, ok
+
+
+def _per_view(obj: list[NDArray[np.float32]], img: list[F64], K: F64, d: F64, rv: Any, tv: Any) -> list[float]:
+    errs = []
+    for o, p, r, t in zip(obj, img, rv, tv, strict=True):
+        q = cv2.projectPoints(o, r, t, K, d)[0].reshape(-1, 2)
+        errs.append(float(np.sqrt(np.mean(np.sum((q - p) ** 2, axis=1)))))
+    return errs
+
+
+def _fit(obj: list[NDArray[np.float32]], cam: list[F64], prj: list[F64], camera_size: tuple[int, int],
+         projector_size: tuple[int, int], flags: int) -> tuple[RigCalibration, list[float], list[float]]:
+    crit = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+    c32 = [p.astype(np.float32).reshape(-1, 1, 2) for p in cam]
+    p32 = [p.astype(np.float32).reshape(-1, 1, 2) for p in prj]
+    rms_c, Kc, dc, *_ = cv2.calibrateCameraExtended(obj, c32, camera_size, None, None, flags=flags, criteria=crit)
+    rms_p, Kp, dp, *_ = cv2.calibrateCameraExtended(obj, p32, projector_size, None, None, flags=flags, criteria=crit)
+    out = cv2.stereoCalibrateExtended(obj, c32, p32, Kc, dc, Kp, dp, camera_size, None, None,
+                                      flags=flags | cv2.CALIB_USE_INTRINSIC_GUESS, criteria=crit)
+    rms, Kc, dc, Kp, dp, R, T = out[:7]
+    calib = RigCalibration(Kc, dc, Kp, dp, R, T.reshape(3), camera_size, projector_size,
+                           errors={"camera": float(rms_c), "projector": float(rms_p), "stereo": float(rms)})
+    # per-pose errors against the joint fit: board poses from the camera, carried to the projector
+    ec, ep = [], []
+    for o, c, p in zip(obj, cam, prj, strict=True):
+        _, rv, tv = cv2.solvePnP(o, c, Kc, dc, flags=cv2.SOLVEPNP_ITERATIVE)
+        Rb = cv2.Rodrigues(rv)[0]
+        ec += _per_view([o], [c], Kc, dc, [rv], [tv])
+        ep += _per_view([o], [p], Kp, dp, [cv2.Rodrigues(R @ Rb)[0]], [R @ tv + T])
+    return calib, ec, ep
+
+
+def calibrate_rig(
+    poses: list[PoseObservation],
+    board: Board,
+    camera_size: tuple[int, int],
+    projector_size: tuple[int, int],
+    *,
+    outlier_factor: float,
+    fix_k3: bool,
+    min_poses: int,
+) -> tuple[RigCalibration, CalibrationReport]:
+    """Calibrate camera, projector and their pose from board poses.
+
+    Parameters
+    ----------
+    poses : list of PoseObservation
+        Each with every board corner seen by the camera and the projector.
+    board : Board
+    camera_size, projector_size : (int, int)
+        ``(width, height)`` in pixels.
+    outlier_factor : float
+        A pose whose camera or projector RMS exceeds this multiple of the poses' median is named
+        in the report and the rig is fitted again without it.
+    fix_k3 : bool
+        Hold the sixth-order radial term at zero (``cv2.CALIB_FIX_K3``), as a few poses need.
+    min_poses : int
+        Fewest poses a calibration needs (also after rejection).
+
+    Raises
+    ------
+    ValueError
+        Too few poses, or poses with the wrong number of corners (named).
+    """
+    n = len(board.object_points())
+    bad = [f"{p.name}: {len(p.camera)} camera / {len(p.projector)} projector corners, {n} expected"
+           for p in poses if len(p.camera) != n or len(p.projector) != n or not np.isfinite(p.projector).all()]
+    if bad:
+        raise ValueError("poses without every corner: " + "; ".join(bad))
+    if len(poses) < min_poses:
+        raise ValueError(f"{len(poses)} poses; a calibration needs at least {min_poses}")
+    flags = cv2.CALIB_FIX_K3 if fix_k3 else 0
+    obj = [board.object_points()] * len(poses)
+    cam = [np.asarray(p.camera, dtype=np.float64) for p in poses]
+    prj = [np.asarray(p.projector, dtype=np.float64) for p in poses]
+    calib, ec, ep = _fit(obj, cam, prj, camera_size, projector_size, flags)
+    worst = np.maximum(np.asarray(ec) / np.median(ec), np.asarray(ep) / np.median(ep))
+    keep = worst <= outlier_factor
+    rejected = [p.name for p, k in zip(poses, keep, strict=True) if not k]
+    if rejected and keep.sum() >= min_poses:
+        sel = np.flatnonzero(keep)
+        calib, _, _ = _fit([obj[i] for i in sel], [cam[i] for i in sel], [prj[i] for i in sel],
+                           camera_size, projector_size, flags)
+        _, ec, ep = _errors_all(calib, obj, cam, prj)
+    elif rejected:
+        keep[:] = True
+        rejected = []
+    report = CalibrationReport(
+        poses=[{"name": p.name, "camera_rms_px": round(a, 4), "projector_rms_px": round(b, 4), "used": bool(k)}
+               for p, a, b, k in zip(poses, ec, ep, keep, strict=True)],
+        rejected=rejected,
+        rms_px={k: round(v, 4) for k, v in calib.errors.items()},
+    )
+    return calib, report
+
+
+def _errors_all(calib: RigCalibration, obj: list[NDArray[np.float32]], cam: list[F64],
+                prj: list[F64]) -> tuple[None, list[float], list[float]]:
+    ec, ep = [], []
+    for o, c, p in zip(obj, cam, prj, strict=True):
+        _, rv, tv = cv2.solvePnP(o, c, calib.camera_matrix, calib.camera_distortion)
+        Rb = cv2.Rodrigues(rv)[0]
+        ec += _per_view([o], [c], calib.camera_matrix, calib.camera_distortion, [rv], [tv])
+        ep += _per_view([o], [p], calib.projector_matrix, calib.projector_distortion,
+                        [cv2.Rodrigues(calib.R @ Rb)[0]], [calib.R @ tv + calib.T.reshape(3, 1)])
+    return None, ec, ep

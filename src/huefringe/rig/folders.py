@@ -1,0 +1,197 @@
+"""Folders in, files out: calibrate a rig from board-pose capture folders; measure a capture folder.
+
+``POSES_DIR`` holds one sub-folder per board pose, each with the captures of the coded sequence
+(``SEQUENCE.yaml``, :mod:`huefringe.codecs`); the board's corners are found in the mean of the
+pose's frames (the board evenly lit) or in ``board.png`` when the folder has one. A measurement
+folder holds the captures of the same sequence on the object. Everything is checked before any
+output is written, and each output file appears whole or not at all.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from huefringe.codecs import DecodeOptions, SequenceError, decode_sequence, load_sequence, read_captures
+from huefringe.rig.calibrate import Board, CalibrationReport, PoseObservation, calibrate_rig, detect_corners, projector_corners
+from huefringe.rig.filestorage import read_calibration, write_calibration
+from huefringe.rig.forms import fit_plane, form_deviation
+from huefringe.rig.model import RigCalibration
+from huefringe.rig.triangulation import triangulate
+from huefringe.settings import defaults
+
+__all__ = ["RigError", "calibrate_folders", "decode_folder_uv", "measure_folder"]
+
+F64 = NDArray[np.float64]
+
+
+class RigError(ValueError):
+    """Inputs a rig command refuses (every problem, each naming its file or folder)."""
+
+
+def decode_folder_uv(folder: Path, spec: Any) -> dict[str, Any]:
+    """Decode one capture folder: ``u``, ``v``, their sigmas, validity, the mean frame."""
+    images = read_captures(folder, spec)
+    dec = decode_sequence(images, spec, DecodeOptions.from_config())
+    out: dict[str, Any] = {"mean": np.mean(np.asarray(images, dtype=np.float64), axis=0)}
+    for axis, key in (("x", "u"), ("y", "v")):
+        d = dec.get(axis)
+        out[key] = None if d is None else np.where(d.valid, d.coord, np.nan)
+        out["sigma_" + key] = None if d is None else d.sigma
+        out["valid_" + key] = None if d is None else d.valid
+    return out
+
+
+def calibrate_folders(poses_dir: str | os.PathLike[str], sequence: str | os.PathLike[str], out: str | os.PathLike[str],
+                      board: Board, cfg: dict[str, Any] | None = None) -> tuple[RigCalibration, CalibrationReport]:
+    """Calibrate from ``poses_dir``'s pose folders; write ``out`` (FileStorage) and ``out``.report.json."""
+    rc = (cfg or defaults())["rig"]
+    poses_dir, out = Path(poses_dir), Path(out)
+    try:
+        spec = load_sequence(sequence)
+    except SequenceError as exc:
+        raise RigError(str(exc)) from None
+    if "x" not in {b.axis for b in spec.blocks if hasattr(b, "axis")} or "y" not in {
+            b.axis for b in spec.blocks if hasattr(b, "axis")}:
+        raise RigError(f"{sequence}: calibration needs both projector axes (x and y) in the sequence")
+    folders = sorted(p for p in poses_dir.iterdir() if p.is_dir()) if poses_dir.is_dir() else []
+    if not folders:
+        raise RigError(f"{poses_dir}: no pose folders")
+    problems, obs = [], []
+    size = None
+    for f in folders:
+        try:
+            d = decode_folder_uv(f, spec)
+        except SequenceError as exc:
+            problems.append(str(exc))
+            continue
+        img = cv2.imread(str(f / "board.png"), cv2.IMREAD_GRAYSCALE) if (f / "board.png").exists() else d["mean"]
+        corners = detect_corners(img, board)
+        if corners is None:
+            problems.append(f"{f}: the {board.cols} x {board.rows} {board.kind} was not found")
+            continue
+        valid = d["valid_u"] & d["valid_v"]
+        pc, ok = projector_corners(corners, d["u"], d["v"], valid, rc["half_window_px"], rc["min_window_pixels"])
+        if not ok.all():
+            problems.append(f"{f}: {int((~ok).sum())} of {len(ok)} corners without {rc['min_window_pixels']} decoded pixels around them")
+            continue
+        size = (img.shape[1], img.shape[0])
+        obs.append(PoseObservation(f.name, corners, pc))
+    if len(obs) < rc["min_poses"]:
+        problems.append(f"{poses_dir}: {len(obs)} usable poses; a calibration needs at least {rc['min_poses']}")
+    if problems:
+        raise RigError("; ".join(problems))
+    assert size is not None
+    calib, report = calibrate_rig(obs, board, size, (spec.projector_width, spec.projector_height), outlier_factor=rc["outlier_factor"],
+                                  fix_k3=rc["fix_k3"], min_poses=rc["min_poses"])
+    write_calibration(out, calib)
+    _write_json(out.with_suffix(".report.json"), {"calibration": str(out), "board": board.__dict__, **report.to_dict()})
+    return calib, report
+
+
+def _resample(s: F64, q: F64, z: F64, S: F64, Q: F64, pitch: float) -> NDArray[np.float32]:
+    """Inverse-distance mean of the 4 nearest points within 1.5 pitch of each grid node (NaN beyond)."""
+    dist, idx = cKDTree(np.column_stack([s, q])).query(np.column_stack([S.ravel(), Q.ravel()]), k=4,
+                                                        distance_upper_bound=1.5 * pitch)
+    ok = np.isfinite(dist)
+    w = np.where(ok, 1.0 / np.maximum(dist, 1e-6 * pitch), 0.0)
+    zz = np.where(ok, z[np.minimum(idx, len(z) - 1)], 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        out = (w * zz).sum(axis=1) / w.sum(axis=1)
+    return out.reshape(S.shape).astype(np.float32)
+
+
+def _write_json(path: Path, doc: dict[str, Any]) -> None:
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(doc, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)))
+    os.replace(tmp, path)
+
+
+def measure_folder(captures: str | os.PathLike[str], sequence: str | os.PathLike[str],
+                   calibration: list[str | os.PathLike[str]], outdir: str | os.PathLike[str],
+                   boxes: dict[str, tuple[int, int, int, int]] | None = None,
+                   cfg: dict[str, Any] | None = None) -> dict[str, Any]:
+    """Decode, triangulate and write cloud, height map, X3P, mesh and a JSON report into ``outdir``.
+
+    The height map is the points' distance from their fitted plane, resampled on a square grid
+    of the plane's own axes (pitch: the median camera-pixel footprint; inverse-distance mean of
+    the 4 nearest points within 1.5 pitch). ``boxes`` (camera pixels
+    ``x0, y0, x1, y1``) report each box's mean height above the plane (a step height).
+    """
+    from huefringe.cloud import write_points
+    from huefringe.io import write_tiff
+    from huefringe.mesh import export_mesh, height_to_mesh
+    from huefringe.x3p import write_height_x3p
+
+    rc = (cfg or defaults())["rig"]
+    problems = []
+    try:
+        spec = load_sequence(sequence)
+    except SequenceError as exc:
+        problems.append(str(exc))
+    try:
+        calib = read_calibration(*calibration)
+    except ValueError as exc:
+        problems.append(str(exc))
+    if problems:
+        raise RigError("; ".join(problems))
+    try:
+        d = decode_folder_uv(Path(captures), spec)
+    except SequenceError as exc:
+        raise RigError(str(exc)) from None
+    h, w = d["mean"].shape
+    if calib.camera_size != (0, 0) and calib.camera_size != (w, h):
+        raise RigError(f"{captures}: {w} x {h} captures, the calibration's camera is {calib.camera_size[0]} x {calib.camera_size[1]}")
+    mode = rc["triangulation"]
+    if mode == "auto":
+        mode = "both" if (d["u"] is not None and d["v"] is not None) else ("u" if d["u"] is not None else "v")
+    valid = np.ones((h, w), dtype=bool)
+    for k in ("u", "v") if mode == "both" else (mode,):
+        if d[k] is None:
+            raise RigError(f"{sequence}: triangulation {mode!r} needs the projector {'x' if k == 'u' else 'y'} axis")
+        valid &= d["valid_" + k]
+    t = triangulate(calib, d["u"] if mode in ("u", "both") else None, d["v"] if mode in ("v", "both") else None,
+                    sigma_u=d["sigma_u"], sigma_v=d["sigma_v"], valid=valid, mode=mode)
+    pts = t.xyz[t.valid]
+    plane = fit_plane(pts)
+    dist = np.full((h, w), np.nan)
+    dist[t.valid] = plane.distance(pts)
+    a = np.cross(plane.normal, [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(plane.normal, a)
+    s, q = (pts - plane.centroid) @ a, (pts - plane.centroid) @ b
+    spacing = np.nanmedian(np.linalg.norm(np.diff(t.xyz, axis=1), axis=2))
+    pitch = float(spacing)
+    gs = np.arange(s.min(), s.max(), pitch)
+    gq = np.arange(q.min(), q.max(), pitch)
+    S, Q = np.meshgrid(gs, gq)
+    height = _resample(s, q, dist[t.valid], S, Q, pitch)
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    sig = t.sigma[t.valid]
+    write_points(out / "cloud.ply", pts, scalars={"sigma_x": sig[:, 0], "sigma_y": sig[:, 1], "sigma_z": sig[:, 2]})
+    write_tiff(out / "height.tiff", height, pixel_pitch_mm=pitch)
+    write_height_x3p(out / "height.x3p", height, pitch)
+    stats = export_mesh(height_to_mesh(height, pitch), out / "mesh.ply")
+    report: dict[str, Any] = {
+        "captures": str(captures), "calibration": [str(c) for c in calibration], "triangulation": mode,
+        "points": int(len(pts)), "coverage": float(t.valid.mean()),
+        "plane": {"normal": plane.normal.tolist(), "centroid_mm": plane.centroid.tolist(),
+                  "rms_mm": plane.rms_mm, "form_deviation_mm": form_deviation(plane, pts)},
+        "median_sigma_mm": np.nanmedian(sig, axis=0).tolist(), "height_pitch_mm": pitch,
+        "mesh": {k: v for k, v in stats.items() if isinstance(v, int | float)},
+        "boxes": {},
+    }
+    for name, (x0, y0, x1, y1) in (boxes or {}).items():
+        box = dist[y0:y1, x0:x1]
+        report["boxes"][name] = {"mean_height_mm": float(np.nanmean(box)), "n": int(np.isfinite(box).sum())}
+    _write_json(out / "report.json", report)
+    return report
+

@@ -1,0 +1,63 @@
+"""Projector-camera calibration against the bench's truth (tuning rig and hold-out rigs)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rig_helpers import BOARD, calibrated, observe
+from scipy.spatial import cKDTree
+
+from huefringe.bench.rig import RIGS, pose_set
+from huefringe.rig import calibrate_rig, detect_corners
+
+CASES = [("tune", 8, 1), ("holdout-wide", 6, 7), ("holdout-wide", 10, 3), ("holdout-narrow", 8, 11), ("holdout-narrow", 6, 5)]
+
+
+@pytest.mark.parametrize(("rig_name", "n_poses", "seed"), CASES)
+def test_intrinsics_within_targets(rig_name, n_poses, seed):
+    rig, cal, rep, _ = calibrated(rig_name, n_poses, seed)
+    truth = rig.calibration
+    for K, Kt in ((cal.camera_matrix, truth.camera_matrix), (cal.projector_matrix, truth.projector_matrix)):
+        assert abs(K[0, 0] / Kt[0, 0] - 1) < 0.003
+        assert abs(K[1, 1] / Kt[1, 1] - 1) < 0.003
+        assert np.hypot(K[0, 2] - Kt[0, 2], K[1, 2] - Kt[1, 2]) < 2.0
+    assert np.linalg.norm(cal.T - truth.T) / np.linalg.norm(truth.T) < 0.003
+    assert rep.rejected == []
+
+
+@pytest.mark.parametrize(("rig_name", "n_poses", "seed"), CASES)
+def test_reprojection_rms_against_ideal_corners(rig_name, n_poses, seed):
+    _, _, rep, ref = calibrated(rig_name, n_poses, seed)
+    assert rep.rms_px["stereo"] <= 1.2 * ref.rms_px["stereo"]
+    assert rep.rms_px["projector"] <= 1.2 * ref.rms_px["projector"]
+
+
+def test_pose_that_does_not_fit_is_named_and_left_out():
+    rig, cal, rep, _ = calibrated("holdout-wide", 8, 3, corrupt=5)
+    assert rep.rejected == ["pose05"]
+    assert [p["used"] for p in rep.poses].count(False) == 1
+    truth = rig.calibration
+    assert abs(cal.projector_matrix[0, 0] / truth.projector_matrix[0, 0] - 1) < 0.003
+
+
+def test_refuses_poses_missing_corners_naming_them():
+    rig, obs, _ = observe("tune", 6, 1)
+    obs[2].camera = obs[2].camera[:-3]
+    with pytest.raises(ValueError, match="pose02: 60 camera"):
+        calibrate_rig(obs, BOARD, rig.camera_size, rig.projector_size, outlier_factor=3.0, fix_k3=True, min_poses=4)
+    with pytest.raises(ValueError, match="at least 8"):
+        calibrate_rig(obs[:1] + obs[3:], BOARD, rig.camera_size, rig.projector_size, outlier_factor=3.0,
+                      fix_k3=True, min_poses=8)
+
+
+def test_corner_detection_on_the_rendered_board():
+    rig = RIGS["tune"]
+    rng = np.random.default_rng(4)
+    R, t = pose_set(rig, BOARD, 1, seed=9)[0]
+    p = rig.board_pose(BOARD, R, t, rng, corner_sigma_px=0.0, coord_sigma_px=0.05, image=True)
+    img = np.clip(p["image"] + rng.normal(0, 2, p["image"].shape), 0, 255).astype(np.uint8)
+    c = detect_corners(img, BOARD)
+    assert c is not None and len(c) == len(p["camera_true"])
+    err = c[cKDTree(c).query(p["camera_true"])[1]] - p["camera_true"]
+    assert np.sqrt(np.mean(np.sum(err**2, axis=1))) < 0.1
+    assert detect_corners(np.full_like(img, 128), BOARD) is None

@@ -1,0 +1,69 @@
+"""rig-calibrate and rig-measure end to end on bench captures decoded by huefringe.codecs; refusals."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from huefringe.bench.rig import RIGS, PlaneScene, write_captures, write_pose_folders
+from huefringe.cli import main
+from huefringe.codecs import load_sequence
+from huefringe.rig import Board, read_calibration
+
+SEQ = {"projector": {"width": 800, "height": 600}, "frames": "cap_*.png", "blocks": [
+    {"phase": {"axis": "x", "period_px": 16, "steps": 4}}, {"gray": {"axis": "x", "cells": 50, "cell_px": 16}},
+    {"phase": {"axis": "y", "period_px": 16, "steps": 4}}, {"gray": {"axis": "y", "cells": 38, "cell_px": 16}},
+    "white", "black"]}
+
+
+@pytest.fixture(scope="module")
+def bench(tmp_path_factory):
+    root = tmp_path_factory.mktemp("rig")
+    (root / "seq.yaml").write_text(yaml.safe_dump(SEQ))
+    spec = load_sequence(root / "seq.yaml")
+    rig = RIGS["holdout-wide"]
+    write_pose_folders(rig, Board(9, 7, 12.0), spec, 6, 4, root / "poses")
+    xyz, ok = PlaneScene(point=(0.0, 0.0, 430.0)).cast(rig.rays)
+    m = rig.coordinates(xyz, ok, np.random.default_rng(0), 0.0)
+    write_captures(rig, spec, root / "plane", m["u_true"], m["v_true"], m["valid"], np.random.default_rng(1))
+    return root, rig
+
+
+def test_captures_to_calibration_to_cloud(bench, capsys):
+    root, rig = bench
+    assert main(["rig-calibrate", str(root / "poses"), str(root / "seq.yaml"), str(root / "calib.yml"),
+                 "--board", "9x7", "--pitch-mm", "12"]) == 0
+    calib = read_calibration(root / "calib.yml")
+    truth = rig.calibration
+    assert abs(calib.camera_matrix[0, 0] / truth.camera_matrix[0, 0] - 1) < 0.003
+    assert abs(calib.projector_matrix[0, 0] / truth.projector_matrix[0, 0] - 1) < 0.003
+    assert abs(calib.baseline_mm - truth.baseline_mm) < 0.3
+    report = json.loads((root / "calib.report.json").read_text())
+    assert [p["name"] for p in report["poses"]] == [f"pose_{i:02d}" for i in range(6)]
+    assert main(["rig-measure", str(root / "plane"), str(root / "seq.yaml"), str(root / "calib.yml"),
+                 str(root / "out"), "--box", "200,150,300,250"]) == 0
+    rep = json.loads((root / "out" / "report.json").read_text())
+    assert rep["plane"]["form_deviation_mm"] < 0.02
+    assert rep["plane"]["rms_mm"] < 2 * rep["median_sigma_mm"][2] + 0.01
+    assert abs(rep["boxes"]["box0"]["mean_height_mm"]) < 0.02
+    for name in ("cloud.ply", "mesh.ply", "height.tiff", "height.x3p"):
+        assert (root / "out" / name).stat().st_size > 1000
+
+
+def test_refusals_name_the_files(bench, tmp_path, capsys):
+    root, _ = bench
+    assert main(["rig-calibrate", str(tmp_path), str(root / "seq.yaml"), str(tmp_path / "c.yml"),
+                 "--board", "9x7", "--pitch-mm", "12"]) == 2
+    assert f"{tmp_path}: no pose folders" in capsys.readouterr().err
+    assert main(["rig-calibrate", str(root / "poses"), str(root / "seq.yaml"), str(tmp_path / "c.yml"),
+                 "--board", "8x6", "--pitch-mm", "12"]) == 2
+    err = capsys.readouterr().err
+    assert "pose_00: the 8 x 6 chessboard was not found" in err and "pose_05" in err
+    assert not (tmp_path / "c.yml").exists()
+    assert main(["rig-measure", str(root / "plane"), str(root / "seq.yaml"), str(tmp_path / "none.yml"),
+                 str(tmp_path / "out")]) == 2
+    assert "none.yml: no such file" in capsys.readouterr().err
+    assert not (tmp_path / "out").exists()

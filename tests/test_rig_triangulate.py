@@ -1,0 +1,85 @@
+"""Triangulation against the bench's truth: exactness with the true rig, targets with calibrated rigs."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from rig_helpers import COORD_SIGMA_PX, calibrated
+
+from huefringe.bench.rig import RIGS, PlaneScene, SphereScene, StepsScene
+from huefringe.rig import triangulate
+from huefringe.rig.forms import fit_plane, fit_sphere, form_deviation, plane_distance
+
+CASES = [("tune", 8, 1), ("holdout-wide", 6, 7), ("holdout-narrow", 8, 11)]
+
+
+def _measure(rig, calib, scene, mode, seed=0, sigma=COORD_SIGMA_PX, stride=2):
+    """Triangulate a scene at every ``stride``-th camera pixel (vector input)."""
+    rng = np.random.default_rng(seed)
+    rays = rig.rays[::stride, ::stride]
+    xyz, ok, *extra = scene.cast(rays)
+    m = rig.coordinates(xyz, ok, rng, sigma)
+    yy, xx = np.mgrid[0 : rig.camera_size[1] : stride, 0 : rig.camera_size[0] : stride]
+    pix = np.column_stack([xx.ravel(), yy.ravel()])
+    t = triangulate(calib, m["u"].ravel(), m["v"].ravel() if mode == "both" else None, sigma_u=m["sigma"].ravel(),
+                    sigma_v=m["sigma"].ravel() if mode == "both" else None, valid=m["valid"].ravel(), pixels=pix)
+    shape = xyz.shape[:2]
+    t = type(t)(t.xyz.reshape(*shape, 3), t.sigma.reshape(*shape, 3), t.valid.reshape(shape))
+    return t, xyz, [e for e in extra]
+
+
+@pytest.mark.parametrize("mode", ["u", "both"])
+def test_true_rig_reconstructs_exactly_without_noise(mode):
+    rig = RIGS["holdout-wide"]
+    t, xyz, _ = _measure(rig, rig.calibration, SphereScene(), mode, sigma=0.0)
+    assert t.valid.mean() > 0.5
+    assert np.nanmax(np.abs(t.xyz[t.valid] - xyz[t.valid])) < 1e-6
+
+
+@pytest.mark.parametrize("mode", ["u", "both"])
+def test_propagated_sigma_matches_the_spread(mode):
+    rig = RIGS["tune"]
+    t, xyz, _ = _measure(rig, rig.calibration, PlaneScene(), mode, seed=3)
+    err = (t.xyz - xyz)[t.valid]
+    z = err / t.sigma[t.valid]
+    assert np.isfinite(z).mean() > 0.999
+    z = z[np.isfinite(z).all(axis=1)]
+    assert 0.9 < np.std(z[:, 2]) < 1.1
+    assert 0.9 < np.std(z[:, 0]) < 1.1
+
+
+@pytest.mark.parametrize(("rig_name", "n_poses", "seed"), CASES)
+def test_flat_board_is_flat(rig_name, n_poses, seed):
+    rig, cal, _, _ = calibrated(rig_name, n_poses, seed)
+    for scene in (PlaneScene(), PlaneScene(point=(-10.0, 5.0, 480.0), tilt_deg=(-12.0, 15.0))):
+        t, _, _ = _measure(rig, cal, scene, "u", seed=seed)
+        pts = t.xyz[t.valid]
+        plane = fit_plane(pts)
+        assert form_deviation(plane, pts) < 0.02                      # systematic departure from flat
+        # the point-to-plane spread is the propagated noise
+        assert plane.rms_mm < 1.2 * np.sqrt(np.mean(np.sum(t.sigma[t.valid] ** 2 * plane.normal**2, axis=1)))
+
+
+@pytest.mark.parametrize(("rig_name", "n_poses", "seed"), CASES)
+def test_sphere_radius(rig_name, n_poses, seed):
+    rig, cal, _, _ = calibrated(rig_name, n_poses, seed)
+    scene = SphereScene()
+    t, _, (sphere,) = _measure(rig, cal, scene, "both", seed=seed)
+    fit = fit_sphere(t.xyz[t.valid & sphere])
+    assert abs(fit.radius - scene.radius) < 0.05
+
+
+@pytest.mark.parametrize(("rig_name", "n_poses", "seed"), CASES)
+def test_step_heights(rig_name, n_poses, seed):
+    rig, cal, _, _ = calibrated(rig_name, n_poses, seed)
+    scene = StepsScene()
+    t, xyz, (label,) = _measure(rig, cal, scene, "u", seed=seed, stride=1)
+    R, o = scene.frame()
+    local = (xyz - o) @ R
+    for k, (x0, y0, x1, y1, h) in enumerate(scene.blocks, start=1):
+        # base: a 10 mm band beside the block's long sides, 3 mm clear of its edges
+        band = (label == 0) & (local[..., 1] > y0) & (local[..., 1] < y1) & (
+            ((local[..., 0] > x0 - 13) & (local[..., 0] < x0 - 3)) | ((local[..., 0] > x1 + 3) & (local[..., 0] < x1 + 13)))
+        top = (label == k) & (local[..., 0] > x0 + 3) & (local[..., 0] < x1 - 3)
+        base = fit_plane(t.xyz[t.valid & band])
+        assert abs(plane_distance(base, t.xyz[t.valid & top]) / h - 1) < 0.003, k
