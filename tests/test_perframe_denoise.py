@@ -1,5 +1,5 @@
 """The adaptive phase filter's target (measurement.denoise_adaptive.target_sigma_rad) on bench
-sessions, against the bench's ground truth (docs/accuracy-texture.md, Session 9)."""
+sessions, against the bench's ground truth (docs/accuracy-texture.md)."""
 
 from __future__ import annotations
 
