@@ -41,12 +41,10 @@ from ._denoise import (  # noqa: F401
     denoise_phase,
     denoise_weight_sums,
     denoise_weighted,
-    ADAPTIVE_DEFAULTS,
     adaptive_kwargs,
 )
 
 __all__ = [
-    "ADAPTIVE_DEFAULTS",
     "UnwrapMode",
     "Unwrapped",
     "adaptive_kwargs",

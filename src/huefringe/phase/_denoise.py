@@ -5,6 +5,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from huefringe.settings import defaults
+
 from ._passes import _adaptive_pass, _denoise_kernel, _denoise_weights, _level_tables, window_sums
 
 
@@ -168,18 +170,16 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
     return out
 
 
-#: ``measurement.denoise_adaptive`` defaults (sigmas in rad of phase)
-ADAPTIVE_DEFAULTS = {"enabled": True, "max_radius": 6, "target_sigma_rad": 0.002, "reject_sigma_rad": 0.03,
-                     "box_chi_z": 0.0}
-
-
 def adaptive_kwargs(opts: dict | None) -> dict:
     """:func:`denoise_phase` / :func:`denoise_weighted` keywords of a ``measurement.denoise_adaptive``
     block (``enabled``, ``max_radius``, ``target_sigma_rad``, ``reject_sigma_rad``, ``box_chi_z``); ``{}`` when
-    absent or disabled (the fixed window)."""
+    absent or disabled (the fixed window). Keys the block leaves out take their value from
+    ``defaults.yaml`` (:func:`huefringe.settings.defaults`)."""
     if opts is None or opts is False:
         return {}
-    o = {**ADAPTIVE_DEFAULTS, **(dict(opts) if opts is not True else {})}
+    o = dict(opts) if opts is not True else {}
+    if not {"enabled", "max_radius", "target_sigma_rad", "reject_sigma_rad", "box_chi_z"} <= o.keys():
+        o = {**defaults()["measurement"]["denoise_adaptive"], **o}  # a configured block is complete
     if not o["enabled"]:
         return {}
     return {"max_radius": int(o["max_radius"]), "target_sigma": float(o["target_sigma_rad"]),
