@@ -87,3 +87,9 @@ __all__ = [
     "sequence_from_mapping",
     "sequence_to_mapping",
 ]
+
+# the classes are re-exported by huefringe.codecs too: named after this module, as they are
+# imported, they have one canonical name in the API reference
+for _cls in (SequenceError, PhaseBlock, GrayBlock, FlatBlock, SequenceSpec, DecodeOptions, Decoded):
+    _cls.__module__ = __name__
+del _cls
