@@ -209,13 +209,16 @@ def measure_session(session: str | os.PathLike[str], outdir: str | os.PathLike[s
     except ValueError as exc:
         raise RigError(str(exc)) from None
     d = _decode_uv(s.read_captures(), s.spec)
-    return _measure(d, calib, Path(outdir), boxes, base, cfg, where=str(s.root / "captures"), sequence=str(s.root / "sequence.yaml"),
+    return _measure(d, calib, Path(outdir), boxes, base, cfg, where=str(s.root / "captures"),
+                    sequence=str(s.root / "sequence.yaml"),
                     inputs={"session": str(s.root), "session_id": s.id, "calibration": [str(c) for c in files]},
                     title=s.id)
 
 
 def _measure(d: dict[str, Any], calib: RigCalibration, out: Path, boxes: dict[str, tuple[int, int, int, int]] | None,
-             base: list[tuple[int, int, int, int]] | None, cfg: dict[str, Any] | None, *, where: str, sequence: str, inputs: dict[str, Any], title: str) -> dict[str, Any]:
+             base: list[tuple[int, int, int, int]] | None, cfg: dict[str, Any] | None, *, where: str, sequence: str,
+             inputs: dict[str, Any], title: str) -> dict[str, Any]:
+    """Triangulate decoded ``d`` with ``calib``; write every output into ``out`` and return the report."""
     import trimesh
 
     from huefringe.cloud import write_points
