@@ -55,7 +55,8 @@ def main_(poses: list[int]) -> None:
                 board, steps = measure(r, root / f"{name}.yml", root / name)
                 hs = [(v["mean_height_mm"], h) for (h, v) in zip(SL_TOPS, steps["boxes"].values(), strict=True)]
                 label = {"printed": "captures' mean (session)", "image": "board.png", "truth": "true calibration"}[name]
-                print(f"| {n} | {label} | {rep['rms_px']['stereo'] if rep else 0:.3f} | "
+                stereo = f"{rep['rms_px']['stereo']:.3f}" if rep else "-"
+                print(f"| {n} | {label} | {stereo} | "
                       f"{board['plane']['form_deviation_mm']:.4f} | {board['plane']['rms_mm']:.4f} | "
                       + " / ".join(f"{m:.4f} ({100 * (m / h - 1):+.2f})" for m, h in hs) + " |", flush=True)
 
