@@ -69,3 +69,71 @@ def test_the_guides_rehearsal_runs_as_written(tmp_path: Path, monkeypatch: pytes
         assert moved > 5, (step["name"], moved)  # the step's top moves the fringe
     out = capsys.readouterr().out
     assert "OK: session 'gauge-blocks-rehearsal'" in out and "specimen with 3 steps" in out
+
+
+def rig_section() -> str:
+    text = GUIDE.read_text(encoding="utf-8")
+    start = text.index("## 10. Projector-camera rigs")
+    end = text.find("\n## ", start + 5)
+    return text[start:] if end < 0 else text[start:end]
+
+
+def test_the_guides_rig_route_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
+    """Section 10 on bench-rig captures: sl-session, check, calibrate, measure, archive, verify;
+    the calibration, the flat board and the steps against the bench's truth."""
+    import json
+
+    from rig_helpers import BOARD, SL_BASE, SL_TOPS, write_rig_captures
+
+    from huefringe.bench.rig import StepsScene
+    from huefringe.rig import read_calibration
+
+    section = rig_section()
+    cmds = guide_commands(section)
+    assert [c[0] for c in cmds] == ["sl-session", "check", "rig-calibrate", "rig-measure", "sl-session", "check",
+                                    "rig-measure", "archive", "verify"]
+    seq = yaml.safe_load(re.search(r"`rig/sequence.yaml`, in\s+full:\n\n```yaml\n(.*?)```", section, re.S).group(1))
+    monkeypatch.chdir(tmp_path)
+    rig = write_rig_captures(Path("rig"), seq)["rig"]
+    for args in cmds:
+        assert cli.main(args) == 0, (args, capsys.readouterr())
+    # the conventions the page states: --board counts inner corners, --pitch-mm the square
+    cal_args = cmds[2]
+    assert cal_args[cal_args.index("--board") + 1] == f"{BOARD.cols}x{BOARD.rows}"
+    assert float(cal_args[cal_args.index("--pitch-mm") + 1]) == BOARD.pitch_mm
+    # --base on the base plane, each --box on one block's top: [x0, x1) columns, [y0, y1) rows
+    label = StepsScene().cast(rig.rays)[2]
+    measure = cmds[6]
+    boxes = [tuple(int(v) for v in measure[i + 1].split(",")) for i, a in enumerate(measure) if a == "--box"]
+    bases = [tuple(int(v) for v in measure[i + 1].split(",")) for i, a in enumerate(measure) if a == "--base"]
+    assert tuple(bases) == SL_BASE and boxes == list(SL_TOPS.values())
+    for (x0, y0, x1, y1), k in [*((b, 0) for b in bases), *((b, i + 1) for i, b in enumerate(boxes))]:
+        assert (label[y0:y1, x0:x1] == k).all(), ((x0, y0, x1, y1), k)
+    # the calibration against the rig's truth
+    calib, truth = read_calibration("rig/calib.yml"), rig.calibration
+    for dev in ("camera_matrix", "projector_matrix"):
+        assert abs(getattr(calib, dev)[0, 0] / getattr(truth, dev)[0, 0] - 1) < 0.003, dev
+    assert abs(calib.baseline_mm - truth.baseline_mm) < 0.3
+    # the flat board: form deviation (bench target 0.02 mm; measured 0.019 mm, docs/rig.md)
+    board = json.loads(Path("results/board/report.json").read_text())
+    print("flat board: form", board["plane"]["form_deviation_mm"], "rms", board["plane"]["rms_mm"])
+    assert board["plane"]["form_deviation_mm"] < 0.025
+    assert board["plane"]["rms_mm"] < 2 * board["median_sigma_mm"][2]
+    # the steps (truth 2, 5, 10 mm; measured +0.022, +0.009, -0.009 mm, docs/rig.md)
+    steps = json.loads(Path("results/steps/report.json").read_text())
+    assert steps["session_id"] == "steps" and steps["plane"]["fitted_to"] == [list(b) for b in SL_BASE]
+    for (height, _), (name, got) in zip(SL_TOPS.items(), steps["boxes"].items(), strict=True):
+        print(f"step {height} mm: {got['mean_height_mm']:.4f} mm")
+        assert abs(got["mean_height_mm"] - height) < 0.03, (name, height, got)
+    assert abs(steps["boxes"]["box2"]["mean_height_mm"] / 10.0 - 1) < 0.003
+    # everything the capture-session route writes, renders included (not blank)
+    import cv2
+
+    for name in ("cloud.ply", "mesh.ply", "height.tiff", "height.x3p", "height.png", "mesh_top.png",
+                 "mesh_oblique1.png", "mesh_oblique2.png", "report.json"):
+        assert name in steps["files"] and Path("results/steps", name).stat().st_size > 1000, name
+    top = cv2.imread("results/steps/mesh_top.png")
+    assert top is not None and top.std() > 10
+    out = capsys.readouterr().out
+    assert "OK: structured-light session 'board'" in out and "6 calibration poses" in out
+    assert "files match their sha256" in out and "session 'steps'" in out

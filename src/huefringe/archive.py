@@ -348,6 +348,7 @@ def build_crate(
     publisher: Mapping[str, str] | None = None,
     provenance: Mapping[str, Any] | None = None,
     software_url: str | None = None,
+    session_format: str = "capture-session/1",
 ) -> dict[str, Any]:
     """The RO-Crate JSON-LD document of an archive (see the module docstring), built with ``rocrate``.
 
@@ -355,7 +356,8 @@ def build_crate(
     local ``#license`` entity); ``author`` ``{"name", "id"?, "type"?, "url"?, "affiliation"?}``
     (Person by default);
     ``publisher`` ``{"name", "id"?, "url"?}`` (always an Organization); ``provenance`` the
-    session's provenance block, recorded on the root dataset and the run.
+    session's provenance block, recorded on the root dataset and the run; ``session_format`` the
+    session's ``format`` (capture-session/1 or structured-light-session/1).
     """
     from rocrate.rocrate import ROCrate
 
@@ -386,7 +388,7 @@ def build_crate(
     output_refs = [_add_file(crate, m) for m in outputs]
     session_props: dict[str, Any] = {
         "name": f"capture session {session_id} (inputs)",
-        "description": "The capture-session folder the workflow read (capture-session/1).",
+        "description": f"The session folder the workflow read ({session_format}).",
         "hasPart": input_refs,
     }
     if prov.get("captured_at"):
@@ -420,7 +422,7 @@ def build_crate(
     entity(run_id, "CreateAction", run)
 
     description = (
-        f"Capture session '{session_id}' (format capture-session/1, folder session/) and what the "
+        f"Capture session '{session_id}' (format {session_format}, folder session/) and what the "
         "huefringe workflow computed from it (results contract 1, folder results/), with the "
         "configuration used (config.yaml). Every file is listed with its SHA-256 checksum; "
         "check with: huefringe verify <archive>."
@@ -447,8 +449,16 @@ def build_crate(
 
 
 def _session_meta(session: Path) -> dict[str, Any]:
+    """session.yaml of a capture session, or of a structured-light session (checked whole: every
+    file it lists present, none altered, so that the archive holds what the results came from)."""
     from huefringe.session import SessionError, read_meta
+    from huefringe.slsession import FORMAT, load_sl_session, session_format
 
+    if session_format(session) == FORMAT:
+        try:
+            return load_sl_session(session).meta
+        except SessionError as exc:
+            raise ArchiveError(f"cannot archive {session}: not a valid structured-light session:\n{exc}") from exc
     try:
         return read_meta(session)
     except SessionError as exc:
@@ -479,8 +489,8 @@ def write_archive(
     Parameters
     ----------
     session : path
-        The capture-session folder (its ``session.yaml`` must be readable; its ``id`` names the
-        crate).
+        The capture-session folder (its ``session.yaml`` must be readable), or a
+        structured-light session (validated whole); its ``id`` names the crate.
     results : path
         The session's results folder, ``results/<id>/`` (its name must be the session id).
     out : path
@@ -527,7 +537,7 @@ def write_archive(
     date, note = _date_published(provenance)
     crate = build_crate(sid, inputs, outputs, cfg, _software(), date_published=date, date_note=note,
                         license=license, author=author, publisher=publisher, provenance=provenance,
-                        software_url=software_url)
+                        software_url=software_url, session_format=str(meta.get("format") or "capture-session/1"))
     meta = _bytes_member(METADATA_NAME, (json.dumps(crate, indent=2, ensure_ascii=False) + "\n").encode("utf-8"))
     members = [meta] + sorted(([cfg] if cfg else []) + inputs + outputs, key=lambda m: m.name)
     with atomic_path(out) as tmp:

@@ -241,47 +241,77 @@ def _board(text: str, pitch: float, kind: str) -> Any:
     return Board(cols, rows, pitch, kind)
 
 
-def _cmd_rig_calibrate(args: argparse.Namespace) -> int:
-    from huefringe.rig.folders import RigError, calibrate_folders
+def _is_sl_session(path: str) -> bool:
+    from huefringe.slsession import FORMAT, session_format
 
+    return session_format(path) == FORMAT
+
+
+def _cmd_rig_calibrate(args: argparse.Namespace) -> int:
+    from huefringe.rig.folders import RigError, calibrate_folders, calibrate_session
+
+    sl = bool(args.inputs) and _is_sl_session(args.inputs[0])
+    if len(args.inputs) != (2 if sl else 3):
+        print("REFUSED: give SESSION OUT (a structured-light session with poses/) or POSES SEQUENCE OUT; got "
+              f"{len(args.inputs)} argument(s): {' '.join(args.inputs)}", file=sys.stderr)
+        return 2
+    out = args.inputs[-1]
     try:
         board = _board(args.board, args.pitch_mm, args.kind)
     except ValueError:
         print(f"REFUSED: --board {args.board!r}: COLSxROWS of inner corners expected (e.g. 9x7)", file=sys.stderr)
         return 2
     try:
-        calib, report = calibrate_folders(args.poses, args.sequence, args.out, board)
+        if sl:
+            calib, report = calibrate_session(args.inputs[0], out, board)
+        else:
+            calib, report = calibrate_folders(args.inputs[0], args.inputs[1], out, board)
     except RigError as exc:
         print(f"REFUSED: {exc}", file=sys.stderr)
         return 2
     for p in report.poses:
         flag = "" if p["used"] else "  DOES NOT FIT: left out"
         print(f"  {p['name']}: camera {p['camera_rms_px']:.3f} px, projector {p['projector_rms_px']:.3f} px{flag}")
-    print(f"OK: {args.out}: RMS camera {report.rms_px['camera']:.3f} px, projector {report.rms_px['projector']:.3f} px, "
+    print(f"OK: {out}: RMS camera {report.rms_px['camera']:.3f} px, projector {report.rms_px['projector']:.3f} px, "
           f"stereo {report.rms_px['stereo']:.3f} px; baseline {calib.baseline_mm:.1f} mm"
           + (f"; poses left out: {', '.join(report.rejected)}" if report.rejected else ""))
     return 0
 
 
 def _cmd_rig_measure(args: argparse.Namespace) -> int:
-    from huefringe.rig.folders import RigError, measure_folder
+    from huefringe.rig.folders import RigError, measure_folder, measure_session
 
-    boxes = {}
-    for i, text in enumerate(args.box or []):
-        try:
-            boxes[f"box{i}"] = tuple(int(v) for v in text.split(","))
-            assert len(boxes[f"box{i}"]) == 4
-        except (ValueError, AssertionError):
-            print(f"REFUSED: --box {text!r}: x0,y0,x1,y1 in camera pixels expected", file=sys.stderr)
-            return 2
+    boxes, base = {}, []
+    for flag, texts in (("--box", args.box), ("--base", args.base)):
+        for text in texts or []:
+            try:
+                box = tuple(int(v) for v in text.split(","))
+                assert len(box) == 4
+            except (ValueError, AssertionError):
+                print(f"REFUSED: {flag} {text!r}: x0,y0,x1,y1 in camera pixels expected", file=sys.stderr)
+                return 2
+            if flag == "--box":
+                boxes[f"box{len(boxes)}"] = box
+            else:
+                base.append(box)
+    sl = bool(args.inputs) and _is_sl_session(args.inputs[0])
+    if (sl and len(args.inputs) != 2) or (not sl and (len(args.inputs) < 4 or args.calibration)):
+        print("REFUSED: give SESSION OUTDIR [--calibration FILE ...] (a structured-light session) or "
+              f"CAPTURES SEQUENCE CALIBRATION... OUTDIR; got {' '.join(args.inputs)}", file=sys.stderr)
+        return 2
+    outdir = args.inputs[-1]
     try:
-        rep = measure_folder(args.captures, args.sequence, args.calibration, args.outdir, boxes=boxes)
+        if sl:
+            rep = measure_session(args.inputs[0], outdir, boxes=boxes, calibration=args.calibration, base=base)
+        else:
+            rep = measure_folder(args.inputs[0], args.inputs[1], args.inputs[2:-1], outdir, boxes=boxes, base=base)
     except RigError as exc:
         print(f"REFUSED: {exc}", file=sys.stderr)
         return 2
-    print(f"OK: {args.outdir}: {rep['points']} points ({rep['coverage']:.1%} of pixels), plane RMS "
+    boxes_text = "".join(f"; {k} {v['mean_height_mm']:.4f} mm above the plane" for k, v in rep["boxes"].items())
+    print(f"OK: {outdir}: {rep['points']} points ({rep['coverage']:.1%} of pixels), plane RMS "
           f"{rep['plane']['rms_mm']:.4f} mm, form deviation {rep['plane']['form_deviation_mm']:.4f} mm, "
-          f"median sigma_z {rep['median_sigma_mm'][2]:.4f} mm")
+          f"median sigma_z {rep['median_sigma_mm'][2]:.4f} mm{boxes_text}")
     return 0
 
 
@@ -293,21 +323,32 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"huefringe {__version__}")
     sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,patterns,session,sl-session,decode,rig-calibrate,rig-measure,archive,verify}")
 
-    p = sub.add_parser("rig-calibrate", help="calibrate a projector-camera rig from board-pose folders of coded captures")
-    p.add_argument("poses", help="folder of pose folders, each with the sequence's captures (and optionally board.png)")
-    p.add_argument("sequence", help="the sequence YAML (both projector axes)")
-    p.add_argument("out", help="the calibration to write (OpenCV FileStorage: .yml, .xml or .json); report beside it")
+    p = sub.add_parser("rig-calibrate", help="calibrate a projector-camera rig from board poses of coded captures",
+                       usage="huefringe rig-calibrate (SESSION | POSES SEQUENCE) OUT --board COLSxROWS --pitch-mm MM")
+    p.add_argument("inputs", nargs="+", metavar="SESSION | POSES SEQUENCE, OUT",
+                   help="a structured-light session with poses/ (corners in each pose's mean frame), or a folder of "
+                        "pose folders (each with the sequence's captures and optionally board.png) and the sequence "
+                        "YAML (both projector axes); then the calibration to write (OpenCV FileStorage: .yml, .xml "
+                        "or .json), its report beside it")
     p.add_argument("--board", required=True, help="inner corners (circles) COLSxROWS, e.g. 9x7")
     p.add_argument("--pitch-mm", type=float, required=True, help="square size (circle spacing), mm")
     p.add_argument("--kind", choices=["chessboard", "circles", "acircles"], default="chessboard")
     p.set_defaults(func=_cmd_rig_calibrate)
 
-    p = sub.add_parser("rig-measure", help="triangulate a capture folder with a rig calibration: cloud, mesh, height map, X3P, report")
-    p.add_argument("captures", help="folder of the sequence's captures of the object")
-    p.add_argument("sequence", help="the sequence YAML")
-    p.add_argument("calibration", nargs="+", help="calibration file(s): huefringe, SLStudio, scan3d-capture or OpenCV stereo layout")
-    p.add_argument("outdir", help="the output folder")
-    p.add_argument("--box", action="append", help="x0,y0,x1,y1 camera pixels: report the mean height above the plane there")
+    p = sub.add_parser("rig-measure", help="triangulate captures with a rig calibration: cloud, mesh, height map, X3P, "
+                                           "figures, report",
+                       usage="huefringe rig-measure (SESSION | CAPTURES SEQUENCE CALIBRATION...) OUTDIR "
+                             "[--box x0,y0,x1,y1 ...] [--base x0,y0,x1,y1 ...] [--calibration FILE ...]")
+    p.add_argument("inputs", nargs="+", metavar="SESSION | CAPTURES SEQUENCE CALIBRATION..., OUTDIR",
+                   help="a structured-light session (its captures/ and calibration/), or a folder of the sequence's "
+                        "captures, the sequence YAML and the calibration file(s) (huefringe, SLStudio, "
+                        "scan3d-capture or OpenCV stereo layout); then the output folder")
+    p.add_argument("--calibration", nargs="+", help="with a SESSION: calibration file(s) to use instead of its calibration/")
+    p.add_argument("--box", action="append", help="x0,y0,x1,y1 camera pixels (columns x0..x1-1, rows y0..y1-1): report "
+                                                 "the mean height above the plane there")
+    p.add_argument("--base", action="append", help="x0,y0,x1,y1 camera pixels on the surface heights are measured from: "
+                                                  "the plane is fitted to the points in these boxes (repeatable; "
+                                                  "default: every point)")
     p.set_defaults(func=_cmd_rig_measure)
 
     p = sub.add_parser("check", help="validate a capture session (capture-session/1 or structured-light-session/1); exit 1 if it is refused")

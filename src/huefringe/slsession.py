@@ -60,8 +60,6 @@ GROUND_TRUTH = "ground_truth"
 ASSEMBLY_KEYS = ("id", "calibration", "poses", "provenance")
 """Keys of an assembly YAML that describe the session; every other key is the sequence's."""
 
-_CAMERA_MATRIX_KEYS = ("camera_matrix", "Kc", "cam_K", "M1")
-_CAMERA_SIZE_KEYS = (("camera_width", "camera_height"), ("frameWidth", "frameHeight"), ("image_width", "image_height"))
 _CAPTURE_RE = re.compile(r"^(\d{4})$")
 _NUM = re.compile(r"(\d+)")
 
@@ -165,41 +163,28 @@ def sequence_problems(spec: SequenceSpec, where: Path) -> list[Problem]:
 
 
 def calibration_problems(path: str | Path, width: int, height: int) -> list[Problem]:
-    """A calibration file that does not parse as OpenCV FileStorage, has no 3 x 3 camera matrix
-    (``camera_matrix``, ``Kc``, ``cam_K`` or ``M1``), or belongs to another camera size (its size
-    keys, or a principal point outside the ``width`` x ``height`` image)."""
+    """A calibration file that :func:`huefringe.rig.filestorage.read_calibration` does not read as a
+    projector-camera calibration (the full model: both devices' matrices and distortion, R, T, in
+    one of its layouts), or that belongs to another camera: its camera size, when the file states
+    one, other than ``width`` x ``height``, or its principal point outside the image."""
+    from huefringe.rig.filestorage import CalibrationFileError, read_calibration
+
     path = Path(path)
     if not path.is_file():
         return [Problem(path, "missing calibration file")]
     try:
-        fs = cv2.FileStorage(str(path), cv2.FILE_STORAGE_READ)
-        opened = fs.isOpened()
-    except (cv2.error, SystemError) as exc:  # OpenCV's parser error surfaces as SystemError in some builds
-        lines = str(exc.__context__ or exc).strip().splitlines()
-        return [Problem(path, f"not an OpenCV FileStorage file ({lines[-1] if lines else exc})")]
-    if not opened:
-        return [Problem(path, "not an OpenCV FileStorage file")]
-    try:
-        root = fs.root()
-        keys = set(root.keys())
-        problems = []
-        name = next((k for k in _CAMERA_MATRIX_KEYS if k in keys), None)
-        k = root.getNode(name).mat() if name else None
-        if k is None or k.shape != (3, 3):
-            problems.append(Problem(path, f"no 3 x 3 camera matrix under {', '.join(_CAMERA_MATRIX_KEYS)} "
-                                          f"(keys found: {', '.join(sorted(keys)) or 'none'})"))
-        for wk, hk in _CAMERA_SIZE_KEYS:
-            if wk in keys and hk in keys:
-                cw, ch = int(root.getNode(wk).real()), int(root.getNode(hk).real())
-                if (cw, ch) != (width, height):
-                    problems.append(Problem(path, f"calibrated for a {cw} x {ch} camera ({wk}, {hk}), the captures "
-                                                  f"are {width} x {height}"))
-        if k is not None and k.shape == (3, 3) and not (0 < k[0, 2] < width and 0 < k[1, 2] < height):
-            problems.append(Problem(path, f"principal point ({k[0, 2]:g}, {k[1, 2]:g}) px lies outside the "
-                                          f"{width} x {height} captures: a calibration of another camera size"))
-        return problems
-    finally:
-        fs.release()
+        calib = read_calibration(path)
+    except CalibrationFileError as exc:
+        return [Problem(path, str(exc).removeprefix(f"{path}: "))]
+    problems = []
+    if calib.camera_size != (0, 0) and calib.camera_size != (width, height):
+        cw, ch = calib.camera_size
+        problems.append(Problem(path, f"calibrated for a {cw} x {ch} camera, the captures are {width} x {height}"))
+    cx, cy = calib.camera_matrix[0, 2], calib.camera_matrix[1, 2]
+    if not (0 < cx < width and 0 < cy < height):
+        problems.append(Problem(path, f"principal point ({cx:g}, {cy:g}) px lies outside the {width} x {height} "
+                                      "captures: a calibration of another camera size"))
+    return problems
 
 
 def _capture_problems(files: list[Path], expect: ImageInfo | None, deep: bool) -> tuple[list[Problem], ImageInfo | None]:

@@ -129,12 +129,12 @@ class BenchRig:
         return out
 
     def capture(self, patterns: NDArray[np.number], u: F64, v: F64, valid: NDArray[np.bool_],
-                rng: np.random.Generator, *, albedo: float = 0.8, ambient: float = 0.05,
+                rng: np.random.Generator, *, albedo: float | F64 = 0.8, ambient: float = 0.05,
                 noise_dn: float = 1.0) -> NDArray[np.uint8]:
         """Camera frames (F, H, W) of projector ``patterns`` (F, Hp, Wp) at coordinates ``u, v``.
 
         Bilinear sampling of each pattern at the pixel's true projector coordinate, a linear
-        camera (``albedo``, ``ambient`` in full scale), Gaussian read noise in DN, 8-bit.
+        camera (``albedo``, a scalar or an (H, W) map, and ``ambient`` in full scale), Gaussian read noise in DN, 8-bit.
         """
         pats = np.asarray(patterns, dtype=np.float32)
         if pats.ndim == 4:
@@ -280,30 +280,38 @@ convergence, focal lengths, principal points and distortion."""
 
 
 def write_captures(rig: BenchRig, spec: Any, folder: Any, u: F64, v: F64, valid: NDArray[np.bool_],
-                   rng: np.random.Generator, *, noise_dn: float = 1.0) -> None:
-    """Write the camera frames of ``spec`` (a :class:`huefringe.codecs.SequenceSpec`) as PNGs ``cap_NN.png``."""
+                   rng: np.random.Generator, *, noise_dn: float = 1.0, albedo: float | F64 = 0.8) -> None:
+    """Write the camera frames of ``spec`` (a :class:`huefringe.codecs.SequenceSpec`) as PNGs ``cap_NN.png``
+    (``albedo``: a scalar or one value per camera pixel)."""
     from pathlib import Path
 
     from huefringe.codecs import generate
 
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
-    frames = rig.capture(generate(spec), u, v, valid, rng, noise_dn=noise_dn)
+    frames = rig.capture(generate(spec), u, v, valid, rng, noise_dn=noise_dn, albedo=albedo)
     for k, f in enumerate(frames):
         cv2.imwrite(str(out / f"cap_{k:02d}.png"), f)
 
 
 def write_pose_folders(rig: BenchRig, board: Board, spec: Any, n: int, seed: int, out: Any, *,
-                       corner_image: bool = True) -> list[tuple[F64, F64]]:
-    """Board-pose folders ``pose_NN`` under ``out``: coded captures and (``corner_image``) ``board.png``."""
+                       corner_image: bool = True, printed: bool = False) -> list[tuple[F64, F64]]:
+    """Board-pose folders ``pose_NN`` under ``out``: coded captures and (``corner_image``) ``board.png``.
+
+    With ``printed`` the board's squares are on the captures (each pixel's albedo is the board's
+    white-light image), as a real board looks under the sequence: its corners are then found in
+    the mean of the captures, and the folders hold nothing but the sequence (a
+    structured-light session's ``poses/``).
+    """
     from pathlib import Path
 
     rng = np.random.default_rng(seed)
     poses = pose_set(rig, board, n, seed)
     for i, (R, t) in enumerate(poses):
-        p = rig.board_pose(board, R, t, rng, corner_sigma_px=0.0, coord_sigma_px=0.0, image=corner_image)
+        p = rig.board_pose(board, R, t, rng, corner_sigma_px=0.0, coord_sigma_px=0.0, image=corner_image or printed)
         folder = Path(out) / f"pose_{i:02d}"
-        write_captures(rig, spec, folder, p["u_true"], p["v_true"], p["valid"], rng)
+        write_captures(rig, spec, folder, p["u_true"], p["v_true"], p["valid"], rng,
+                       albedo=p["image"] / 255.0 if printed else 0.8)
         if corner_image:
             img = np.clip(p["image"] + rng.normal(0, 2, p["image"].shape), 0, 255).astype(np.uint8)
             cv2.imwrite(str(folder / "board.png"), img)
