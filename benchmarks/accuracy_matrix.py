@@ -14,14 +14,14 @@ under the variants in ``VARIANTS``; errors are against the bench's ground truth 
 scores), averaged over the frames; ``coverage`` is the valid fraction of the pixels where the
 ground truth is defined (lit, unshadowed); gauge-block cases also print the worst step error
 (um) and the mean |step error| (%) from ``metrology.evaluate_session``. About 10 min on a
-shared 2-core machine (6.2 min tuning, 4.3 min hold-outs at load 6-9) for the cases before issue 24.
+shared 2-core machine (6.2 min tuning, 4.3 min hold-outs at load 6-9) for the cases whose names do not start with ``tex ``.
 
-Issue 24's colour-textured and freeform cases (names starting ``tex ``; ``--texture`` runs only
+The colour-textured and freeform cases (names starting ``tex ``; ``--texture`` runs only
 them, docs/accuracy-texture.md) add the texture-edge correction's variants, and every row gives
 the fraction of valid pixels with ``|error| <= 2u`` overall and per zone (edge, texture, rest:
 ``zones``).
 
-The camera cases (``--cameras``, issue 23: single-chip Bayer, lateral chromatic aberration,
+The camera cases (``--cameras``: single-chip Bayer, lateral chromatic aberration,
 radial distortion, a pinhole camera at 300 mm) run their own variants, ``CAMERA_VARIANTS``: the
 method's correction on and off through the config keys ``camera.chromatic_registration`` and
 ``camera.lens_model`` (and ``camera.demosaic`` on the Bayer cases: stored RGB or re-demosaiced). A variant whose key this build's config does not have is run as the
@@ -64,7 +64,7 @@ def _case(preset: str, holdout: bool = False, variants: tuple[str, ...] | None =
     return {"cfg": cfg, "holdout": holdout, "variants": variants}
 
 
-#: issue 24's photographed reliefs and tooth: one repeat, 16 bit, plain pattern
+#: the photographed reliefs and tooth (docs/accuracy-texture.md): one repeat, 16 bit, plain pattern
 _TEX = {"period_px": 56, "hue_bands": 72, "repeats": 1, "bit_depth": 16, "frames": 2}
 _TOOTH = {"period_px": 64, "hue_bands": 128, "repeats": 1, "bit_depth": 16, "frames": 2}
 
@@ -88,7 +88,7 @@ CASES = {
                                          scene={"image": "coffee"}),
     "gauge pre-distorted p40 d1.2": _case("plain_gauge", True, session={"period_px": 40, "seed": 7},
                                           projector={"compensation": {"enabled": True}}),
-    # issue 24: colour-textured and freeform surfaces as others capture them (plain pattern, one
+    # colour-textured and freeform surfaces as others capture them (plain pattern, one
     # repeat, 16 bit). The hold-outs were fixed here before any setting was tuned.
     "tex astronaut p56 72x1": _case("photo_relief", session=_TEX),
     "tex chelsea p56 72x1": _case("photo_relief", session={**_TEX, "seed": 21}, scene={"image": "chelsea"}),
@@ -105,7 +105,7 @@ CASES = {
                                                                     "seed": 49}),
 }
 
-#: issue 35: photo reliefs seen by the cameras labs own (read noise 2-30 e-, full wells 5,000-30,000 e-,
+#: photo reliefs seen by the cameras labs own (read noise 2-30 e-, full wells 5,000-30,000 e-,
 #: the photograph over the whole field), each with one and with two repeats (``--noise``,
 #: docs/noise.md). The hold-outs were fixed here before any setting was tuned and score once.
 NOISE_CASES = {
@@ -134,7 +134,7 @@ _LENS = ("lens model ignored", "lens model used")
 _CA = {"lateral_ca_px": [0.5, -0.5], "supersample": 2}
 _DIST = {"distortion": [4e-6, 0.0, 0.0, 0.0, 0.0], "supersample": 2}  # telecentric, mm about the centre: 2 px at the corners
 _DEM = ("demosaic stored", "demosaic lanczos")  # camera.demosaic: the driver's RGB as stored, or re-demosaiced
-#: issue 23: the cameras labs own (``--cameras``); each case runs its own variants
+#: the cameras labs own (``--cameras``); each case runs its own variants
 CAMERA_CASES = {
     # tuning set
     "bayer RGGB edge-aware p48": _case("bayer_gauge", variants=_DEM),
@@ -157,7 +157,7 @@ CAMERA_CASES = {
                                                 session={"period_px": 40, "seed": 33},
                                                 camera={"distortion": [-8e-6, 0.0, 1e-5, -1e-5, 0.0],
                                                         "lateral_ca_px": [0.4, -0.3], "supersample": 2}),
-    # defined after the first two Bayer hold-outs had been seen (docs/accuracy-cameras.md, issue 23 Bayer)
+    # defined after the first two Bayer hold-outs had been seen (docs/accuracy-cameras.md, Bayer)
     "bayer GBRG edge-aware p56 8bit": _case("bayer_gauge", True, variants=_DEM,
                                             session={"period_px": 56, "bit_depth": 8, "seed": 57},
                                             camera={"sensor": {"kind": "bayer", "pattern": "GBRG", "demosaic": "edge_aware"}}),
@@ -218,7 +218,7 @@ VARIANTS.update({
     "edge test plane": {"measurement": {"edge_test": "plane"}},
     "edge test pair": {"measurement": {"edge_test": "pair"}},
     "edge test pair 0.15": {"measurement": {"edge_test": "pair", "edge_jump_mm": 0.15}},
-    # issue 35: the edge tests' thresholds from the heights' own noise, or the fixed ones alone (docs/noise.md)
+    # the edge tests' thresholds from the heights' own noise, or the fixed ones alone (docs/noise.md)
     "edge noise k 0": {"measurement": {"edge_noise_k": 0.0}},
     "edge noise k 5": {"measurement": {"edge_noise_k": 5.0}},
     "shadow fraction 0.06": {"measurement": {"shadow_fraction": 0.06}},
@@ -363,7 +363,7 @@ def noise_score(paths: dict, region: np.ndarray | None, lit: np.ndarray) -> dict
 
 
 def noise_cases(args: argparse.Namespace) -> None:
-    """The noise cases (``NOISE_CASES``, issue 35): "all on", scored on the whole field and on the
+    """The noise cases (``NOISE_CASES``): "all on", scored on the whole field and on the
     photo region alone, with the 2u coverage of the dark and bright halves and the table's noise source."""
     names = [c for c in NOISE_CASES if c in args.cases or args.cases == list(CASES)]
     names = [c for c in names if not (args.tuning and NOISE_CASES[c]["holdout"])
@@ -478,11 +478,11 @@ def main() -> None:
     ap.add_argument("--cases", nargs="*", default=list(CASES))
     ap.add_argument("--tuning", action="store_true", help="the tuning cases only (no hold-out)")
     ap.add_argument("--holdout", action="store_true", help="the hold-out cases only")
-    ap.add_argument("--texture", action="store_true", help="issue 24's cases only (names starting 'tex ')")
+    ap.add_argument("--texture", action="store_true", help="the colour-textured and freeform cases only (names starting 'tex ')")
     ap.add_argument("--variants", nargs="*", default=list(VARIANTS))
     ap.add_argument("--keep", type=Path, default=None, help="write sessions and results here, reuse sessions found there")
-    ap.add_argument("--cameras", action="store_true", help="the camera cases (issue 23) instead of the method's")
-    ap.add_argument("--noise", action="store_true", help="the noise cases (issue 35) instead of the method's")
+    ap.add_argument("--cameras", action="store_true", help="the camera cases instead of the method's")
+    ap.add_argument("--noise", action="store_true", help="the noise cases instead of the method's")
     args = ap.parse_args()
     if args.noise:
         noise_cases(args)

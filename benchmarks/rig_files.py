@@ -52,8 +52,8 @@ def _config(preset: str, size: tuple[int, int], frames: int) -> dict[str, Any]:
 
 #: The measuring configurations compared: the defaults, and the texture-blur correction off. On the
 #: demo's untextured blocks the auto estimate of ``calibration.texture_blur_px2`` is a ratio of two
-#: near-zero sums (before its significance test it read 0.0 px^2 on the direct session and 42.8 px^2
-#: on the files session, 1 DN apart); it must now be refused on every route, so both rows agree.
+#: near-zero sums (without its significance test it reads 0.0 px^2 on the direct session and 42.8 px^2
+#: on the files session, 1 DN apart); that test refuses it on every route, so both rows agree.
 CONFIGS = {"defaults (texture blur auto)": None, "texture_blur_px2: 0": {"calibration": {"texture_blur_px2": 0.0}}}
 
 

@@ -1,4 +1,4 @@
-"""Run every benchmark of issue 8 in one go and print a summary table.
+"""Run every benchmark in one go and print a summary table.
 
 Usage::
 

@@ -9,7 +9,7 @@ The kernel's floor is one 64-byte table line per pixel, fetched from a per-pixel
 -> emitted-phase curve (the inverse of the column: linear between the knots
 ``(hue_i, 2 pi i / N)``) would only lift that floor if it were small enough to be read whole and
 in sequence (about 16 bytes per pixel: four pixels per cache line), or shared between
-neighbouring pixels. Issue 16 asks it to agree with the full table to 1e-4 rad and to move no
+neighbouring pixels. It must agree with the full table to 1e-4 rad and to move no
 height by more than 0.5 um. This script measures, per valid pixel, the largest difference
 between the full table's phase and each candidate, over every hue (for piecewise-linear curves
 the largest difference lies on a knot of one of the two, so the knots of both are evaluated):

@@ -1,4 +1,4 @@
-"""Texture-edge correction variants against the first-order one (issue 24; prototypes, not in the library).
+"""Texture-edge correction variants against the first-order one (prototypes, not in the library).
 
 Usage: ./run python benchmarks/texture_variants.py [--cases NAME ...] [--variants NAME ...] [--noise-free] [--keep DIR]
 

@@ -38,7 +38,7 @@ ARCHIVE_CFG = {
 }
 PROVENANCE = ("provenance:\n  captured_at: 2026-11-30T14:05:00Z\n  operator: J. Doe\n"
               "  instrument: bench-2 (DLP 1024x768, 8-bit colour camera)\n  simulated: true\n  notes: test\n")
-#: the RECOMMENDED checks that failed at the default configuration before issue 25, and pass now:
+#: RECOMMENDED checks that pass at the default configuration:
 #: application url, SoftwareApplication @id an absolute URI (both from [project.urls] of
 #: pyproject.toml), the run's endTime (deterministic, the date of datePublished)
 FIXED_CHECKS = {"process-run-crate-0.5_3.2", "process-run-crate-0.5_5.1", "process-run-crate-0.5_8.4"}

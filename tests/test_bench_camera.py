@@ -1,4 +1,4 @@
-"""The bench's cameras of issue 23: single-chip Bayer sensor, lateral chromatic aberration, OpenCV
+"""The bench's cameras: single-chip Bayer sensor, lateral chromatic aberration, OpenCV
 radial distortion and the pinhole (entocentric) camera, checked against analytic geometry and
 OpenCV's own forward model."""
 

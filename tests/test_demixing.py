@@ -1,5 +1,5 @@
 """Camera colour crosstalk: its estimate from the reference bands, and the demixing that removes the
-red gauge block's step bias (issue 24; docs/accuracy.md, "Gauge-block steps")."""
+red gauge block's step bias (docs/accuracy.md, "Gauge-block steps")."""
 
 from __future__ import annotations
 

@@ -81,7 +81,7 @@ def test_step_too_tall_for_the_period_is_flagged(tmp_path: Path) -> None:
 def test_predistorted_projection_beats_plain_trapezoid(tmp_path: Path) -> None:
     """Paper Fig. 6: projecting the pre-distorted pattern removes the flat stretches that
     projector gamma leaves in the hue, so the same flat board is measured with less error
-    (with the software corrections of issue 14 off: the phase-error table and the adaptive
+    (with the software corrections off: the phase-error table and the adaptive
     filter close most of that gap for the plain pattern: p95 0.051 against 0.039 mm here)."""
     import copy
 
@@ -251,7 +251,7 @@ def _true_step_pixels(truth: "np.ndarray") -> "np.ndarray":
 @pytest.fixture(scope="module")
 def unmasked(tmp_path_factory: pytest.TempPathFactory) -> dict:
     """Plain gauge blocks (320 x 240, p48) and the two-tone tooth (200 x 150, p64, one repeat, 16
-    bit, no compensation: issue 24's freeform case), one frame each, measured without any
+    bit, no compensation: the freeform case of docs/accuracy-texture.md), one frame each, measured without any
     step-edge test: the tests below apply each test to the same heights (the stage does exactly
     this after either chain)."""
     import copy
@@ -265,7 +265,7 @@ def unmasked(tmp_path_factory: pytest.TempPathFactory) -> dict:
     cases["tooth"]["projector"]["compensation"]["enabled"] = False
     cfg = copy.deepcopy(CONFIG)
     cfg["measurement"]["edge_jump_mm"] = 0.0
-    # the edge tests' figures below were measured without colour demixing (issue 24); with it the
+    # the edge tests' figures below were measured without colour demixing; with it the
     # plane test leaves 465 of 1808 mixed pixels (25.7 %, the bound is 25 %)
     cfg["camera"]["colour_demixing"] = False
     # and with the phase filter's target at 0.006 rad: at the default (0.002)
@@ -311,7 +311,7 @@ def test_plane_edge_test_on_gauge_blocks_drops_mixed_pixels_and_keeps_the_steps(
 def test_plane_edge_test_keeps_the_freeform_tooth(unmasked: dict) -> None:
     """The two-tone tooth (steep smooth walls, a colour boundary): the pair test cuts the walls
     steeper than 0.25 mm per pixel; the plane test keeps more of the lit pixels (measured 0.742 ->
-    0.779) at a p95 error still well below issue 24's 0.15 mm (0.092 -> 0.097 mm)."""
+    0.779) at a p95 error still well below the tooth's 0.15 mm target (docs/accuracy-texture.md) (0.092 -> 0.097 mm)."""
     from huefringe.perframe import remove_step_edges
 
     d = unmasked["tooth"]

@@ -72,7 +72,7 @@ def test_correct_keeps_nan_range_and_zero_table() -> None:
 
 @pytest.fixture(scope="module")
 def plain_flat(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """Issue 14's bench case: the plain trapezoid at 40 px, 1.6 px defocus, 96 bands x 2."""
+    """The bench's hard case: the plain trapezoid at 40 px, 1.6 px defocus, 96 bands x 2."""
     cfg = copy.deepcopy(bench.load_bench_config(bench.preset_path("flat")))
     cfg["session"].update(period_px=40, hue_bands=96, repeats=2, frames=1, width=320, height=240)
     cfg["projector"]["defocus_sigma_px"] = 1.6

@@ -1,4 +1,4 @@
-"""The calibration QA figures: error axes with a unit, legends off the data (issue 18)."""
+"""The calibration QA figures: error axes with a unit, legends off the data."""
 
 from __future__ import annotations
 

@@ -6,8 +6,8 @@ job runs) on a small virtual-bench session (160 x 120 px, 24 bands x 2 repeats, 
 Workflow-level cases run Snakemake as a subprocess on a temporary copy of the workflow, never
 on the repository's own ``results/``.
 
-Cases checked with ``known_defect`` were defects once (no refusal, or a message not naming the
-file); they are asserted now, after the hard part of each case (that the input is refused at all,
+Cases checked with ``known_defect`` guard a refusal that is easy to lose (no refusal, or a message
+not naming the file); they are asserted after the hard part of each case (that the input is refused at all,
 with the right error type).
 """
 

@@ -141,7 +141,7 @@ def still(tmp_path_factory: pytest.TempPathFactory) -> dict:
     session = bench.write_session(_still_cfg(40), root / "session")
     cfg = copy.deepcopy(CONFIG)
     # the sensor model is fitted on the captures as the chain reads them: with camera.colour_demixing
-    # (issue 24) on the demixed channels, whose read term is 9.3e-6 (not the sensor's 6.8e-6); these
+    # on, the demixed channels, whose read term is 9.3e-6 (not the sensor's 6.8e-6); these
     # figures are the sensor's own, so the fixture reads the captures as stored
     cfg["camera"]["colour_demixing"] = False
     # without the filter: the filtered case is checked exactly above (synthetic sigma); on the

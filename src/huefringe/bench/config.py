@@ -221,7 +221,7 @@ def _check_semantics(cfg: dict[str, Any], source: str | Path) -> None:
 
 
 def _check_camera(cfg: dict[str, Any], source: str | Path, top_mm: float) -> None:
-    """The camera keys of issue 23 (sensor, lens) that the schema cannot check."""
+    """The camera keys (sensor, lens) that the schema cannot check."""
     cam, s = cfg["camera"], cfg["session"]
     sensor = cam.get("sensor") or {}
     if sensor.get("kind") == "bayer" and (int(s["width"]) % 2 or int(s["height"]) % 2):
