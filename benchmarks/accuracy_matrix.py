@@ -195,7 +195,7 @@ VARIANTS.update({
     # aberration, and X, Y from the session's lens model; "off" = not estimated / telecentric u * pitch
     "chromatic registration off": {"camera": {"chromatic_registration": False}},
     "lens model off": {"camera": {"lens_model": False}},
-    # the camera's colour crosstalk left in the captures (camera.colour_demixing, docs/accuracy.md, Session 9)
+    # the camera's colour crosstalk left in the captures (camera.colour_demixing, docs/accuracy.md)
     "colour demixing off": {"camera": {"colour_demixing": False}},
 })
 VARIANTS.update({
@@ -225,7 +225,7 @@ VARIANTS.update({
     "shadow fraction 0.03": {"measurement": {"shadow_fraction": 0.03}},
 })
 VARIANTS.update({
-    # issue 24, photo reliefs' noise (docs/accuracy-texture.md, Session 9): the adaptive phase filter's reach
+    # photo reliefs' noise (docs/accuracy-texture.md): the adaptive phase filter's reach
     "target 0.006": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.006}}},
     "target 0.004": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.004}}},
     "target 0.003": {"measurement": {"denoise_adaptive": {"target_sigma_rad": 0.003}}},

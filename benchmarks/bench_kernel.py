@@ -132,7 +132,7 @@ def bench_size(rig: KernelCase, *, rounds: int, min_time: float, with_dn2_refere
 
     def ref(radius: int) -> Callable[[], Any]:
         return lambda: perframe.measure_frame(frame_f32, rig.white, rig.table, rig.cal, hue_model="hexcone",
-                                              min_saturation=0.08, shadow=shadow, bit_depth=8,
+                                              min_saturation=0.08, shadow=shadow, bit_depth=8, unwrap_mode="reference",
                                               denoise_radius=radius)
 
     # correctness on this frame (and warm-up of every compiled path)

@@ -9,7 +9,7 @@ scored against the bench's ground truth; printed: each step's mean and seed-to-s
 change with its standard error, median / p95 / coverage, and the estimate's error against the bench
 camera's crosstalk and its leave-out spread. ``--camera diagonal`` keeps the crosstalk's diagonal only
 (the same camera without crosstalk), ``--low-noise`` sets a full well of 1e7 e- and 0.05 DN read
-noise. About 1.5 s per seed and setting at 160 x 120 on 2 shared cores. docs/accuracy.md, Session 9.
+noise. About 1.5 s per seed and setting at 160 x 120 on 2 shared cores. docs/accuracy.md.
 """
 
 from __future__ import annotations

@@ -24,7 +24,7 @@ systematic part, noise averaged over the rows), the fraction of pixels with modu
 the RMS of the baseline's height (mm) against the board's true height over its valid pixels.
 With ``--table1``: the ``table1`` scene (a 1.0 mm gauge block, vibrating membrane) plain against
 compensated: the block's step error and its ROI standard deviation (um), one frame.
-The tables go to docs/accuracy-cameras.md ("Session 9").
+The tables go to docs/accuracy-cameras.md.
 """
 
 from __future__ import annotations

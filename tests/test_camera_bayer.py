@@ -169,8 +169,7 @@ def test_bayer_gauge_blocks_resampled_against_ground_truth(bayer_session: Path) 
     measures median 0.0180 mm, p95 0.117 mm, worst step 16.5 um, |error| <= 2u at 0.74 of the
     pixels; re-demosaiced with Lanczos and the noise correlation known to the filter and the
     uncertainty: 0.0136 mm, 0.0855 mm, 11.4 um, |error| <= 2u at 0.87 (coverage 0.898 / 0.896).
-    With the lateral uncertainty term (session 8): 2u coverage 0.953 against the stored RGB's 0.888.
-    Session 9 (the white-edge texture blur, the phase filter's target 0.002 rad, u by zone): Lanczos
+    With the white-edge texture blur, the phase filter's target 0.002 rad and u by zone: Lanczos
     0.0098 / 0.0514 mm, 10.3 um, 2u 0.941; stored 0.0133 / 0.0619 mm, 10.7 um, 2u 0.901 (coverage
     0.895 / 0.902)."""
     new, m = _score(bayer_session, {})
@@ -185,9 +184,8 @@ def test_bayer_gauge_blocks_resampled_against_ground_truth(bayer_session: Path) 
     assert new["p95_abs_mm"] < 0.058 and new["p95_abs_mm"] < old["p95_abs_mm"] - 0.005
     assert new["worst_step_um"] < 11.5 and new["worst_step_um"] < old["worst_step_um"]
     assert new["coverage"] > old["coverage"] - 0.01
-    # with the lateral term (measurement.lateral_uncertainty_px) on both: 0.953 against 0.888 (session 9's
-    # lateral step part and texture term: 0.947 against 0.887; before that
-    # term: 0.87 against 0.74); the noise correlation is what lifts the re-demosaiced chain into 0.95 +- 0.03
+    # with the lateral term (measurement.lateral_uncertainty_px) on both: 0.947 against 0.887 (without the
+    # lateral term: 0.87 against 0.74); the noise correlation is what lifts the re-demosaiced chain into 0.95 +- 0.03
     assert 0.92 < _cover2u(m) < 0.98 and _cover2u(m_old) < 0.91
 
 

@@ -275,7 +275,7 @@ def test_mixing_and_magnification_match_the_bench_lens(bench_lens) -> None:
 def test_registration_of_a_bench_lens_comes_back_to_the_clean_camera(bench_lens) -> None:
     """Median |height error| against the bench's truth (frame 0): registered within 10 % of the same
     camera without CA (measured 0.0136 against 0.0141 mm; the camera channels registered instead,
-    before the mixing: 0.0197 mm with session 7's Lanczos, 0.0176 with the spline), at least 3 x
+    before the mixing: 0.0197 mm with Lanczos, 0.0176 with the spline), at least 3 x
     better than not registering (0.0497 mm); coverage not bought."""
     ca, clean, _ = bench_lens
     base, cov_base = _median_error(api.measure(clean, _cfg(False), frames=[0]))

@@ -1,5 +1,5 @@
 """The colour-demixing estimate on bench sessions against the bench's own crosstalk, and the ``auto``
-gate's leave-out check (docs/accuracy.md, "Session 9: colour demixing on coarse sessions")."""
+gate's leave-out check (docs/accuracy.md, "Colour crosstalk: the demixing")."""
 
 from __future__ import annotations
 

@@ -20,6 +20,9 @@ from huefringe.settings import load_config
 
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = load_config(REPO / "config.yaml")
+#: the configured keywords :func:`perframe.measure_frame` takes from the top level and ``measurement``
+_FRAME_KEYS = {"hue_model": CONFIG["hue_model"], "min_saturation": CONFIG["measurement"]["min_saturation"],
+               "unwrap_mode": CONFIG["measurement"]["unwrap"]}
 TOL_MM = 1e-4
 
 
@@ -176,7 +179,7 @@ def test_out_buffers_and_shadow_fraction(rig: dict) -> None:
     with pytest.raises(TypeError, match="dtype"):
         kernel.frame_to_height(p1, u8.astype(np.int16))
     with pytest.raises(ValueError, match="hue model"):
-        kernel.prepare(table, cal, rig["white"], hue_model="lab")
+        kernel.prepare(table, cal, rig["white"], hue_model="lab", min_saturation=CONFIG["measurement"]["min_saturation"])
 
 
 def test_prepared_layout(rig: dict) -> None:
@@ -184,7 +187,7 @@ def test_prepared_layout(rig: dict) -> None:
     32 entries, line j holding entries 29 j - 1 .. 29 j + 30 (entry -1 stored as 0, past the end
     65535); line heads; guess tables that mostly hit."""
     table, cal = rig["hexcone"]
-    prep = kernel.prepare(table, cal, rig["white"])
+    prep = kernel.prepare(table, cal, rig["white"], min_saturation=CONFIG["measurement"]["min_saturation"])
     assert prep.cols.ctypes.data % 64 == 0 and prep.cols.shape[2] == 32 * prep.nlines
     n = table.n_bands
     vv, uu = np.nonzero(prep.ok)
@@ -228,7 +231,8 @@ def test_lookup_matches_table_to_phase(n_bands: int) -> None:
         # here at every place in the lines and across the column's ends (frame scaled as read_rgb does)
         hk, vk = kernel.frame_to_height(prep, frame, denoise_radius=1)
         ref = perframe.measure_frame(frame.astype(np.float32) * np.float32(1 / 255), np.ones((h, w, 3), np.float32),
-                                     table, cal, min_saturation=0.0, denoise_radius=1)
+                                     table, cal, hue_model="hexcone", min_saturation=0.0, unwrap_mode="reference",
+                                     denoise_radius=1)
         np.testing.assert_array_equal(vk, ref.valid)
         np.testing.assert_array_equal(hk[vk], ref.height[vk])
     if prep.nlines >= 3:  # random columns: both fallbacks (next line, line heads) are exercised
@@ -264,7 +268,7 @@ def test_kernel_matches_reference_with_phase_error_and_adaptive_filter(rig: dict
                           shadow=shadow, bit_depth=8, predistortion=rig["session"].predistortion if pd else None)
     for n in rig["session"].frame_ids:
         ref = perframe.measure_frame(read_rgb(rig["session"].frames[n]), rig["white"], table, strong, shadow=shadow,
-                                     bit_depth=8, denoise_radius=2, denoise_adaptive=adaptive,
+                                     bit_depth=8, denoise_radius=2, **_FRAME_KEYS, denoise_adaptive=adaptive,
                                      predistortion=rig["session"].predistortion if pd else None)
         m = kernel.frame_maps(prep, _frame_u8(rig, n), denoise_radius=2, denoise_adaptive=adaptive, want_maps=True)
         np.testing.assert_array_equal(m.valid, ref.valid)
@@ -289,7 +293,7 @@ def test_texture_term_in_one_pass_matches_reference_and_the_second_pass(rig: dic
     n = rig["session"].frame_ids[0]
     raw = read_rgb(rig["session"].frames[n])
     rgb, moved = texture.correct_pair(raw, rig["white"], 0.4, 0.5, clipped=perframe.clipped_mask(raw, 8))
-    ref = perframe.measure_frame(rgb, rig["white"], table, cal, shadow=shadow, bit_depth=8, denoise_radius=denoise,
+    ref = perframe.measure_frame(rgb, rig["white"], table, cal, shadow=shadow, bit_depth=8, denoise_radius=denoise, **_FRAME_KEYS,
                                  predistortion=rig["session"].predistortion, denoise_adaptive=adaptive,
                                  texture_rgb=moved)
     m = kernel.frame_maps(prep, rgb, denoise_radius=denoise, denoise_adaptive=adaptive, texture_rgb=moved)

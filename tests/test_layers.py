@@ -12,16 +12,22 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "huefringe"
 
 
 def _module_name(path: Path, src: Path = SRC) -> str:
-    parts = path.relative_to(src.parent).with_suffix("").parts
-    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+    """The module a file belongs to; a package's private modules (``stages/_run.py``) belong to the
+    package (``huefringe.stages``), which is one topic split into files."""
+    parts = list(path.relative_to(src.parent).with_suffix("").parts)
+    if parts[-1] == "__init__" or (parts[-1].startswith("_") and (path.parent / "__init__.py").exists()):
+        parts = parts[:-1]
+    return ".".join(parts)
 
 
 def import_graph(src: Path = SRC) -> dict[str, set[str]]:
     """``module -> huefringe modules it imports`` (module level and inside functions alike)."""
-    modules = {_module_name(p, src): p for p in src.rglob("*.py")}
+    files = sorted(src.rglob("*.py"))
+    modules = {_module_name(p, src) for p in files}
     graph: dict[str, set[str]] = {m: set() for m in modules}
-    for name, path in modules.items():
-        package = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    for path in files:
+        name = _module_name(path, src)
+        package = path.parent.relative_to(src.parent).as_posix().replace("/", ".")
         for node in ast.walk(ast.parse(path.read_text(), str(path))):
             targets: list[str] = []
             if isinstance(node, ast.Import):

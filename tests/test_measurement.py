@@ -268,7 +268,7 @@ def unmasked(tmp_path_factory: pytest.TempPathFactory) -> dict:
     # the edge tests' figures below were measured without colour demixing (issue 24); with it the
     # plane test leaves 465 of 1808 mixed pixels (25.7 %, the bound is 25 %)
     cfg["camera"]["colour_demixing"] = False
-    # and with the phase filter's target before session 9 (0.006 rad): at the new default (0.002)
+    # and with the phase filter's target at 0.006 rad: at the default (0.002)
     # both tests leave fewer mixed pixels (pair 198, plane 233 of the same edges, against 408 /
     # 435), the plane test then 1.18 x the pair test's
     cfg["measurement"]["denoise_adaptive"] = {**cfg["measurement"]["denoise_adaptive"], "target_sigma_rad": 0.006}

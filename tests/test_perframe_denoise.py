@@ -1,5 +1,5 @@
 """The adaptive phase filter's target (measurement.denoise_adaptive.target_sigma_rad) on bench
-sessions, against the bench's ground truth (docs/accuracy-texture.md, Session 9)."""
+sessions, against the bench's ground truth (docs/accuracy-texture.md)."""
 
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ import tifffile
 from bench_helpers import CONFIG, bench_config, process, write
 
 from huefringe.height import accuracy
-from huefringe.phase import ADAPTIVE_DEFAULTS
+from huefringe.phase import adaptive_kwargs
 
 
 def _scores(session: Path, out: Path, target: float) -> dict:
@@ -24,8 +24,8 @@ def _scores(session: Path, out: Path, target: float) -> dict:
     return {k: float(np.mean([a[k] for a in accs])) for k in ("median_abs_mm", "p95_abs_mm", "coverage")}
 
 
-def test_default_target_is_the_session_9_one() -> None:
-    assert ADAPTIVE_DEFAULTS["target_sigma_rad"] == 0.002
+def test_default_target_is_0_002_rad() -> None:
+    assert adaptive_kwargs(True)["target_sigma"] == adaptive_kwargs({"max_radius": 6})["target_sigma"] == 0.002
     assert CONFIG["measurement"]["denoise_adaptive"]["target_sigma_rad"] == 0.002
 
 

@@ -36,7 +36,7 @@ def test_pinhole_session_measures_with_the_lens_model(tmp_path: Path) -> None:
     assert acc["median_abs_mm"] < 0.02 and acc["coverage"] > 0.85  # heights as a telecentric session's
     assert max(abs(st["error_mm"]) for st in ev["steps"]) < 0.02
     assert xy["summary"]["p95_mm"] < 0.02 and xy["summary"]["corner_p95_mm"] < 0.006
-    # the corners' worst pixel: 0.052 mm until session 9, 0.062 with the white-edge texture blur and the
+    # the corners' worst pixel: 0.062 mm with the white-edge texture blur and the
     # filter's target 0.002 rad, which took the corners' p95 from 0.0075 to 0.0036 mm (one pixel's height)
     assert xy["summary"]["corner_max_mm"] < 0.07
     assert out[False][2]["summary"]["corner_max_mm"] > 1.0  # u * pitch is millimetres off at the corners

@@ -146,9 +146,11 @@ def test_profile_figure(tmp_path):
 
 
 def test_profile_figure_names_its_row(tmp_path, monkeypatch):
+    from huefringe.render import _figures
+
     seen = []
-    save = render._save_figure
-    monkeypatch.setattr(render, "_save_figure", lambda fig, out, dpi: (seen.append(fig), save(fig, out, dpi))[1])
+    save = _figures._save_figure
+    monkeypatch.setattr(_figures, "_save_figure", lambda fig, out, dpi: (seen.append(fig), save(fig, out, dpi))[1])
     render.profile_figure(step_height(), 45, PITCH, tmp_path / "p.png", title="demo frame 0000: cross-section")
     render.profile_figure(step_height(), -1, PITCH, tmp_path / "q.png")
     (ax,), (ax2,) = seen[0].axes, seen[1].axes

@@ -144,7 +144,7 @@ def test_bench_fed_the_projector_files_measures_as_the_bench_session(gauge_chain
     diff = np.abs(a.astype(np.int64) - b.astype(np.int64))
     assert 0 < np.median(diff) < 0.01 * 65535
     # the camera's crosstalk, estimated from 16 bands x 2 repeats on both routes: the bench's to 2e-4, and
-    # each primary's two ramp segments agree (docs/accuracy.md, Session 9: measured 1.6e-4, spread 1.9e-4)
+    # each primary's two ramp segments agree (docs/accuracy.md: measured 1.6e-4, spread 1.9e-4)
     m_true = np.asarray(g["cfg"]["camera"]["crosstalk"]) * np.asarray(g["cfg"]["camera"]["sensitivity"])[None, :]  # type: ignore[index]
     m_true = m_true / np.diag(m_true)[None, :]
     for m in (g["m_direct"], g["m_plain"]):
@@ -155,7 +155,7 @@ def test_bench_fed_the_projector_files_measures_as_the_bench_session(gauge_chain
     # demixing: 0.006/0.017/0.032/-0.002 mm from the files, 0.004/0.017/0.032/-0.001 mm direct; without
     # 0.003/0.005/0.022/0.003 and 0.003/0.003/0.024/0.003 mm). Over 20 bench seeds of this session the red
     # step reads +18.7 um (sd 11.3) demixed and +20.1 um (sd 11.0) not: the demixing does not move it
-    # (paired -1.4 +- 1.1 um); this seed's +7 um is the seed's (docs/accuracy.md, Session 9). The bounds:
+    # (paired -1.4 +- 1.1 um); this seed's +7 um is the seed's (docs/accuracy.md). The bounds:
     # the ensemble's mean + 2 sd (red 0.041, the others 0.015-0.028 mm), and the routes' agreement.
     steps = (_steps(g["m_plain"], plain), _steps(g["m_direct"], direct))
     bounds = (0.02, 0.03, 0.042, 0.03)  # green, navy, red, charcoal

@@ -83,7 +83,7 @@ def test_every_scripted_rule_has_one_script_and_one_stage_of_its_name() -> None:
     rules = _rules()
     scripted = {n: v for n, v in rules.items() if any(s for _, s in v)}
     assert {"hue_table", "measure_frames", "mesh", "render", "metrology", "bench_session"} <= set(scripted)
-    stage_src = (REPO / "src" / "huefringe" / "stages.py").read_text()
+    stage_src = "".join(p.read_text() for p in sorted((REPO / "src" / "huefringe" / "stages").glob("*.py")))
     for name, where in scripted.items():
         assert len(where) == 1, f"rule {name} is defined {len(where)} times: {[str(f) for f, _ in where]}"
         script = Path(where[0][1]).name

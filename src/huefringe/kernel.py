@@ -187,7 +187,7 @@ def prepare(
     white: NDArray[Any],
     *,
     hue_model: str | None = None,
-    min_saturation: float = 0.08,
+    min_saturation: float,
     shadow: NDArray[np.bool_] | float | None = None,
     bit_depth: int = 8,
     floor: float = 1.0 / 255.0,

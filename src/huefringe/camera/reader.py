@@ -28,7 +28,7 @@ DEMIX_MAX_SEGMENT_SPREAD = 0.01
 """``auto`` also needs the estimate's leave-out check (:func:`segment_check`) to agree: the columns
 that each primary's rising and falling ramp segment give alone may differ by at most this in any
 entry (the smallest crosstalk worth undoing). Bench sessions from 16 bands x 1 repeat, 8 bit, at
-160 x 120 px upwards read 4e-5 - 7.1e-4 (docs/accuracy.md, Session 9); a spread beyond it means the
+160 x 120 px upwards read 4e-5 - 7.1e-4 (docs/accuracy.md); a spread beyond it means the
 bands do not show one fixed linear mixing (a camera's auto exposure drifting 0.2 % a band reads
 0.014), and the estimate is not used."""
 

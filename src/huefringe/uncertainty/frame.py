@@ -293,7 +293,7 @@ def edge_floor(height: NDArray[np.float32], valid: NDArray[np.bool_], u: NDArray
 #: moves the height there: the filter's weights follow the signal (noise) and the texture lean's
 #: first-order remainder. Measured on the tuning cases (docs/uncertainty.md, "Lateral term"):
 #: with :data:`LATERAL_STEP_PX` it puts the smooth reliefs' and the tooth's steep flanks at
-#: |error| <= 2u for 0.96-0.97 (1.75 px alone, session 8: 0.98-0.99).
+#: |error| <= 2u for 0.96-0.97.
 LATERAL_PX = 0.5
 #: Lateral reach (px) of a footprint where the slope changes within it (a step left by the edge
 #: mask, a shadow border, a sharp bend): the camera blur (sigma 0.6-0.9 px on the bench) plus the

@@ -1,0 +1,95 @@
+"""A capture sequence described once: its projector images and its decoding.
+
+A :class:`SequenceSpec` lists the projected images in capture order as blocks:
+:class:`PhaseBlock` (N phase-shifted sinusoids of one period along one axis), :class:`GrayBlock`
+(a Gray code along one axis, with or without inverse patterns) and :class:`FlatBlock` (a white or
+black image). :func:`generate` writes the projector images; :func:`decode_sequence` turns the
+camera's captures into one :class:`Decoded` per projector axis: the absolute projector coordinate
+of every camera pixel with its standard uncertainty, the modulation (data quality) and a validity
+mask.
+
+Decoding an axis, coarse to fine: the Gray code (only its bits coarser than a quarter of the
+first period it must resolve) or, without one, the beats of the axis' periods (heterodyne) give a
+first absolute estimate; each stage fixes the next one's fringe order
+(:func:`~huefringe.codecs.temporal.orders_from_reference`); with neither a Gray code nor a beat
+covering the projector, the number-theoretic search over the periods decides. Every phase block
+of the axis is then unwrapped against the finest stage and the results are averaged with
+weights ``1 / u**2``: the coordinate's uncertainty is that of the weighted mean.
+
+A pixel is valid when every phase block's modulation reaches ``min_modulation_dn`` and none of
+its frames is clipped at full scale, the decoded Gray bits (all but one, next to a cell edge)
+differ from their reference by ``min_gray_contrast_dn`` and every order decision kept a margin
+below ``order_tolerance`` (a fraction of the period; 0.5 is a coin toss).
+
+YAML form (:func:`load_sequence`), blocks in capture order::
+
+    projector: {width: 1920, height: 1080, gamma: 1.0}
+    frames: "pat*.png"          # the captures, sorted by the number in their names
+    blocks:
+      - phase: {axis: x, period_px: 66.6667, shifts_deg: [-120, 0, 120]}
+      - phase: {axis: x, period_px: 100, steps: 4, encoding_gamma: 1.0, origin_px: 0}
+      - gray: {axis: x, cells: 20, cell_px: 100, inverse: true}
+      - white
+      - black
+
+or ``kamino410: {config: path/to/config.xml, program: phase_shifting | gamma_correction}``
+for the layouts of github.com/kamino410/phase-shifting (:func:`kamino410_sequence`).
+"""
+
+from __future__ import annotations
+
+from ._spec import (  # noqa: F401
+    Axis,
+    SequenceError,
+    PhaseBlock,
+    GrayBlock,
+    FlatBlock,
+    Block,
+    SequenceSpec,
+    DecodeOptions,
+    Decoded,
+    opencv_gray_blocks,
+    kamino410_sequence,
+    _float,
+    _phase_block,
+    _gray_block,
+    load_sequence,
+    sequence_from_mapping,
+    _check_spec,
+    sequence_to_mapping,
+)
+from ._decode import (  # noqa: F401
+    _NUM,
+    _frame_key,
+    read_captures,
+    generate,
+    _as_stack,
+    _gray_reference,
+    _stages,
+    _decode_axis,
+    decode_sequence,
+)
+
+__all__ = [
+    "Decoded",
+    "DecodeOptions",
+    "FlatBlock",
+    "GrayBlock",
+    "PhaseBlock",
+    "SequenceError",
+    "SequenceSpec",
+    "decode_sequence",
+    "generate",
+    "kamino410_sequence",
+    "load_sequence",
+    "opencv_gray_blocks",
+    "read_captures",
+    "sequence_from_mapping",
+    "sequence_to_mapping",
+]
+
+# the classes are re-exported by huefringe.codecs too: named after this module, as they are
+# imported, they have one canonical name in the API reference
+for _cls in (SequenceError, PhaseBlock, GrayBlock, FlatBlock, SequenceSpec, DecodeOptions, Decoded):
+    _cls.__module__ = __name__
+del _cls

@@ -1,0 +1,281 @@
+"""Reading a sequence's captures, generating its patterns, and decoding them to per-axis projector coordinates."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe.codecs.graycode import decode_gray, index_to_gray
+from huefringe.codecs.nstep import TWO_PI, NoiseModel, wrapped_phase
+from huefringe.codecs.temporal import heterodyne, number_theoretic, orders_from_reference
+from ._spec import Axis, DecodeOptions, Decoded, FlatBlock, GrayBlock, PhaseBlock, SequenceError, SequenceSpec, _check_spec
+
+
+_NUM = re.compile(r"(\d+)")
+
+
+def _frame_key(p: Path) -> tuple[int, str]:
+    nums = _NUM.findall(p.stem)
+    return (int(nums[-1]) if nums else -1, p.name)
+
+
+def read_captures(folder: str | Path, spec: SequenceSpec) -> list[NDArray[np.number]]:
+    """The captures of ``spec.frames`` in ``folder``, grayscale, sorted by the last number in their names.
+
+    Colour captures are converted to grayscale (OpenCV's BGR -> gray weights).
+
+    Raises
+    ------
+    SequenceError
+        Naming the folder or file: a wrong count, an unreadable file, mixed sizes or dtypes.
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise SequenceError(f"{folder}: not a folder of captures")
+    files = sorted(folder.glob(spec.frames), key=_frame_key)
+    if len(files) != spec.n_frames:
+        raise SequenceError(
+            f"{folder}: {len(files)} files match {spec.frames!r}, the sequence has {spec.n_frames} frames "
+            f"({', '.join(type(b).__name__ + '[' + str(b.n_frames) + ']' for b in spec.blocks)})"
+        )
+    problems, images = [], []
+    for f in files:
+        im = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        if im is None:
+            problems.append(f"{f}: not an image OpenCV can read")
+            continue
+        if im.ndim == 3:
+            im = cv2.cvtColor(im[..., :3], cv2.COLOR_BGR2GRAY)
+        if im.dtype not in (np.uint8, np.uint16):
+            problems.append(f"{f}: {im.dtype} pixels (8- or 16-bit integers expected)")
+            continue
+        images.append((f, im))
+    if images:
+        f0, ref = images[0]
+        for f, im in images[1:]:
+            if im.shape != ref.shape or im.dtype != ref.dtype:
+                problems.append(f"{f}: {im.shape} {im.dtype}, {f0.name} is {ref.shape} {ref.dtype}")
+    if problems:
+        raise SequenceError("; ".join(problems))
+    return [im for _, im in images]
+
+
+def generate(spec: SequenceSpec, dtype: type[np.integer] = np.uint8) -> NDArray[np.integer]:
+    """The projector images of ``spec`` in capture order, shape (n_frames, height, width).
+
+    Examples
+    --------
+    >>> spec = SequenceSpec((PhaseBlock("x", 16.0, tuple(equal_shifts(4))), FlatBlock("white")), 64, 8)
+    >>> generate(spec).shape, int(generate(spec)[0, 0, 0]), int(generate(spec)[2, 0, 0])
+    ((5, 8, 64), 255, 0)
+    """
+    full = float(np.iinfo(dtype).max)
+    h, w = spec.projector_height, spec.projector_width
+    out = np.empty((spec.n_frames, h, w), dtype)
+    coords = {"x": np.arange(w, dtype=np.float64)[None, :], "y": np.arange(h, dtype=np.float64)[:, None]}
+    for b, sl in spec.slices():
+        if isinstance(b, FlatBlock):
+            out[sl] = full if b.level == "white" else 0
+        elif isinstance(b, PhaseBlock):
+            u = coords[b.axis]
+            for i, d in zip(range(sl.start, sl.stop), b.shifts_rad, strict=True):
+                v = (0.5 + 0.5 * np.cos(TWO_PI * (u - b.origin_px) / b.period_px + d)) ** b.encoding_gamma
+                out[i] = np.broadcast_to(np.round(v * full), (h, w))
+        else:
+            g = index_to_gray(np.floor(coords[b.axis] / b.cell_px).astype(np.int64))
+            i = sl.start
+            for k in range(b.bits - 1, -1, -1):
+                bit = np.broadcast_to(((g >> k) & 1).astype(bool), (h, w))
+                out[i] = np.where(bit, full, 0)
+                i += 1
+                if b.inverse:
+                    out[i] = np.where(bit, 0, full)
+                    i += 1
+    return out
+
+
+def _as_stack(images: list[NDArray[np.number]] | NDArray[np.number], spec: SequenceSpec) -> tuple[NDArray, float]:
+    if isinstance(images, np.ndarray):
+        stack = images
+    else:
+        shapes = {np.shape(im) for im in images}
+        if len(shapes) != 1:
+            raise SequenceError(f"captures of different shapes {sorted(shapes)}")
+        stack = np.stack(images)
+    if stack.ndim != 3:
+        raise SequenceError(f"expected grayscale captures (n_frames, H, W), got shape {stack.shape}")
+    if stack.shape[0] != spec.n_frames:
+        raise SequenceError(f"{stack.shape[0]} captures, the sequence has {spec.n_frames} frames")
+    full = 65535.0 if stack.dtype == np.uint16 else 255.0
+    return stack, full
+
+
+def _gray_reference(
+    stack: NDArray, block: GrayBlock, sl: slice, flats: dict[str, NDArray], longest: float, cells: int, opts: DecodeOptions, scale: float
+) -> tuple[NDArray[np.float64], NDArray[np.bool_], float]:
+    """The Gray code's cell-centre coordinate, decoded to the bits a period ``longest`` needs."""
+    drop = 0
+    while drop < block.bits - 1 and block.cell_px * 2 ** (drop + 1) <= longest / 3.0:
+        drop += 1
+    use = block.bits - drop
+    frames = stack[sl]
+    if block.inverse:
+        dec = decode_gray(frames[0::2], opts.min_gray_contrast_dn * scale, inverse=frames[1::2], use_bits=use)
+    else:
+        ref = 0.5 * (flats["white"].astype(np.float32) + flats["black"].astype(np.float32))
+        dec = decode_gray(frames, opts.min_gray_contrast_dn * scale, reference=ref, use_bits=use)
+    cell = block.cell_px * 2**drop
+    n_eff = -(-cells // 2**drop)
+    centre = dec.index * cell + 0.5 * (cell - 1.0) if cell >= 1 else (dec.index + 0.5) * cell
+    return centre.astype(np.float64), dec.valid & (dec.index < n_eff), cell
+
+
+def _stages(periods: list[float]) -> list[tuple[float, tuple[int, ...]]]:
+    """Coarse-to-fine stages: the distinct periods and their heterodyne beats (index tuples)."""
+    q = sorted(set(periods), reverse=True)
+    st: list[tuple[float, tuple[int, ...]]] = [(p, (periods.index(p),)) for p in q]
+    if len(q) >= 2:
+        beats = []
+        for a, b in zip(q[:-1], q[1:], strict=True):
+            pb = a * b / (a - b)
+            beats.append(pb)
+            st.append((pb, (periods.index(a), periods.index(b))))
+        if len(beats) == 2 and beats[0] != beats[1]:
+            st.append((beats[0] * beats[1] / abs(beats[0] - beats[1]), ()))
+    return sorted(st, key=lambda s: -s[0])
+
+
+def _decode_axis(
+    stack: NDArray, spec: SequenceSpec, axis: Axis, flats: dict[str, NDArray], noise: NoiseModel, opts: DecodeOptions, full: float
+) -> Decoded:
+    scale = full / 255.0
+    blocks = [(b, sl) for b, sl in spec.slices() if isinstance(b, PhaseBlock) and b.axis == axis]
+    phases = [wrapped_phase(stack[sl], b.shifts_rad, noise, gamma=b.encoding_gamma * spec.projector_gamma) for b, sl in blocks]
+    periods = [b.period_px for b, _ in blocks]
+    # wrapped coordinates u mod P (origins folded in) and their standard uncertainties (px)
+    wraps = [np.mod(b.origin_px + p.phase * (b.period_px / TWO_PI), b.period_px) for (b, _), p in zip(blocks, phases, strict=True)]
+    sig = [p.sigma.astype(np.float64) * (b.period_px / TWO_PI) for (b, _), p in zip(blocks, phases, strict=True)]
+    valid = np.ones(stack.shape[1:], bool)
+    for p in phases:
+        valid &= p.modulation >= opts.min_modulation_dn * scale
+    for _, sl in blocks:  # a clipped frame is no sinusoid
+        valid &= stack[sl].max(axis=0) < full
+    margin = np.zeros(stack.shape[1:], np.float64)
+    extent = spec.extent(axis)
+
+    stages = _stages(periods)
+    beat_w: dict[tuple[int, ...], NDArray[np.float64]] = {}
+
+    def stage_wrap(pst: float, idx: tuple[int, ...]) -> NDArray[np.float64]:
+        if len(idx) == 1:
+            return wraps[idx[0]]
+        if len(idx) == 2:
+            w, _ = heterodyne(wraps[idx[0]], periods[idx[0]], wraps[idx[1]], periods[idx[1]])
+            beat_w[idx] = w
+            return w
+        two = [(p, i) for p, i in stages if len(i) == 2]
+        for _, i in two:
+            if i not in beat_w:
+                stage_wrap(0.0, i)
+        w, _ = heterodyne(beat_w[two[0][1]], two[0][0], beat_w[two[1][1]], two[1][0])
+        return w
+
+    gray = [(b, sl) for b, sl in spec.slices() if isinstance(b, GrayBlock) and b.axis == axis]
+    absolute = True
+    ref: NDArray[np.float64] | None = None
+    if gray:
+        gb, gsl = gray[0]
+        cells = int(np.ceil(extent / gb.cell_px))
+        full_cell = gb.cell_px
+        # start at the finest stage the full Gray code resolves with room to spare, else the coarsest
+        start = next((i for i in range(len(stages) - 1, -1, -1) if stages[i][0] >= 3.0 * full_cell), 0)
+        ref, gvalid, _ = _gray_reference(stack, gb, gsl, flats, stages[start][0], cells, opts, scale)
+        valid &= gvalid
+        chain = stages[start:]
+    elif stages[0][0] >= extent:
+        ref = stage_wrap(*stages[0])
+        chain = stages[1:]
+    elif len(set(periods)) >= 2:
+        uniq = sorted(set(periods))
+        idx = [periods.index(p) for p in uniq]
+        ref, m = number_theoretic([wraps[i] for i in idx], uniq, [sig[i] for i in idx], extent)
+        margin = np.maximum(margin, m)
+        chain = []
+    else:
+        absolute = False
+        chain = []
+    if ref is not None:
+        for pst, idx in chain:
+            ref, m = orders_from_reference(stage_wrap(pst, idx), pst, ref)
+            margin = np.maximum(margin, m)
+        coords = []
+        for w, pp in zip(wraps, periods, strict=True):
+            c, m = orders_from_reference(w, pp, ref)
+            margin = np.maximum(margin, m)
+            coords.append(c)
+    else:
+        finest = int(np.argmin(periods))
+        coords = [wraps[finest]]
+        sig = [sig[finest]]
+    inv = [1.0 / np.maximum(s, 1e-12) ** 2 for s in sig]
+    wsum = np.sum(inv, axis=0)
+    coord = np.sum([c * i for c, i in zip(coords, inv, strict=True)], axis=0) / wsum
+    sigma = 1.0 / np.sqrt(wsum)
+    valid &= margin < opts.order_tolerance
+    valid &= np.isfinite(coord) & np.isfinite(sigma)
+    coord = np.where(valid, coord, np.nan)
+    sigma = np.where(valid, sigma, np.nan)
+    finest = int(np.argmin(periods))
+    return Decoded(
+        axis=axis,
+        coord=coord,
+        sigma=sigma,
+        modulation=phases[finest].modulation,
+        valid=valid,
+        order_margin=margin.astype(np.float32),
+        absolute=absolute,
+        phases=tuple(phases),
+    )
+
+
+def decode_sequence(
+    images: list[NDArray[np.number]] | NDArray[np.number],
+    spec: SequenceSpec,
+    options: DecodeOptions | None = None,
+) -> dict[Axis, Decoded]:
+    """Decode captures of ``spec`` into the absolute projector coordinate of each axis.
+
+    Parameters
+    ----------
+    images : list of ndarray or ndarray, shape (n_frames, H, W)
+        Grayscale captures in capture order (8- or 16-bit integers, or floats on a 0..255 scale).
+    spec : SequenceSpec
+    options : DecodeOptions, optional
+        Thresholds and noise model; default the configuration's ``codecs`` block. Thresholds and
+        read noise are on an 8-bit scale, multiplied by 257 for 16-bit captures.
+
+    Returns
+    -------
+    dict
+        ``{"x": Decoded, "y": Decoded}`` for the axes the sequence encodes.
+
+    Raises
+    ------
+    SequenceError
+        A wrong number or shape of captures, or a spec that cannot be decoded.
+    """
+    opts = options if options is not None else DecodeOptions.from_config()
+    _check_spec(spec)
+    stack, full = _as_stack(images, spec)
+    scale = full / 255.0
+    noise = opts.noise(full)
+    noise = NoiseModel(noise.read_dn * scale, noise.full_well_e, full)
+    flats: dict[str, NDArray] = {}
+    for b, sl in spec.slices():
+        if isinstance(b, FlatBlock) and b.level not in flats:
+            flats[b.level] = stack[sl.start]
+    return {axis: _decode_axis(stack, spec, axis, flats, noise, opts, full) for axis in spec.axes()}

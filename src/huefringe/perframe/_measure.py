@@ -1,0 +1,174 @@
+"""One trapezoidal frame to a height map: :func:`measure_frame`, the NumPy reference chain, and its result."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe.colour import hue as hue_of
+from huefringe.colour import white_balance, white_gains
+from huefringe.height import PlaneCalibration
+from huefringe.huetable import HueTable
+from huefringe import phase_error
+from huefringe.phase import adaptive_kwargs, denoise_phase, denoise_weight_sums, unwrap, wrap
+from huefringe.session import Predistortion
+from huefringe.uncertainty import PixelBudget, edge_floor, height_uncertainty, pixel_budget, texture_delta, texture_term_phase
+from ._edges import clipped_mask
+from ._noise import capture_noise, frame_hue_noise, height_noise, noise_ratio2, phase_sigma, sensor_model
+from ._stats import frame_stats
+
+
+class FrameError(ValueError):
+    """A frame cannot be measured (lens cap, saturated sensor, no fringe); names the file."""
+
+
+# --------------------------------------------------------------------------- per frame
+
+
+@dataclass
+class FrameResult:
+    height: NDArray[np.float32]
+    phase: NDArray[np.float32]
+    """Corrected code phase of the object, wrapped, [0, 2 pi) (NaN invalid)."""
+    hue: NDArray[np.float32]
+    """Raw captured hue after white balance (NaN where undefined)."""
+    valid: NDArray[np.bool_]
+    stats: dict[str, Any] = field(default_factory=dict)
+    uncertainty: NDArray[np.float32] | None = None
+    """Standard uncertainty of the height (mm), NaN where the height is NaN (:mod:`huefringe.uncertainty`)."""
+    support: NDArray[np.float32] | None = None
+    """Number of pixels the phase filter averaged into each height (1 without the filter; 0 where
+    the height is NaN): what a step's mean shares between neighbours (:func:`~huefringe.uncertainty.step_budget`)."""
+    dphi: NDArray[np.float32] | None = None
+    """The phase difference before the filter (float32, NaN where not valid)."""
+    texture_u: NDArray[np.float32] | None = None
+    """The texture term of the uncertainty (mm, NaN where the height is), with ``texture_rgb``
+    (:func:`~huefringe.uncertainty.texture_term_phase`)."""
+    noise: NDArray[np.float32] | None = None
+    """Standard deviation (mm) of each height from the capture noise alone (:func:`height_noise`),
+    NaN where the height is NaN: what the step-edge tests hold a jump against."""
+
+
+def measure_frame(
+    rgb: NDArray[np.floating],
+    white: NDArray[np.floating],
+    table: HueTable,
+    cal: PlaneCalibration,
+    *,
+    hue_model: str,
+    min_saturation: float,
+    shadow: NDArray[np.bool_] | None = None,
+    unwrap_mode: str,
+    bit_depth: int = 8,
+    below_reference_mm: float = 0.25,
+    denoise_radius: int,
+    predistortion: Predistortion | None = None,
+    denoise_adaptive: Mapping[str, Any] | None = None,
+    budget: PixelBudget | None = None,
+    own_noise: bool = False,
+    texture_rgb: NDArray[np.floating] | None = None,
+) -> FrameResult:
+    """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
+
+    Parameters
+    ----------
+    rgb, white : ndarray
+        The frame and the object's white image, float (H, W, 3) in [0, 1].
+    table : HueTable
+        The object's per-pixel hue table (captured hue -> projected code phase).
+    cal : PlaneCalibration
+        Reference phase and the per-pixel phase-to-height model.
+    below_reference_mm : float
+        Heights below ``-below_reference_mm`` are flagged: objects stand on the plate, so a
+        large negative height means the phase difference wrapped (a step too tall for the
+        fringe period).
+    denoise_radius : int
+        Radius of the uncertainty-weighted, edge-preserving phase filter
+        (:func:`huefringe.phase.denoise_phase`); 0 switches it off. Each pixel's phase
+        uncertainty is its hue noise (from the repeats of the hue bands) divided by the local
+        slope of its table, so pixels where projector gamma flattens the hue lean on their
+        neighbours while steps stay sharp.
+    predistortion : Predistortion, optional
+        When the frames were projected through a pre-distortion (paper Fig. 6; the session's
+        ``predistortion.csv``), the table gives the *emitted* phase, which is decoded back to
+        the code phase.
+    denoise_adaptive : mapping, optional
+        ``measurement.denoise_adaptive`` (:func:`huefringe.phase.adaptive_kwargs`): the filter's
+        sigma-adaptive support and the rejection of pixels no filter can save.
+    own_noise : bool
+        Each pixel's phase sigma from this frame's own signal through the table's shot + read
+        noise model (:func:`frame_hue_noise`) instead of the table's pooled per-pixel noise
+        (``measurement.own_noise``; off by default: weighting the filter by it biases the
+        heights where the noise varies with the phase, Table 1 at 100 px: mean error 0.93 ->
+        1.59 %).
+    budget : PixelBudget, optional
+        Session inputs of the height uncertainty (:func:`huefringe.uncertainty.pixel_budget`,
+        computed when not given); the result's ``uncertainty`` is the kernel's, bit for bit.
+    texture_rgb : ndarray, optional
+        The capture corrected with the texture blur moved by its uncertainty: its phase (this
+        chain without the filter) changes by :func:`~huefringe.uncertainty.texture_delta`, which
+        this frame's filter carries through; the result's ``texture_u`` is the kernel's.
+    """
+    moved_dphi = None
+    if texture_rgb is not None:
+        moved_dphi = measure_frame(texture_rgb, white, table, cal, hue_model=hue_model, min_saturation=min_saturation,
+                                   shadow=shadow, unwrap_mode=unwrap_mode, bit_depth=bit_depth,
+                                   below_reference_mm=below_reference_mm, denoise_radius=0, predistortion=predistortion,
+                                   budget=budget, own_noise=own_noise).dphi
+    balanced = white_balance(rgb, white)
+    hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
+    emitted, slope = table.to_phase_and_slope(hue)  # the phase's uncertainty needs the table slope
+    phase = emitted if predistortion is None else predistortion.decode(emitted)
+    phase = phase_error.correct(phase, cal.phase_error)  # the planes' phase-error table (or none)
+    clipped = clipped_mask(rgb, bit_depth)
+    valid = np.isfinite(phase) & ~clipped
+    if shadow is not None:
+        valid &= ~shadow
+    dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
+    un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
+    # this frame's own-signal hue noise: in the weights with own_noise, else in the uncertainty only
+    own = frame_hue_noise(table, rgb, white_gains(white), hue_model) if own_noise or sensor_model(table) is not None \
+        else None
+    sigma = phase_sigma(table, slope, noise=own if own_noise else None)
+    ratio = noise_ratio2(own, capture_noise(table)) if own is not None and not own_noise else None
+    if predistortion is not None:
+        sigma = sigma * np.abs(predistortion.decode_slope(emitted))
+    sumw = np.zeros(valid.shape, np.float32)
+    rsum = np.zeros(valid.shape, np.float32)
+    support = np.zeros(valid.shape, np.float32)
+    raw_dphi = np.asarray(un.dphi, np.float32)
+    delta = texture_delta(moved_dphi, raw_dphi) if moved_dphi is not None else None
+    carried = np.empty(valid.shape, np.float32) if delta is not None and denoise_radius > 0 else delta
+    if denoise_radius > 0:
+        un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius, weight_sum=sumw, ratio=ratio,
+                                ratio_sum=rsum if ratio is not None else None, support=support,
+                                carry=delta, carry_mean=carried, **adaptive_kwargs(denoise_adaptive))
+    else:  # one pixel's weight 1 / sigma^2, in the filter's float32 arithmetic
+        sumw = denoise_weight_sums(un.dphi, sigma, valid)
+        rsum = sumw * ratio if ratio is not None else rsum
+        support = (sumw > 0).astype(np.float32)
+    height = cal.height(un.dphi)
+    valid &= np.isfinite(height)
+    height = np.where(valid, height, np.nan).astype(np.float32)
+    if budget is None:
+        budget = pixel_budget(table, cal)
+    u_map = edge_floor(height, valid, height_uncertainty(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b,
+                                                         budget, ratio_sum=rsum if ratio is not None else None))
+    support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
+    tex_u = texture_term_phase(np.asarray(un.dphi, np.float32), carried, height, cal.a, cal.b) \
+        if delta is not None else None
+    noise_h = height_noise(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b)
+    stats = frame_stats(
+        valid, height, un.flags,
+        clipped_fraction=float(clipped.mean()),
+        hue_undefined_fraction=float(np.mean(~np.isfinite(hue))),
+        table_invalid_fraction=float(np.mean(~table.valid)),
+        shadow_fraction=float(shadow.mean()) if shadow is not None else 0.0,
+        hue_model=hue_model, unwrap_mode=unwrap_mode, below_reference_mm=below_reference_mm,
+    )
+    return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats,
+                       u_map, support, raw_dphi, tex_u, noise_h)

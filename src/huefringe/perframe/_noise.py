@@ -1,0 +1,213 @@
+"""The per-frame noise: the phase and height sigma, the capture's own shot + read noise, the frame's hue noise."""
+
+from __future__ import annotations
+
+import math
+from typing import Any
+
+import numba
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe.huetable import HueTable, HueTableError
+
+
+def height_noise(dphi: NDArray[np.floating], sumw: NDArray[np.floating], valid: NDArray[np.bool_],
+                 a: NDArray[np.floating], b: NDArray[np.floating]) -> NDArray[np.float32]:
+    """Standard deviation (mm) of each height from the capture noise alone: ``|dh/dphi| / sqrt(sumw)``.
+
+    ``sumw`` is the phase filter's sum of inverse-variance weights (``1 / sigma^2`` of the pixel
+    itself without the filter), ``sigma`` each pixel's per-capture phase noise from the hue
+    table's per-pixel noise (:func:`phase_sigma`); ``h = dphi / (a + b dphi)`` gives
+    ``dh/dphi = a / (a + b dphi)^2``. NaN where not ``valid`` or without weight. What the
+    step-edge tests (:func:`remove_step_edges`) hold a jump against; both chains compute it from
+    the same float32 maps, in this compiled loop.
+    """
+    out = np.empty(np.shape(dphi), np.float32)
+    _height_noise_kernel(np.ascontiguousarray(dphi, np.float32), np.ascontiguousarray(sumw, np.float32),
+                         np.ascontiguousarray(valid, bool), np.ascontiguousarray(a, np.float32),
+                         np.ascontiguousarray(b, np.float32), out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _height_noise_kernel(dphi, sumw, valid, a, b, out):  # pragma: no cover - numba
+    """:func:`height_noise`'s loop (float32)."""
+    h, w = dphi.shape
+    nan = np.float32(np.nan)
+    for v in range(h):
+        for u in range(w):
+            sw = sumw[v, u]
+            q = a[v, u] + b[v, u] * dphi[v, u]
+            s = abs(a[v, u]) / (q * q) / np.sqrt(sw)
+            out[v, u] = s if valid[v, u] and sw > 0 and s - s == 0 else nan
+
+
+def phase_sigma(table: HueTable, slope: NDArray[np.floating], floor_slope: float = 0.05,
+                noise: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
+    """Per-pixel standard deviation (rad) of the code phase decoded from one capture.
+
+    ``sigma_hue / slope``: the hue noise of one capture over the local slope d(captured
+    hue)/d(code phase) of the pixel's table (:meth:`HueTable.hue_slope` at the captured hue),
+    floored at ``floor_slope``. ``noise`` is the hue noise (rad) per pixel, e.g. the frame's own
+    (:func:`frame_hue_noise`); default the table's pooled figure (:func:`capture_noise`).
+    """
+    slope = np.where(np.isfinite(slope), slope, 1.0)  # (invalid pixels only: the kernel leaves them out)
+    if noise is None:
+        noise = capture_noise(table)
+    out = np.empty(noise.shape, np.float64)
+    _phase_sigma_map(noise, np.ascontiguousarray(slope, dtype=np.float64), float(floor_slope), out)
+    return out
+
+
+def capture_noise(table: HueTable) -> NDArray[np.float64]:
+    """Per-pixel hue noise (rad) of one capture, from the table's band statistics.
+
+    The standard error of the bands' mean hue times ``sqrt(repeats)``: the repeats' spread, or
+    with one repeat the second difference along the bands (``stats["noise_rad"]["source"]``,
+    :data:`huefringe.huetable.NOISE_SOURCES`). Pixels without a finite, positive figure (masked
+    table pixels, which are never measured) get the median of the others. A table without any
+    figure is refused (:class:`~huefringe.huetable.HueTableError`): no noise is ever assumed.
+    Used by :func:`phase_sigma` and by the fused kernel (:func:`huefringe.kernel.prepare`).
+    """
+    repeats = int(table.stats.get("repeats", 1) or 1)
+    noise = np.asarray(table.noise_rad, np.float64) * np.sqrt(repeats)
+    known = np.isfinite(noise) & (noise > 0)
+    if not known.any():
+        raise HueTableError("the hue table has no per-pixel noise figure (noise_rad is NaN or 0 everywhere: a table "
+                            "written by a build that did not estimate it from a single repeat); rebuild the hue table")
+    return np.ascontiguousarray(np.where(known, noise, float(np.median(noise[known]))))
+
+
+@numba.njit(cache=True, nogil=True)
+def sigma_from_slope(noise, slope, floor_slope):  # pragma: no cover - compiled
+    """One pixel's code-phase standard deviation ``noise / max(slope, floor_slope)`` (compiled, for
+    :func:`phase_sigma` and the fused kernel alike; a branch-free expression, so that it stays
+    vectorised in the kernel's row loop)."""
+    return noise / max(slope, floor_slope)
+
+
+@numba.njit(cache=True, nogil=True)
+def _phase_sigma_map(noise, slope, floor_slope, out):  # pragma: no cover - compiled
+    """:func:`sigma_from_slope` of every pixel."""
+    h, w = noise.shape
+    for v in range(h):
+        for u in range(w):
+            out[v, u] = sigma_from_slope(noise[v, u], slope[v, u], floor_slope)
+
+
+# --------------------------------------------------------------------------- sensor noise
+
+
+#: Bounds of :func:`noise_ratio2`: a pixel's own-signal noise only ever raises its variance above
+#: the table's measured per-pixel figure (the first-order propagation of the shot + read model
+#: through the hue reads the noise low where the chroma is small: with it alone, |e| <= 2u held for
+#: 0.71 of the dark half of photo_sensor with two repeats, docs/noise.md), and never more than
+#: 1000 times (keeps the filter's float32 sums finite).
+_RATIO2_BOUNDS = (1.0, 1e6)
+
+
+def noise_ratio2(own: NDArray[np.floating], pooled: NDArray[np.floating]) -> NDArray[np.float32]:
+    """``(own / pooled)^2`` per pixel, float32, clipped to ``[1, 1e6]``: how much the frame's
+    own-signal noise variance (:func:`frame_hue_noise`) exceeds the table's measured per-pixel one
+    that weights the phase filter (:func:`capture_noise`; a frame brighter than the bands keeps the
+    measured figure: the model's first-order propagation reads dark pixels low). The filter sums ``w`` times it
+    (:func:`huefringe.phase.denoise_phase`'s ``ratio``), so that the uncertainty follows the
+    frame's signal while the weights, and so the heights, do not."""
+    o = np.ascontiguousarray(own, np.float64)
+    out = np.empty(o.shape, np.float32)
+    _ratio2_kernel(o.reshape(-1), np.ascontiguousarray(pooled, np.float64).reshape(-1), _RATIO2_BOUNDS[0],
+                   _RATIO2_BOUNDS[1], out.reshape(-1))
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _ratio2_kernel(own, pooled, lo, hi, out):  # pragma: no cover - compiled
+    """:func:`noise_ratio2`'s loop (NaN -> 1, then clipped)."""
+    for i in range(own.size):
+        r = own[i] / pooled[i]
+        r = r * r
+        r = r if r == r else 1.0
+        out[i] = np.float32(min(max(r, lo), hi))
+
+
+def sensor_model(table: HueTable) -> NDArray[np.float32] | None:
+    """The table's shot + read noise model as float32 ``(2, 3)``: per channel ``gain`` (row 0)
+    and ``read`` (row 1) of ``variance = gain * signal + read`` (full scale 1), fitted on the
+    hue bands' repeats (:func:`huefringe.huetable.fit_sensor_noise`); None when the table has
+    none (one repeat, or a table built before the model existed)."""
+    m = (table.stats or {}).get("sensor_noise")
+    if not m:
+        return None
+    return np.ascontiguousarray(np.array([m["gain"], m["read"]], np.float32))
+
+
+def frame_hue_noise(table: HueTable, rgb: NDArray[Any], gains: NDArray[np.float32], hue_model: str,
+                    scale: float = 1.0) -> NDArray[np.float64]:
+    """Per-pixel hue noise (rad) of this capture, from its own signal and the sensor-noise model.
+
+    Each channel's variance ``gain_c * signal_c + read_c`` (:func:`sensor_model`), times the
+    white-balance gain squared, propagated through the hue formula by its first derivatives
+    (hexcone: ``(pi/3)^2 (v_mid C^2 + v_max (mid - min)^2 + v_min (max - mid)^2) / C^4``,
+    ``C = max - min``; HSI: the gradient of ``atan2(y, x)``). Where the table has no model, or
+    the hue is undefined, the table's pooled figure (:func:`capture_noise`). ``rgb``: the frame
+    as the kernel receives it (float in [0, 1], or integer codes with their ``scale``); the
+    fused kernel calls the same compiled loop, so both agree bit for bit.
+    """
+    fallback = capture_noise(table)
+    model = sensor_model(table)
+    if model is None:
+        return fallback
+    out = np.empty(fallback.shape, np.float64)
+    _hue_noise_kernel(np.ascontiguousarray(rgb), np.float32(scale), np.ascontiguousarray(gains, np.float32),
+                      hue_model == "hsi", model, fallback, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _hue_noise_kernel(rgb, scale, gains, hsi, model, fallback, out):  # pragma: no cover - compiled
+    """:func:`frame_hue_noise`'s loop; branch-free rows (selects), so that LLVM vectorises them."""
+    h, w, _ = rgb.shape
+    k0, k1, k2 = model[0, 0], model[0, 1], model[0, 2]
+    r0, r1, r2 = model[1, 0], model[1, 1], model[1, 2]
+    k3 = np.float32(math.sqrt(3.0) / 2.0)
+    half = np.float32(0.5)
+    zero = np.float32(0.0)
+    third2 = np.float32((np.pi / 3.0) ** 2)
+    for v in range(h):
+        px = rgb[v].reshape(-1)
+        gn = gains[v].reshape(-1)
+        fb = fallback[v]
+        ov = out[v]
+        for u in range(w):
+            f0 = np.float32(px[3 * u]) * scale
+            f1 = np.float32(px[3 * u + 1]) * scale
+            f2 = np.float32(px[3 * u + 2]) * scale
+            g0, g1, g2 = gn[3 * u], gn[3 * u + 1], gn[3 * u + 2]
+            r = f0 * g0
+            g = f1 * g1
+            bl = f2 * g2
+            vr = (k0 * f0 + r0) * (g0 * g0)
+            vg = (k1 * f1 + r1) * (g1 * g1)
+            vb = (k2 * f2 + r2) * (g2 * g2)
+            if hsi:
+                xx = r - half * (g + bl)
+                yy = k3 * (g - bl)
+                q = xx * xx + yy * yy
+                dg = xx * k3 + half * yy
+                db = half * yy - xx * k3
+                var = (yy * yy * vr + dg * dg * vg + db * db * vb) / (q * q)
+            else:
+                mx = max(max(r, g), bl)
+                mn = min(min(r, g), bl)
+                c = mx - mn
+                mid = ((r + g) + bl) - mx - mn
+                hi2 = (mid - mn) * (mid - mn)  # weight of the maximum's variance
+                lo2 = (mx - mid) * (mx - mid)  # of the minimum's
+                c2 = c * c
+                wr = hi2 if r == mx else (lo2 if r == mn else c2)
+                wg = hi2 if g == mx else (lo2 if g == mn else c2)
+                wb = hi2 if bl == mx else (lo2 if bl == mn else c2)
+                var = third2 * (wr * vr + wg * vg + wb * vb) / (c2 * c2)
+            s = np.sqrt(np.float64(var))
+            ov[u] = s if (s - s == 0) & (var > zero) else fb[u]

@@ -1,0 +1,135 @@
+"""Running the stages: a whole session without Snakemake, and the adapter a Snakemake script calls."""
+
+from __future__ import annotations
+
+import inspect
+import logging
+import sys
+import time
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from huefringe.archive import ArchiveError
+from huefringe.height import PlaneCalibrationError
+from huefringe.huetable import HueTableError
+from huefringe.io import remove_stale_parts
+from huefringe.metrology import MetrologyError
+from huefringe.perframe import FrameError
+from huefringe.session import SessionError, load_session
+from huefringe.x3p import X3PError
+from ._calibration import camera_calibration, hue_table, plane_calibration
+from ._measurement import baseline_frames, cloud_frames, measure_frames
+
+
+log = logging.getLogger("huefringe")
+
+
+# --------------------------------------------------------------------------- without Snakemake
+
+def measure_session(session: str | Path, out: str | Path, config: Mapping[str, Any], *,
+                    frames: Sequence[int] | None = None, baseline: bool = False) -> dict[str, Any]:
+    """Tables, plane calibration and height maps of a session into ``out``, without Snakemake.
+
+    The same stages, in the same order, as the workflow's ``hue_table``, ``plane_calibration``,
+    ``measure_frames``, ``cloud_frames`` (and ``baseline_frames``) jobs; for scripts, benchmarks and tests. Returns the
+    output paths by kind (``heights``, ``clouds``, ``phases``, ``hues``, ``qa``, ``uncertainties``,
+    ``supports``, optionally
+    ``baseline``), the camera record ``camera`` (``camera.json``: X, Y model and channel
+    registration, :func:`camera_calibration`) and the loaded ``session``.
+    """
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    s = load_session(session)
+    frames = s.frame_ids if frames is None else list(frames)
+    model, cal = config["hue_model"], config["calibration"]
+    cam = str(out / "camera.json")
+    camera_calibration(str(session), config["camera"], cal, record=cam)
+    for which in ("reference", "object"):
+        hue_table(str(session), which, model, cal, table=str(out / f"table_{which}.json"),
+                  stats=str(out / f"table_{which}.stats.json"), camera_json=cam)
+    plane_calibration(str(session), str(out / "table_reference.json"), model, cal,
+                      model=str(out / "model.npz"), stats=str(out / "planes.json"),
+                      phase_error_table=str(out / "phase_error.npz"), phase_error_summary=str(out / "phase_error.json"),
+                      camera_json=cam, object_table=str(out / "table_object.json"))
+    paths: dict[str, Any] = {
+        k: [str(out / k / f"frame_{n:04d}.{ext}") for n in frames]
+        for k, ext in (("heights", "tiff"), ("clouds", "ply"), ("phases", "tiff"), ("hues", "tiff"), ("qa", "json"),
+                       ("uncertainties", "tiff"), ("supports", "tiff"))
+    }
+    measure_frames(str(session), frames, str(out / "table_object.json"), str(out / "model.npz"), model,
+                   config["measurement"], cal, heights=paths["heights"], phases=paths["phases"], hues=paths["hues"],
+                   qa=paths["qa"], uncertainties=paths["uncertainties"], supports=paths["supports"], camera_json=cam)
+    cloud_frames(str(session), frames, heights=paths["heights"], clouds=paths["clouds"],
+                 uncertainties=paths["uncertainties"], camera_json=cam)
+    if baseline:
+        paths["baseline"] = [str(out / "baseline" / f"frame_{n:04d}.tiff") for n in frames]
+        baseline_frames(str(session), frames, str(out / "model.npz"), str(out / "table_object.json"),
+                        config["measurement"], heights=paths["baseline"],
+                        qa=[str(out / "baseline" / f"frame_{n:04d}.json") for n in frames], camera_json=cam)
+    paths["session"] = s
+    paths["camera"] = cam
+    return paths
+
+
+# --------------------------------------------------------------------------- Snakemake adapter
+
+
+def stage_kwargs(func: Callable[..., None], smk: Any, **extra: Any) -> dict[str, Any]:
+    """The keyword arguments of stage ``func`` from a Snakemake job's named inputs, params and outputs.
+
+    Wildcards are passed when the stage takes them (``sid``, ``batch`` are structural), and so are
+    the job's ``threads`` (the cores Snakemake gave it); every named input, param and output (and
+    ``extra``) must be a parameter of the stage.
+
+    Raises
+    ------
+    TypeError
+        Naming the keys the stage does not accept (a misspelt key with a default would otherwise
+        be dropped silently) and the stage's parameters.
+    """
+    accepted = inspect.signature(func).parameters
+    kwargs: dict[str, Any] = {k: v for k, v in smk.wildcards.items() if k in accepted}
+    if "threads" in accepted and getattr(smk, "threads", None):
+        kwargs["threads"] = int(smk.threads)
+    for source in (smk.input, smk.params, smk.output):
+        for key, value in source.items():
+            kwargs[key] = value
+    kwargs.update(extra)
+    unknown = sorted(set(kwargs) - set(accepted))
+    if unknown:
+        raise TypeError(f"stage {func.__name__} does not accept {', '.join(map(repr, unknown))} "
+                        f"(rule inputs, params and outputs must be among its parameters: {', '.join(accepted)})")
+    return kwargs
+
+
+def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> None:
+    """Call ``func`` with the job's named inputs, outputs and params as keyword arguments.
+
+    Logging goes to the job's log file; numba's parallel passes use the job's ``threads``. Known
+    input problems end the job with a one-paragraph
+    message naming the file (no traceback); outputs are written atomically by the stages, so a
+    failed job leaves none behind.
+    """
+    logfile = smk.log[0] if len(smk.log) else None
+    handlers: list[logging.Handler] = [logging.StreamHandler(sys.stderr)]
+    if logfile:
+        Path(logfile).parent.mkdir(parents=True, exist_ok=True)
+        handlers.append(logging.FileHandler(logfile, mode="w"))
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s", handlers=handlers, force=True)
+    kwargs = stage_kwargs(func, smk, **extra)  # before anything is touched: a rule naming an unknown key fails here
+    for out in smk.output:
+        for stale in remove_stale_parts(out):
+            log.info("removed %s, left by an interrupted run", stale)
+    import numba  # the compiled passes' rows run on the job's threads (rule ``threads``), no more
+
+    numba.set_num_threads(max(1, min(int(getattr(smk, "threads", 1) or 1), numba.config.NUMBA_NUM_THREADS)))
+    t0 = time.perf_counter()
+    try:
+        func(**kwargs)
+    except (SessionError, FrameError, HueTableError, PlaneCalibrationError, MetrologyError, ArchiveError,
+            X3PError) as exc:
+        log.error("%s", exc)
+        sys.stderr.write(f"\nhuefringe: {exc}\n")
+        sys.exit(1)
+    log.info("%s done in %.2f s", func.__name__, time.perf_counter() - t0)
