@@ -1,7 +1,8 @@
 """The rig route from captures, as a lab runs it: bench-rig captures -> structured-light sessions ->
 rig-calibrate -> rig-measure, against truth (docs/rig.md, "End to end from a structured-light session").
 
-Usage: ./run python benchmarks/rig_session_route.py [N_POSES ...]   (default 6; about 20 s per case)
+Usage: ./run python benchmarks/rig_session_route.py [--seed S] [N_POSES ...]   (default 6, seed 4: the
+documented pose set; about 20 s per case)
 For each pose count: the flat board's form deviation and plane RMS (mm) and the steps' heights
 (truth 2, 5, 10 mm) with the calibration from printed-board poses (corners in the captures' mean),
 from the same poses with board.png (white-light corner images), and with the true calibration.
@@ -36,17 +37,17 @@ def measure(r: Path, calib: Path, out: Path) -> tuple[dict, dict]:
     return (json.loads((out / "board/report.json").read_text()), json.loads((out / "steps/report.json").read_text()))
 
 
-def main_(poses: list[int]) -> None:
+def main_(poses: list[int], seed: int = 4) -> None:
     print("| poses | corners from | stereo RMS px | flat form mm | flat plane RMS mm | steps 2 / 5 / 10 mm (error %) |")
     print("|---|---|---|---|---|---|")
     for n in poses:
         with tempfile.TemporaryDirectory() as tmp:
             root = Path(tmp)
             r = root / "rig"
-            write_rig_captures(r, n_poses=n)
+            write_rig_captures(r, n_poses=n, seed=seed)
             run("sl-session", str(r / "board"), str(r / "sequence.yaml"), str(root / "s"), "--poses", str(r / "poses"))
             run("rig-calibrate", str(root / "s"), str(root / "printed.yml"), "--board", "9x7", "--pitch-mm", "12")
-            write_pose_folders(RIGS[SL_RIG], BOARD, load_sequence(r / "sequence.yaml"), n, 4, root / "poses_img")
+            write_pose_folders(RIGS[SL_RIG], BOARD, load_sequence(r / "sequence.yaml"), n, seed, root / "poses_img")
             run("rig-calibrate", str(root / "poses_img"), str(r / "sequence.yaml"), str(root / "image.yml"),
                 "--board", "9x7", "--pitch-mm", "12")
             write_calibration(root / "truth.yml", RIGS[SL_RIG].calibration)
@@ -62,4 +63,8 @@ def main_(poses: list[int]) -> None:
 
 
 if __name__ == "__main__":
-    main_([int(a) for a in sys.argv[1:]] or [6])
+    args = sys.argv[1:]
+    seed = int(args[args.index("--seed") + 1]) if "--seed" in args else 4
+    if "--seed" in args:
+        del args[args.index("--seed"): args.index("--seed") + 2]
+    main_([int(a) for a in args] or [6], seed)

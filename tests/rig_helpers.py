@@ -26,7 +26,8 @@ def observe(rig_name: str, n_poses: int, seed: int, corrupt: int | None = None):
         p = rig.board_pose(BOARD, R, t, rng, corner_sigma_px=CORNER_SIGMA_PX, coord_sigma_px=COORD_SIGMA_PX)
         if i == corrupt:            # a pose whose codes were decoded one fringe-order step off on part of the board
             p["u"][:, : p["u"].shape[1] // 2] += 4.0
-        pc, _ = projector_corners(p["camera"], p["u"], p["v"], p["valid"], HALF_WINDOW_PX, MIN_PIXELS)
+        pc, _ = projector_corners(p["camera"], p["u"], p["v"], p["valid"], HALF_WINDOW_PX, MIN_PIXELS,
+                                  sigma_u=p["sigma"], sigma_v=p["sigma"])
         obs.append(PoseObservation(f"pose{i:02d}", p["camera"], pc))
         # the ideal local homography: the exact projector pixel at the (noisy) detected camera corner
         d = np.column_stack([cv2.undistortPoints(p["camera"].reshape(-1, 1, 2), rig.calibration.camera_matrix,

@@ -8,7 +8,7 @@ from rig_helpers import BOARD, calibrated, observe
 from scipy.spatial import cKDTree
 
 from huefringe.bench.rig import RIGS, pose_set
-from huefringe.rig import calibrate_rig, detect_corners
+from huefringe.rig import calibrate_rig, detect_corners, projector_corners
 
 CASES = [("tune", 8, 1), ("holdout-wide", 6, 7), ("holdout-wide", 10, 3), ("holdout-narrow", 8, 11), ("holdout-narrow", 6, 5)]
 
@@ -61,3 +61,51 @@ def test_corner_detection_on_the_rendered_board():
     err = c[cKDTree(c).query(p["camera_true"])[1]] - p["camera_true"]
     assert np.sqrt(np.mean(np.sum(err**2, axis=1))) < 0.1
     assert detect_corners(np.full_like(img, 128), BOARD) is None
+
+
+def _homography_maps(h=120, w=160):
+    H = np.array([[1.1, 0.05, 100.0], [0.02, 0.95, 50.0], [1e-4, -5e-5, 1.0]])
+    yy, xx = np.mgrid[0:h, 0:w].astype(float)
+    P = np.stack([xx, yy, np.ones_like(xx)], -1) @ H.T
+    return H, xx, P[..., 0] / P[..., 2], P[..., 1] / P[..., 2]
+
+
+def _apply(H, c):
+    q = np.column_stack([c, np.ones(len(c))]) @ H.T
+    return q[:, :2] / q[:, 2:]
+
+
+def test_local_homography_exact_and_invalid_pixels_left_out():
+    H, xx, U, V = _homography_maps()
+    rng = np.random.default_rng(3)
+    c = np.column_stack([rng.uniform(2, 158, 40), rng.uniform(2, 118, 40)])     # windows clipped at the borders too
+    valid = rng.random(U.shape) > 0.3
+    Ub = np.where(valid, U, U + 50.0)                                             # garbage where not valid
+    sig = np.where(rng.random(U.shape) > 0.1, 0.05, np.nan)                       # no sigma: left out as well
+    Ub = np.where(np.isfinite(sig), Ub, Ub - 70.0)
+    p, ok = projector_corners(c, Ub, V, valid, 10, 50, sigma_u=sig, sigma_v=sig)
+    assert ok.all()
+    assert np.abs(p - _apply(H, c)).max() < 1e-8
+    p, ok = projector_corners([[80.0, 60.0]], U, V, np.zeros_like(valid), 10, 50)
+    assert not ok.any() and np.isnan(p).all()
+
+
+def test_weighted_local_homography_beats_unweighted_when_half_the_window_is_noisy():
+    H, xx, U, V = _homography_maps()
+    rng = np.random.default_rng(5)
+    sig = np.where(xx < 80, 0.02, 0.3)                # the window's right half decodes with 15 x the noise
+    Un, Vn = U + rng.normal(0, 1, U.shape) * sig, V + rng.normal(0, 1, U.shape) * sig
+    c = np.column_stack([80.0 + rng.uniform(-0.5, 0.5, 60), rng.uniform(15, 105, 60)])
+    valid = np.ones(U.shape, dtype=bool)
+    t = _apply(H, c)
+    pw, ok_w = projector_corners(c, Un, Vn, valid, 10, 50, sigma_u=sig, sigma_v=sig)
+    pu, ok_u = projector_corners(c, Un, Vn, valid, 10, 50)
+    assert ok_w.all() and ok_u.all()
+    ew, eu = (np.sqrt(np.mean(np.sum((p - t) ** 2, axis=1))) for p in (pw, pu))
+    # inverse-variance weights: about the error of the quiet half alone (0.02 px over ~220 pixels,
+    # a 6-parameter-ish fit extrapolated to the window's edge); equal weights: the noisy half's
+    assert ew < 0.01, ew
+    assert ew < 0.4 * eu, (ew, eu)
+    # equal sigmas weigh alike: the same fit as no sigma
+    p1, _ = projector_corners(c, Un, Vn, valid, 10, 50, sigma_u=np.full(U.shape, 0.1), sigma_v=np.full(U.shape, 0.1))
+    assert np.abs(p1 - pu).max() < 1e-9

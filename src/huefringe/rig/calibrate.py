@@ -4,7 +4,7 @@ For each pose of the board the camera sees the board's corners (:func:`detect_co
 ``cv2.findChessboardCornersSB`` or ``cv2.findCirclesGrid``) and, under the coded sequence, the
 decoded projector coordinates ``u, v`` at every camera pixel. The projector's pixel at a corner
 is the local homography from camera to projector pixels, fitted by least squares to the decoded
-pixels in a window around the corner and applied to the corner (:func:`projector_corners`,
+pixels in a window around the corner (each weighted by its inverse variance) and applied to the corner (:func:`projector_corners`,
 Moreno & Taubin 2012). The camera and the projector are then calibrated each with
 ``cv2.calibrateCameraExtended`` and jointly refined with ``cv2.stereoCalibrateExtended``
 (:func:`calibrate_rig`); poses whose reprojection RMS exceeds a multiple of the median are
@@ -113,8 +113,15 @@ def projector_corners(
     valid: ArrayLike,
     half_window_px: int,
     min_pixels: int,
+    sigma_u: ArrayLike | None = None,
+    sigma_v: ArrayLike | None = None,
 ) -> tuple[F64, NDArray[np.bool_]]:
     """Projector pixels at camera ``corners`` by local homographies (Moreno & Taubin 2012).
+
+    Each corner's homography from camera to projector pixels is fitted by weighted least squares
+    over the valid decoded pixels in its window, each pixel's ``u`` and ``v`` equations weighted by
+    their inverse variance (a normalised DLT, reweighted once so that the residuals it minimises
+    are projector pixels), and applied to the corner. All corners are fitted at once.
 
     Parameters
     ----------
@@ -126,6 +133,9 @@ def projector_corners(
         The window around each corner: ``2 half_window_px + 1`` pixels square.
     min_pixels : int
         Fewest valid decoded pixels a window needs.
+    sigma_u, sigma_v : array_like, shape (H, W), optional
+        Standard uncertainty of ``u`` and ``v`` (projector px, e.g. ``Decoded.sigma``). Pixels
+        whose sigma is not finite and positive are left out. Without them every pixel weighs alike.
 
     Returns
     -------
@@ -136,23 +146,63 @@ def projector_corners(
     c = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
     U, V, M = np.asarray(u, dtype=np.float64), np.asarray(v, dtype=np.float64), np.asarray(valid, dtype=bool)
     M = M & np.isfinite(U) & np.isfinite(V)
-    h, w = U.shape
+    weights = []
+    for s in (sigma_u, sigma_v):
+        if s is None:
+            weights.append(np.ones_like(U))
+            continue
+        s = np.asarray(s, dtype=np.float64)
+        good = np.isfinite(s) & (s > 0)
+        M &= good
+        weights.append(np.where(good, 1.0 / np.where(good, s, 1.0), 0.0))   # sqrt of inverse variance
+    r = int(half_window_px)
     out = np.full_like(c, np.nan)
     ok = np.zeros(len(c), dtype=bool)
-    for k, (x, y) in enumerate(c):
-        x0, x1 = max(int(round(x)) - half_window_px, 0), min(int(round(x)) + half_window_px + 1, w)
-        y0, y1 = max(int(round(y)) - half_window_px, 0), min(int(round(y)) + half_window_px + 1, h)
-        m = M[y0:y1, x0:x1]
-        if m.sum() < max(min_pixels, 4):
-            continue
-        yy, xx = np.nonzero(m)
-        src = np.column_stack([xx + x0 - x, yy + y0 - y])           # about the corner: well conditioned
-        dst = np.column_stack([U[y0:y1, x0:x1][m], V[y0:y1, x0:x1][m]])
-        H, _ = cv2.findHomography(src, dst, 0)
-        if H is None or abs(H[2, 2]) < 1e-12:
-            continue
-        out[k] = H[:2, 2] / H[2, 2]                                     # the corner is the origin
-        ok[k] = True
+    if len(c) == 0:
+        return out, ok
+    pad = [(r, r), (r, r)]
+    Mp = np.pad(M, pad)
+    Up, Vp = (np.pad(np.where(M, a, 0.0), pad) for a in (U, V))
+    Wu, Wv = (np.pad(np.where(M, wt, 0.0), pad) for wt in weights)
+    h, w = U.shape
+    off = np.arange(-r, r + 1)
+    cx = np.clip(np.rint(c[:, 0]), -r - 1, w + r).astype(int)
+    cy = np.clip(np.rint(c[:, 1]), -r - 1, h + r).astype(int)
+    ix = cx[:, None, None] + off[None, None, :] + r                    # (N, S, S) into the padded maps
+    iy = cy[:, None, None] + off[None, :, None] + r
+    inside = (ix >= 0) & (ix < w + 2 * r) & (iy >= 0) & (iy < h + 2 * r) & np.isfinite(c).all(axis=1)[:, None, None]
+    ix, iy = np.broadcast_arrays(np.clip(ix, 0, w + 2 * r - 1), np.clip(iy, 0, h + 2 * r - 1))
+    m = (Mp[iy, ix] & inside).reshape(len(c), -1)
+    n_px = m.sum(axis=1)
+    x = ((ix - r) - c[:, 0, None, None]).reshape(len(c), -1) / max(r, 1)   # about the corner: well conditioned
+    y = ((iy - r) - c[:, 1, None, None]).reshape(len(c), -1) / max(r, 1)
+    du, dv = Up[iy, ix].reshape(len(c), -1), Vp[iy, ix].reshape(len(c), -1)
+    au, av = np.where(m, Wu[iy, ix].reshape(len(c), -1), 0.0), np.where(m, Wv[iy, ix].reshape(len(c), -1), 0.0)
+    # normalise the projector side: weighted centroid and spread of each window
+    wsum = np.maximum((au**2 + av**2).sum(axis=1), 1e-300)
+    cu = (au**2 * du).sum(axis=1) / np.maximum((au**2).sum(axis=1), 1e-300)
+    cv = (av**2 * dv).sum(axis=1) / np.maximum((av**2).sum(axis=1), 1e-300)
+    su = np.sqrt(((au**2 * (du - cu[:, None]) ** 2).sum(axis=1) + (av**2 * (dv - cv[:, None]) ** 2).sum(axis=1)) / wsum)
+    su = np.where(su > 0, su, 1.0)
+    pu, pv = np.where(m, (du - cu[:, None]) / su[:, None], 0.0), np.where(m, (dv - cv[:, None]) / su[:, None], 0.0)
+    one, zero = np.ones_like(x), np.zeros_like(x)
+    Au = np.stack([x, y, one, zero, zero, zero, -pu * x, -pu * y, -pu], axis=-1)   # (N, P, 9)
+    Av = np.stack([zero, zero, zero, x, y, one, -pv * x, -pv * y, -pv], axis=-1)
+    den = np.ones_like(x)
+    for _ in range(2):                  # the second pass turns algebraic residuals into projector pixels
+        bu, bv = au / den, av / den
+        AtA = np.einsum("npi,npj->nij", Au * bu[..., None] ** 2, Au) + np.einsum("npi,npj->nij", Av * bv[..., None] ** 2, Av)
+        AtA[n_px < max(min_pixels, 4)] = np.eye(9)
+        Hn = np.linalg.eigh(AtA)[1][:, :, 0].reshape(-1, 3, 3)
+        den = Hn[:, 2, 0, None] * x + Hn[:, 2, 1, None] * y + Hn[:, 2, 2, None]
+        den = np.where(np.abs(den) > 1e-12, np.abs(den), 1e-12)
+        den = den / np.maximum(np.median(den, axis=1, keepdims=True), 1e-12)
+    h22 = Hn[:, 2, 2]
+    good = (n_px >= max(min_pixels, 4)) & (np.abs(h22) > 1e-12)
+    safe = np.where(good, h22, 1.0)
+    proj = np.column_stack([Hn[:, 0, 2] / safe * su + cu, Hn[:, 1, 2] / safe * su + cv])   # the corner is the origin
+    out[good] = proj[good]
+    ok[good] = True
     return out, ok
 
 

@@ -123,7 +123,8 @@ def _calibrate(poses: list[tuple[str, Path, Any]], where: Path, spec: Any, out: 
             problems.append(f"{f}: the {board.cols} x {board.rows} {board.kind} was not found")
             continue
         valid = d["valid_u"] & d["valid_v"]
-        pc, ok = projector_corners(corners, d["u"], d["v"], valid, rc["half_window_px"], rc["min_window_pixels"])
+        pc, ok = projector_corners(corners, d["u"], d["v"], valid, rc["half_window_px"], rc["min_window_pixels"],
+                                   sigma_u=d["sigma_u"], sigma_v=d["sigma_v"])
         if not ok.all():
             problems.append(f"{f}: {int((~ok).sum())} of {len(ok)} corners without {rc['min_window_pixels']} decoded pixels around them")
             continue
