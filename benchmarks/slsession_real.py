@@ -22,7 +22,7 @@ import yaml
 
 from huefringe import codecs as C
 from huefringe.codecs.checks import smooth_fit, smooth_region
-from huefringe.slsession import assemble_sl_session, load_sl_session
+from huefringe.session import assemble_sl_session, load_sl_session
 
 REPO = Path(__file__).resolve().parents[1]
 PLANE = REPO.parent / "shared" / "real" / "kamino410-phase-shifting" / "gamma_correction"

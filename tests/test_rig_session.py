@@ -18,7 +18,7 @@ from huefringe.archive import ArchiveError, verify_archive, write_archive
 from huefringe.cli import main
 from huefringe.rig import RigCalibration, write_calibration
 from huefringe.session import SessionError
-from huefringe.slsession import assemble_sl_session, calibration_problems, load_sl_session
+from huefringe.session import assemble_sl_session, calibration_problems, load_sl_session
 
 SEQUENCE = {"projector": {"width": 64, "height": 48}, "frames": "img_*.png", "blocks": [
     {"phase": {"axis": "x", "period_px": 32, "steps": 4}}, {"gray": {"axis": "x", "bits": 3, "cell_px": 8}},

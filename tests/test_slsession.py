@@ -1,4 +1,4 @@
-"""Structured-light sessions (huefringe.slsession, docs/spec/structured-light-session.md): assembly
+"""Structured-light sessions (huefringe.session, docs/spec/structured-light-session.md): assembly
 from a folder of captures and a sequence YAML, validation (every refusal names its file), decoding
 through huefringe.codecs, and capture-session/1 folders untouched by the new format."""
 
@@ -18,7 +18,7 @@ from huefringe import codecs as C
 from huefringe.cli import main
 from huefringe.codecs.checks import smooth_fit, smooth_region
 from huefringe.session import SessionError, load_session
-from huefringe.slsession import FORMAT, assemble_sl_session, load_sl_session, session_format
+from huefringe.session import SL_FORMAT as FORMAT, assemble_sl_session, load_sl_session, session_format
 
 KAMINO = Path(__file__).resolve().parents[1].parent / "shared" / "real" / "kamino410-phase-shifting"
 REPO_GAMMA = 1.6448412125348637  # kamino410's gamma_result.txt ("gamma p")

@@ -12,7 +12,7 @@ from pathlib import Path
 def _cmd_check_sl(args: argparse.Namespace) -> int:
     from huefringe.codecs import FlatBlock
     from huefringe.session import SessionError
-    from huefringe.slsession import load_sl_session
+    from huefringe.session import load_sl_session
 
     try:
         s = load_sl_session(args.session, deep=args.deep)
@@ -38,8 +38,8 @@ def _cmd_check_sl(args: argparse.Namespace) -> int:
 
 def _cmd_check(args: argparse.Namespace) -> int:
     from huefringe.session import SessionError, load_session
-    from huefringe.slsession import FORMAT as SL_FORMAT
-    from huefringe.slsession import session_format
+    from huefringe.session import SL_FORMAT
+    from huefringe.session import session_format
 
     if session_format(args.session) == SL_FORMAT:
         return _cmd_check_sl(args)
@@ -189,7 +189,7 @@ def _cmd_session(args: argparse.Namespace) -> int:
 
 def _cmd_sl_session(args: argparse.Namespace) -> int:
     from huefringe.session import SessionError
-    from huefringe.slsession import assemble_sl_session
+    from huefringe.session import assemble_sl_session
 
     try:
         out = assemble_sl_session(args.captures, args.sequence, args.out, calibration=args.calibration,
@@ -242,7 +242,7 @@ def _board(text: str, pitch: float, kind: str) -> Any:
 
 
 def _is_sl_session(path: str) -> bool:
-    from huefringe.slsession import FORMAT, session_format
+    from huefringe.session import SL_FORMAT as FORMAT, session_format
 
     return session_format(path) == FORMAT
 

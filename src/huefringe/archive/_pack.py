@@ -35,9 +35,9 @@ def _session_meta(session: Path) -> dict[str, Any]:
     """session.yaml of a capture session, or of a structured-light session (checked whole: every
     file it lists present, none altered, so that the archive holds what the results came from)."""
     from huefringe.session import SessionError, read_meta
-    from huefringe.slsession import FORMAT, load_sl_session, session_format
+    from huefringe.session import SL_FORMAT, load_sl_session, session_format
 
-    if session_format(session) == FORMAT:
+    if session_format(session) == SL_FORMAT:
         try:
             return load_sl_session(session).meta
         except SessionError as exc:

@@ -55,7 +55,7 @@ def decode_folder_uv(folder: Path, spec: Any) -> dict[str, Any]:
 
 def _load_session(session: str | os.PathLike[str]) -> Any:
     from huefringe.session import SessionError
-    from huefringe.slsession import load_sl_session
+    from huefringe.session import load_sl_session
 
     try:
         return load_sl_session(session)

@@ -1,4 +1,6 @@
-"""Capture-session reader and validator (``../shared/spec/capture-session.md``, version 1).
+"""Session readers and validators: capture-session/1 (``../shared/spec/capture-session.md``) and
+structured-light-session/1 (``docs/spec/structured-light-session.md``, :func:`load_sl_session`);
+:func:`session_format` tells the two apart from ``session.yaml``.
 
 A session is refused *before any work starts* when it breaks the format: :func:`load_session`
 checks session.yaml against a JSON schema (unknown keys refused), every expected file, and the
@@ -51,9 +53,23 @@ from ._load import (  # noqa: F401
     read_meta,
     load_session,
 )
+from ._structured import (  # noqa: F401
+    SL_FORMAT,
+    SLSession,
+    assemble_sl_session,
+    calibration_problems,
+    load_sl_session,
+    session_format,
+)
 
 __all__ = [
     "FORMAT",
+    "SL_FORMAT",
+    "SLSession",
+    "assemble_sl_session",
+    "calibration_problems",
+    "load_sl_session",
+    "session_format",
     "IMAGE_SUFFIXES",
     "ImageInfo",
     "Predistortion",

@@ -40,10 +40,12 @@ from huefringe.codecs.sequence import (
     sequence_from_mapping,
     sequence_to_mapping,
 )
-from huefringe.session import IMAGE_SUFFIXES, ImageInfo, Problem, SessionError, _normalise_dates, image_info
+from ._images import IMAGE_SUFFIXES, ImageInfo, image_info
+from ._model import Problem, SessionError
+from ._validate import _normalise_dates
 
 __all__ = [
-    "FORMAT",
+    "SL_FORMAT",
     "SLSession",
     "assemble_sl_session",
     "calibration_problems",
@@ -51,7 +53,7 @@ __all__ = [
     "session_format",
 ]
 
-FORMAT = "structured-light-session/1"
+SL_FORMAT = "structured-light-session/1"
 SEQUENCE_FILE = "sequence.yaml"
 CAPTURES = "captures"
 POSES = "poses"
@@ -480,7 +482,7 @@ def assemble_sl_session(
 
     suffix = suffixes.pop()
     meta: dict[str, Any] = {
-        "format": FORMAT,
+        "format": SL_FORMAT,
         "id": sid,
         "camera": {"width": info.width, "height": info.height, "bit_depth": info.bit_depth, "channels": info.channels},
         "projector": {"width": spec.projector_width, "height": spec.projector_height},
