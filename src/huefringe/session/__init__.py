@@ -53,6 +53,7 @@ from ._load import (  # noqa: F401
     read_meta,
     load_session,
 )
+from ._features import FEATURES_FILE, Feature, Features, Region, load_features  # noqa: F401
 from ._structured import (  # noqa: F401
     SL_FORMAT,
     SLSession,
@@ -64,8 +65,13 @@ from ._structured import (  # noqa: F401
 
 __all__ = [
     "FORMAT",
+    "FEATURES_FILE",
+    "Feature",
+    "Features",
+    "Region",
     "SL_FORMAT",
     "SLSession",
+    "load_features",
     "assemble_sl_session",
     "calibration_problems",
     "load_sl_session",

@@ -40,6 +40,7 @@ from huefringe.codecs.sequence import (
     sequence_from_mapping,
     sequence_to_mapping,
 )
+from ._features import FEATURES_FILE, Features, load_features
 from ._images import IMAGE_SUFFIXES, ImageInfo, image_info
 from ._model import Problem, SessionError
 from ._validate import _normalise_dates
@@ -59,7 +60,7 @@ CAPTURES = "captures"
 POSES = "poses"
 CALIBRATION = "calibration"
 GROUND_TRUTH = "ground_truth"
-ASSEMBLY_KEYS = ("id", "calibration", "poses", "provenance")
+ASSEMBLY_KEYS = ("id", "calibration", "calibration_session", "poses", "board", "features", "provenance")
 """Keys of an assembly YAML that describe the session; every other key is the sequence's."""
 
 _CAPTURE_RE = re.compile(r"^(\d{4})$")
@@ -77,7 +78,13 @@ class SLSession:
     calibration: Path | None = None
     poses: dict[str, tuple[Path, ...]] = field(default_factory=dict)
     ground_truth: dict[str, Path] = field(default_factory=dict)
-    """Axis (``x``, ``y``) -> ``ground_truth/<axis>.tiff``: float32 (H, W) projector coordinate, NaN where unseen."""
+    """Axis (``x``, ``y``) -> ``ground_truth/<axis>.tiff``: float32 (H, W) projector coordinate, NaN where
+    unseen; ``xyz`` -> ``ground_truth/xyz.tiff``: float32 (H, W, 3) camera-frame X, Y, Z in mm of the
+    directly lit surface, NaN elsewhere."""
+    calibration_session: Path | None = None
+    """The session whose ``poses/`` calibrate this one (``calibration: {session: PATH}``), resolved."""
+    features: Features | None = None
+    """``features.yaml``: what to measure."""
 
     @property
     def id(self) -> str:
@@ -95,6 +102,11 @@ class SLSession:
     def bit_depth(self) -> int:
         return int(self.meta["camera"]["bit_depth"])
 
+    @property
+    def board(self) -> dict[str, Any] | None:
+        """The ``board`` block (``cols``, ``rows``, ``pitch_mm``, ``kind``), or None."""
+        return self.meta.get("board")
+
     def read_captures(self, pose: str | None = None) -> list[NDArray[np.number]]:
         """The captures (of ``pose``, else the measurement) as grey arrays in sequence order,
         ready for :func:`huefringe.codecs.decode_sequence`."""
@@ -110,7 +122,10 @@ class SLSession:
         files += [p for ps in self.poses.values() for p in ps]
         if self.calibration is not None:
             files.append(self.calibration)
-        return sorted(files)
+        if self.features is not None:
+            files.append(self.features.path)
+            files += [r.mask_file for r in self.features.regions().values() if r.mask_file is not None]
+        return sorted(set(files))
 
 
 def session_format(root: str | Path) -> str | None:
@@ -325,12 +340,19 @@ def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
         for d in sorted((root / POSES).iterdir()):
             if d.name not in poses and not d.name.startswith("."):
                 problems.append(Problem(d, "pose folder not listed in session.yaml poses"))
-    calib = None
-    if "calibration" in meta:
+    calib = calib_session = None
+    if "file" in meta.get("calibration", {}):
         calib = root / meta["calibration"]["file"]
         if calib.is_file() and _sha256(calib) != meta["calibration"]["sha256"]:
             problems.append(Problem(calib, "sha256 differs from session.yaml calibration/sha256: the file was altered"))
         problems += calibration_problems(calib, cam["width"], cam["height"])
+    elif "session" in meta.get("calibration", {}):
+        calib_session = (root / meta["calibration"]["session"]).resolve()
+        problems += calibration_session_problems(calib_session, yaml_path, meta)
+    features = None
+    if (root / FEATURES_FILE).exists():
+        features, fp = load_features(root / FEATURES_FILE, cam["width"], cam["height"])
+        problems += fp
     gt: dict[str, Path] = {}
     gt_dir = root / GROUND_TRUTH
     if gt_dir.is_dir():
@@ -338,8 +360,8 @@ def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
         for p in sorted(gt_dir.iterdir()):
             if p.name.startswith("."):
                 continue
-            if p.suffix.lower() not in (".tif", ".tiff") or p.stem not in axes:
-                problems.append(Problem(p, f"unexpected ground truth ({' or '.join(a + '.tiff' for a in axes)} expected)"))
+            if p.suffix.lower() not in (".tif", ".tiff") or p.stem not in (*axes, "xyz"):
+                problems.append(Problem(p, f"unexpected ground truth ({', '.join(a + '.tiff' for a in axes)} or xyz.tiff expected)"))
                 continue
             try:
                 with tifffile.TiffFile(p) as tif:
@@ -347,12 +369,32 @@ def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
             except Exception as exc:
                 problems.append(Problem(p, f"cannot read ground truth TIFF ({exc})"))
                 continue
-            if tuple(shape) != (cam["height"], cam["width"]) or np.dtype(dtype) != np.float32:
-                problems.append(Problem(p, f"ground truth must be float32 {cam['height']} x {cam['width']}, got {dtype} {tuple(shape)}"))
+            want = (cam["height"], cam["width"], 3) if p.stem == "xyz" else (cam["height"], cam["width"])
+            if tuple(shape) != want or np.dtype(dtype) != np.float32:
+                problems.append(Problem(p, f"ground truth must be float32 {' x '.join(map(str, want))}, got {dtype} {tuple(shape)}"))
             gt[p.stem] = p
     if problems or spec is None:
         raise SessionError(problems)
-    return SLSession(root, meta, spec, tuple(captures), calib, poses, gt)
+    return SLSession(root, meta, spec, tuple(captures), calib, poses, gt, calib_session, features)
+
+
+def calibration_session_problems(other: Path, where: Path, meta: dict[str, Any]) -> list[Problem]:
+    """A ``calibration: {session: PATH}`` that does not name a structured-light session with poses and a
+    board, of the same camera and projector (read from its ``session.yaml`` only)."""
+    doc_path = other / "session.yaml"
+    try:
+        doc = yaml.safe_load(doc_path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError, UnicodeDecodeError):
+        return [Problem(where, f"calibration/session: {other} holds no readable session.yaml")]
+    if not isinstance(doc, dict) or doc.get("format") != SL_FORMAT:
+        return [Problem(where, f"calibration/session: {doc_path} is not a {SL_FORMAT} session")]
+    out = []
+    if not doc.get("poses") or "board" not in doc:
+        out.append(Problem(where, f"calibration/session: {doc_path} has no poses and board to calibrate from"))
+    for key in ("width", "height"):
+        if doc.get("camera", {}).get(key) != meta["camera"][key] or doc.get("projector", {}).get(key) != meta["projector"][key]:
+            out.append(Problem(where, f"calibration/session: {doc_path} has another camera or projector {key}"))
+    return out
 
 
 # --------------------------------------------------------------------------- assembly
@@ -403,8 +445,10 @@ def assemble_sl_session(
     sequence_yaml : path
         The sequence in :func:`huefringe.codecs.load_sequence`'s YAML form (explicit ``blocks``
         or ``kamino410``, whose ``config`` is relative to ``captures_dir``), plus optional session
-        keys :data:`ASSEMBLY_KEYS`: ``id``, ``calibration`` and ``poses`` (paths relative to the
-        YAML's folder) and ``provenance``.
+        keys :data:`ASSEMBLY_KEYS`: ``id``; ``calibration`` (a FileStorage file),
+        ``calibration_session`` (the session whose poses calibrate this one), ``poses`` (a folder
+        of pose folders) and ``features`` (a features YAML), paths relative to the YAML's folder;
+        ``board`` (the target the poses show) and ``provenance``.
     out_dir : path
         The session folder to write; must not exist or be empty.
     calibration, poses : path, optional
@@ -449,6 +493,10 @@ def assemble_sl_session(
         problems.append(Problem(seq_yaml, "provenance must be a mapping (captured_at, operator, instrument, source, license, notes)"))
     calib = Path(calibration) if calibration else (seq_yaml.parent / str(extra["calibration"]) if extra.get("calibration") else None)
     poses_dir = Path(poses) if poses else (seq_yaml.parent / str(extra["poses"]) if extra.get("poses") else None)
+    calib_session = seq_yaml.parent / str(extra["calibration_session"]) if extra.get("calibration_session") else None
+    if calib_session is not None and calib is not None:
+        problems.append(Problem(seq_yaml, "calibration and calibration_session both given: name one"))
+    features = seq_yaml.parent / str(extra["features"]) if extra.get("features") else None
 
     files = _sequence_files(captures, spec, seq_yaml, problems)
     img_problems, info = _capture_problems(files, None, deep=True)
@@ -477,6 +525,8 @@ def assemble_sl_session(
             problems += calibration_problems(calib, info.width, info.height)
         elif not calib.is_file():
             problems.append(Problem(calib, "missing calibration file"))
+    if features is not None and info is not None:
+        problems += load_features(features, info.width, info.height)[1]
     if problems or info is None:
         raise SessionError(problems or [Problem(captures, "no captures")])
 
@@ -503,6 +553,12 @@ def assemble_sl_session(
             dst = tmp / CALIBRATION / f"rig{calib.suffix.lower()}"
             shutil.copyfile(calib, dst)
             meta["calibration"] = {"file": f"{CALIBRATION}/{dst.name}", "sha256": _sha256(dst)}
+        if calib_session is not None:
+            meta["calibration"] = {"session": os.path.relpath(calib_session.resolve(), out.resolve())}
+        if extra.get("board"):
+            meta["board"] = extra["board"]
+        if features is not None:
+            shutil.copyfile(features, tmp / FEATURES_FILE)
         if provenance:
             meta["provenance"] = provenance
         (tmp / SEQUENCE_FILE).write_text(yaml.safe_dump(stored, sort_keys=False, default_flow_style=None), encoding="utf-8")
