@@ -34,6 +34,7 @@ include: "workflow/rules/calibration.smk"
 include: "workflow/rules/measurement.smk"
 include: "workflow/rules/surfaces.smk"
 include: "workflow/rules/metrology.smk"
+include: "workflow/rules/rig.smk"
 include: "workflow/rules/archive.smk"
 
 

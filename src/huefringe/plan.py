@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from huefringe import bench
-from huefringe.session import SessionError, load_session
+from huefringe.session import SL_FORMAT, SessionError, load_session, load_sl_session, session_format
 
 
 class PlanError(ValueError):
@@ -53,6 +53,19 @@ class SessionPlan:
     """The measurement jobs' frames (:func:`batch_frames`)."""
     phase_shift_batches: list[list[int]] = field(default_factory=list)
     """The three-step baseline jobs' frames (:func:`batch_frames` of ``phase_shift``)."""
+    kind: str = "capture"
+    """``capture`` (capture-session/1: planes and the one-shot hue) or ``structured-light``
+    (structured-light-session/1: coded light triangulated with a rig calibration)."""
+    calibrate: bool = False
+    """Structured light: the workflow calibrates the rig from this session's poses and board (rule rig_calibrate)."""
+    calibration_file: str | None = None
+    """Structured light: the session's own calibration file (relative to the session folder)."""
+    calibration_session: Path | None = None
+    """Structured light: the folder of the session whose poses calibrate this one, as named."""
+    calibrated_by: str | None = None
+    """Structured light: id of the session whose ``calib/rig.yml`` this one is measured with."""
+    measure: bool = True
+    """False for a calibration session that only the sessions naming it brought into the run."""
 
     def frame_selection(self, sel: Any) -> list[int]:
         if sel == "first":
@@ -65,7 +78,26 @@ class SessionPlan:
         return list(sel)
 
 
+def _from_sl_session(path: Path) -> SessionPlan:
+    s = load_sl_session(path)
+    cal = s.meta.get("calibration", {})
+    return SessionPlan(
+        path=path,
+        id=s.id,
+        frames=[0],
+        phase_shift=[],
+        ground_truth="xyz" in s.ground_truth,
+        specimen=s.features is not None,
+        kind="structured-light",
+        calibrate=bool(s.poses) and s.board is not None,
+        calibration_file=cal.get("file"),
+        calibration_session=s.calibration_session,
+    )
+
+
 def _from_session(path: Path) -> SessionPlan:
+    if session_format(path) == SL_FORMAT:
+        return _from_sl_session(path)
     s = load_session(path)
     return SessionPlan(
         path=path,
@@ -193,10 +225,47 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, S
             refused.append(f"session {entry} cannot be written by the bench:\n{exc}")
             continue
         _add(plans, plan, config)
+    refused += _link_calibrations(plans, base, config)
     if refused:
         head = f"{len(refused)} of {len(config['sessions'])} sessions refused:\n" if len(refused) > 1 else ""
         raise PlanError(head + "\n".join(refused))
     return plans
+
+
+def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[str, Any]) -> list[str]:
+    """Give each structured-light session its calibration: its own file, the session it names (added to
+    the run, calibration only, when the configuration does not list it) or its own poses."""
+    def full(p: Path) -> Path:
+        return (p if p.is_absolute() else base / p).resolve()
+
+    by_path = {full(p.path): p for p in plans.values()}
+    refused = []
+    for plan in list(plans.values()):
+        if plan.kind != "structured-light" or plan.calibration_file:
+            continue
+        if plan.calibration_session is not None:
+            target = plan.calibration_session.resolve()
+            other = by_path.get(target)
+            if other is None:
+                try:
+                    other = _from_session(target)
+                except SessionError as exc:
+                    refused.append(f"session {plan.path}: its calibration session {target} is refused:\n{exc}")
+                    continue
+                other.path, other.measure = target, False
+                _add(plans, other, config)
+                by_path[target] = other
+            if not other.calibrate:
+                refused.append(f"session {plan.path}: its calibration session {target} has no poses and board to calibrate from")
+                continue
+            plan.calibrated_by = other.id
+        elif plan.calibrate:
+            plan.calibrated_by = plan.id
+        elif plan.measure:
+            refused.append(f"session {plan.path} is refused:\n{full(plan.path) / 'session.yaml'}: no calibration: give the "
+                           "rig's calibration file (calibration: {file, sha256}), the session whose poses calibrate it "
+                           "(calibration: {session: PATH}), or poses and a board of its own")
+    return refused
 
 
 def _add(plans: dict[str, SessionPlan], plan: SessionPlan, config: dict[str, Any]) -> None:
@@ -204,7 +273,8 @@ def _add(plans: dict[str, SessionPlan], plan: SessionPlan, config: dict[str, Any
         raise PlanError(f"sessions {plans[plan.id].path} and {plan.path} share the id '{plan.id}'")
     m = config["measurement"]
     parallel, per_job = int(m["parallel_jobs"]), int(m["frames_per_job"])
-    plan.batches = batch_frames(plan.frames, parallel, per_job)
+    # structured-light sessions are measured by the rig rules (rig.smk), not in frame batches
+    plan.batches = batch_frames(plan.frames, parallel, per_job) if plan.kind == "capture" else []
     plan.phase_shift_batches = batch_frames(plan.phase_shift, parallel, per_job)
     plans[plan.id] = plan
 

@@ -8,6 +8,8 @@
 
 
 rule archive_session:
+    wildcard_constraints:
+        sid=ANY_SID,
     input:
         session=session_yaml,
         results=lambda w: session_results(w.sid),

@@ -18,10 +18,15 @@ except PlanError as exc:
 RESULTS = config["results_dir"]
 #: session folders the virtual bench writes (rule bench_session), by folder
 BENCH_PLANS = {str(p.path): p for p in PLANS.values() if p.bench is not None}
+#: capture sessions (the one-shot hue route) and structured-light sessions (the rig route, rig.smk)
+CAPTURE_IDS = [sid for sid, p in PLANS.items() if p.kind == "capture"]
+RIG_IDS = [sid for sid, p in PLANS.items() if p.kind == "structured-light"]
+ANY_SID = "|".join(re.escape(s) for s in PLANS) or "^$"
+RIG_SID = "|".join(re.escape(s) for s in RIG_IDS) or "^$"
 
 
 wildcard_constraints:
-    sid="|".join(PLANS) or "^$",
+    sid="|".join(re.escape(s) for s in CAPTURE_IDS) or "^$",
     bench_dir="|".join(re.escape(d) for d in BENCH_PLANS) or "^$",
     frame=r"\d{4}",
     which="reference|object",
@@ -111,9 +116,32 @@ def render_outputs(sid, n):
     ]
 
 
+def rig_targets(sid):
+    """Every result of structured-light session ``sid`` (rig.smk)."""
+    plan = PLANS[sid]
+    out = [R(sid, "calib", "rig.yml")] if plan.calibrate else []
+    if not plan.measure:
+        return out
+    out += [
+        R(sid, "xyz", "frame_0000.tiff"),
+        R(sid, "cloud", "frame_0000.ply"),
+        R(sid, "x3p", "frame_0000.x3p"),
+        R(sid, "mesh", "frame_0000.ply"),
+        R(sid, "renders", "frame_0000_top.png"),
+    ]
+    if plan.ground_truth:
+        out.append(R(sid, "accuracy.json"))
+    if plan.specimen:
+        out += [R(sid, "metrology", "report.json"), R(sid, "metrology", "report.html")]
+    return out
+
+
 def all_targets():
     out = []
     for sid, plan in PLANS.items():
+        if plan.kind == "structured-light":
+            out += rig_targets(sid)
+            continue
         if sid in TABLE1_IDS:
             continue
         out += frame_outputs(sid, plan.frames)["heights"]
@@ -149,7 +177,7 @@ onsuccess:
     _reports = {
         sid: (R(sid, "metrology", "report.json") if plan.specimen else None)
         for sid, plan in PLANS.items()
-        if sid not in TABLE1_IDS
+        if sid not in TABLE1_IDS and plan.measure
     }
     if _reports:
         print(f"\nhuefringe: results\n{run_summary(_reports)}\n", file=sys.stderr)

@@ -87,6 +87,7 @@ def build_report_json(
     method_result: Mapping[str, Any],
     baseline_result: Mapping[str, Any] | None = None,
     extras: Mapping[str, Any] | None = None,
+    figures: Sequence[Mapping[str, Any]] = (),
 ) -> dict[str, Any]:
     """Assemble ``metrology/report.json`` (results contract 1 plus documented extensions).
 
@@ -104,6 +105,10 @@ def build_report_json(
     extras : mapping, optional
         Further top-level keys (``hue_model``, ``provenance``, ...); they may not replace a key
         this function sets.
+    figures : sequence of mapping, optional
+        Further reported figures beside the steps (flatness, distances, parallelism, spheres of a
+        rig session's ``forms``), each with ``name``, ``error_mm``, ``U_mm`` and optionally its own
+        ``tolerance_mm``: the ISO 14253-1 decision (``conformity``) covers them with the steps.
 
     Returns
     -------
@@ -138,7 +143,7 @@ def build_report_json(
         if key in method_result:
             report[key] = _plain(method_result[key])
     report["verdict"] = "PASS" if all(s["pass"] for s in report["steps"]) else "FAIL"
-    report["conformity"] = conformity(report["steps"], tol)
+    report["conformity"] = conformity([*report["steps"], *figures], tol)
     if "base" in method_result:
         report["base"] = _plain(method_result["base"])
     for key, value in (extras or {}).items():
@@ -238,8 +243,9 @@ def _check_steps(steps: Sequence[Mapping[str, Any]], where: str, frames: int | N
         expected_pct = 100.0 * (mean - nominal) / nominal
         if not _close(float(s["error_pct"]), expected_pct):
             problems.append(f"{at}: error_pct {s['error_pct']} != 100 * (mean_mm - nominal_mm) / nominal_mm ({expected_pct})")
-        if tol is not None and bool(s["pass"]) != (abs(float(s["error_mm"])) <= tol):
-            problems.append(f"{at}: pass {s['pass']} disagrees with |error_mm| <= tolerance_mm ({tol})")
+        t = s.get("tolerance_mm", tol)
+        if t is not None and bool(s["pass"]) != (abs(float(s["error_mm"])) <= t):
+            problems.append(f"{at}: pass {s['pass']} disagrees with |error_mm| <= tolerance_mm ({t})")
         rep = s.get("repeatability_3sigma_mm")
         if rep is not None and s["std_mm"] is not None and not _close(float(rep), 3.0 * float(s["std_mm"])):
             problems.append(f"{at}: repeatability_3sigma_mm {rep} != 3 * std_mm")

@@ -34,6 +34,13 @@ from ._surfaces import (  # noqa: F401
     _TiffMaps,
     table1,
 )
+from ._rig import (  # noqa: F401
+    rig_accuracy,
+    rig_calibrate,
+    rig_measure,
+    rig_metrology,
+    rig_surfaces,
+)
 from ._archive import (  # noqa: F401
     add_step_uncertainty,
     archive_session,
@@ -47,6 +54,11 @@ from ._run import (  # noqa: F401
 )
 
 __all__ = [
+    "rig_accuracy",
+    "rig_calibrate",
+    "rig_measure",
+    "rig_metrology",
+    "rig_surfaces",
     "accuracy_report",
     "add_step_uncertainty",
     "archive",

@@ -16,6 +16,7 @@ from huefringe.huetable import HueTableError
 from huefringe.io import remove_stale_parts
 from huefringe.metrology import MetrologyError
 from huefringe.perframe import FrameError
+from huefringe.rig.measure import RigError
 from huefringe.session import SessionError, load_session
 from huefringe.x3p import X3PError
 from ._calibration import camera_calibration, hue_table, plane_calibration
@@ -128,7 +129,7 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
     try:
         func(**kwargs)
     except (SessionError, FrameError, HueTableError, PlaneCalibrationError, MetrologyError, ArchiveError,
-            X3PError) as exc:
+            X3PError, RigError) as exc:
         log.error("%s", exc)
         sys.stderr.write(f"\nhuefringe: {exc}\n")
         sys.exit(1)

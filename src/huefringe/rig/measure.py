@@ -1,0 +1,340 @@
+"""Structured-light sessions measured: the rig route's decode and geometry steps.
+
+Decode (:mod:`huefringe.codecs`) gives each camera pixel its projector coordinate with its
+standard uncertainty; the geometry (:func:`huefringe.rig.triangulate` with a
+:class:`~huefringe.rig.RigCalibration`) turns it into X, Y, Z in mm in the camera frame with its
+uncertainty, on the camera grid (:class:`RigFrame`). The calibration comes from a session's board
+poses (:func:`calibrate_sl_session`) together with its leave-one-pose-out calibrations, whose
+spread is the calibration's term in every reported uncertainty (:func:`huefringe.metrology.jackknife_u`). Heights
+are distances from a datum plane (:func:`height_over_plane`), on the camera grid and resampled on
+the plane's own square grid for height maps, meshes and X3P (:func:`plane_grid`).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from huefringe.codecs import DecodeOptions, SequenceError, decode_sequence
+from huefringe.io import atomic_path
+from huefringe.rig.calibrate import Board, CalibrationReport, PoseObservation, calibrate_rig, detect_corners, projector_corners
+from huefringe.rig.filestorage import write_calibration
+from huefringe.rig.model import RigCalibration
+from huefringe.rig.triangulation import triangulate
+
+__all__ = [
+    "RigCalibrationRun",
+    "RigError",
+    "RigFrame",
+    "board_from",
+    "calibrate_sl_session",
+    "decode_frame",
+    "height_over_plane",
+    "measure_sl_frame",
+    "plane_grid",
+    "read_jackknife",
+    "triangulate_frame",
+    "write_rig_calibration",
+]
+
+F64 = NDArray[np.float64]
+
+
+class RigError(ValueError):
+    """Inputs the rig route refuses (every problem, each naming its file or folder)."""
+
+
+# ------------------------------------------------------------------------------------ calibration
+
+
+@dataclass(frozen=True, eq=False)
+class RigCalibrationRun:
+    """A rig calibrated from board poses, with its leave-one-pose-out calibrations.
+
+    Attributes
+    ----------
+    calibration : RigCalibration
+    report : CalibrationReport
+        Per-pose RMS (``camera_rms_px``: the camera alone; ``projector_rms_px``: the projector
+        against the joint model), the poses left out, and the fit's RMS.
+    jackknife : tuple of (str, RigCalibration)
+        The rig calibrated again without each used pose in turn (named by the pose left out).
+    board : Board
+    """
+
+    calibration: RigCalibration
+    report: CalibrationReport
+    jackknife: tuple[tuple[str, RigCalibration], ...]
+    board: Board
+
+
+def board_from(block: dict[str, Any] | None, where: str | os.PathLike[str]) -> Board:
+    """The :class:`Board` of a session's ``board`` block; refused (naming ``where``) when absent."""
+    if not block:
+        raise RigError(f"{where}: no board: a calibration session says which target its poses show "
+                       "(board: {cols, rows, pitch_mm, kind})")
+    return Board(int(block["cols"]), int(block["rows"]), float(block["pitch_mm"]), block.get("kind", "chessboard"))
+
+
+def decode_frame(images: list[NDArray[np.number]], spec: Any, cfg: dict[str, Any]) -> dict[str, Any]:
+    """Decode one capture sequence into ``u``, ``v`` (NaN where not valid), their sigmas, validity,
+    modulation and absoluteness per axis, and the mean frame (for corners and colour)."""
+    dec = decode_sequence(images, spec, DecodeOptions.from_config(cfg))
+    out: dict[str, Any] = {"mean": np.mean(np.asarray(images, dtype=np.float64), axis=0), "decoded": dec}
+    for axis, key in (("x", "u"), ("y", "v")):
+        d = dec.get(axis)
+        out[key] = None if d is None else np.where(d.valid, d.coord, np.nan)
+        out["sigma_" + key] = None if d is None else d.sigma
+        out["valid_" + key] = None if d is None else d.valid
+        out["modulation_" + key] = None if d is None else d.modulation
+        out["absolute_" + key] = None if d is None else bool(d.absolute)
+    return out
+
+
+def _observe(name: str, where: Path, d: dict[str, Any], board: Board, rc: dict[str, Any],
+             problems: list[str]) -> PoseObservation | None:
+    corners = detect_corners(d["mean"], board)
+    if corners is None:
+        problems.append(f"{where}: the {board.cols} x {board.rows} {board.kind} was not found")
+        return None
+    if d["u"] is None or d["v"] is None:
+        problems.append(f"{where}: calibration needs both projector axes (x and y) in the sequence")
+        return None
+    valid = d["valid_u"] & d["valid_v"]
+    pc, ok = projector_corners(corners, d["u"], d["v"], valid, rc["half_window_px"], rc["min_window_pixels"],
+                               sigma_u=d["sigma_u"], sigma_v=d["sigma_v"])
+    if not ok.all():
+        problems.append(f"{where}: {int((~ok).sum())} of {len(ok)} corners without {rc['min_window_pixels']} decoded pixels around them")
+        return None
+    return PoseObservation(name, corners, pc)
+
+
+def calibrate_sl_session(session: Any, cfg: dict[str, Any], board: Board | None = None) -> RigCalibrationRun:
+    """Calibrate the rig from a structured-light session's ``poses/`` (corners in each pose's mean frame).
+
+    Parameters
+    ----------
+    session : SLSession
+        A loaded session (:func:`huefringe.session.load_sl_session`) with poses.
+    cfg : dict
+        The configuration (``codecs`` and ``rig`` blocks).
+    board : Board, optional
+        Overrides the session's ``board`` block.
+
+    Raises
+    ------
+    RigError
+        No poses or board, poses whose board or corners were not found, too few usable poses,
+        or an axis without absolute coordinates; every problem at once.
+    """
+    where = session.root / "session.yaml"
+    if not session.poses:
+        raise RigError(f"{where}: no calibration poses (poses: and poses/<name>/ folders)")
+    board = board or board_from(session.board, where)
+    for axis in ("x", "y"):
+        if axis not in session.spec.axes():
+            raise RigError(f"{session.root / 'sequence.yaml'}: calibration needs both projector axes (x and y) in the sequence")
+    rc = cfg["rig"]
+    problems: list[str] = []
+    obs = []
+    for name in sorted(session.poses):
+        try:
+            d = decode_frame(session.read_captures(name), session.spec, cfg)
+        except SequenceError as exc:
+            problems.append(str(exc))
+            continue
+        for key in ("u", "v"):
+            if d["absolute_" + key] is False:
+                problems.append(f"{session.root / 'sequence.yaml'}: axis {'x' if key == 'u' else 'y'} is decoded relative to "
+                                "one period only (no Gray code or second period): a calibration needs absolute projector coordinates")
+        o = _observe(name, session.root / "poses" / name, d, board, rc, problems)
+        if o is not None:
+            obs.append(o)
+    if len(obs) < rc["min_poses"]:
+        problems.append(f"{session.root / 'poses'}: {len(obs)} usable poses; a calibration needs at least {rc['min_poses']}")
+    if problems:
+        raise RigError("; ".join(dict.fromkeys(problems)))
+    kw = {"fix_k3": rc["fix_k3"], "min_poses": rc["min_poses"]}
+    size = (session.width, session.height)
+    proj = (session.spec.projector_width, session.spec.projector_height)
+    calib, report = calibrate_rig(obs, board, size, proj, outlier_factor=rc["outlier_factor"], **kw)
+    used = [o for o in obs if o.name not in report.rejected]
+    jack = []
+    if len(used) > rc["min_poses"]:
+        for o in used:
+            # no second rejection round: each leave-one-out fit sees the same poses as the final one, less one
+            c, _ = calibrate_rig([p for p in used if p is not o], board, size, proj, outlier_factor=np.inf, **kw)
+            jack.append((o.name, c))
+    return RigCalibrationRun(calib, report, tuple(jack), board)
+
+
+def _calib_doc(c: RigCalibration) -> dict[str, Any]:
+    return {"camera_matrix": c.camera_matrix.tolist(), "camera_distortion": c.camera_distortion.tolist(),
+            "projector_matrix": c.projector_matrix.tolist(), "projector_distortion": c.projector_distortion.tolist(),
+            "R": c.R.tolist(), "T": c.T.tolist(), "camera_size": list(c.camera_size), "projector_size": list(c.projector_size)}
+
+
+def write_rig_calibration(run: RigCalibrationRun, path: str | os.PathLike[str]) -> dict[str, Path]:
+    """Write ``path`` (OpenCV FileStorage), ``<stem>.report.json`` (per-pose errors, poses left out,
+    both RMS definitions) and ``<stem>.jackknife.json`` (the leave-one-pose-out calibrations)."""
+    path = Path(path)
+    write_calibration(path, run.calibration)
+    report = {
+        "board": {"cols": run.board.cols, "rows": run.board.rows, "pitch_mm": run.board.pitch_mm, "kind": run.board.kind},
+        **run.report.to_dict(),
+        "rms_definitions": {
+            "camera": "camera alone: RMS reprojection error of every corner of the used poses (cv2.calibrateCamera)",
+            "projector": "projector alone: RMS reprojection error of the projector corners (cv2.calibrateCamera on them)",
+            "stereo": "joint model: RMS over camera and projector corners after the stereo refinement (cv2.stereoCalibrate)",
+            "poses[].camera_rms_px / projector_rms_px": "per pose, against the final joint model (the board pose from the camera)",
+        },
+        "baseline_mm": run.calibration.baseline_mm,
+        "jackknife_poses": [name for name, _ in run.jackknife],
+    }
+    files = {"calibration": path, "report": path.with_suffix(".report.json"), "jackknife": path.with_suffix(".jackknife.json")}
+    _write_json(files["report"], report)
+    _write_json(files["jackknife"], {"left_out": {name: _calib_doc(c) for name, c in run.jackknife}})
+    return files
+
+
+def read_jackknife(path: str | os.PathLike[str]) -> list[tuple[str, RigCalibration]]:
+    """The leave-one-pose-out calibrations :func:`write_rig_calibration` wrote (empty when the file is absent)."""
+    p = Path(path)
+    if not p.is_file():
+        return []
+    doc = json.loads(p.read_text(encoding="utf-8"))
+    return [(name, RigCalibration(**{k: (tuple(v) if k.endswith("_size") else np.asarray(v)) for k, v in c.items()}))
+            for name, c in doc["left_out"].items()]
+
+
+def _write_json(path: Path, doc: dict[str, Any]) -> None:
+    with atomic_path(path) as tmp:
+        tmp.write_text(json.dumps(doc, indent=2, default=lambda o: o.tolist() if hasattr(o, "tolist") else str(o)) + "\n")
+
+
+# ------------------------------------------------------------------------------------ geometry
+
+
+@dataclass(frozen=True, eq=False)
+class RigFrame:
+    """One triangulated frame on the camera grid.
+
+    Attributes
+    ----------
+    xyz, sigma : ndarray, shape (H, W, 3)
+        X, Y, Z in mm (camera frame) and their standard uncertainties from the decoded
+        coordinates; NaN where not valid.
+    valid : ndarray of bool, shape (H, W)
+    decoded : dict
+        :func:`decode_frame`'s maps (``u``, ``v``, sigmas, validity, modulation, ``mean``).
+    mode : str
+        The triangulation: ``u``, ``v`` (ray against a projector plane) or ``both`` (ray-ray).
+    """
+
+    xyz: F64
+    sigma: F64
+    valid: NDArray[np.bool_]
+    decoded: dict[str, Any]
+    mode: str
+
+
+def triangulate_frame(d: dict[str, Any], calib: RigCalibration, cfg: dict[str, Any], *, where: str) -> RigFrame:
+    """Triangulate decoded maps ``d`` with ``calib``; refuse what cannot be absolute X, Y, Z.
+
+    Raises
+    ------
+    RigError
+        An axis the triangulation needs is missing or decoded relative to one period only (no
+        Gray code or second period: a relative projector coordinate triangulates to a wrong
+        surface), the captures are not the calibration's camera size, or fewer than 3 points.
+    """
+    h, w = d["mean"].shape
+    if calib.camera_size != (0, 0) and calib.camera_size != (w, h):
+        raise RigError(f"{where}: {w} x {h} captures, the calibration's camera is {calib.camera_size[0]} x {calib.camera_size[1]}")
+    mode = cfg["rig"]["triangulation"]
+    if mode == "auto":
+        absolute = [k for k in ("u", "v") if d[k] is not None and d["absolute_" + k]]
+        mode = "both" if len(absolute) == 2 else (absolute[0] if absolute else ("u" if d["u"] is not None else "v"))
+    problems = []
+    for k in ("u", "v") if mode == "both" else (mode,):
+        axis = "x" if k == "u" else "y"
+        if d[k] is None:
+            problems.append(f"{where}: triangulation {mode!r} needs the projector {axis} axis, which the sequence does not code")
+        elif not d["absolute_" + k]:
+            problems.append(f"{where}: projector axis {axis} is decoded relative to one fringe period only (the sequence has no "
+                            f"Gray code or second period on {axis}); a relative coordinate cannot be triangulated")
+    if problems:
+        raise RigError("; ".join(problems))
+    valid = np.ones((h, w), dtype=bool)
+    for k in ("u", "v") if mode == "both" else (mode,):
+        valid &= d["valid_" + k]
+    t = triangulate(calib, d["u"] if mode in ("u", "both") else None, d["v"] if mode in ("v", "both") else None,
+                    sigma_u=d["sigma_u"], sigma_v=d["sigma_v"], valid=valid, mode=mode)
+    if int(t.valid.sum()) < 3:
+        raise RigError(f"{where}: {int(t.valid.sum())} pixels decoded and triangulated; nothing to measure")
+    return RigFrame(t.xyz, t.sigma, t.valid, d, mode)
+
+
+def measure_sl_frame(session: Any, calib: RigCalibration, cfg: dict[str, Any]) -> RigFrame:
+    """Decode a structured-light session's ``captures/`` and triangulate them with ``calib``."""
+    try:
+        d = decode_frame(session.read_captures(), session.spec, cfg)
+    except SequenceError as exc:
+        raise RigError(str(exc)) from None
+    return triangulate_frame(d, calib, cfg, where=str(session.root / "captures"))
+
+
+def along_normal_sigma(xyz: F64, sigma: F64, normal: F64) -> F64:
+    """Standard uncertainty of each point along ``normal``: the triangulated error lies along the
+    camera ray (camera at the origin), so it is ``|n . p / |p|| * ||sigma||``."""
+    r = np.linalg.norm(xyz, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        cos = np.abs(xyz @ normal) / r
+    return cos * np.linalg.norm(sigma, axis=-1)
+
+
+def height_over_plane(frame: RigFrame, centroid: F64, normal: F64) -> tuple[F64, F64]:
+    """Signed distance of every valid point from the plane (``normal`` towards the camera) and its
+    standard uncertainty, on the camera grid (NaN where not valid)."""
+    h = np.where(frame.valid, (frame.xyz - centroid) @ normal, np.nan)
+    u = np.where(frame.valid, along_normal_sigma(frame.xyz, frame.sigma, normal), np.nan)
+    return h, u
+
+
+def plane_grid(frame: RigFrame, height: F64, u: F64, centroid: F64, normal: F64) -> dict[str, Any]:
+    """Height and its uncertainty resampled on a square grid in the plane's own axes.
+
+    The grid's pitch is the median distance between neighbouring camera pixels' points; each node
+    takes the inverse-distance mean of the 4 nearest points within 1.5 pitch (NaN beyond). Axes:
+    ``a`` = normal x camera X (unit), ``b`` = normal x a; the node ``(i, j)`` lies at
+    ``centroid + (s0 + j pitch) a + (q0 + i pitch) b``.
+    """
+    a = np.cross(normal, [1.0, 0.0, 0.0])
+    a /= np.linalg.norm(a)
+    b = np.cross(normal, a)
+    pts = frame.xyz[frame.valid]
+    s, q = (pts - centroid) @ a, (pts - centroid) @ b
+    pitch = float(np.nanmedian(np.linalg.norm(np.diff(frame.xyz, axis=1), axis=2)))
+    gs = np.arange(s.min(), s.max(), pitch)
+    gq = np.arange(q.min(), q.max(), pitch)
+    S, Q = np.meshgrid(gs, gq)
+    dist, idx = cKDTree(np.column_stack([s, q])).query(np.column_stack([S.ravel(), Q.ravel()]), k=4,
+                                                        distance_upper_bound=1.5 * pitch)
+    ok = np.isfinite(dist)
+    wgt = np.where(ok, 1.0 / np.maximum(dist, 1e-6 * pitch), 0.0)
+    safe = np.minimum(idx, len(pts) - 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        hz = (wgt * np.where(ok, height[frame.valid][safe], 0.0)).sum(axis=1) / wgt.sum(axis=1)
+        # the mean of up to 4 points: u of one point kept (neighbours' errors are not averaged
+        # away for a surface, and the mean does not make a pixel more certain than its points)
+        uz = (wgt * np.where(ok, u[frame.valid][safe], 0.0)).sum(axis=1) / wgt.sum(axis=1)
+    return {"height": hz.reshape(S.shape).astype(np.float32), "uncertainty": uz.reshape(S.shape).astype(np.float32),
+            "pitch_mm": pitch, "origin_mm": (centroid + gs[0] * a + gq[0] * b).tolist(),
+            "axes": {"a": a.tolist(), "b": b.tolist(), "normal": normal.tolist()}}

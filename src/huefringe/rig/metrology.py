@@ -1,0 +1,236 @@
+"""The rig route's metrology: a structured-light session's features measured on its triangulated
+X, Y, Z, each figure with U (k = 2) and the ISO 14253-1 decision, into the same report as capture
+sessions (:func:`huefringe.report.build_report_json`, :func:`huefringe.report.write_report_html`).
+
+Every figure's standard uncertainty combines two terms:
+
+- **points**: the decoded coordinates' noise propagated through the triangulation to each point
+  (along its camera ray) and through the fit (:mod:`huefringe.metrology`'s ``*_u`` functions);
+- **calibration**: the leave-one-pose-out (jackknife) standard error of the figure recomputed
+  with the rig calibrated again without each board pose in turn
+  (:func:`huefringe.metrology.jackknife_u`). A session measured with a calibration file that
+  comes without its poses has no such term; the report says so for every figure.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe.metrology import combine_u, fit_plane_u, fit_sphere_u, flatness_u, jackknife_u, plane_pair_u, step_height_u
+from huefringe.report import build_report_json, collect_provenance, write_report_html
+from huefringe.rig.measure import RigError, RigFrame, read_jackknife
+from huefringe.rig.model import RigCalibration
+from huefringe.rig.triangulation import triangulate
+from huefringe.uncertainty import conformance
+
+__all__ = ["METHOD", "base_plane", "feature_values", "rig_report", "xyz_accuracy"]
+
+F64 = NDArray[np.float64]
+METHOD = "coded-light-triangulation"
+
+
+def base_plane(frame: RigFrame, features: Any) -> Any:
+    """The datum plane: fitted to the valid points of the features' ``base`` region, else to every valid point."""
+    mask = frame.valid
+    if features is not None and features.base is not None:
+        mask = mask & features.base.mask(frame.valid.shape)
+        if mask.sum() < 3:
+            raise RigError(f"{features.path}: base: {int(mask.sum())} valid points in the region; a plane needs 3")
+    return fit_plane_u(frame.xyz[mask], frame.sigma[mask])
+
+
+def _points(xyz: F64, sigma: F64, mask: NDArray[np.bool_]) -> tuple[F64, F64]:
+    ok = mask & np.isfinite(xyz).all(axis=-1)
+    return xyz[ok], sigma[ok]
+
+
+def feature_values(xyz: F64, sigma: F64, features: Any) -> dict[str, dict[str, Any]]:
+    """Every figure of ``features`` on one triangulated frame: name -> the fit's result."""
+    shape = xyz.shape[:2]
+    masks = {name: r.mask(shape) for name, r in features.regions().items()}
+    out: dict[str, dict[str, Any]] = {}
+    for f in features.features:
+        try:
+            if f.kind == "step":
+                out[f.name] = step_height_u(*_points(xyz, sigma, masks["base"]), *_points(xyz, sigma, masks[f.name]))
+                out[f.name]["value_mm"] = out[f.name]["height_mm"]
+            elif f.kind == "plane":
+                r = flatness_u(*_points(xyz, sigma, masks[f.name]))
+                out[f.name] = {**r, "value_mm": r["pv_form_mm"]}
+            elif f.kind == "distance":
+                b, a = f.planes or ("", "")
+                r = plane_pair_u(*_points(xyz, sigma, masks[a]), *_points(xyz, sigma, masks[b]))
+                out[f.name] = {**r, "value_mm": r["distance_mm"]}
+            elif f.kind == "sphere":
+                r = fit_sphere_u(*_points(xyz, sigma, masks[f.name]))
+                out[f.name] = {**r, "value_mm": r["radius_mm"]}
+        except ValueError as exc:
+            raise RigError(f"{features.path}: {f.name}: {exc}") from None
+    return out
+
+
+def _retriangulate(calib: RigCalibration, decoded: F64, mode: str, mask: NDArray[np.bool_]) -> tuple[F64, F64]:
+    """X, Y, Z (H, W, 3; NaN outside ``mask``) of the decoded maps (u, v, sigma_u, sigma_v) with ``calib``."""
+    rows, cols = np.nonzero(mask)
+    dec = decoded[rows, cols].astype(np.float64)
+    use = {"u": mode in ("u", "both"), "v": mode in ("v", "both")}
+    t = triangulate(calib, dec[:, 0] if use["u"] else None, dec[:, 1] if use["v"] else None,
+                    sigma_u=dec[:, 2] if use["u"] else None, sigma_v=dec[:, 3] if use["v"] else None,
+                    pixels=np.column_stack([cols, rows]).astype(np.float64), mode=mode)  # type: ignore[arg-type]
+    xyz = np.full((*mask.shape, 3), np.nan)
+    sig = np.full((*mask.shape, 3), np.nan)
+    xyz[rows, cols], sig[rows, cols] = t.xyz, t.sigma
+    return xyz, sig
+
+
+def _entry(name: str, value: float, nominal: float, tol: float, u_points: float, u_cal: float | None,
+           extra: Mapping[str, Any]) -> dict[str, Any]:
+    u = combine_u(u_points, u_cal or 0.0)
+    err = value - nominal
+    return {
+        "name": name, "nominal_mm": nominal, "mean_mm": value, "std_mm": None, "error_mm": err,
+        "error_pct": 100.0 * err / nominal if nominal else None, "pass": abs(err) <= tol, "per_frame_mm": [value],
+        "u_mm": u, "U_mm": 2.0 * u, "tolerance_mm": tol, "conformance": conformance(err, tol, 2.0 * u),
+        "uncertainty_budget": {"points_mm": u_points,
+                               "calibration_mm": u_cal if u_cal is not None else "not available: the calibration file "
+                                                                                   "comes without its board poses"},
+        **extra,
+    }
+
+
+def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os.PathLike[str], xyz: F64, sigma: F64,
+               decoded: F64, jackknife: str | os.PathLike[str] = "", calibration_report: str | os.PathLike[str] = "",
+               json_path: str | os.PathLike[str], html_path: str | os.PathLike[str],
+               figures: Mapping[str, str | os.PathLike[str]] | None = None) -> dict[str, Any]:
+    """Measure a structured-light session's features and write ``report.json`` and ``report.html``.
+
+    Parameters
+    ----------
+    session : SLSession
+        With ``features`` (``features.yaml``).
+    config : mapping
+        The run's configuration (``rig.triangulation``; recorded in the provenance).
+    calibration : path
+        The calibration the frame was triangulated with.
+    xyz, sigma : ndarray, shape (H, W, 3)
+        The triangulated frame and its per-point standard uncertainties (NaN where not valid).
+    decoded : ndarray, shape (H, W, 4)
+        Decoded ``u, v, sigma_u, sigma_v`` (NaN where not decoded): re-triangulated with each
+        leave-one-pose-out calibration of ``jackknife`` for the calibration term.
+    jackknife, calibration_report : path, optional
+        :func:`huefringe.rig.measure.write_rig_calibration`'s files, when the workflow calibrated the rig.
+    json_path, html_path : path
+        Where the report goes.
+    figures : mapping of str to path, optional
+        PNG figures for the page.
+
+    Returns
+    -------
+    dict
+        The report (validated by :func:`huefringe.report.build_report_json`).
+    """
+    feats = session.features
+    if feats is None:
+        raise RigError(f"{session.root}: no features.yaml: nothing to report")
+    valid = np.isfinite(xyz).all(axis=-1)
+    values = feature_values(xyz, sigma, feats)
+    loo = read_jackknife(jackknife) if jackknife else []
+    mode = _mode(decoded, config)
+    jack: dict[str, list[float]] = {n: [] for n in values}
+    if loo:
+        need = np.zeros(valid.shape, dtype=bool)
+        for r in feats.regions().values():
+            need |= r.mask(valid.shape)
+        need &= valid
+        for _, c in loo:
+            xj, sj = _retriangulate(c, decoded, mode, need)
+            for n, v in feature_values(xj, sj, feats).items():
+                jack[n].append(float(v["value_mm"]))
+    steps, forms = [], {"flatness": [], "distances": [], "parallelism": [], "spheres": []}
+    for f in feats.features:
+        v = values[f.name]
+        u_cal = jackknife_u(jack[f.name]) if loo else None
+        if f.kind == "step":
+            steps.append(_entry(f.name, v["height_mm"], f.nominal_mm, f.tolerance_mm, v["u_mm"], u_cal,
+                                {"points": {"base": v["n_base"], "top": v["n_top"]}}))
+        elif f.kind == "plane":
+            forms["flatness"].append(_entry(f.name, v["pv_form_mm"], f.nominal_mm, f.tolerance_mm, v["u_pv_form_mm"], u_cal, {
+                "figure": "flatness (peak-to-valley of the least-squares residuals, noise-corrected)",
+                "rms_form_mm": v["rms_form_mm"], "u_rms_form_mm": v["u_rms_form_mm"], "rms_mm": v["rms_mm"],
+                "pv_mm": v["pv_mm"], "rms_noise_mm": v["rms_noise_mm"], "pv_noise_mm": v["pv_noise_mm"], "points": v["n"]}))
+        elif f.kind == "distance":
+            forms["distances"].append(_entry(f.name, v["distance_mm"], f.nominal_mm, f.tolerance_mm, v["u_distance_mm"], u_cal, {
+                "figure": f"distance of {f.planes[0]} from {f.planes[1]}" if f.planes else "distance",
+                "angle_deg": float(np.degrees(v["angle_rad"])), "u_angle_deg": float(np.degrees(v["u_angle_rad"]))}))
+            forms["parallelism"].append(_entry(f"{f.name}-parallelism", v["parallelism_mm"], 0.0, f.tolerance_mm,
+                                               v["u_parallelism_mm"], None if not loo else 0.0, {
+                "figure": f"parallelism of {f.planes[0]} to {f.planes[1]} (zone width over its extent)" if f.planes else "parallelism"}))
+        elif f.kind == "sphere":
+            forms["spheres"].append(_entry(f.name, v["radius_mm"], f.nominal_mm, f.tolerance_mm, v["u_radius_mm"], u_cal, {
+                "figure": "radius of the least-squares sphere", "centre_mm": v["centre_mm"],
+                "form_rms_mm": v.get("rms_form_mm"), "form_pv_mm": v.get("pv_form_mm"), "points": v["n"]}))
+    forms = {k: v for k, v in forms.items() if v}
+    specimen = {"tolerance_mm": feats.tolerance_mm, "steps": [{"name": s["name"], "nominal_mm": s["nominal_mm"]} for s in steps]}
+    method_result = {"method": METHOD, "frames": 1, "steps": steps}
+    inputs = [p for p in session.input_files()] + [Path(calibration)]
+    extras: dict[str, Any] = {
+        "geometry": {"route": "structured light: decoded projector coordinates triangulated with the rig calibration",
+                     "triangulation": mode, "calibration": str(calibration)},
+        "forms": forms,
+        "provenance": collect_provenance(session.id, dict(config), inputs),
+    }
+    if calibration_report and Path(calibration_report).is_file():
+        import json
+
+        extras["rig_calibration"] = json.loads(Path(calibration_report).read_text(encoding="utf-8"))
+    report = build_report_json(session.id, specimen, method_result, extras=extras,
+                               figures=[e for k in ("flatness", "distances", "parallelism", "spheres") for e in forms.get(k, [])])
+    from huefringe.io import write_json
+
+    write_json(json_path, report)
+    write_report_html(html_path, report, {k: v for k, v in (figures or {}).items() if v and Path(v).is_file()},
+                      report["provenance"])
+    return report
+
+
+def _mode(decoded: F64, config: Mapping[str, Any]) -> str:
+    mode = str(config["rig"]["triangulation"])
+    if mode != "auto":
+        return mode
+    has = [np.isfinite(decoded[..., k]).any() for k in (0, 1)]
+    return "both" if all(has) else ("u" if has[0] else "v")
+
+
+def xyz_accuracy(xyz: F64, sigma: F64, truth: F64) -> dict[str, Any]:
+    """Errors of triangulated points against the true X, Y, Z (benches).
+
+    Returns
+    -------
+    dict
+        ``pixels`` (valid and true), ``valid_without_truth`` (valid pixels where the truth has no
+        directly lit surface: shadow, background), per-axis RMS and the along-ray error's
+        median, 95th percentile, and the share with ``|e| <= 2u`` (u the along-ray uncertainty).
+    """
+    valid = np.isfinite(xyz).all(axis=-1)
+    true = np.isfinite(truth).all(axis=-1)
+    both = valid & true
+    e = (xyz - truth)[both]
+    ray = truth[both] / np.linalg.norm(truth[both], axis=-1, keepdims=True)
+    along = np.abs(np.einsum("ij,ij->i", e, ray))
+    u = np.linalg.norm(sigma[both], axis=-1)
+    return {
+        "pixels": int(both.sum()), "valid_without_truth": int((valid & ~true).sum()),
+        "coverage_of_truth": float(both.sum() / max(int(true.sum()), 1)),
+        "rms_xyz_mm": np.sqrt(np.mean(e**2, axis=0)).tolist(),
+        "median_abs_error_mm": float(np.median(along)) if along.size else None,
+        "p95_abs_error_mm": float(np.percentile(along, 95)) if along.size else None,
+        "within_2u": float(np.mean(along <= 2 * u)) if along.size else None,
+        "error_measure": "|e . r|, the error along the camera ray r (where the triangulation's error lies)",
+    }
+

@@ -1,0 +1,158 @@
+"""The rig stages (``workflow/rules/rig.smk``): structured-light sessions calibrated, decoded,
+triangulated, and turned into the same outputs and report as capture sessions."""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import trimesh
+
+from huefringe.codecs.output import quality_figure
+from huefringe.cloud import write_points
+from huefringe.io import read_tiff, tiff_pixel_pitch_mm, write_figure_png, write_json, write_tiff
+from huefringe.mesh import attach_sigma, clean_mesh, export_mesh, height_to_mesh, stats_path
+from huefringe.render import camera_for_field, height_map_figure, render_views, uncertainty_map_figure
+from huefringe.rig import read_calibration
+from huefringe.rig.measure import (
+    RigError,
+    RigFrame,
+    calibrate_sl_session,
+    height_over_plane,
+    measure_sl_frame,
+    plane_grid,
+    write_rig_calibration,
+)
+from huefringe.rig.metrology import base_plane, rig_report
+from huefringe.session import load_sl_session
+from huefringe.x3p import write_height_x3p
+
+log = logging.getLogger("huefringe")
+
+
+def rig_calibrate(session: str, config: Mapping[str, Any], calibration: str, report: str, jackknife: str) -> None:
+    """Calibrate the rig from a structured-light session's poses: ``calib/rig.yml``, its report
+    (per-pose RMS, poses left out, both RMS definitions) and the leave-one-pose-out calibrations."""
+    s = load_sl_session(session)
+    run = calibrate_sl_session(s, dict(config))
+    files = write_rig_calibration(run, calibration)
+    if (str(files["report"]), str(files["jackknife"])) != (report, jackknife):
+        raise RuntimeError(f"calibration files went to {files}, the workflow expects {report}, {jackknife}")
+    r = run.report.rms_px
+    log.info("rig calibrated from %d poses (%s left out): RMS camera %.4f px, projector %.4f px, stereo %.4f px; baseline %.2f mm",
+             len(run.report.poses), ", ".join(run.report.rejected) or "none", r.get("camera", np.nan),
+             r.get("projector", np.nan), r.get("stereo", np.nan), run.calibration.baseline_mm)
+
+
+def _one(files: Any) -> str:
+    """A rule input given as an optional one-element list: the file, or ''."""
+    return files if isinstance(files, str) else (str(files[0]) if len(files) else "")
+
+
+def _calibration_files(session: str, calibration: str) -> str:
+    return calibration or str(load_sl_session(session).calibration)
+
+
+def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: str, xyz_sigma: str, decoded: str,
+                cloud: str, height: str, uncertainty: str, x3p: str, qa: str, quality: str) -> None:
+    """Decode and triangulate a structured-light session's captures: X, Y, Z and sigma on the camera
+    grid, the decoded coordinates, the organised cloud, the height over the base plane (features'
+    ``base``, else every point) resampled on the plane's grid, its X3P, and the QA record and figure."""
+    s = load_sl_session(session)
+    cfg = dict(config)
+    calib = read_calibration(_calibration_files(session, calibration))
+    f = measure_sl_frame(s, calib, cfg)
+    write_tiff(xyz, f.xyz.astype(np.float32))
+    write_tiff(xyz_sigma, f.sigma.astype(np.float32))
+    d = f.decoded
+    nan = np.full(f.valid.shape, np.nan)
+    maps = [d[k] if d[k] is not None else nan for k in ("u", "v", "sigma_u", "sigma_v")]
+    write_tiff(decoded, np.stack(maps, axis=-1).astype(np.float32))
+    _write_cloud(cloud, f)
+    plane = base_plane(f, s.features)
+    h_cam, u_cam = height_over_plane(f, plane.centroid, plane.normal)
+    grid = plane_grid(f, h_cam, u_cam, plane.centroid, plane.normal)
+    write_tiff(height, grid["height"], pixel_pitch_mm=grid["pitch_mm"])
+    write_tiff(uncertainty, grid["uncertainty"], pixel_pitch_mm=grid["pitch_mm"])
+    write_height_x3p(x3p, grid["height"], grid["pitch_mm"], session_id=s.id, frame=0,
+                     provenance=s.meta.get("provenance"))
+    write_json(qa, {
+        "session": s.id, "triangulation": f.mode, "valid_fraction": float(f.valid.mean()),
+        "points": int(f.valid.sum()), "median_sigma_xyz_mm": np.nanmedian(f.sigma[f.valid], axis=0).tolist(),
+        "base_plane": {"centroid_mm": plane.centroid.tolist(), "normal": plane.normal.tolist(), "rms_mm": plane.rms_mm,
+                       "points": plane.n, "fitted_to": "features base" if s.features and s.features.base else "every point"},
+        "grid": {k: v for k, v in grid.items() if k not in ("height", "uncertainty")},
+        "calibration": str(_calibration_files(session, calibration)),
+    })
+    fig = quality_figure({k: v for k, v in d["decoded"].items()}, f"{s.id}: decoded projector coordinates")
+    write_figure_png(fig, quality, dpi=90)
+    log.info("%s: %d points (%.1f %% of the camera), triangulation %s, base plane RMS %.4f mm",
+             s.id, int(f.valid.sum()), 100 * f.valid.mean(), f.mode, plane.rms_mm)
+
+
+def _write_cloud(path: str, f: RigFrame) -> None:
+    """The organised cloud: every valid point with its camera pixel (row, column), sigma_x/y/z, grey."""
+    rows, cols = np.nonzero(f.valid)
+    grey = f.decoded["mean"][rows, cols]
+    top = float(np.nanmax(f.decoded["mean"])) or 1.0
+    g = np.clip(np.round(255 * grey / top), 0, 255).astype(np.uint8)
+    sig = f.sigma[rows, cols]
+    write_points(path, f.xyz[rows, cols], np.repeat(g[:, None], 3, axis=1),
+                 scalars={"row": rows.astype(np.float32), "col": cols.astype(np.float32),
+                          "sigma_x": sig[:, 0], "sigma_y": sig[:, 1], "sigma_z": sig[:, 2]})
+
+
+def rig_surfaces(session: str, height: str, uncertainty: str, mesh: Mapping[str, Any], render: Mapping[str, Any],
+                 ply: str, stl: str, stats: str, top: str, oblique1: str, oblique2: str, height_map: str,
+                 uncertainty_map: str) -> None:
+    """Mesh (PLY + STL, vertices with ``sigma_mm``), off-screen renders and the height and uncertainty
+    figures of a structured-light session's height over its base plane."""
+    s = load_sl_session(session)
+    h = read_tiff(height)
+    u = read_tiff(uncertainty)
+    pitch = tiff_pixel_pitch_mm(height)
+    m = clean_mesh(height_to_mesh(h, pitch), min_island_faces=mesh["min_island_faces"])
+    attach_sigma(m, u, pitch)
+    export_mesh(m, ply, stl)
+    if stats_path(ply) != Path(stats):
+        raise RuntimeError(f"mesh statistics went to {stats_path(ply)}, the workflow expects {stats}")
+    finite = h[np.isfinite(h)]
+    clim = (float(np.percentile(finite, 0.5)), float(np.percentile(finite, 99.5))) if finite.size else (-1.0, 1.0)
+    size = (int(render["width"]), int(render["height"]))
+    cams = camera_for_field((h.shape[1] - 1) * pitch, (h.shape[0] - 1) * pitch, clim, size=size)
+    written = render_views(trimesh.load(ply, process=False, force="mesh"), Path(top).parent, "frame_0000", clim=clim,
+                           camera=cams, size=size, title=f"{s.id}")
+    if not {Path(top), Path(oblique1), Path(oblique2)} <= set(written):
+        raise RuntimeError(f"render wrote {written}, expected {top}, {oblique1}, {oblique2}")
+    height_map_figure(h, pitch, height_map, clim=clim, title=f"{s.id}: height above the base plane (mm)")
+    uncertainty_map_figure(u, pitch, uncertainty_map, title=f"{s.id}: height uncertainty u")
+
+
+def rig_metrology(session: str, config: Mapping[str, Any], calibration: str, xyz: str, xyz_sigma: str, decoded: str,
+                  qa: str, render: str, height_map: str, quality: str, json: str, html: str,
+                  jackknife: Any = "", calibration_report: Any = "") -> None:
+    """``metrology/report.json`` and ``report.html`` of a structured-light session: its features'
+    steps, flatness, plane distances and parallelism, spheres, each with U (k = 2) and the ISO
+    14253-1 decision, and the calibration's summary (:func:`huefringe.rig.metrology.rig_report`)."""
+    s = load_sl_session(session)
+    rig_report(s, dict(config), calibration=_calibration_files(session, calibration), xyz=read_tiff(xyz),
+               sigma=read_tiff(xyz_sigma), decoded=read_tiff(decoded), jackknife=_one(jackknife),
+               calibration_report=_one(calibration_report), json_path=json, html_path=html,
+               figures={"render": render, "height": height_map, "decode_quality": quality})
+
+
+def rig_accuracy(session: str, xyz: str, xyz_sigma: str, accuracy: str) -> None:
+    """Errors of the triangulated X, Y, Z against the session's ``ground_truth/xyz.tiff`` (benches):
+    per-axis and along-ray statistics, and the share of valid pixels with ``|e| <= 2u``."""
+    from huefringe.rig.metrology import xyz_accuracy
+
+    s = load_sl_session(session)
+    if "xyz" not in s.ground_truth:
+        raise RigError(f"{s.root}: no ground_truth/xyz.tiff")
+    write_json(accuracy, xyz_accuracy(read_tiff(xyz), read_tiff(xyz_sigma), read_tiff(s.ground_truth["xyz"])))
+
+
+__all__ = ["rig_accuracy", "rig_calibrate", "rig_measure", "rig_metrology", "rig_surfaces"]

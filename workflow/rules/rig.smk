@@ -1,0 +1,161 @@
+# Structured-light sessions (structured-light-session/1): the rig calibrated from a session's board
+# poses, the captures decoded and triangulated on the camera grid, the height over the base plane,
+# meshes, renders and the same metrology report as capture sessions (docs/rig.md).
+# Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/rig.smk).
+
+
+def rig_calibration(w):
+    """The calibration a structured-light session is measured with: its own file, or the
+    calib/rig.yml the workflow makes from the poses of the session that calibrates it."""
+    plan = PLANS[w.sid]
+    if plan.calibration_file:
+        return str(Path(session_dir(w)) / plan.calibration_file)
+    return R(plan.calibrated_by, "calib", "rig.yml")
+
+
+def rig_jackknife(w):
+    plan = PLANS[w.sid]
+    return [] if plan.calibration_file else [R(plan.calibrated_by, "calib", "rig.jackknife.json")]
+
+
+def rig_calibration_report(w):
+    plan = PLANS[w.sid]
+    return [] if plan.calibration_file else [R(plan.calibrated_by, "calib", "rig.report.json")]
+
+
+rule rig_calibrate:
+    wildcard_constraints:
+        sid=RIG_SID,
+    input:
+        session=session_yaml,
+    output:
+        calibration=R("{sid}", "calib", "rig.yml"),
+        report=R("{sid}", "calib", "rig.report.json"),
+        jackknife=R("{sid}", "calib", "rig.jackknife.json"),
+    log:
+        "logs/{sid}/rig_calibrate.log",
+    conda:
+        "../envs/huefringe.yaml"
+    threads: 1
+    resources:
+        **rule_resources("rig_calibrate", mem_mb=3000, runtime=30),
+    params:
+        session=session_dir,
+        config=config,
+    script:
+        "../../scripts/rig_calibrate.py"
+
+
+rule rig_measure:
+    wildcard_constraints:
+        sid=RIG_SID,
+    input:
+        session=session_yaml,
+        calibration=rig_calibration,
+    output:
+        xyz=R("{sid}", "xyz", "frame_0000.tiff"),
+        xyz_sigma=R("{sid}", "xyz", "frame_0000_sigma.tiff"),
+        decoded=R("{sid}", "decode", "frame_0000.tiff"),
+        cloud=R("{sid}", "cloud", "frame_0000.ply"),
+        height=R("{sid}", "height", "frame_0000.tiff"),
+        uncertainty=R("{sid}", "uncertainty", "frame_0000.tiff"),
+        x3p=R("{sid}", "x3p", "frame_0000.x3p"),
+        qa=R("{sid}", "qa", "frames", "frame_0000.json"),
+        quality=R("{sid}", "qa", "frame_0000_decode.png"),
+    log:
+        "logs/{sid}/rig_measure.log",
+    conda:
+        "../envs/huefringe.yaml"
+    threads: 1
+    resources:
+        **rule_resources("rig_measure", mem_mb=4000, runtime=30),
+    params:
+        session=session_dir,
+        config=config,
+    script:
+        "../../scripts/rig_measure.py"
+
+
+rule rig_surfaces:
+    wildcard_constraints:
+        sid=RIG_SID,
+    input:
+        session=session_yaml,
+        height=R("{sid}", "height", "frame_0000.tiff"),
+        uncertainty=R("{sid}", "uncertainty", "frame_0000.tiff"),
+    output:
+        ply=R("{sid}", "mesh", "frame_0000.ply"),
+        stl=R("{sid}", "mesh", "frame_0000.stl"),
+        stats=R("{sid}", "mesh", "frame_0000.stats.json"),
+        top=R("{sid}", "renders", "frame_0000_top.png"),
+        oblique1=R("{sid}", "renders", "frame_0000_oblique1.png"),
+        oblique2=R("{sid}", "renders", "frame_0000_oblique2.png"),
+        height_map=R("{sid}", "renders", "frame_0000_height.png"),
+        uncertainty_map=R("{sid}", "renders", "frame_0000_uncertainty.png"),
+    log:
+        "logs/{sid}/rig_surfaces.log",
+    conda:
+        "../envs/huefringe.yaml"
+    threads: 1
+    resources:
+        **rule_resources("rig_surfaces", mem_mb=3000, runtime=10),
+    params:
+        session=session_dir,
+        mesh=config["mesh"],
+        render=config["render"],
+    script:
+        "../../scripts/rig_surfaces.py"
+
+
+rule rig_metrology:
+    wildcard_constraints:
+        sid=RIG_SID,
+    input:
+        session=session_yaml,
+        calibration=rig_calibration,
+        jackknife=rig_jackknife,
+        calibration_report=rig_calibration_report,
+        xyz=R("{sid}", "xyz", "frame_0000.tiff"),
+        xyz_sigma=R("{sid}", "xyz", "frame_0000_sigma.tiff"),
+        decoded=R("{sid}", "decode", "frame_0000.tiff"),
+        qa=R("{sid}", "qa", "frames", "frame_0000.json"),
+        quality=R("{sid}", "qa", "frame_0000_decode.png"),
+        render=R("{sid}", "renders", "frame_0000_top.png"),
+        height_map=R("{sid}", "renders", "frame_0000_height.png"),
+    output:
+        json=R("{sid}", "metrology", "report.json"),
+        html=R("{sid}", "metrology", "report.html"),
+    log:
+        "logs/{sid}/rig_metrology.log",
+    conda:
+        "../envs/huefringe.yaml"
+    threads: 1
+    resources:
+        **rule_resources("rig_metrology", mem_mb=3000, runtime=10),
+    params:
+        session=session_dir,
+        config=config,
+    script:
+        "../../scripts/rig_metrology.py"
+
+
+rule rig_accuracy:
+    wildcard_constraints:
+        sid=RIG_SID,
+    input:
+        session=session_yaml,
+        xyz=R("{sid}", "xyz", "frame_0000.tiff"),
+        xyz_sigma=R("{sid}", "xyz", "frame_0000_sigma.tiff"),
+    output:
+        accuracy=R("{sid}", "accuracy.json"),
+    log:
+        "logs/{sid}/rig_accuracy.log",
+    conda:
+        "../envs/huefringe.yaml"
+    threads: 1
+    resources:
+        **rule_resources("rig_accuracy", mem_mb=2000, runtime=10),
+    params:
+        session=session_dir,
+    script:
+        "../../scripts/rig_accuracy.py"
