@@ -42,6 +42,14 @@ Across frames (:func:`evaluate_session`)
 ``error_pct_of_range = 100 * error_mm / range_mm`` with ``range_mm`` the calibrated depth
 range (e.g. ``max(planes_mm)``), and ``pass = |error_mm| <= tolerance_mm``. The session's
 ``verdict`` is ``"PASS"`` when every step passes.
+
+Triangulated points
+-------------------
+``_forms`` fits planes and spheres to X, Y, Z points in the camera frame with per-point
+uncertainties and gives each figure a GUM standard uncertainty: :func:`fit_plane_u`,
+:func:`step_height_u`, :func:`flatness_u` (noise-corrected RMS and peak-to-valley),
+:func:`plane_pair_u` (distance, angle, parallelism), :func:`fit_sphere_u`, and the calibration's
+term :func:`jackknife_u` with :func:`combine_u`.
 """
 
 from __future__ import annotations
@@ -65,6 +73,17 @@ from ._fit import (  # noqa: F401
     step_height,
     flatness,
 )
+from ._forms import (  # noqa: F401
+    PV_NOISE_DRAWS,
+    PlaneFit,
+    combine_u,
+    fit_plane_u,
+    fit_sphere_u,
+    flatness_u,
+    jackknife_u,
+    plane_pair_u,
+    step_height_u,
+)
 from ._evaluate import (  # noqa: F401
     _specimen_parts,
     evaluate_session,
@@ -77,13 +96,22 @@ from ._evaluate import (  # noqa: F401
 __all__ = [
     "DEFAULT_EDGE_EXCLUSION",
     "DEFAULT_MIN_COVERAGE",
+    "PV_NOISE_DRAWS",
     "MetrologyError",
+    "PlaneFit",
     "central_box",
     "check_box",
+    "combine_u",
     "coverage",
     "evaluate_session",
     "fit_plane",
+    "fit_plane_u",
+    "fit_sphere_u",
     "flatness",
+    "flatness_u",
+    "jackknife_u",
     "plane_height",
+    "plane_pair_u",
     "step_height",
+    "step_height_u",
 ]

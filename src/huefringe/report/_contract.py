@@ -163,9 +163,11 @@ def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float) -> dict[
     Parameters
     ----------
     steps : sequence of mapping
-        The report's steps (``name``, ``error_mm`` and, with the uncertainty, ``U_mm``).
+        The report's steps (``name``, ``error_mm`` and, with the uncertainty, ``U_mm``); an entry
+        may carry its own ``tolerance_mm``, its T instead of the common one. A one-sided figure
+        (a flatness: nominal 0, ``error_mm`` = the value) follows the same rule.
     tolerance_mm : float
-        T, the tolerance on each step's mean height.
+        T, the tolerance on each step's mean height (for every entry without its own).
 
     Returns
     -------
@@ -186,12 +188,16 @@ def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float) -> dict[
                 "reason": f"no expanded uncertainty U for the step heights, and ISO 14253-1 decides only with it; "
                           f"the tolerance alone (U ignored) holds for {n_in} of {len(steps)} steps"}
     zone: dict[str, list[Mapping[str, Any]]] = {"pass": [], "undecided": [], "fail": []}
+
+    def tol(st: Mapping[str, Any]) -> float:
+        return float(st["tolerance_mm"]) if st.get("tolerance_mm") is not None else t
+
     for st in steps:
-        e, u = abs(float(st["error_mm"])), float(st["U_mm"])
-        zone["pass" if e <= t - u else "fail" if e > t + u else "undecided"].append(st)
+        e, u, ts = abs(float(st["error_mm"])), float(st["U_mm"]), tol(st)
+        zone["pass" if e <= ts - u else "fail" if e > ts + u else "undecided"].append(st)
 
     def says(st: Mapping[str, Any], how: str) -> str:
-        e, u = abs(float(st["error_mm"])), float(st["U_mm"])
+        e, u, t = abs(float(st["error_mm"])), float(st["U_mm"]), tol(st)
         if how == "fail":
             return f"{st['name']}: |error| {e:.4f} mm > T + U = {t + u:.4f} mm"
         low = f"T - U = {t - u:.4f} mm" if u < t else f"0 (U = {u:.4f} mm >= T)"
