@@ -8,8 +8,6 @@
 
 
 rule archive_session:
-    wildcard_constraints:
-        sid=ANY_SID,
     input:
         session=session_yaml,
         results=lambda w: session_results(w.sid),
@@ -17,6 +15,8 @@ rule archive_session:
         archive=f"{RESULTS}/{{sid}}.archive.zip",
     log:
         "logs/{sid}/archive.log",
+    wildcard_constraints:
+        sid=ANY_SID,
     conda:
         "../envs/huefringe.yaml"
     threads: 1

@@ -116,6 +116,34 @@ def render_outputs(sid, n):
     ]
 
 
+def rig_calibration(w):
+    """The calibration a structured-light session is measured with: its own file, or the
+    calib/rig.yml the workflow makes from the poses of the session that calibrates it.
+    """
+    plan = PLANS[w.sid]
+    if plan.calibration_file:
+        return str(Path(session_dir(w)) / plan.calibration_file)
+    return R(plan.calibrated_by, "calib", "rig.yml")
+
+
+def rig_jackknife(w):
+    plan = PLANS[w.sid]
+    return (
+        []
+        if plan.calibration_file
+        else [R(plan.calibrated_by, "calib", "rig.jackknife.json")]
+    )
+
+
+def rig_calibration_report(w):
+    plan = PLANS[w.sid]
+    return (
+        []
+        if plan.calibration_file
+        else [R(plan.calibrated_by, "calib", "rig.report.json")]
+    )
+
+
 def rig_targets(sid):
     """Every result of structured-light session ``sid`` (rig.smk)."""
     plan = PLANS[sid]

@@ -4,28 +4,7 @@
 # Each rule NAME runs scripts/NAME.py -> huefringe.stages.NAME (section workflow/rules/rig.smk).
 
 
-def rig_calibration(w):
-    """The calibration a structured-light session is measured with: its own file, or the
-    calib/rig.yml the workflow makes from the poses of the session that calibrates it."""
-    plan = PLANS[w.sid]
-    if plan.calibration_file:
-        return str(Path(session_dir(w)) / plan.calibration_file)
-    return R(plan.calibrated_by, "calib", "rig.yml")
-
-
-def rig_jackknife(w):
-    plan = PLANS[w.sid]
-    return [] if plan.calibration_file else [R(plan.calibrated_by, "calib", "rig.jackknife.json")]
-
-
-def rig_calibration_report(w):
-    plan = PLANS[w.sid]
-    return [] if plan.calibration_file else [R(plan.calibrated_by, "calib", "rig.report.json")]
-
-
 rule rig_calibrate:
-    wildcard_constraints:
-        sid=RIG_SID,
     input:
         session=session_yaml,
     output:
@@ -34,6 +13,8 @@ rule rig_calibrate:
         jackknife=R("{sid}", "calib", "rig.jackknife.json"),
     log:
         "logs/{sid}/rig_calibrate.log",
+    wildcard_constraints:
+        sid=RIG_SID,
     conda:
         "../envs/huefringe.yaml"
     threads: 1
@@ -47,8 +28,6 @@ rule rig_calibrate:
 
 
 rule rig_measure:
-    wildcard_constraints:
-        sid=RIG_SID,
     input:
         session=session_yaml,
         calibration=rig_calibration,
@@ -64,6 +43,8 @@ rule rig_measure:
         quality=R("{sid}", "qa", "frame_0000_decode.png"),
     log:
         "logs/{sid}/rig_measure.log",
+    wildcard_constraints:
+        sid=RIG_SID,
     conda:
         "../envs/huefringe.yaml"
     threads: 1
@@ -77,8 +58,6 @@ rule rig_measure:
 
 
 rule rig_surfaces:
-    wildcard_constraints:
-        sid=RIG_SID,
     input:
         session=session_yaml,
         height=R("{sid}", "height", "frame_0000.tiff"),
@@ -94,6 +73,8 @@ rule rig_surfaces:
         uncertainty_map=R("{sid}", "renders", "frame_0000_uncertainty.png"),
     log:
         "logs/{sid}/rig_surfaces.log",
+    wildcard_constraints:
+        sid=RIG_SID,
     conda:
         "../envs/huefringe.yaml"
     threads: 1
@@ -108,8 +89,6 @@ rule rig_surfaces:
 
 
 rule rig_metrology:
-    wildcard_constraints:
-        sid=RIG_SID,
     input:
         session=session_yaml,
         calibration=rig_calibration,
@@ -127,6 +106,8 @@ rule rig_metrology:
         html=R("{sid}", "metrology", "report.html"),
     log:
         "logs/{sid}/rig_metrology.log",
+    wildcard_constraints:
+        sid=RIG_SID,
     conda:
         "../envs/huefringe.yaml"
     threads: 1
@@ -140,8 +121,6 @@ rule rig_metrology:
 
 
 rule rig_accuracy:
-    wildcard_constraints:
-        sid=RIG_SID,
     input:
         session=session_yaml,
         xyz=R("{sid}", "xyz", "frame_0000.tiff"),
@@ -150,6 +129,8 @@ rule rig_accuracy:
         accuracy=R("{sid}", "accuracy.json"),
     log:
         "logs/{sid}/rig_accuracy.log",
+    wildcard_constraints:
+        sid=RIG_SID,
     conda:
         "../envs/huefringe.yaml"
     threads: 1

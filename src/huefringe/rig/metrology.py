@@ -62,7 +62,7 @@ def feature_values(xyz: F64, sigma: F64, features: Any) -> dict[str, dict[str, A
                 out[f.name]["value_mm"] = out[f.name]["height_mm"]
             elif f.kind == "plane":
                 r = flatness_u(*_points(xyz, sigma, masks[f.name]))
-                out[f.name] = {**r, "value_mm": r["pv_form_mm"]}
+                out[f.name] = {**r, "value_mm": r["rms_form_mm"]}
             elif f.kind == "distance":
                 b, a = f.planes or ("", "")
                 r = plane_pair_u(*_points(xyz, sigma, masks[a]), *_points(xyz, sigma, masks[b]))
@@ -160,9 +160,9 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
             steps.append(_entry(f.name, v["height_mm"], f.nominal_mm, f.tolerance_mm, v["u_mm"], u_cal,
                                 {"points": {"base": v["n_base"], "top": v["n_top"]}}))
         elif f.kind == "plane":
-            forms["flatness"].append(_entry(f.name, v["pv_form_mm"], f.nominal_mm, f.tolerance_mm, v["u_pv_form_mm"], u_cal, {
-                "figure": "flatness (peak-to-valley of the least-squares residuals, noise-corrected)",
-                "rms_form_mm": v["rms_form_mm"], "u_rms_form_mm": v["u_rms_form_mm"], "rms_mm": v["rms_mm"],
+            forms["flatness"].append(_entry(f.name, v["rms_form_mm"], f.nominal_mm, f.tolerance_mm, v["u_rms_form_mm"], u_cal, {
+                "figure": "flatness FLTq (RMS of the least-squares residuals, noise removed)",
+                "pv_form_mm": v["pv_form_mm"], "u_pv_form_mm": v["u_pv_form_mm"], "rms_mm": v["rms_mm"],
                 "pv_mm": v["pv_mm"], "rms_noise_mm": v["rms_noise_mm"], "pv_noise_mm": v["pv_noise_mm"], "points": v["n"]}))
         elif f.kind == "distance":
             forms["distances"].append(_entry(f.name, v["distance_mm"], f.nominal_mm, f.tolerance_mm, v["u_distance_mm"], u_cal, {
