@@ -14,15 +14,17 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from huefringe.codecs import DecodeOptions, SequenceError, decode_sequence
+from huefringe.codecs import DecodeOptions, SequenceError, decode_sequence, load_sequence, read_captures
 from huefringe.io import atomic_path
 from huefringe.rig.calibrate import Board, CalibrationReport, PoseObservation, calibrate_rig, detect_corners, projector_corners
 from huefringe.rig.filestorage import write_calibration
@@ -34,6 +36,8 @@ __all__ = [
     "RigError",
     "RigFrame",
     "board_from",
+    "calibrate_folders",
+    "calibrate_poses",
     "calibrate_sl_session",
     "decode_frame",
     "height_over_plane",
@@ -98,14 +102,11 @@ def decode_frame(images: list[NDArray[np.number]], spec: Any, cfg: dict[str, Any
     return out
 
 
-def _observe(name: str, where: Path, d: dict[str, Any], board: Board, rc: dict[str, Any],
+def _observe(name: str, where: Path, d: dict[str, Any], image: Any, board: Board, rc: dict[str, Any],
              problems: list[str]) -> PoseObservation | None:
-    corners = detect_corners(d["mean"], board)
+    corners = detect_corners(image, board)
     if corners is None:
         problems.append(f"{where}: the {board.cols} x {board.rows} {board.kind} was not found")
-        return None
-    if d["u"] is None or d["v"] is None:
-        problems.append(f"{where}: calibration needs both projector axes (x and y) in the sequence")
         return None
     valid = d["valid_u"] & d["valid_v"]
     pc, ok = projector_corners(corners, d["u"], d["v"], valid, rc["half_window_px"], rc["min_window_pixels"],
@@ -114,6 +115,64 @@ def _observe(name: str, where: Path, d: dict[str, Any], board: Board, rc: dict[s
         problems.append(f"{where}: {int((~ok).sum())} of {len(ok)} corners without {rc['min_window_pixels']} decoded pixels around them")
         return None
     return PoseObservation(name, corners, pc)
+
+
+PoseLoader = Callable[[], tuple[dict[str, Any], Any]]
+"""Decodes one pose: :func:`decode_frame`'s maps and the image its corners are found in."""
+
+
+def calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board: Board, cfg: dict[str, Any],
+                    where: Path) -> RigCalibrationRun:
+    """Calibrate the rig from board poses, each ``(name, folder, loader)``; then once more without each
+    used pose in turn (the leave-one-pose-out calibrations of the calibration's uncertainty term).
+
+    Raises
+    ------
+    RigError
+        A sequence without both projector axes, or either axis relative (no Gray code or second
+        period), poses whose board or corners were not found, too few usable poses; every
+        problem at once.
+    """
+    rc = cfg["rig"]
+    problems: list[str] = []
+    missing = [a for a in ("x", "y") if a not in spec.axes()]
+    if missing:
+        raise RigError(f"{where}: calibration needs both projector axes (x and y) in the sequence; it codes "
+                       f"{', '.join(spec.axes()) or 'none'}")
+    obs = []
+    size = None
+    for name, folder, load in poses:
+        try:
+            d, image = load()
+        except SequenceError as exc:
+            problems.append(str(exc))
+            continue
+        for key in ("u", "v"):
+            if d["absolute_" + key] is False:
+                problems.append(f"{where}: axis {'x' if key == 'u' else 'y'} is decoded relative to one fringe period only "
+                                "(no Gray code or second period): a calibration needs absolute projector coordinates")
+        if any(d["absolute_" + k] is False for k in ("u", "v")):
+            continue
+        o = _observe(name, folder, d, image, board, rc, problems)
+        if o is not None:
+            obs.append(o)
+            size = (d["mean"].shape[1], d["mean"].shape[0])
+    if len(obs) < rc["min_poses"]:
+        problems.append(f"{where}: {len(obs)} usable poses; a calibration needs at least {rc['min_poses']}")
+    if problems:
+        raise RigError("; ".join(dict.fromkeys(problems)))
+    assert size is not None
+    kw = {"fix_k3": rc["fix_k3"], "min_poses": rc["min_poses"]}
+    proj = (spec.projector_width, spec.projector_height)
+    calib, report = calibrate_rig(obs, board, size, proj, outlier_factor=rc["outlier_factor"], **kw)
+    used = [o for o in obs if o.name not in report.rejected]
+    jack = []
+    if len(used) > rc["min_poses"]:
+        for o in used:
+            # no second rejection round: each leave-one-out fit sees the final fit's poses, less one
+            c, _ = calibrate_rig([p for p in used if p is not o], board, size, proj, outlier_factor=np.inf, **kw)
+            jack.append((o.name, c))
+    return RigCalibrationRun(calib, report, tuple(jack), board)
 
 
 def calibrate_sl_session(session: Any, cfg: dict[str, Any], board: Board | None = None) -> RigCalibrationRun:
@@ -131,48 +190,40 @@ def calibrate_sl_session(session: Any, cfg: dict[str, Any], board: Board | None 
     Raises
     ------
     RigError
-        No poses or board, poses whose board or corners were not found, too few usable poses,
-        or an axis without absolute coordinates; every problem at once.
+        No poses or board, and every refusal of :func:`calibrate_poses`.
     """
     where = session.root / "session.yaml"
     if not session.poses:
         raise RigError(f"{where}: no calibration poses (poses: and poses/<name>/ folders)")
     board = board or board_from(session.board, where)
-    for axis in ("x", "y"):
-        if axis not in session.spec.axes():
-            raise RigError(f"{session.root / 'sequence.yaml'}: calibration needs both projector axes (x and y) in the sequence")
-    rc = cfg["rig"]
-    problems: list[str] = []
-    obs = []
-    for name in sorted(session.poses):
-        try:
-            d = decode_frame(session.read_captures(name), session.spec, cfg)
-        except SequenceError as exc:
-            problems.append(str(exc))
-            continue
-        for key in ("u", "v"):
-            if d["absolute_" + key] is False:
-                problems.append(f"{session.root / 'sequence.yaml'}: axis {'x' if key == 'u' else 'y'} is decoded relative to "
-                                "one period only (no Gray code or second period): a calibration needs absolute projector coordinates")
-        o = _observe(name, session.root / "poses" / name, d, board, rc, problems)
-        if o is not None:
-            obs.append(o)
-    if len(obs) < rc["min_poses"]:
-        problems.append(f"{session.root / 'poses'}: {len(obs)} usable poses; a calibration needs at least {rc['min_poses']}")
-    if problems:
-        raise RigError("; ".join(dict.fromkeys(problems)))
-    kw = {"fix_k3": rc["fix_k3"], "min_poses": rc["min_poses"]}
-    size = (session.width, session.height)
-    proj = (session.spec.projector_width, session.spec.projector_height)
-    calib, report = calibrate_rig(obs, board, size, proj, outlier_factor=rc["outlier_factor"], **kw)
-    used = [o for o in obs if o.name not in report.rejected]
-    jack = []
-    if len(used) > rc["min_poses"]:
-        for o in used:
-            # no second rejection round: each leave-one-out fit sees the same poses as the final one, less one
-            c, _ = calibrate_rig([p for p in used if p is not o], board, size, proj, outlier_factor=np.inf, **kw)
-            jack.append((o.name, c))
-    return RigCalibrationRun(calib, report, tuple(jack), board)
+
+    def load(name: str) -> tuple[dict[str, Any], Any]:
+        d = decode_frame(session.read_captures(name), session.spec, cfg)
+        return d, d["mean"]
+
+    poses = [(name, session.root / "poses" / name, lambda n=name: load(n)) for name in sorted(session.poses)]
+    return calibrate_poses(poses, session.spec, board, cfg, session.root / "sequence.yaml")
+
+
+def calibrate_folders(poses_dir: str | os.PathLike[str], sequence: str | os.PathLike[str], board: Board,
+                      cfg: dict[str, Any]) -> RigCalibrationRun:
+    """Calibrate from a folder of pose folders, each holding the sequence's captures (corners in their
+    mean frame, or in ``board.png`` when the folder has one)."""
+    poses_dir = Path(poses_dir)
+    try:
+        spec = load_sequence(sequence)
+    except SequenceError as exc:
+        raise RigError(str(exc)) from None
+    folders = sorted(p for p in poses_dir.iterdir() if p.is_dir()) if poses_dir.is_dir() else []
+    if not folders:
+        raise RigError(f"{poses_dir}: no pose folders")
+
+    def load(f: Path) -> tuple[dict[str, Any], Any]:
+        d = decode_frame(read_captures(f, spec), spec, cfg)
+        img = cv2.imread(str(f / "board.png"), cv2.IMREAD_GRAYSCALE) if (f / "board.png").exists() else d["mean"]
+        return d, img
+
+    return calibrate_poses([(f.name, f, lambda f=f: load(f)) for f in folders], spec, board, cfg, Path(sequence))
 
 
 def _calib_doc(c: RigCalibration) -> dict[str, Any]:
