@@ -41,6 +41,10 @@ from __future__ import annotations
 from ._spec import (  # noqa: F401
     Axis,
     SequenceError,
+    Reason,
+    SkipBlock,
+    axis_is_absolute,
+    periods_cover,
     PhaseBlock,
     GrayBlock,
     FlatBlock,
@@ -65,6 +69,8 @@ from ._decode import (  # noqa: F401
     generate,
     _as_stack,
     _gray_reference,
+    _gray_threshold,
+    _direct_light,
     _stages,
     _decode_axis,
     decode_sequence,
@@ -76,8 +82,11 @@ __all__ = [
     "FlatBlock",
     "GrayBlock",
     "PhaseBlock",
+    "Reason",
     "SequenceError",
     "SequenceSpec",
+    "SkipBlock",
+    "axis_is_absolute",
     "decode_sequence",
     "generate",
     "kamino410_sequence",
@@ -90,6 +99,6 @@ __all__ = [
 
 # the classes are re-exported by huefringe.codecs too: named after this module, as they are
 # imported, they have one canonical name in the API reference
-for _cls in (SequenceError, PhaseBlock, GrayBlock, FlatBlock, SequenceSpec, DecodeOptions, Decoded):
+for _cls in (SequenceError, Reason, PhaseBlock, GrayBlock, FlatBlock, SkipBlock, SequenceSpec, DecodeOptions, Decoded):
     _cls.__module__ = __name__
 del _cls
