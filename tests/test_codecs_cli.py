@@ -48,7 +48,7 @@ def test_decode_writes_the_maps(folder, tmp_path, capsys):
     assert "OK:" in capsys.readouterr().out
     assert sorted(p.name for p in out.iterdir()) == sorted(
         [f"{k}_{a}.tif" for k in ("coord", "sigma", "modulation") for a in "xy"]
-        + ["valid_x.png", "valid_y.png", "quality.png", "decode.json"]
+        + ["valid_x.png", "valid_y.png", "reasons_x.png", "reasons_y.png", "quality.png", "decode.json"]
     )
     for a, u in (("x", ux), ("y", uy)):
         c = read_tiff(out / f"coord_{a}.tif")
@@ -71,7 +71,7 @@ def test_refusals_name_the_file_and_write_nothing(folder, tmp_path, capsys):
     bad.write_text(yaml.safe_dump({"projector": {"width": 512}, "blocks": [{"phase": {"axis": "z", "period_px": -1, "steps": 2}}, "grey"]}))
     assert main(["decode", str(caps), str(bad), str(out)]) == 2
     err = capsys.readouterr().err
-    for part in (str(bad), "width and height must be integers", "axis must be x", "period_px must be > 0", "steps must be an integer >= 3", "blocks[1]"):
+    for part in (str(bad), "width and height must be integers", "axis must be x", "period_px must be a finite number > 0", "steps must be an integer >= 3", "blocks[1]"):
         assert part in err, part
 
     (tmp_path / "full").mkdir()
@@ -79,3 +79,50 @@ def test_refusals_name_the_file_and_write_nothing(folder, tmp_path, capsys):
     assert main(["decode", str(caps), str(seq), str(tmp_path / "full")]) == 2
     assert "exists and is not an empty folder" in capsys.readouterr().err
     assert (tmp_path / "full" / "keep.txt").read_text() == "mine"
+
+
+def test_reasons_image_and_a_run_with_nothing_valid_does_not_end_ok(folder, tmp_path, capsys):
+    caps, seq, _, _ = folder
+    out = tmp_path / "out"
+    assert main(["decode", str(caps), str(seq), str(out)]) == 0
+    for a in "xy":
+        r = cv2.imread(str(out / f"reasons_{a}.png"), cv2.IMREAD_UNCHANGED)
+        v = cv2.imread(str(out / f"valid_{a}.png"), cv2.IMREAD_GRAYSCALE) > 0
+        assert r.dtype == np.uint8 and ((r == 0) == v).all()
+    capsys.readouterr()
+    # the thresholds come from --configfile as in the workflow: a modulation no pixel reaches
+    cfg = tmp_path / "strict.yaml"
+    cfg.write_text(yaml.safe_dump({"codecs": {"min_modulation_dn": 250.0}}))
+    out2 = tmp_path / "out2"
+    assert main(["decode", str(caps), str(seq), str(out2), "--configfile", str(cfg)]) == 1
+    cap = capsys.readouterr()
+    assert "OK" not in cap.out
+    assert "FAILED:" in cap.err and "x: 0.0% valid" in cap.err and "below codecs.min_valid_fraction 1.0%" in cap.err
+    r = cv2.imread(str(out2 / "reasons_x.png"), cv2.IMREAD_UNCHANGED)
+    assert ((r & 2) != 0).all()  # low signal, on every pixel
+    summary = yaml.safe_load((out2 / "decode.json").read_text())
+    assert summary["axes"]["x"]["dropped_fraction"]["low_signal"] == 1.0
+    assert summary["thresholds"]["min_modulation_dn"] == 250.0
+
+
+def test_gray_code_only_folder_decodes_through_the_command(tmp_path, capsys):
+    """OpenCV's GrayCodePattern layout with white and black, as scan3d-capture shoots it."""
+    from huefringe.codecs import opencv_graycode_patterns
+
+    seq = tmp_path / "seq.yaml"
+    seq.write_text(yaml.safe_dump({"projector": {"width": 128, "height": 96}, "frames": "*.bmp",
+                                   "blocks": [{"gray": {"axis": "x", "bits": 7, "cell_px": 1, "inverse": True}},
+                                              {"gray": {"axis": "y", "bits": 7, "cell_px": 1, "inverse": True}},
+                                              "white", "black"]}))
+    pats = np.concatenate([opencv_graycode_patterns(128, 96), np.full((1, 96, 128), 255, np.uint8), np.zeros((1, 96, 128), np.uint8)])
+    caps = tmp_path / "caps"
+    caps.mkdir()
+    for i, p in enumerate(pats):  # the camera sees the projector one to one, 20 DN ambient
+        cv2.imwrite(str(caps / f"{i:02d}.bmp"), (20 + 0.8 * p).astype(np.uint8))
+    out = tmp_path / "out"
+    assert main(["decode", str(caps), str(seq), str(out)]) == 0
+    assert "OK:" in capsys.readouterr().out
+    cx, cy = read_tiff(out / "coord_x.tif"), read_tiff(out / "coord_y.tif")
+    yy, xx = np.mgrid[0:96, 0:128]
+    assert np.array_equal(cx, xx) and np.array_equal(cy, yy)
+    assert np.allclose(read_tiff(out / "sigma_x.tif"), 1 / np.sqrt(12))

@@ -150,7 +150,8 @@ def test_assembly_refuses_a_calibration_of_another_camera(rig, tmp_path: Path) -
     ("block", "words"),
     [
         ({"gray": {"axis": "x", "bits": 2, "cell_px": 8}}, "blocks[1].gray: 2 bits of 8 px cells cover 32 px, the projector has 64 along x"),
-        ({"gray": {"axis": "x", "bits": 3, "cell_px": 0}}, "blocks[1].gray.cell_px must be > 0, got 0"),
+        ({"gray": {"axis": "x", "bits": 3, "cell_px": 0}}, "blocks[1].gray.cell_px must be a finite number > 0, got 0.0"),
+        ({"phase": {"axis": "x", "period_px": float("nan"), "steps": 4}}, "blocks[1].phase.period_px must be a finite number > 0, got nan"),
     ],
 )
 def test_assembly_refuses_sequence_keys_out_of_range(rig, tmp_path: Path, block, words) -> None:
@@ -283,3 +284,62 @@ def test_real_kamino410_plane_session(tmp_path: Path) -> None:
         f = smooth_fit(dec[a].coord, region, 6)
         print(f"plane {a}: RMS {f.rms:.3f} px, p95 {f.p95:.3f} px over {f.pixels} px ({region.mean():.1%})")
         assert f.rms <= 1.5 and f.p95 <= 2.5, (a, f.rms, f.p95)
+
+
+def test_sequence_and_calibration_problems_are_listed_at_once(rig, tmp_path: Path) -> None:
+    caps, _, _ = rig
+    other = _write_calibration(tmp_path / "other.yml", 1280, 1024, 640, 512)
+    seq = tmp_path / "bad.yaml"
+    seq.write_text(yaml.safe_dump({**SEQUENCE, "blocks": [{"phase": {"axis": "x", "period_px": float("nan"), "steps": 4}}]}))
+    text = _refused(assemble_sl_session, caps, seq, tmp_path / "out", calibration=other)
+    assert f"{seq}: blocks[0].phase.period_px must be a finite number > 0, got nan" in text
+    assert f"{other}: calibrated for a 1280 x 1024 camera, the captures are 64 x 48" in text
+    assert not (tmp_path / "out").exists()
+
+
+def test_gray_code_only_session_with_skipped_frames(tmp_path: Path) -> None:
+    """OpenCV's Gray code with white and black, and two extra frames the rig also captured."""
+    seq = {"projector": {"width": 64, "height": 48}, "frames": "img_*.png",
+           "blocks": [{"skip": 2}, {"gray": {"axis": "x", "bits": 6, "cell_px": 1, "inverse": True}},
+                      {"gray": {"axis": "y", "bits": 6, "cell_px": 1, "inverse": True}}, "white", "black"]}
+    caps = tmp_path / "caps"
+    spec = _write_captures(caps, seq)
+    (tmp_path / "seq.yaml").write_text(yaml.safe_dump(seq))
+    s = load_sl_session(assemble_sl_session(caps, tmp_path / "seq.yaml", tmp_path / "out"))
+    assert len(s.captures) == 2 + 24 + 2 and isinstance(s.spec.blocks[0], C.SkipBlock)
+    dec = C.decode_sequence(s.read_captures(), s.spec)
+    yy, xx = np.mgrid[0:48, 0:64]
+    assert dec["x"].absolute and np.array_equal(dec["x"].coord, xx) and np.array_equal(dec["y"].coord, yy)
+
+
+def test_bmp_captures_decode_byte_identically_to_png(tmp_path: Path) -> None:
+    """A crop of kamino410's mugs (32 frames) as PNG, 8-bit grey BMP and 24-bit colour BMP."""
+    if not KAMINO.is_dir():
+        pytest.skip(f"no real captures at {KAMINO} (shared/ beside the clone)")
+    src = KAMINO / "object2"
+    folders = {k: tmp_path / k for k in ("png", "bmp", "bmp-colour")}
+    for name, f in folders.items():
+        f.mkdir()
+        (f / "config.xml").write_bytes((src / "config.xml").read_bytes())
+        for p in sorted(src.glob("pat*.png")):
+            im = cv2.imread(str(p), cv2.IMREAD_UNCHANGED)[1040:1200, 520:720]
+            if name == "bmp-colour":
+                im = cv2.merge([im, im, im])
+            cv2.imwrite(str(f / (p.stem + (".png" if name == "png" else ".bmp"))), im)
+    decoded = {}
+    for name, f in folders.items():
+        seq = tmp_path / f"{name}.yaml"
+        seq.write_text(yaml.safe_dump({"kamino410": {"config": "config.xml", "program": "phase_shifting"},
+                                       "frames": "pat*.png" if name == "png" else "pat*.bmp"}))
+        s = load_sl_session(assemble_sl_session(f, seq, tmp_path / f"s-{name}"), deep=True)
+        assert s.meta["camera"] == {"width": 200, "height": 160, "bit_depth": 8, "channels": 3 if name == "bmp-colour" else 1}
+        assert s.captures[0].suffix == (".png" if name == "png" else ".bmp")
+        decoded[name] = C.decode_sequence(s.read_captures(), s.spec)
+        glob = "pat*.png" if name == "png" else "pat*.bmp"
+        assert np.array_equal(np.stack(s.read_captures()), np.stack(C.read_captures(f, C.SequenceSpec(
+            s.spec.blocks, s.spec.projector_width, s.spec.projector_height, s.spec.projector_gamma, glob))))
+    assert decoded["png"]["x"].valid.mean() > 0.5
+    for name in ("bmp", "bmp-colour"):
+        for a in "xy":
+            assert np.array_equal(decoded[name][a].coord, decoded["png"][a].coord, equal_nan=True)
+            assert np.array_equal(decoded[name][a].reasons, decoded["png"][a].reasons)

@@ -10,7 +10,7 @@ from pathlib import Path
 
 
 def _cmd_check_sl(args: argparse.Namespace) -> int:
-    from huefringe.codecs import FlatBlock
+    from huefringe.codecs import FlatBlock, SkipBlock
     from huefringe.session import SessionError
     from huefringe.session import load_sl_session
 
@@ -21,8 +21,8 @@ def _cmd_check_sl(args: argparse.Namespace) -> int:
         for p in exc.problems:
             print(f"  - {p}")
         return 1
-    blocks = ", ".join(b.level if isinstance(b, FlatBlock) else f"{type(b).__name__.removesuffix('Block').lower()} {b.axis}"
-                       for b in s.spec.blocks)
+    blocks = ", ".join(b.level if isinstance(b, FlatBlock) else f"skip {b.frames}" if isinstance(b, SkipBlock)
+                       else f"{type(b).__name__.removesuffix('Block').lower()} {b.axis}" for b in s.spec.blocks)
     extras = []
     if s.calibration is not None:
         extras.append(f"calibration {s.calibration.relative_to(s.root)}")
@@ -218,19 +218,32 @@ huefringe SUBCOMMAND --help for each).
 
 
 def _cmd_decode(args: argparse.Namespace) -> int:
-    from huefringe.codecs import SequenceError
+    from huefringe.codecs import DecodeOptions, SequenceError
     from huefringe.codecs.output import decode_folder
+    from huefringe.settings import load_config
 
     try:
+        opts = DecodeOptions.from_config(load_config(*(args.configfile or [])))
+    except (OSError, KeyError, TypeError, ValueError) as exc:
+        print(f"REFUSED: --configfile {' '.join(args.configfile or [])}: cannot read the codecs block ({exc})", file=sys.stderr)
+        return 2
+    try:
         summary = decode_folder(args.captures, args.sequence, args.out, projector_gamma=args.projector_gamma,
-                                estimate_gamma=args.estimate_gamma)
+                                estimate_gamma=args.estimate_gamma, options=opts)
     except SequenceError as exc:
         print(f"REFUSED: {exc}", file=sys.stderr)
         return 2
-    axes = ", ".join(f"{a}: {v['valid_fraction']:.1%} valid, median u {v['median_sigma_px'] or float('nan'):.3f} px"
+    axes = ", ".join(f"{a}: {v['valid_fraction']:.1%} valid{'' if v['absolute'] else ' (relative: within a period)'}, "
+                     f"median u {v['median_sigma_px'] or float('nan'):.3f} px"
                      for a, v in summary["axes"].items())
-    print(f"OK: {args.out}: {summary['frames']} frames decoded in {summary['decode_seconds']:.1f} s "
-          f"(projector gamma {summary['projector']['gamma']:.3f}, {summary['projector']['gamma_source']}); {axes}")
+    text = (f"{args.out}: {summary['frames']} frames decoded in {summary['decode_seconds']:.1f} s "
+            f"(projector gamma {summary['projector']['gamma']:.3f}, {summary['projector']['gamma_source']}); {axes}")
+    few = [a for a, v in summary["axes"].items() if v["valid_fraction"] < opts.min_valid_fraction]
+    if few:
+        print(f"FAILED: {text}; axis {', '.join(few)} below codecs.min_valid_fraction {opts.min_valid_fraction:.1%} "
+              f"(reasons_<axis>.png and decode.json say which test dropped the pixels)", file=sys.stderr)
+        return 1
+    print(f"OK: {text}")
     return 0
 
 
@@ -421,13 +434,16 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--id", help="session id ([a-z0-9-]+; default the YAML's id, else OUT's name)")
     p.set_defaults(func=_cmd_sl_session)
 
-    p = sub.add_parser("decode", help="decode N-step / Gray-code / multi-period captures into projector coordinates; exit 2 if refused")
+    p = sub.add_parser("decode", help="decode N-step / Gray-code / multi-period captures into projector coordinates; "
+                                      "exit 2 if refused, 1 if an axis has fewer valid pixels than codecs.min_valid_fraction")
     p.add_argument("captures", help="folder of the captures (the sequence's frames glob, sorted by the number in their names)")
     p.add_argument("sequence", help="sequence YAML: projector, frames, blocks (phase, gray, white, black) or kamino410")
-    p.add_argument("out", help="new (or empty) folder for coord/sigma/modulation TIFFs, valid PNGs, quality.png, decode.json")
+    p.add_argument("out", help="new (or empty) folder for coord/sigma/modulation TIFFs, valid and reasons PNGs, quality.png, decode.json")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--projector-gamma", type=float, help="the projector's gamma (overrides the sequence's)")
     g.add_argument("--estimate-gamma", action="store_true", help="estimate the projector's gamma from the captures")
+    p.add_argument("--configfile", nargs="+", metavar="FILE", help="YAML files overriding the packaged defaults "
+                   "(the codecs block: validity thresholds, noise model), as snakemake --configfile")
     p.set_defaults(func=_cmd_decode)
     return parser
 

@@ -37,7 +37,7 @@ class GrayDecoded:
         Cell index ``j`` of the decoded bits (with ``use_bits`` < all bits: ``j >> dropped``).
     contrast : ndarray of float32
         Second smallest ``|pattern - reference|`` (DN) over the decoded bits (the smallest with a
-        single bit). Next to a cell edge one bit is always ambiguous and misreading it moves the
+        single bit, or with ``all_bits``). Next to a cell edge one bit is always ambiguous and misreading it moves the
         index by one cell, which a phase unwrapping absorbs; two unclear bits mean no code.
     valid : ndarray of bool
         ``contrast >= min_contrast``.
@@ -126,6 +126,7 @@ def decode_gray(
     inverse: ArrayLike | None = None,
     reference: ArrayLike | None = None,
     use_bits: int | None = None,
+    all_bits: bool = False,
 ) -> GrayDecoded:
     """Decode Gray-code captures, most significant bit first.
 
@@ -143,6 +144,9 @@ def decode_gray(
     use_bits : int, optional
         Decode only the ``use_bits`` most significant bits (index ``j >> (n_bits - use_bits)``);
         default all.
+    all_bits : bool
+        The contrast is the smallest ``|pattern - reference|`` over the decoded bits (every bit
+        must be clear, OpenCV's ``getProjPixel`` rule) instead of the second smallest.
 
     Returns
     -------
@@ -168,6 +172,6 @@ def decode_gray(
         ad = np.abs(d)
         np.minimum(lo2, np.maximum(lo1, ad), out=lo2)
         np.minimum(lo1, ad, out=lo1)
-    contrast = lo2 if m > 1 else lo1
+    contrast = lo2 if m > 1 and not all_bits else lo1
     index = gray_to_index(gray).astype(np.int32)
     return GrayDecoded(index=index, contrast=contrast, valid=contrast >= np.float32(min_contrast))

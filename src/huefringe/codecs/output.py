@@ -10,11 +10,16 @@
     Fringe amplitude of the axis' finest phase block (float32, camera DN).
 ``valid_<axis>.png``
     255 where valid.
+``reasons_<axis>.png``
+    8-bit grey: per pixel the bits of the validity tests that dropped it (0 where valid;
+    :class:`~huefringe.codecs.Reason`: 1 shadow, 2 low signal, 4 saturated, 8 Gray code,
+    16 fringe order, 32 outside the projector).
 ``quality.png``
     Coordinate, modulation and uncertainty maps side by side, one row per axis.
 ``decode.json``
-    The sequence, the projector gamma used (and how it was found), and per axis the valid
-    fraction and the median uncertainty.
+    The sequence, the projector gamma used (and how it was found), the thresholds, and per axis
+    whether it is absolute, the valid fraction, the fraction each reason dropped and the median
+    uncertainty.
 
 The folder is written beside OUT under a temporary name and renamed when complete.
 """
@@ -31,7 +36,7 @@ from typing import Any
 import numpy as np
 
 from huefringe.codecs.gamma import estimate_projector_gamma
-from huefringe.codecs.sequence import Decoded, DecodeOptions, SequenceError, decode_sequence, load_sequence, read_captures
+from huefringe.codecs.sequence import Decoded, DecodeOptions, Reason, SequenceError, decode_sequence, load_sequence, read_captures
 from huefringe.io import publish_dir, write_figure_png, write_json, write_png_rgb, write_tiff
 
 __all__ = ["decode_folder", "quality_figure"]
@@ -164,10 +169,12 @@ def decode_folder(
                       "gamma_source": gamma_source},
         "gamma_estimate": None if estimate is None else _finite(dataclasses.asdict(estimate)),
         "decode_seconds": round(seconds, 3),
+        "thresholds": dataclasses.asdict(opts),
         "axes": {
             a: {
                 "absolute": d.absolute,
                 "valid_fraction": float(d.valid.mean()),
+                "dropped_fraction": {r.name.lower(): float(((d.reasons & r) != 0).mean()) for r in Reason},
                 "median_sigma_px": float(np.nanmedian(d.sigma)) if d.valid.any() else None,
             }
             for a, d in decoded.items()
@@ -181,6 +188,7 @@ def decode_folder(
             write_tiff(tmp / f"sigma_{a}.tif", d.sigma)
             write_tiff(tmp / f"modulation_{a}.tif", d.modulation)
             write_png_rgb(tmp / f"valid_{a}.png", d.valid.astype(np.uint8) * 255)
+            write_png_rgb(tmp / f"reasons_{a}.png", d.reasons.astype(np.uint8))
         fig = quality_figure(decoded, f"{Path(captures).name}: {spec.n_frames} frames, projector gamma {spec.projector_gamma:.3f}")
         write_figure_png(fig, tmp / "quality.png", dpi=90)
         import matplotlib.pyplot as plt

@@ -17,6 +17,8 @@ Modules
 ``calibrate``
     Corner detection, projector corners by local homographies, the stereo calibration and its
     per-pose report.
+``decoded``
+    Decoded coordinates to triangulation inputs: relative axes refused, invalid pixels dropped.
 ``triangulation``
     Ray-plane and ray-ray triangulation with first-order uncertainty propagation.
 """
@@ -31,6 +33,7 @@ from huefringe.rig.calibrate import (
     detect_corners,
     projector_corners,
 )
+from huefringe.rig.decoded import RelativeCoordinateError, TriangulationInputs, relative_axes_problems, triangulation_inputs
 from huefringe.rig.filestorage import KEY_MAPS, CalibrationFileError, read_calibration, write_calibration
 from huefringe.rig.model import RigCalibration
 from huefringe.rig.triangulation import Triangulated, triangulate
@@ -41,12 +44,16 @@ __all__ = [
     "CalibrationFileError",
     "CalibrationReport",
     "PoseObservation",
+    "RelativeCoordinateError",
     "RigCalibration",
     "Triangulated",
+    "TriangulationInputs",
     "calibrate_rig",
     "detect_corners",
     "projector_corners",
     "read_calibration",
+    "relative_axes_problems",
     "triangulate",
+    "triangulation_inputs",
     "write_calibration",
 ]

@@ -39,11 +39,13 @@ def image_info(path: Path) -> ImageInfo:
             return _png_info(path)
         if suffix in (".tif", ".tiff"):
             return _tiff_info(path)
+        if suffix == ".bmp":
+            return _bmp_info(path)
     except SessionError:
         raise
     except Exception as exc:  # any parser failure is a bad file, reported as such
         raise SessionError.at(path, f"cannot read image header ({exc.__class__.__name__}: {exc})") from exc
-    raise SessionError.at(path, f"unsupported image type {suffix!r} (PNG or TIFF expected)")
+    raise SessionError.at(path, f"unsupported image type {suffix!r} (PNG, TIFF or BMP expected)")
 
 
 def _png_info(path: Path) -> ImageInfo:
@@ -61,6 +63,33 @@ def _png_info(path: Path) -> ImageInfo:
     if colour_type == 3:
         raise SessionError.at(path, "palette PNG; an RGB image is expected")
     return ImageInfo(width, height, depth, channels)
+
+
+def _bmp_info(path: Path) -> ImageInfo:
+    """A Windows bitmap's header (SLStudio, SLMaster write them): 8-bit palette (grey when every
+    palette entry is grey, else colour), 24-bit colour or 32-bit with alpha; uncompressed."""
+    with open(path, "rb") as f:
+        head = f.read(54)
+        if len(head) < 54 or head[:2] != b"BM":
+            raise SessionError.at(path, "not a BMP file (bad signature or header)")
+        offset, dib = struct.unpack("<II", head[10:18])
+        width, height, _, bpp, compression = struct.unpack("<iiHHI", head[18:34])
+        if compression not in (0, 3):
+            raise SessionError.at(path, f"compressed BMP (compression {compression}); an uncompressed bitmap is expected")
+        channels = {24: 3, 32: 4}.get(bpp, 0)
+        if bpp == 8:
+            used = struct.unpack("<I", head[46:50])[0] or 256
+            f.seek(14 + dib)
+            pal = np.frombuffer(f.read(4 * used), np.uint8).reshape(-1, 4)
+            channels = 1 if (pal[:, 0] == pal[:, 1]).all() and (pal[:, 1] == pal[:, 2]).all() else 3
+        elif channels == 0:
+            raise SessionError.at(path, f"{bpp}-bit BMP; 8-bit grey or 24-bit colour expected")
+        f.seek(0, 2)
+        size = f.tell()
+    end = offset + ((bpp * width + 31) // 32) * 4 * abs(height)
+    if end > size:
+        raise SessionError.at(path, f"truncated BMP (pixel data ends at byte {end}, file has {size})")
+    return ImageInfo(width, abs(height), 8, channels)
 
 
 def _tiff_info(path: Path) -> ImageInfo:

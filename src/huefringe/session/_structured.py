@@ -63,6 +63,9 @@ GROUND_TRUTH = "ground_truth"
 ASSEMBLY_KEYS = ("id", "calibration", "calibration_session", "poses", "board", "features", "provenance")
 """Keys of an assembly YAML that describe the session; every other key is the sequence's."""
 
+SL_IMAGE_SUFFIXES = (*IMAGE_SUFFIXES, ".bmp")
+"""Capture files of a structured-light session: PNG, TIFF and the BMP that SLStudio and SLMaster write."""
+
 _CAPTURE_RE = re.compile(r"^(\d{4})$")
 _NUM = re.compile(r"(\d+)")
 
@@ -146,7 +149,7 @@ def _sha256(path: Path) -> str:
 
 
 def _decode(path: Path) -> NDArray[np.number]:
-    try:  # OpenCV for PNG and TIFF alike: colour comes as B, G, R, as codecs.read_captures reads it
+    try:  # OpenCV for PNG, TIFF and BMP alike: colour comes as B, G, R, as codecs.read_captures reads it
         im = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     except Exception as exc:
         raise SessionError.at(path, f"cannot decode image ({exc.__class__.__name__}: {exc})") from None
@@ -171,7 +174,7 @@ def sequence_problems(spec: SequenceSpec, where: Path) -> list[Problem]:
                 problems.append(Problem(where, f"blocks[{i}].gray: {b.bits} bits of {b.cell_px:g} px cells cover "
                                                f"{2**b.bits * b.cell_px:g} px, the projector has {extent} along {b.axis}"))
         elif isinstance(b, PhaseBlock):
-            if b.period_px < 2:
+            if not b.period_px >= 2:
                 problems.append(Problem(where, f"blocks[{i}].phase.period_px {b.period_px:g} is below 2 projector px "
                                                "(no projector can show it)"))
             if not np.isfinite(b.origin_px):
@@ -249,8 +252,8 @@ def _numbered(folder: Path, n: int, problems: list[Problem]) -> list[Path]:
         if p.name.startswith("."):
             continue
         m = _CAPTURE_RE.match(p.stem)
-        if p.suffix.lower() not in IMAGE_SUFFIXES or not m:
-            problems.append(Problem(p, "unexpected file (NNNN.png or NNNN.tiff captures expected)"))
+        if p.suffix.lower() not in SL_IMAGE_SUFFIXES or not m:
+            problems.append(Problem(p, "unexpected file (NNNN.png, NNNN.tiff or NNNN.bmp captures expected)"))
         elif int(m.group(1)) in found:
             problems.append(Problem(p, f"the same capture is stored twice ({found[int(m.group(1))].name} and {p.name})"))
         elif int(m.group(1)) >= n:
@@ -414,12 +417,31 @@ def _sequence_files(folder: Path, spec: SequenceSpec, where: Path, problems: lis
     if len(files) != spec.n_frames:
         problems.append(Problem(folder, f"{len(files)} files match {spec.frames!r}, the sequence {where} has "
                                         f"{spec.n_frames} frames"))
-    bad = [p for p in files if p.suffix.lower() not in IMAGE_SUFFIXES]
-    problems += [Problem(p, "not a PNG or TIFF capture") for p in bad]
+    bad = [p for p in files if p.suffix.lower() not in SL_IMAGE_SUFFIXES]
+    problems += [Problem(p, "not a PNG, TIFF or BMP capture") for p in bad]
     for a, b in zip(files, files[1:], strict=False):
         if _frame_key(a)[0] == _frame_key(b)[0]:
             problems.append(Problem(b, f"has the same frame number as {a.name}: the order is ambiguous"))
     return files
+
+
+def _check_calibration(calib: Path | None, info: ImageInfo | None, problems: list[Problem]) -> None:
+    """The calibration an assembly stores: a FileStorage file of this camera (size from ``info``)."""
+    if calib is None:
+        return
+    if calib.suffix.lower() not in (".yml", ".yaml", ".xml", ".json"):
+        problems.append(Problem(calib, "an OpenCV FileStorage file (.yml, .yaml, .xml or .json) expected"))
+    elif info is not None:
+        problems += calibration_problems(calib, info.width, info.height)
+    elif not calib.is_file():
+        problems.append(Problem(calib, "missing calibration file"))
+    else:
+        from huefringe.rig.filestorage import CalibrationFileError, read_calibration
+
+        try:
+            read_calibration(calib)
+        except CalibrationFileError as exc:
+            problems.append(Problem(calib, str(exc).removeprefix(f"{calib}: ")))
 
 
 def _slug(name: str) -> str:
@@ -481,10 +503,12 @@ def assemble_sl_session(
     extra = {k: doc.pop(k) for k in ASSEMBLY_KEYS if k in doc}
     problems: list[Problem] = []
     try:
-        spec = sequence_from_mapping(doc, seq_yaml, captures)
+        spec: SequenceSpec | None = sequence_from_mapping(doc, seq_yaml, captures)
     except SequenceError as exc:
-        raise SessionError.at(seq_yaml, str(exc).removeprefix(f"{seq_yaml}: ")) from None
-    problems += sequence_problems(spec, seq_yaml)
+        problems.append(Problem(seq_yaml, str(exc).removeprefix(f"{seq_yaml}: ")))
+        spec = None
+    if spec is not None:
+        problems += sequence_problems(spec, seq_yaml)
     sid = session_id or extra.get("id") or _slug(out.name)
     if not isinstance(sid, str) or not re.fullmatch(r"[a-z0-9-]{1,120}", sid):
         problems.append(Problem(seq_yaml, f"id {sid!r} must match [a-z0-9-]+"))
@@ -498,6 +522,18 @@ def assemble_sl_session(
         problems.append(Problem(seq_yaml, "calibration and calibration_session both given: name one"))
     features = seq_yaml.parent / str(extra["features"]) if extra.get("features") else None
 
+    if spec is None:  # the sequence is refused: the calibration is still checked, against the first capture
+        glob = doc.get("frames") if isinstance(doc.get("frames"), str) and doc.get("frames") else "*.png"
+        first = sorted((p for p in captures.glob(glob) if p.suffix.lower() in SL_IMAGE_SUFFIXES), key=_frame_key)[:1] \
+            if captures.is_dir() else []
+        files, info = [], None
+        if first:
+            try:
+                info = image_info(first[0])
+            except SessionError:
+                info = None
+        _check_calibration(calib, info, problems)
+        raise SessionError(problems)
     files = _sequence_files(captures, spec, seq_yaml, problems)
     img_problems, info = _capture_problems(files, None, deep=True)
     problems += img_problems
@@ -518,13 +554,7 @@ def assemble_sl_session(
                 pose_files[d.name] = fs
             if not pose_files:
                 problems.append(Problem(poses_dir, "holds no pose folder"))
-    if calib is not None:
-        if calib.suffix.lower() not in (".yml", ".yaml", ".xml", ".json"):
-            problems.append(Problem(calib, "an OpenCV FileStorage file (.yml, .yaml, .xml or .json) expected"))
-        elif info is not None:
-            problems += calibration_problems(calib, info.width, info.height)
-        elif not calib.is_file():
-            problems.append(Problem(calib, "missing calibration file"))
+    _check_calibration(calib, info, problems)
     if features is not None and info is not None:
         problems += load_features(features, info.width, info.height)[1]
     if problems or info is None:

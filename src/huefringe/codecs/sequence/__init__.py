@@ -16,10 +16,17 @@ covering the projector, the number-theoretic search over the periods decides. Ev
 of the axis is then unwrapped against the finest stage and the results are averaged with
 weights ``1 / u**2``: the coordinate's uncertainty is that of the weighted mean.
 
-A pixel is valid when every phase block's modulation reaches ``min_modulation_dn`` and none of
-its frames is clipped at full scale, the decoded Gray bits (all but one, next to a cell edge)
-differ from their reference by ``min_gray_contrast_dn`` and every order decision kept a margin
-below ``order_tolerance`` (a fraction of the period; 0.5 is a coin toss).
+A Gray code alone decodes to the centre of each pixel's cell (standard uncertainty
+``cell_px / sqrt(12)``) where every bit is clear of its threshold. An axis with one period, or
+periods that repeat within the projector (:func:`periods_cover`), is relative
+(``Decoded.absolute`` False) and never triangulated.
+
+A pixel is valid when every test of :class:`Reason` passes (the ``codecs`` block of the
+configuration): direct projector light (no shadow), every phase block's modulation above
+``min_modulation_dn`` and ``min_snr`` times its own noise, no saturated phase frame, a readable
+Gray code, every order decision with a margin below ``order_tolerance`` (a fraction of the
+period; 0.5 is a coin toss), the coordinate inside the projector. ``Decoded.reasons`` holds the
+bits of the failed tests per pixel.
 
 YAML form (:func:`load_sequence`), blocks in capture order::
 
@@ -28,7 +35,8 @@ YAML form (:func:`load_sequence`), blocks in capture order::
     blocks:
       - phase: {axis: x, period_px: 66.6667, shifts_deg: [-120, 0, 120]}
       - phase: {axis: x, period_px: 100, steps: 4, encoding_gamma: 1.0, origin_px: 0}
-      - gray: {axis: x, cells: 20, cell_px: 100, inverse: true}
+      - gray: {axis: x, bits: 5, cell_px: 100, inverse: true}   # or cells: 20; inverse defaults to true
+      - skip: 1                 # a frame captured but not used
       - white
       - black
 
@@ -41,6 +49,10 @@ from __future__ import annotations
 from ._spec import (  # noqa: F401
     Axis,
     SequenceError,
+    Reason,
+    SkipBlock,
+    axis_is_absolute,
+    periods_cover,
     PhaseBlock,
     GrayBlock,
     FlatBlock,
@@ -65,6 +77,8 @@ from ._decode import (  # noqa: F401
     generate,
     _as_stack,
     _gray_reference,
+    _gray_threshold,
+    _direct_light,
     _stages,
     _decode_axis,
     decode_sequence,
@@ -76,8 +90,11 @@ __all__ = [
     "FlatBlock",
     "GrayBlock",
     "PhaseBlock",
+    "Reason",
     "SequenceError",
     "SequenceSpec",
+    "SkipBlock",
+    "axis_is_absolute",
     "decode_sequence",
     "generate",
     "kamino410_sequence",
@@ -90,6 +107,6 @@ __all__ = [
 
 # the classes are re-exported by huefringe.codecs too: named after this module, as they are
 # imported, they have one canonical name in the API reference
-for _cls in (SequenceError, PhaseBlock, GrayBlock, FlatBlock, SequenceSpec, DecodeOptions, Decoded):
+for _cls in (SequenceError, Reason, PhaseBlock, GrayBlock, FlatBlock, SkipBlock, SequenceSpec, DecodeOptions, Decoded):
     _cls.__module__ = __name__
 del _cls

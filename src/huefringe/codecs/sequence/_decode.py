@@ -12,7 +12,20 @@ from numpy.typing import NDArray
 from huefringe.codecs.graycode import decode_gray, index_to_gray
 from huefringe.codecs.nstep import TWO_PI, NoiseModel, wrapped_phase
 from huefringe.codecs.temporal import heterodyne, number_theoretic, orders_from_reference
-from ._spec import Axis, DecodeOptions, Decoded, FlatBlock, GrayBlock, PhaseBlock, SequenceError, SequenceSpec, _check_spec
+from ._spec import (
+    Axis,
+    DecodeOptions,
+    Decoded,
+    FlatBlock,
+    GrayBlock,
+    PhaseBlock,
+    Reason,
+    SequenceError,
+    SequenceSpec,
+    SkipBlock,
+    _check_spec,
+    periods_cover,
+)
 
 
 _NUM = re.compile(r"(\d+)")
@@ -26,7 +39,8 @@ def _frame_key(p: Path) -> tuple[int, str]:
 def read_captures(folder: str | Path, spec: SequenceSpec) -> list[NDArray[np.number]]:
     """The captures of ``spec.frames`` in ``folder``, grayscale, sorted by the last number in their names.
 
-    Colour captures are converted to grayscale (OpenCV's BGR -> gray weights).
+    Any format OpenCV reads (PNG, TIFF, BMP, ...); colour captures are converted to grayscale
+    (OpenCV's BGR -> gray weights).
 
     Raises
     ------
@@ -67,6 +81,8 @@ def read_captures(folder: str | Path, spec: SequenceSpec) -> list[NDArray[np.num
 def generate(spec: SequenceSpec, dtype: type[np.integer] = np.uint8) -> NDArray[np.integer]:
     """The projector images of ``spec`` in capture order, shape (n_frames, height, width).
 
+    A ``skip`` block's frames are not huefringe's to show: they come out black.
+
     Examples
     --------
     >>> spec = SequenceSpec((PhaseBlock("x", 16.0, tuple(equal_shifts(4))), FlatBlock("white")), 64, 8)
@@ -80,6 +96,8 @@ def generate(spec: SequenceSpec, dtype: type[np.integer] = np.uint8) -> NDArray[
     for b, sl in spec.slices():
         if isinstance(b, FlatBlock):
             out[sl] = full if b.level == "white" else 0
+        elif isinstance(b, SkipBlock):
+            out[sl] = 0
         elif isinstance(b, PhaseBlock):
             u = coords[b.axis]
             for i, d in zip(range(sl.start, sl.stop), b.shifts_rad, strict=True):
@@ -114,8 +132,19 @@ def _as_stack(images: list[NDArray[np.number]] | NDArray[np.number], spec: Seque
     return stack, full
 
 
+def _gray_threshold(stack: NDArray, spec: SequenceSpec, block: GrayBlock, flats: dict[str, NDArray]) -> NDArray[np.float32] | None:
+    """What a Gray bit is read against without inverses: the white/black mean, else the mean of the
+    same axis' phase-shift frames; None with inverses."""
+    if block.inverse:
+        return None
+    if "white" in flats and "black" in flats:
+        return 0.5 * (flats["white"].astype(np.float32) + flats["black"].astype(np.float32))
+    frames = [stack[sl] for b, sl in spec.slices() if isinstance(b, PhaseBlock) and b.axis == block.axis]
+    return np.mean(np.concatenate(frames).astype(np.float32), axis=0)
+
+
 def _gray_reference(
-    stack: NDArray, block: GrayBlock, sl: slice, flats: dict[str, NDArray], longest: float, cells: int, opts: DecodeOptions, scale: float
+    stack: NDArray, block: GrayBlock, sl: slice, threshold: NDArray | None, longest: float, cells: int, opts: DecodeOptions, scale: float
 ) -> tuple[NDArray[np.float64], NDArray[np.bool_], float]:
     """The Gray code's cell-centre coordinate, decoded to the bits a period ``longest`` needs."""
     drop = 0
@@ -123,15 +152,31 @@ def _gray_reference(
         drop += 1
     use = block.bits - drop
     frames = stack[sl]
-    if block.inverse:
+    if threshold is None:
         dec = decode_gray(frames[0::2], opts.min_gray_contrast_dn * scale, inverse=frames[1::2], use_bits=use)
     else:
-        ref = 0.5 * (flats["white"].astype(np.float32) + flats["black"].astype(np.float32))
-        dec = decode_gray(frames, opts.min_gray_contrast_dn * scale, reference=ref, use_bits=use)
+        dec = decode_gray(frames, opts.min_gray_contrast_dn * scale, reference=threshold, use_bits=use)
     cell = block.cell_px * 2**drop
     n_eff = -(-cells // 2**drop)
     centre = dec.index * cell + 0.5 * (cell - 1.0) if cell >= 1 else (dec.index + 0.5) * cell
     return centre.astype(np.float64), dec.valid & (dec.index < n_eff), cell
+
+
+def _direct_light(stack: NDArray, spec: SequenceSpec, axis: Axis, flats: dict[str, NDArray], moduli: list[NDArray]) -> NDArray[np.float32]:
+    """The direct projector light a pixel receives (DN): white - black; without them the median
+    ``|pattern - inverse|`` of the axis' Gray code's four coarsest bits; else twice the largest
+    phase-block modulation (the fringe's peak-to-peak)."""
+    if "white" in flats and "black" in flats:
+        return flats["white"].astype(np.float32) - flats["black"].astype(np.float32)
+    for b, sl in spec.slices():
+        if isinstance(b, GrayBlock) and b.axis == axis and b.inverse:
+            f = stack[sl][: 2 * min(4, b.bits)].astype(np.float32)
+            return np.median(np.abs(f[0::2] - f[1::2]), axis=0).astype(np.float32)
+    return (2.0 * np.max(moduli, axis=0)).astype(np.float32)
+
+
+def _flag(reasons: NDArray[np.uint8], mask: NDArray[np.bool_], reason: Reason) -> None:
+    reasons[mask] |= np.uint8(reason)
 
 
 def _stages(periods: list[float]) -> list[tuple[float, tuple[int, ...]]]:
@@ -153,17 +198,83 @@ def _decode_axis(
     stack: NDArray, spec: SequenceSpec, axis: Axis, flats: dict[str, NDArray], noise: NoiseModel, opts: DecodeOptions, full: float
 ) -> Decoded:
     scale = full / 255.0
+    shape = stack.shape[1:]
+    reasons = np.zeros(shape, np.uint8)
+    extent = spec.extent(axis)
     blocks = [(b, sl) for b, sl in spec.slices() if isinstance(b, PhaseBlock) and b.axis == axis]
+    gray = [(b, sl) for b, sl in spec.slices() if isinstance(b, GrayBlock) and b.axis == axis]
     phases = [wrapped_phase(stack[sl], b.shifts_rad, noise, gamma=b.encoding_gamma * spec.projector_gamma) for b, sl in blocks]
+
+    # the projector's shadow, the signal against the pixel's own noise, saturation
+    direct = _direct_light(stack, spec, axis, flats, [p.modulation for p in phases])
+    _flag(reasons, ~(direct >= opts.min_direct_dn * scale), Reason.SHADOW)
+    for p in phases:
+        if not {"white", "black"} <= set(flats):
+            _flag(reasons, ~(p.modulation >= opts.min_fringe_contrast * p.offset), Reason.SHADOW)
+        low = ~(p.modulation >= opts.min_modulation_dn * scale)
+        if opts.min_snr > 0:
+            low |= ~(p.sigma <= 1.0 / opts.min_snr)
+        _flag(reasons, low, Reason.LOW_SIGNAL)
+    for _, sl in blocks:  # a clipped frame is no sinusoid
+        _flag(reasons, stack[sl].max(axis=0) >= opts.saturation_dn * scale, Reason.SATURATED)
+
+    if not blocks:
+        coord, sigma, modulation, margin = _gray_only(stack, spec, gray[0], flats, opts, scale, reasons)
+        absolute = True
+    else:
+        coord, sigma, margin, absolute = _phase_axis(stack, spec, axis, blocks, phases, gray, flats, opts, scale, reasons)
+        modulation = phases[int(np.argmin([b.period_px for b, _ in blocks]))].modulation
+
+    _flag(reasons, ~(margin < opts.order_tolerance) | ~np.isfinite(coord) | ~np.isfinite(sigma), Reason.ORDER)
+    if absolute:
+        with np.errstate(invalid="ignore"):
+            _flag(reasons, (coord < -0.5) | (coord > extent - 0.5), Reason.OUTSIDE)
+    valid = reasons == 0
+    return Decoded(
+        axis=axis,
+        coord=np.where(valid, coord, np.nan),
+        sigma=np.where(valid, sigma, np.nan),
+        modulation=modulation.astype(np.float32),
+        valid=valid,
+        order_margin=margin.astype(np.float32),
+        absolute=absolute,
+        reasons=reasons,
+        phases=tuple(phases),
+    )
+
+
+def _gray_only(
+    stack: NDArray, spec: SequenceSpec, gray: tuple[GrayBlock, slice], flats: dict[str, NDArray], opts: DecodeOptions,
+    scale: float, reasons: NDArray[np.uint8],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float32], NDArray[np.float64]]:
+    """A Gray-code-only axis: the decoded cell's centre, every bit clear, ``cell_px / sqrt(12)``."""
+    gb, sl = gray
+    frames = stack[sl]
+    thr = _gray_threshold(stack, spec, gb, flats)
+    lim = opts.min_gray_contrast_dn * scale
+    if thr is None:
+        dec = decode_gray(frames[0::2], lim, inverse=frames[1::2], all_bits=True)
+    else:
+        dec = decode_gray(frames, lim, reference=thr, all_bits=True)
+    cells = int(np.ceil(spec.extent(gb.axis) / gb.cell_px))
+    _flag(reasons, ~dec.valid | (dec.index >= cells), Reason.GRAY)
+    c = gb.cell_px
+    coord = (dec.index * c + 0.5 * (c - 1.0) if c >= 1 else (dec.index + 0.5) * c).astype(np.float64)
+    sigma = np.full(coord.shape, c / np.sqrt(12.0))
+    return coord, sigma, dec.contrast, np.zeros(coord.shape)
+
+
+def _phase_axis(
+    stack: NDArray, spec: SequenceSpec, axis: Axis, blocks: list[tuple[PhaseBlock, slice]], phases: list,
+    gray: list[tuple[GrayBlock, slice]], flats: dict[str, NDArray], opts: DecodeOptions, scale: float,
+    reasons: NDArray[np.uint8],
+) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], bool]:
+    """An axis with phase blocks: orders from the Gray code, the beats or the number-theoretic
+    search, every block unwrapped and averaged with weights ``1 / u**2``."""
     periods = [b.period_px for b, _ in blocks]
     # wrapped coordinates u mod P (origins folded in) and their standard uncertainties (px)
     wraps = [np.mod(b.origin_px + p.phase * (b.period_px / TWO_PI), b.period_px) for (b, _), p in zip(blocks, phases, strict=True)]
     sig = [p.sigma.astype(np.float64) * (b.period_px / TWO_PI) for (b, _), p in zip(blocks, phases, strict=True)]
-    valid = np.ones(stack.shape[1:], bool)
-    for p in phases:
-        valid &= p.modulation >= opts.min_modulation_dn * scale
-    for _, sl in blocks:  # a clipped frame is no sinusoid
-        valid &= stack[sl].max(axis=0) < full
     margin = np.zeros(stack.shape[1:], np.float64)
     extent = spec.extent(axis)
 
@@ -184,17 +295,16 @@ def _decode_axis(
         w, _ = heterodyne(beat_w[two[0][1]], two[0][0], beat_w[two[1][1]], two[1][0])
         return w
 
-    gray = [(b, sl) for b, sl in spec.slices() if isinstance(b, GrayBlock) and b.axis == axis]
     absolute = True
     ref: NDArray[np.float64] | None = None
     if gray:
         gb, gsl = gray[0]
         cells = int(np.ceil(extent / gb.cell_px))
-        full_cell = gb.cell_px
         # start at the finest stage the full Gray code resolves with room to spare, else the coarsest
-        start = next((i for i in range(len(stages) - 1, -1, -1) if stages[i][0] >= 3.0 * full_cell), 0)
-        ref, gvalid, _ = _gray_reference(stack, gb, gsl, flats, stages[start][0], cells, opts, scale)
-        valid &= gvalid
+        start = next((i for i in range(len(stages) - 1, -1, -1) if stages[i][0] >= 3.0 * gb.cell_px), 0)
+        thr = _gray_threshold(stack, spec, gb, flats)
+        ref, gvalid, _ = _gray_reference(stack, gb, gsl, thr, stages[start][0], cells, opts, scale)
+        _flag(reasons, ~gvalid, Reason.GRAY)
         chain = stages[start:]
     elif stages[0][0] >= extent:
         ref = stage_wrap(*stages[0])
@@ -205,6 +315,7 @@ def _decode_axis(
         ref, m = number_theoretic([wraps[i] for i in idx], uniq, [sig[i] for i in idx], extent)
         margin = np.maximum(margin, m)
         chain = []
+        absolute = periods_cover(uniq, extent)  # else known only modulo the periods' repeat
     else:
         absolute = False
         chain = []
@@ -225,21 +336,7 @@ def _decode_axis(
     wsum = np.sum(inv, axis=0)
     coord = np.sum([c * i for c, i in zip(coords, inv, strict=True)], axis=0) / wsum
     sigma = 1.0 / np.sqrt(wsum)
-    valid &= margin < opts.order_tolerance
-    valid &= np.isfinite(coord) & np.isfinite(sigma)
-    coord = np.where(valid, coord, np.nan)
-    sigma = np.where(valid, sigma, np.nan)
-    finest = int(np.argmin(periods))
-    return Decoded(
-        axis=axis,
-        coord=coord,
-        sigma=sigma,
-        modulation=phases[finest].modulation,
-        valid=valid,
-        order_margin=margin.astype(np.float32),
-        absolute=absolute,
-        phases=tuple(phases),
-    )
+    return coord, sigma, margin, absolute
 
 
 def decode_sequence(
@@ -261,7 +358,8 @@ def decode_sequence(
     Returns
     -------
     dict
-        ``{"x": Decoded, "y": Decoded}`` for the axes the sequence encodes.
+        ``{"x": Decoded, "y": Decoded}`` for the axes the sequence encodes; each pixel's
+        :attr:`~Decoded.reasons` say which validity test (:class:`Reason`) dropped it.
 
     Raises
     ------

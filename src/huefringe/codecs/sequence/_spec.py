@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import enum
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any, Literal
@@ -20,6 +21,38 @@ Axis = Literal["x", "y"]
 
 class SequenceError(ValueError):
     """A sequence description or a folder of captures that cannot be decoded (names the file)."""
+
+
+class Reason(enum.IntFlag):
+    """Why a decoded pixel is not valid: the bits of :attr:`Decoded.reasons` (0 = valid).
+
+    ``SHADOW``
+        No direct projector light: the white - black difference (without white/black frames:
+        the Gray code's pattern - inverse difference, else twice the phase blocks' modulation)
+        below ``min_direct_dn``, or, without white/black frames, a phase block's modulation below
+        ``min_fringe_contrast`` times its mean.
+    ``LOW_SIGNAL``
+        A phase block's modulation below ``min_modulation_dn`` or below ``min_snr`` times its own
+        standard uncertainty (from the pixel's noise: ``1 / sigma_phase``).
+    ``SATURATED``
+        A phase frame at or above ``saturation_dn``.
+    ``GRAY``
+        The Gray code unreadable: a bit closer to its threshold than ``min_gray_contrast_dn``
+        (all bits but one with a phase block to absorb a one-cell miss, every bit without), or a
+        cell beyond the code.
+    ``ORDER``
+        A fringe-order decision missed its integer by ``order_tolerance`` or more (an unwrapping
+        failure), or the coordinate is not finite.
+    ``OUTSIDE``
+        The absolute coordinate lies outside the projector.
+    """
+
+    SHADOW = 1
+    LOW_SIGNAL = 2
+    SATURATED = 4
+    GRAY = 8
+    ORDER = 16
+    OUTSIDE = 32
 
 
 @dataclass(frozen=True)
@@ -45,9 +78,10 @@ class PhaseBlock:
 class GrayBlock:
     """A Gray code along one axis: ``bits`` patterns, MSB first, cells ``cell_px`` wide.
 
-    Projector pixel ``u`` lies in cell ``floor(u / cell_px)``. With ``inverse`` each pattern is
-    followed by its inverse (OpenCV's layout); without, bits are read against the mean of the
-    sequence's white and black frames.
+    Projector pixel ``u`` lies in cell ``floor(u / cell_px)``. With ``inverse`` (the default)
+    each pattern is followed by its inverse (OpenCV's layout); without, bits are read against the
+    mean of the sequence's white and black frames, or, without those, against the mean of the
+    same axis' phase-shift frames.
     """
 
     axis: Axis
@@ -61,6 +95,17 @@ class GrayBlock:
 
 
 @dataclass(frozen=True)
+class SkipBlock:
+    """Frames captured but not used (a colour frame, hue bands, a rig's own extras): ``frames`` of them."""
+
+    frames: int
+
+    @property
+    def n_frames(self) -> int:
+        return self.frames
+
+
+@dataclass(frozen=True)
 class FlatBlock:
     """A uniform white or black projector image."""
 
@@ -71,7 +116,7 @@ class FlatBlock:
         return 1
 
 
-Block = PhaseBlock | GrayBlock | FlatBlock
+Block = PhaseBlock | GrayBlock | FlatBlock | SkipBlock
 
 
 @dataclass(frozen=True)
@@ -121,13 +166,23 @@ class SequenceSpec:
 
 @dataclass(frozen=True)
 class DecodeOptions:
-    """Thresholds and the camera noise model of :func:`decode_sequence` (``codecs`` in the configuration)."""
+    """Thresholds and the camera noise model of :func:`decode_sequence` (``codecs`` in the configuration).
+
+    DN values are on an 8-bit scale (times 257 for 16-bit captures); :class:`Reason` says which
+    test each threshold drives. ``min_valid_fraction`` is the smallest valid fraction of an axis
+    with which ``huefringe decode`` ends OK.
+    """
 
     min_modulation_dn: float
     min_gray_contrast_dn: float
     order_tolerance: float
     read_noise_dn: float
     full_well_e: float | None
+    min_direct_dn: float = 0.0
+    min_fringe_contrast: float = 0.0
+    min_snr: float = 0.0
+    saturation_dn: float = 255.0
+    min_valid_fraction: float = 0.0
 
     @classmethod
     def from_config(cls, cfg: dict[str, Any] | None = None) -> DecodeOptions:
@@ -143,6 +198,11 @@ class DecodeOptions:
             order_tolerance=float(c["order_tolerance"]),
             read_noise_dn=float(c["noise"]["read_dn"]),
             full_well_e=None if c["noise"]["full_well_e"] is None else float(c["noise"]["full_well_e"]),
+            min_direct_dn=float(c.get("min_direct_dn", 0.0)),
+            min_fringe_contrast=float(c.get("min_fringe_contrast", 0.0)),
+            min_snr=float(c.get("min_snr", 0.0)),
+            saturation_dn=float(c.get("saturation_dn", 255.0)),
+            min_valid_fraction=float(c.get("min_valid_fraction", 0.0)),
         )
 
     def noise(self, full_scale_dn: float) -> NoiseModel:
@@ -163,14 +223,20 @@ class Decoded:
         Relative to the block's origin within one period where ``absolute`` is False.
     sigma : ndarray of float64
         Its standard uncertainty (projector px) from the frames' noise; NaN where not valid.
+        A Gray-code-only axis gives the centre of the decoded cell with ``cell_px / sqrt(12)``
+        (uniform quantisation).
     modulation : ndarray of float32
-        Fringe amplitude (camera DN) of the axis' finest phase block: the data-quality map.
+        Fringe amplitude (camera DN) of the axis' finest phase block: the data-quality map; on a
+        Gray-code-only axis the code's contrast (smallest ``|pattern - reference|`` over its bits).
     valid : ndarray of bool
-        Modulation, no clipped frame, Gray contrast and order margins all passed.
+        ``reasons == 0``: every test of :class:`Reason` passed.
     order_margin : ndarray of float32
         Largest fraction of a period by which an order decision missed its integer (0 .. 0.5).
     absolute : bool
-        False when the sequence carries nothing beyond one period (a lone phase block).
+        False when the sequence carries nothing beyond one period (a lone phase block): such a
+        coordinate is never triangulated (:func:`huefringe.rig.decoded.triangulation_inputs`).
+    reasons : ndarray of uint8
+        Per pixel, the :class:`Reason` bits of every test that failed (0 where valid).
     phases : tuple of WrappedPhase
         Each phase block of the axis, in capture order.
     """
@@ -182,6 +248,7 @@ class Decoded:
     valid: NDArray[np.bool_]
     order_margin: NDArray[np.float32]
     absolute: bool
+    reasons: NDArray[np.uint8] = field(repr=False, default_factory=lambda: np.zeros((0, 0), np.uint8))
     phases: tuple[WrappedPhase, ...] = field(repr=False, default=())
 
 
@@ -249,8 +316,9 @@ def _phase_block(d: Any, where: str, problems: list[str]) -> PhaseBlock | None:
     if axis not in ("x", "y"):
         problems.append(f"{where}: axis must be x (projector columns) or y (rows), got {axis!r}")
     period = _float(d.get("period_px"), f"{where}.period_px", problems)
-    if period is not None and period <= 0:
-        problems.append(f"{where}.period_px must be > 0, got {period}")
+    if period is not None and not (np.isfinite(period) and period > 0):
+        problems.append(f"{where}.period_px must be a finite number > 0, got {period}")
+        period = None
     if ("steps" in d) == ("shifts_deg" in d):
         problems.append(f"{where}: give exactly one of steps (equal shifts 2 pi n / N) or shifts_deg")
         shifts = None
@@ -274,8 +342,12 @@ def _phase_block(d: Any, where: str, problems: list[str]) -> PhaseBlock | None:
                 problems.append(f"{where}.shifts_deg: {exc}")
     eg = _float(d.get("encoding_gamma", 1.0), f"{where}.encoding_gamma", problems)
     origin = _float(d.get("origin_px", 0.0), f"{where}.origin_px", problems)
-    if eg is not None and eg <= 0:
-        problems.append(f"{where}.encoding_gamma must be > 0, got {eg}")
+    if eg is not None and not (np.isfinite(eg) and eg > 0):
+        problems.append(f"{where}.encoding_gamma must be a finite number > 0, got {eg}")
+        eg = None
+    if origin is not None and not np.isfinite(origin):
+        problems.append(f"{where}.origin_px must be finite, got {origin}")
+        origin = None
     if axis not in ("x", "y") or period is None or shifts is None or eg is None or origin is None:
         return None
     return PhaseBlock(axis, period, shifts, eg, origin)
@@ -302,6 +374,9 @@ def _gray_block(d: Any, where: str, problems: list[str]) -> GrayBlock | None:
         else:
             bits = bits_for(v) if "cells" in d else v
     cell = _float(d.get("cell_px", 1.0), f"{where}.cell_px", problems)
+    if cell is not None and not (np.isfinite(cell) and cell > 0):
+        problems.append(f"{where}.cell_px must be a finite number > 0, got {cell}")
+        cell = None
     inverse = d.get("inverse", True)
     if not isinstance(inverse, bool):
         problems.append(f"{where}.inverse must be true or false, got {inverse!r}")
@@ -378,7 +453,7 @@ def sequence_from_mapping(doc: Any, path: str | Path, base: str | Path) -> Seque
     raw = doc.get("blocks")
     blocks: list[Block] = []
     if not isinstance(raw, list) or not raw:
-        problems.append("blocks: expected a non-empty list of phase, gray, white, black")
+        problems.append("blocks: expected a non-empty list of phase, gray, skip, white, black")
         raw = []
     for i, item in enumerate(raw):
         where = f"blocks[{i}]"
@@ -390,8 +465,14 @@ def sequence_from_mapping(doc: Any, path: str | Path, base: str | Path) -> Seque
         elif isinstance(item, dict) and len(item) == 1 and "gray" in item:
             b = _gray_block(item["gray"], f"{where}.gray", problems)
             blocks.append(b) if b else None
+        elif isinstance(item, dict) and len(item) == 1 and "skip" in item:
+            n = item["skip"]
+            if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+                problems.append(f"{where}.skip: the number of frames to skip, an integer >= 1, got {n!r}")
+            else:
+                blocks.append(SkipBlock(n))
         else:
-            problems.append(f"{where}: expected phase: {{...}}, gray: {{...}}, white or black, got {item!r}")
+            problems.append(f"{where}: expected phase: {{...}}, gray: {{...}}, skip: N, white or black, got {item!r}")
     if not problems and not any(isinstance(b, PhaseBlock | GrayBlock) for b in blocks):
         problems.append("blocks: no phase or gray block: nothing to decode")
     if problems:
@@ -407,17 +488,65 @@ def sequence_from_mapping(doc: Any, path: str | Path, base: str | Path) -> Seque
 def _check_spec(spec: SequenceSpec) -> None:
     """Refuse a spec that cannot be decoded (all problems at once)."""
     problems = []
-    flats = [b.level for b in spec.blocks if isinstance(b, FlatBlock)]
-    needs_flats = any(isinstance(b, GrayBlock) and not b.inverse for b in spec.blocks)
-    if needs_flats and not ({"white", "black"} <= set(flats)):
-        problems.append("a Gray code without inverses needs a white and a black frame")
+    flats = {b.level for b in spec.blocks if isinstance(b, FlatBlock)}
     for axis in spec.axes():
-        if not any(isinstance(b, PhaseBlock) and b.axis == axis for b in spec.blocks):
-            problems.append(f"axis {axis}: a Gray code without a phase block (decode it with decode_gray)")
-        if sum(isinstance(b, GrayBlock) and b.axis == axis for b in spec.blocks) > 1:
+        grays = [b for b in spec.blocks if isinstance(b, GrayBlock) and b.axis == axis]
+        has_phase = any(isinstance(b, PhaseBlock) and b.axis == axis for b in spec.blocks)
+        if len(grays) > 1:
             problems.append(f"axis {axis}: more than one Gray block")
+        if any(not g.inverse for g in grays) and not {"white", "black"} <= flats and not has_phase:
+            problems.append(f"axis {axis}: a Gray code without inverses is read against the white and black "
+                            "frames' mean or the same axis' phase frames' mean; the sequence has neither")
     if problems:
         raise SequenceError("; ".join(problems))
+
+
+def axis_is_absolute(spec: SequenceSpec, axis: Axis) -> bool:
+    """Whether ``spec`` decodes an absolute coordinate along ``axis`` (a Gray code, a period or beat
+    covering the projector, or two distinct periods), as :func:`decode_sequence` does.
+
+    Examples
+    --------
+    >>> d = tuple(equal_shifts(4))
+    >>> axis_is_absolute(SequenceSpec((PhaseBlock("x", 16.0, d),), 64, 8), "x")
+    False
+    >>> axis_is_absolute(SequenceSpec((PhaseBlock("x", 16.0, d), PhaseBlock("x", 20.0, d)), 64, 8), "x")
+    True
+    """
+    if any(isinstance(b, GrayBlock) and b.axis == axis for b in spec.blocks):
+        return True
+    periods = sorted({b.period_px for b in spec.blocks if isinstance(b, PhaseBlock) and b.axis == axis}, reverse=True)
+    if not periods:
+        return False
+    if periods[0] >= spec.extent(axis):
+        return True
+    if len(periods) >= 2:
+        from huefringe.codecs.sequence._decode import _stages
+
+        return _stages(periods)[0][0] >= spec.extent(axis) or periods_cover(periods, spec.extent(axis))
+    return False
+
+
+def periods_cover(periods: list[float], extent: float, separation: float = 0.05) -> bool:
+    """Whether several periods tell every coordinate in ``[0, extent)`` from every other.
+
+    Two coordinates ``D`` apart (``D`` a multiple of the finest period, up to ``extent`` less half
+    that period) look alike to the number-theoretic search unless some period sees them at least
+    ``separation`` of itself apart; 18 and 20 px, for instance, repeat every 180 px.
+
+    Examples
+    --------
+    >>> periods_cover([18.0, 20.0], 1024), periods_cover([20.0, 23.0, 29.0], 1024)
+    (False, True)
+    """
+    p0 = min(periods)
+    k = 1
+    while (d := k * p0) <= extent - 0.5 * p0:
+        k += 1
+        worst = max(abs(d / p - np.round(d / p)) for p in periods)
+        if worst < separation:
+            return False
+    return True
 
 
 def sequence_to_mapping(spec: SequenceSpec) -> dict[str, Any]:
@@ -434,6 +563,8 @@ def sequence_to_mapping(spec: SequenceSpec) -> dict[str, Any]:
     for b in spec.blocks:
         if isinstance(b, FlatBlock):
             blocks.append(b.level)
+        elif isinstance(b, SkipBlock):
+            blocks.append({"skip": int(b.frames)})
         elif isinstance(b, PhaseBlock):
             blocks.append({"phase": {"axis": b.axis, "period_px": float(b.period_px),
                                      "shifts_deg": [float(f"{np.degrees(d):.12g}") for d in b.shifts_rad],
