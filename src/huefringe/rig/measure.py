@@ -27,6 +27,7 @@ from scipy.spatial import cKDTree
 from huefringe.codecs import DecodeOptions, SequenceError, decode_sequence, load_sequence, read_captures
 from huefringe.io import atomic_path
 from huefringe.rig.calibrate import Board, CalibrationReport, PoseObservation, calibrate_rig, detect_corners, projector_corners
+from huefringe.rig.decoded import RelativeCoordinateError, relative_axes_problems, triangulation_inputs
 from huefringe.rig.filestorage import write_calibration
 from huefringe.rig.model import RigCalibration
 from huefringe.rig.triangulation import triangulate
@@ -296,50 +297,45 @@ class RigFrame:
     mode: str
 
 
-def triangulate_frame(d: dict[str, Any], calib: RigCalibration, cfg: dict[str, Any], *, where: str) -> RigFrame:
+def triangulate_frame(d: dict[str, Any], calib: RigCalibration, cfg: dict[str, Any], *, where: str,
+                      spec: Any = None) -> RigFrame:
     """Triangulate decoded maps ``d`` with ``calib``; refuse what cannot be absolute X, Y, Z.
+
+    Only pixels whose every validity test passed are triangulated
+    (:func:`huefringe.rig.decoded.triangulation_inputs`).
 
     Raises
     ------
     RigError
         An axis the triangulation needs is missing or decoded relative to one period only (no
-        Gray code or second period: a relative projector coordinate triangulates to a wrong
-        surface), the captures are not the calibration's camera size, or fewer than 3 points.
+        Gray code or second period: a relative projector coordinate triangulates to a wrong,
+        plausible-looking surface), the captures are not the calibration's camera size, or
+        fewer than 3 points.
     """
     h, w = d["mean"].shape
     if calib.camera_size != (0, 0) and calib.camera_size != (w, h):
         raise RigError(f"{where}: {w} x {h} captures, the calibration's camera is {calib.camera_size[0]} x {calib.camera_size[1]}")
-    mode = cfg["rig"]["triangulation"]
-    if mode == "auto":
-        absolute = [k for k in ("u", "v") if d[k] is not None and d["absolute_" + k]]
-        mode = "both" if len(absolute) == 2 else (absolute[0] if absolute else ("u" if d["u"] is not None else "v"))
-    problems = []
-    for k in ("u", "v") if mode == "both" else (mode,):
-        axis = "x" if k == "u" else "y"
-        if d[k] is None:
-            problems.append(f"{where}: triangulation {mode!r} needs the projector {axis} axis, which the sequence does not code")
-        elif not d["absolute_" + k]:
-            problems.append(f"{where}: projector axis {axis} is decoded relative to one fringe period only (the sequence has no "
-                            f"Gray code or second period on {axis}); a relative coordinate cannot be triangulated")
-    if problems:
-        raise RigError("; ".join(problems))
-    valid = np.ones((h, w), dtype=bool)
-    for k in ("u", "v") if mode == "both" else (mode,):
-        valid &= d["valid_" + k]
-    t = triangulate(calib, d["u"] if mode in ("u", "both") else None, d["v"] if mode in ("v", "both") else None,
-                    sigma_u=d["sigma_u"], sigma_v=d["sigma_v"], valid=valid, mode=mode)
+    try:
+        ti = triangulation_inputs(d["decoded"], spec, cfg["rig"]["triangulation"])
+    except RelativeCoordinateError as exc:
+        raise RigError(f"{where}: {exc}") from None
+    t = triangulate(calib, ti.u, ti.v, sigma_u=ti.sigma_u, sigma_v=ti.sigma_v, valid=ti.valid, mode=ti.mode)
     if int(t.valid.sum()) < 3:
         raise RigError(f"{where}: {int(t.valid.sum())} pixels decoded and triangulated; nothing to measure")
-    return RigFrame(t.xyz, t.sigma, t.valid, d, mode)
+    return RigFrame(t.xyz, t.sigma, t.valid, d, ti.mode)
 
 
 def measure_sl_frame(session: Any, calib: RigCalibration, cfg: dict[str, Any]) -> RigFrame:
-    """Decode a structured-light session's ``captures/`` and triangulate them with ``calib``."""
+    """Decode a structured-light session's ``captures/`` and triangulate them with ``calib``
+    (a sequence that cannot give absolute coordinates is refused before anything is decoded)."""
+    problems = relative_axes_problems(session.spec, cfg["rig"]["triangulation"])
+    if problems:
+        raise RigError("; ".join(f"{session.root / 'sequence.yaml'}: {p}" for p in problems))
     try:
         d = decode_frame(session.read_captures(), session.spec, cfg)
     except SequenceError as exc:
         raise RigError(str(exc)) from None
-    return triangulate_frame(d, calib, cfg, where=str(session.root / "captures"))
+    return triangulate_frame(d, calib, cfg, where=str(session.root / "captures"), spec=session.spec)
 
 
 def along_normal_sigma(xyz: F64, sigma: F64, normal: F64) -> F64:
