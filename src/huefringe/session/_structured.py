@@ -59,6 +59,7 @@ CAPTURES = "captures"
 POSES = "poses"
 CALIBRATION = "calibration"
 GROUND_TRUTH = "ground_truth"
+FEATURES = "features.yaml"
 ASSEMBLY_KEYS = ("id", "calibration", "poses", "provenance")
 """Keys of an assembly YAML that describe the session; every other key is the sequence's."""
 
@@ -77,7 +78,12 @@ class SLSession:
     calibration: Path | None = None
     poses: dict[str, tuple[Path, ...]] = field(default_factory=dict)
     ground_truth: dict[str, Path] = field(default_factory=dict)
-    """Axis (``x``, ``y``) -> ``ground_truth/<axis>.tiff``: float32 (H, W) projector coordinate, NaN where unseen."""
+    """Axis (``x``, ``y``) -> ``ground_truth/<axis>.tiff``: float32 (H, W) projector coordinate, NaN where unseen;
+    ``xyz`` -> ``ground_truth/xyz.tiff``: float32 (H, W, 3) camera-frame point (mm), NaN where not lit directly."""
+    calibration_session: Path | None = None
+    """The session whose ``poses/`` calibrate this one (``calibration: {session: ...}``), not checked here."""
+    features: Path | None = None
+    """``features.yaml``: the regions to measure, when present."""
 
     @property
     def id(self) -> str:
@@ -107,6 +113,8 @@ class SLSession:
     def input_files(self) -> list[Path]:
         """Every file of the session, sorted."""
         files = [self.root / "session.yaml", self.root / SEQUENCE_FILE, *self.captures, *self.ground_truth.values()]
+        if self.features is not None:
+            files.append(self.features)
         files += [p for ps in self.poses.values() for p in ps]
         if self.calibration is not None:
             files.append(self.calibration)
@@ -325,8 +333,10 @@ def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
         for d in sorted((root / POSES).iterdir()):
             if d.name not in poses and not d.name.startswith("."):
                 problems.append(Problem(d, "pose folder not listed in session.yaml poses"))
-    calib = None
-    if "calibration" in meta:
+    calib = calib_session = None
+    if "session" in meta.get("calibration", {}):
+        calib_session = root / meta["calibration"]["session"]
+    elif "calibration" in meta:
         calib = root / meta["calibration"]["file"]
         if calib.is_file() and _sha256(calib) != meta["calibration"]["sha256"]:
             problems.append(Problem(calib, "sha256 differs from session.yaml calibration/sha256: the file was altered"))
@@ -338,8 +348,8 @@ def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
         for p in sorted(gt_dir.iterdir()):
             if p.name.startswith("."):
                 continue
-            if p.suffix.lower() not in (".tif", ".tiff") or p.stem not in axes:
-                problems.append(Problem(p, f"unexpected ground truth ({' or '.join(a + '.tiff' for a in axes)} expected)"))
+            if p.suffix.lower() not in (".tif", ".tiff") or p.stem not in (*axes, "xyz"):
+                problems.append(Problem(p, f"unexpected ground truth ({', '.join(a + '.tiff' for a in axes)} or xyz.tiff expected)"))
                 continue
             try:
                 with tifffile.TiffFile(p) as tif:
@@ -347,12 +357,43 @@ def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
             except Exception as exc:
                 problems.append(Problem(p, f"cannot read ground truth TIFF ({exc})"))
                 continue
-            if tuple(shape) != (cam["height"], cam["width"]) or np.dtype(dtype) != np.float32:
-                problems.append(Problem(p, f"ground truth must be float32 {cam['height']} x {cam['width']}, got {dtype} {tuple(shape)}"))
+            want = (cam["height"], cam["width"], 3) if p.stem == "xyz" else (cam["height"], cam["width"])
+            if tuple(shape) != want or np.dtype(dtype) != np.float32:
+                problems.append(Problem(p, f"ground truth must be float32 {' x '.join(map(str, want))}, got {dtype} {tuple(shape)}"))
             gt[p.stem] = p
+    features = root / FEATURES
+    problems += _features_problems(features, cam["width"], cam["height"]) if features.is_file() else []
     if problems or spec is None:
         raise SessionError(problems)
-    return SLSession(root, meta, spec, tuple(captures), calib, poses, gt)
+    return SLSession(root, meta, spec, tuple(captures), calib, poses, gt, calib_session,
+                     features if features.is_file() else None)
+
+
+def _features_problems(path: Path, width: int, height: int) -> list[Problem]:
+    """``features.yaml``: a mapping whose ``box`` / ``boxes`` lie inside the ``width`` x ``height`` captures
+    and whose ``mask`` files exist."""
+    try:
+        doc = yaml.safe_load(path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError, UnicodeDecodeError) as exc:
+        return [Problem(path, f"cannot read the features ({exc})")]
+    if not isinstance(doc, dict):
+        return [Problem(path, "expected a mapping (tolerance_mm, base, steps, planes, distances, spheres)")]
+    problems = []
+    regions = [("base", doc.get("base"))] + [(f"{k}[{i}]", r) for k in ("steps", "planes", "spheres")
+                                             for i, r in enumerate(doc.get(k) or [])]
+    for where, r in regions:
+        if r is None:
+            continue
+        if not isinstance(r, dict):
+            problems.append(Problem(path, f"{where}: a mapping expected"))
+            continue
+        for box in ([r["box"]] if "box" in r else []) + list(r.get("boxes") or []):
+            ok = isinstance(box, list) and len(box) == 4 and all(isinstance(b, int) for b in box)
+            if not ok or not (0 <= box[0] < box[2] <= width and 0 <= box[1] < box[3] <= height):
+                problems.append(Problem(path, f"{where}: box {box} is not [x0, y0, x1, y1] inside the {width} x {height} captures"))
+        if "mask" in r and not (path.parent / str(r["mask"])).is_file():
+            problems.append(Problem(path, f"{where}: missing mask file {r['mask']}"))
+    return problems
 
 
 # --------------------------------------------------------------------------- assembly
