@@ -73,7 +73,7 @@ def test_ground_truth_triangulates_to_xyz(sessions: dict[str, Path], gauge_truth
         ok = np.isfinite(u)
         assert np.array_equal(ok, np.isfinite(xyz).all(axis=2)) and np.array_equal(ok, np.isfinite(v))
         err = np.linalg.norm(triangulate(calib, u, v, valid=ok).xyz[ok] - xyz[ok], axis=1)
-        assert err.max() < 2e-4, (name, err.max())
+        assert err.max() < 1e-4, (name, err.max())
 
 
 def test_the_composite_scene_casts_shadows_and_shadows_carry_no_fringe(sessions: dict[str, Path], gauge_truth: dict) -> None:
