@@ -81,7 +81,18 @@ def _cmd_bench(args: argparse.Namespace) -> int:
     from huefringe import bench
 
     try:
-        cfg = bench.load_bench_config(bench.preset_path(args.config) if args.preset else args.config)
+        ref = bench.preset_path(args.config) if args.preset else args.config
+        if bench.bench_kind(ref) == "structured-light-session/1":
+            if args.patterns or args.periods:
+                print("REFUSED: --patterns and --periods are for capture-session benches", file=sys.stderr)
+                return 2
+            try:
+                print(bench.write_sl_session(bench.load_sl_bench_config(ref), Path(args.out)))
+            except FileExistsError as exc:
+                print(f"REFUSED: {exc}", file=sys.stderr)
+                return 2
+            return 0
+        cfg = bench.load_bench_config(ref)
     except FileNotFoundError as exc:  # no such preset: the message lists the available ones
         print(f"REFUSED: --preset: {exc}", file=sys.stderr)
         return 1
@@ -369,8 +380,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--deep", action="store_true", help="also decode every image and check the hue bands' order")
     p.set_defaults(func=_cmd_check)
 
-    p = sub.add_parser("bench", help="write a capture session (or, with --patterns, camera files) with the virtual bench")
-    p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1, rehearsal, ...)")
+    p = sub.add_parser("bench", help="write a capture session (or, with --patterns, camera files; or a structured-light "
+                                     "session for a huefringe-sl-bench/1 YAML) with the virtual bench")
+    p.add_argument("config", help="bench YAML, or a preset name with --preset (demo, flat, dental, table1, rehearsal, "
+                                  "rig-poses, rig-gauge, rig-board, ...)")
     p.add_argument("out", help="output session folder (with --periods: a folder for the sweep; with --patterns: "
                                "the folder of camera files)")
     p.add_argument("--preset", action="store_true", help="CONFIG names a packaged preset")

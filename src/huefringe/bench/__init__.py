@@ -16,7 +16,14 @@ capture_patterns(config, patterns_dir, out_dir) -> Path
     Show a ``huefringe patterns`` folder's image files in manifest order and save one camera
     file per row (``IMG_0001.png`` ...), for ``huefringe session``.
 preset_path(name) -> Path
-    A packaged preset: ``demo``, ``flat``, ``dental``, ``table1``.
+    A packaged preset: ``demo``, ``flat``, ``dental``, ``table1``, ... and the structured-light
+    rig sessions ``rig-poses``, ``rig-gauge``, ``rig-board``.
+bench_kind(ref) -> str
+    The session format a bench YAML or preset writes: ``capture-session/1``, or
+    ``structured-light-session/1`` for ``format: huefringe-sl-bench/1`` (:mod:`.rig_session`).
+load_sl_bench_config(ref), write_sl_session(config, out_dir), sl_session_plan(config)
+    Structured-light sessions of the bench rig (calibration poses, object scenes with projector
+    shadows, features.yaml, ground truth); the plan says what a session holds without writing.
 code_phase, projector_ray_x0, analytic_phase_difference, simulate_capture, Bench, Pattern
     Lower-level pure pieces used by the tests.
 
@@ -50,6 +57,9 @@ _LAZY = {
     "ProjectionError": "projector", "capture_patterns": "projector", "image_placement": "projector",
     "Bench": "simulator", "noise_rng": "simulator", "simulate_capture": "simulator",
     "period_sweep": "writer", "rig_summary": "writer", "session_document": "writer", "write_session": "writer",
+    "bench_kind": "rig_session", "features_from_truth": "rig_session", "load_sl_bench_config": "rig_session",
+    "scene_truth": "rig_session", "sl_session_plan": "rig_session", "validate_sl_bench_config": "rig_session",
+    "write_sl_session": "rig_session",
 }
 
 
@@ -70,6 +80,7 @@ __all__ = [
     "Rig",
     "analytic_phase_difference",
     "available_presets",
+    "bench_kind",
     "bench_schema",
     "build_scene",
     "camera_response",
@@ -78,18 +89,24 @@ __all__ = [
     "code_phase",
     "dmd_levels",
     "emitted_rgb",
+    "features_from_truth",
     "image_placement",
     "lambert_cosine",
     "load_bench_config",
+    "load_sl_bench_config",
     "noise_rng",
     "period_sweep",
     "sweep_config",
     "preset_path",
     "projector_ray_x0",
     "rig_summary",
+    "scene_truth",
     "session_document",
     "simulate_capture",
+    "sl_session_plan",
     "triangulation_angle_deg",
     "validate_bench_config",
+    "validate_sl_bench_config",
     "write_session",
+    "write_sl_session",
 ]

@@ -6,8 +6,10 @@ A :class:`BenchRig` is two pinhole devices with OpenCV distortion and the projec
 * checkerboard poses (:meth:`BenchRig.board_pose`): the corners the camera sees (truth and with
   detection noise), the decoded projector coordinates ``u, v`` at every camera pixel on the board
   (truth plus the decoder's noise) and a rendered image of the board for corner detection;
-* object scenes (:class:`PlaneScene`, :class:`SphereScene`, :class:`StepsScene`): ``u, v`` at every
-  camera pixel and the true ``X, Y, Z`` the pixel sees;
+* object scenes (:class:`PlaneScene`, :class:`SphereScene`, :class:`StepsScene`,
+  :class:`CompositeScene`): ``u, v`` at every camera pixel and the true ``X, Y, Z`` the pixel sees,
+  and where the projector lights it directly (``lit``: a surface between the point and the
+  projector centre casts a shadow; a face turned away from the projector is dark);
 * fringe sequences of either (:meth:`BenchRig.capture`): the projector images of a
   ``huefringe.codecs`` sequence sampled at each camera pixel's projector coordinate.
 
@@ -30,7 +32,8 @@ from huefringe.rig.calibrate import Board
 from huefringe.rig.model import RigCalibration
 from huefringe.rig.triangulation import camera_rays, project
 
-__all__ = ["RIGS", "BenchRig", "PlaneScene", "SphereScene", "StepsScene", "pose_set", "rot", "write_captures", "write_pose_folders"]
+__all__ = ["RIGS", "BenchRig", "CompositeScene", "PlaneScene", "SphereScene", "StepsScene", "pose_set", "rot",
+           "segment_hits_box", "segment_hits_sphere", "write_captures", "write_pose_folders"]
 
 F64 = NDArray[np.float64]
 
@@ -207,7 +210,12 @@ class PlaneScene:
         return rays * t[..., None], t > 0
 
     def normal(self) -> F64:
+        """Unit normal of the plane, towards the camera."""
         return rot(self.tilt_deg[0], self.tilt_deg[1]) @ np.array([0.0, 0.0, -1.0])
+
+    def lit(self, rig: BenchRig, xyz: F64, seen: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Where the projector lights the seen points ``xyz`` (H, W, 3) directly: the plane faces it."""
+        return seen & _facing(rig, xyz, self.normal(), np.asarray(self.point, dtype=np.float64))
 
 
 @dataclass(frozen=True)
@@ -229,6 +237,16 @@ class SphereScene:
         bg, bg_ok = self.background.cast(rays)
         xyz = np.where(hit[..., None], rays * np.where(hit, t, 0)[..., None], bg)
         return xyz, hit | bg_ok, hit
+
+    def lit(self, rig: BenchRig, xyz: F64, seen: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Where the projector lights the seen points ``xyz`` (H, W, 3) directly: not behind the
+        sphere (its cast shadow on the background, its own far side) and on the background's lit side."""
+        c = rig.calibration.projector_centre
+        occluded = segment_hits_sphere(c, xyz, np.asarray(self.centre, dtype=np.float64), self.radius)
+        bg = self.background
+        on_bg = _facing(rig, xyz, bg.normal(), np.asarray(bg.point, dtype=np.float64))
+        on_sphere = np.abs(np.linalg.norm(xyz - np.asarray(self.centre), axis=-1) - self.radius) < 1e-6
+        return seen & ~occluded & (on_sphere | on_bg)
 
 
 @dataclass(frozen=True)
@@ -265,6 +283,145 @@ class StepsScene:
         xyz = rays * np.where(np.isfinite(best_t), best_t, 0)[..., None]
         return xyz, np.isfinite(best_t), label
 
+    def as_composite(self) -> CompositeScene:
+        """The same blocks as solids (with side walls) in a :class:`CompositeScene`."""
+        return CompositeScene(tilt_deg=self.tilt_deg, origin=self.origin, blocks=self.blocks, spheres=())
+
+    def lit(self, rig: BenchRig, xyz: F64, seen: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Where the projector lights the seen points ``xyz`` (H, W, 3) directly: no block (a solid
+        from the base to its height) between the point and the projector centre."""
+        return self.as_composite().lit(rig, xyz, seen)
+
+
+_TOL_MM = 1e-6
+"""A segment ending on a surface does not hit that surface: entry within this distance of its end."""
+
+
+def _facing(rig: BenchRig, xyz: F64, normal: F64, point: F64) -> NDArray[np.bool_]:
+    """Points whose plane (``normal``, through ``point``) faces the projector and the camera alike."""
+    c = rig.calibration.projector_centre
+    return np.broadcast_to(((c - point) @ normal > 0) & ((-point) @ normal > 0), xyz.shape[:-1]).copy()
+
+
+def segment_hits_box(c: F64, p: F64, R: F64, o: F64, box: tuple[float, float, float, float, float],
+                     tol_mm: float = _TOL_MM) -> NDArray[np.bool_]:
+    """Whether the segments from ``c`` (3,) to the points ``p`` (..., 3) pass through a block.
+
+    The block is ``x0 <= x <= x1, y0 <= y <= y1, 0 <= z <= h`` (``box = (x0, y0, x1, y1, h)``) in the
+    frame ``X = R q + o``. A segment that only touches the block at its end point (a point on the
+    block's lit surface) does not hit it. Slab method, vectorised over the points.
+    """
+    x0, y0, x1, y1, h = box
+    lo, hi = np.array([x0, y0, min(0.0, h)]), np.array([x1, y1, max(0.0, h)])
+    qc = (np.asarray(c, dtype=np.float64) - o) @ R
+    e = (np.asarray(p, dtype=np.float64) - c) @ R
+    length = np.linalg.norm(e, axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        a = (lo - qc) / e
+        b = (hi - qc) / e
+    near, far = np.minimum(a, b), np.maximum(a, b)
+    # an axis the segment runs parallel to: inside the slab (any s) or outside (none)
+    par = e == 0
+    inside = (qc >= lo) & (qc <= hi)
+    near = np.where(par, np.where(inside, -np.inf, np.inf), near)
+    far = np.where(par, np.where(inside, np.inf, -np.inf), far)
+    s_in, s_out = near.max(axis=-1), far.min(axis=-1)
+    return (s_in < s_out) & (s_in < 1.0 - tol_mm / np.maximum(length, 1e-300)) & (s_out > 0.0)
+
+
+def segment_hits_sphere(c: F64, p: F64, centre: F64, radius: float, tol_mm: float = _TOL_MM) -> NDArray[np.bool_]:
+    """Whether the segments from ``c`` (3,) to the points ``p`` (..., 3) enter the sphere before their
+    end (a point on the sphere's lit side does not count; one on its far side does)."""
+    e = np.asarray(p, dtype=np.float64) - c
+    w = np.asarray(c, dtype=np.float64) - centre
+    a = np.einsum("...i,...i", e, e)
+    b = e @ w
+    disc = b * b - a * (w @ w - radius**2)
+    root = np.sqrt(np.maximum(disc, 0.0))
+    s_in, s_out = (-b - root) / a, (-b + root) / a
+    return (disc > 0) & (s_in < 1.0 - tol_mm / np.sqrt(a)) & (s_out > 0.0)
+
+
+@dataclass(frozen=True)
+class CompositeScene:
+    """A tilted base plane carrying rectangular blocks and spheres, all solids (plane frame as
+    :class:`StepsScene`: ``X = R_o q + origin``, ``q_z`` the height above the base towards the camera).
+
+    ``blocks`` are ``(x0, y0, x1, y1, height)`` in the plane frame (mm); ``spheres`` are
+    ``(x, y, radius)``: a ball resting on the base, its centre ``radius`` above ``(x, y)``.
+    Face labels (:meth:`cast`): 0 the base, ``k`` the top of block ``k`` (1-based), ``len(blocks) + j``
+    sphere ``j`` (1-based), ``-k`` a side wall of block ``k``.
+    """
+
+    tilt_deg: tuple[float, float] = (4.0, -3.0)
+    origin: tuple[float, float, float] = (0.0, 0.0, 430.0)
+    blocks: tuple[tuple[float, float, float, float, float], ...] = (
+        (-80.0, 5.0, -50.0, 45.0, 2.0), (-30.0, 5.0, 0.0, 45.0, 5.0), (20.0, 5.0, 50.0, 45.0, 10.0))
+    spheres: tuple[tuple[float, float, float], ...] = ((-15.0, -38.0, 12.5),)
+
+    def frame(self) -> tuple[F64, F64]:
+        """``R_o`` (columns: plane x, y, normal towards the camera) and origin."""
+        return rot(180 + self.tilt_deg[0], self.tilt_deg[1]), np.asarray(self.origin, dtype=np.float64)
+
+    def sphere_centres(self) -> F64:
+        """Camera-frame centres of the spheres, (n, 3)."""
+        R, o = self.frame()
+        return np.array([o + R @ np.array([x, y, r]) for x, y, r in self.spheres]).reshape(-1, 3)
+
+    def cast(self, rays: F64) -> tuple[F64, NDArray[np.bool_], NDArray[np.int64]]:
+        """Points the camera sees along ``rays`` (H, W, 3), where there is surface, and the face labels."""
+        R, o = self.frame()
+        n = R[:, 2]
+        dn = rays @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t_base = (o @ n) / dn
+        best_t = np.where(t_base > 0, t_base, np.inf)
+        label = np.zeros(rays.shape[:-1], dtype=np.int64)
+        qd = rays @ R
+        q0 = -o @ R
+        for k, (x0, y0, x1, y1, h) in enumerate(self.blocks, start=1):
+            lo, hi = np.array([x0, y0, 0.0]), np.array([x1, y1, h])
+            with np.errstate(divide="ignore", invalid="ignore"):
+                a, b = (lo - q0) / qd, (hi - q0) / qd
+            near, far = np.minimum(a, b), np.maximum(a, b)
+            near = np.where(qd == 0, np.where((q0 >= lo) & (q0 <= hi), -np.inf, np.inf), near)
+            far = np.where(qd == 0, np.where((q0 >= lo) & (q0 <= hi), np.inf, -np.inf), far)
+            t_in, t_out = near.max(axis=-1), far.min(axis=-1)
+            better = (t_in < t_out) & (t_in > 0) & (t_in < best_t)
+            best_t = np.where(better, t_in, best_t)
+            label = np.where(better, np.where(near.argmax(axis=-1) == 2, k, -k), label)
+        for j, (c, (_, _, r)) in enumerate(zip(self.sphere_centres(), self.spheres, strict=True), start=1):
+            a = np.einsum("...i,...i", rays, rays)
+            b = rays @ c
+            disc = b * b - a * (c @ c - r**2)
+            t = np.where(disc > 0, (b - np.sqrt(np.maximum(disc, 0.0))) / a, np.inf)
+            better = (t > 0) & (t < best_t)
+            best_t = np.where(better, t, best_t)
+            label = np.where(better, len(self.blocks) + j, label)
+        ok = np.isfinite(best_t)
+        return rays * np.where(ok, best_t, 0.0)[..., None], ok, label
+
+    def lit(self, rig: BenchRig, xyz: F64, seen: NDArray[np.bool_]) -> NDArray[np.bool_]:
+        """Where the projector lights the seen points ``xyz`` (H, W, 3) directly: the base faces the
+        projector and no block or sphere lies between the point and the projector centre."""
+        R, o = self.frame()
+        c = rig.calibration.projector_centre
+        out = seen & _facing(rig, xyz, R[:, 2], o)
+        for box in self.blocks:
+            out &= ~segment_hits_box(c, xyz, R, o, box)
+        for centre, (_, _, r) in zip(self.sphere_centres(), self.spheres, strict=True):
+            out &= ~segment_hits_sphere(c, xyz, centre, r)
+        return out
+
+    def names(self) -> dict[int, str]:
+        """Face label -> name (``base``, ``block-<height>``, ``ball`` / ``ball-<j>``)."""
+        out = {0: "base"}
+        for k, b in enumerate(self.blocks, start=1):
+            out[k] = f"block-{b[4]:g}".replace(".", "p")
+        for j in range(1, len(self.spheres) + 1):
+            out[len(self.blocks) + j] = "ball" if len(self.spheres) == 1 else f"ball-{j}"
+        return out
+
 
 RIGS: dict[str, BenchRig] = {
     "tune": BenchRig(),
@@ -280,23 +437,29 @@ convergence, focal lengths, principal points and distortion."""
 
 
 def write_captures(rig: BenchRig, spec: Any, folder: Any, u: F64, v: F64, valid: NDArray[np.bool_],
-                   rng: np.random.Generator, *, noise_dn: float = 1.0, albedo: float | F64 = 0.8) -> None:
-    """Write the camera frames of ``spec`` (a :class:`huefringe.codecs.SequenceSpec`) as PNGs ``cap_NN.png``
-    (``albedo``: a scalar or one value per camera pixel)."""
+                   rng: np.random.Generator, *, noise_dn: float = 1.0, albedo: float | F64 = 0.8,
+                   ambient: float = 0.05, name: str = "cap_{:02d}.png") -> None:
+    """Write the camera frames of ``spec`` (a :class:`huefringe.codecs.SequenceSpec`) as PNGs
+    (``name`` formatted with the frame index, default ``cap_NN.png``; ``albedo``: a scalar or one
+    value per camera pixel; ``ambient``: full-scale fraction of light on every pixel). A pixel
+    outside ``valid`` gets no projector light: ambient light and noise only."""
     from pathlib import Path
 
     from huefringe.codecs import generate
 
     out = Path(folder)
     out.mkdir(parents=True, exist_ok=True)
-    frames = rig.capture(generate(spec), u, v, valid, rng, noise_dn=noise_dn, albedo=albedo)
+    frames = rig.capture(generate(spec), u, v, valid, rng, noise_dn=noise_dn, albedo=albedo, ambient=ambient)
     for k, f in enumerate(frames):
-        cv2.imwrite(str(out / f"cap_{k:02d}.png"), f)
+        cv2.imwrite(str(out / name.format(k)), f)
 
 
 def write_pose_folders(rig: BenchRig, board: Board, spec: Any, n: int, seed: int, out: Any, *,
-                       corner_image: bool = True, printed: bool = False) -> list[tuple[F64, F64]]:
-    """Board-pose folders ``pose_NN`` under ``out``: coded captures and (``corner_image``) ``board.png``.
+                       corner_image: bool = True, printed: bool = False, noise_dn: float = 1.0,
+                       ambient: float = 0.05, folder_name: str = "pose_{:02d}",
+                       frame_name: str = "cap_{:02d}.png") -> list[tuple[F64, F64]]:
+    """Board-pose folders under ``out`` (``folder_name``, default ``pose_NN``): coded captures
+    (``frame_name``) and (``corner_image``) ``board.png``.
 
     With ``printed`` the board's squares are on the captures (each pixel's albedo is the board's
     white-light image), as a real board looks under the sequence: its corners are then found in
@@ -309,9 +472,9 @@ def write_pose_folders(rig: BenchRig, board: Board, spec: Any, n: int, seed: int
     poses = pose_set(rig, board, n, seed)
     for i, (R, t) in enumerate(poses):
         p = rig.board_pose(board, R, t, rng, corner_sigma_px=0.0, coord_sigma_px=0.0, image=corner_image or printed)
-        folder = Path(out) / f"pose_{i:02d}"
-        write_captures(rig, spec, folder, p["u_true"], p["v_true"], p["valid"], rng,
-                       albedo=p["image"] / 255.0 if printed else 0.8)
+        folder = Path(out) / folder_name.format(i)
+        write_captures(rig, spec, folder, p["u_true"], p["v_true"], p["valid"], rng, noise_dn=noise_dn,
+                       albedo=p["image"] / 255.0 if printed else 0.8, ambient=ambient, name=frame_name)
         if corner_image:
             img = np.clip(p["image"] + rng.normal(0, 2, p["image"].shape), 0, 255).astype(np.uint8)
             cv2.imwrite(str(folder / "board.png"), img)

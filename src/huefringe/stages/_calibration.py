@@ -27,10 +27,18 @@ log = logging.getLogger("huefringe")
 
 
 def bench_session(config: str, out: str, period_px: float | None = None) -> None:
-    """Write a capture session with the virtual bench (a preset or bench YAML, optionally at another period)."""
+    """Write a session with the virtual bench (a preset or bench YAML): a capture session
+    (optionally at another period), or for ``format: huefringe-sl-bench/1`` a structured-light
+    session of the bench rig (:func:`huefringe.bench.write_sl_session`)."""
     from huefringe import bench
-    from huefringe.plan import bench_config_for
+    from huefringe.plan import bench_config_for, bench_yaml
 
+    path = bench_yaml(config)
+    if bench.bench_kind(path) == "structured-light-session/1":
+        if period_px is not None:
+            raise ValueError(f"{config}: a structured-light bench session has no period sweep")
+        bench.write_sl_session(bench.load_sl_bench_config(path), Path(out))
+        return
     bench.write_session(bench_config_for(config, period_px=period_px), Path(out), progress=False)
 
 

@@ -1,0 +1,422 @@
+"""Structured-light sessions written by the bench rig: calibration poses, object scenes, ground truth.
+
+One YAML file (format ``huefringe-sl-bench/1``, schema ``sl_bench.schema.json`` beside this
+module; presets ``rig-poses``, ``rig-gauge``, ``rig-board``) describes a
+``structured-light-session/1`` folder (``docs/spec/structured-light-session.md``):
+
+* ``captures/0000.png ..``: the sequence on the scene (a flat board, or a tilted base plane with
+  blocks and a ball: :class:`~huefringe.bench.rig.CompositeScene`), where the projector lights a
+  point directly; a point in a projector shadow gets ambient light and noise only;
+* with ``poses``: ``poses/pose_NN/0000.png ..``, a printed board in each pose, and ``board:`` in
+  session.yaml (a calibration session);
+* with ``calibration_session``: ``calibration: {session: <relative path>}`` in session.yaml;
+* ``features.yaml``: camera-pixel boxes well inside each face of the scene's truth (eroded by
+  ``features.margin_px``, clear of shadows), nominal values from the scene;
+* ``ground_truth/x.tiff``, ``y.tiff`` (true projector coordinates) and ``xyz.tiff`` (true
+  camera-frame points, mm), NaN where the projector does not light the pixel's point directly.
+
+Public API
+----------
+load_sl_bench_config(ref) -> dict
+    Read, validate and complete a YAML file or packaged preset.
+validate_sl_bench_config(raw) -> dict
+    The same for a mapping built in code.
+bench_kind(ref) -> str
+    The session format a bench YAML or preset writes (``capture-session/1`` or
+    ``structured-light-session/1``), from its ``format`` key.
+sl_session_plan(cfg) -> dict
+    What the session will hold, without writing anything.
+scene_truth(cfg) -> dict
+    The scene's truth on the camera pixels (float64): points, projector coordinates, face labels, lit mask.
+features_from_truth(truth, names, ...) -> dict
+    ``features.yaml``'s content from the truth.
+write_sl_session(cfg, out_dir) -> Path
+    Write the session (atomically) and validate it with :func:`huefringe.session.load_sl_session`.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import shutil
+import tempfile
+from functools import cache
+from pathlib import Path
+from typing import Any
+
+import cv2
+import jsonschema
+import numpy as np
+import yaml
+from numpy.typing import NDArray
+
+from .config import BenchConfigError, _fill_defaults, preset_path
+
+__all__ = [
+    "SL_BENCH_FORMAT",
+    "bench_kind",
+    "features_from_truth",
+    "largest_box",
+    "load_sl_bench_config",
+    "scene_truth",
+    "sl_bench_schema",
+    "sl_session_plan",
+    "validate_sl_bench_config",
+    "write_sl_session",
+]
+
+SL_BENCH_FORMAT = "huefringe-sl-bench/1"
+_SCHEMA = Path(__file__).resolve().parent / "sl_bench.schema.json"
+F64 = NDArray[np.float64]
+
+
+@cache
+def sl_bench_schema() -> dict[str, Any]:
+    """The JSON schema of the structured-light bench YAML (draft 2020-12)."""
+    return json.loads(_SCHEMA.read_text(encoding="utf-8"))
+
+
+def _resolve_ref(ref: str | os.PathLike[str]) -> Path:
+    p = Path(ref)
+    if p.is_file():
+        return p
+    if p.suffix not in (".yaml", ".yml") and p.parent == Path("."):
+        return preset_path(str(ref))
+    return p
+
+
+def bench_kind(ref: str | os.PathLike[str]) -> str:
+    """The session format a bench YAML (or preset name) writes.
+
+    Returns
+    -------
+    str
+        ``structured-light-session/1`` for ``format: huefringe-sl-bench/1``, else
+        ``capture-session/1`` (the capture-session bench, :func:`huefringe.bench.write_session`).
+
+    Raises
+    ------
+    BenchConfigError
+        If the file cannot be read or parsed.
+    FileNotFoundError
+        For an unknown preset name.
+    """
+    p = _resolve_ref(ref)
+    try:
+        raw = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise BenchConfigError(p, f"cannot read the bench YAML ({exc})") from exc
+    fmt = raw.get("format") if isinstance(raw, dict) else None
+    return "structured-light-session/1" if fmt == SL_BENCH_FORMAT else "capture-session/1"
+
+
+def load_sl_bench_config(ref: str | os.PathLike[str]) -> dict[str, Any]:
+    """Read, validate and complete a structured-light bench YAML (a path, or a preset name such as
+    ``rig-gauge``).
+
+    Raises
+    ------
+    BenchConfigError
+        Naming the file and the problem (unknown keys included).
+    """
+    p = _resolve_ref(ref)
+    try:
+        raw = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise BenchConfigError(p, f"cannot read the bench YAML ({exc})") from exc
+    return validate_sl_bench_config(raw, source=p)
+
+
+def validate_sl_bench_config(raw: Any, source: str | os.PathLike[str] = "<dict>") -> dict[str, Any]:
+    """Validate a structured-light bench configuration and return a completed copy (idempotent).
+
+    Raises
+    ------
+    BenchConfigError
+        On a schema violation, a sequence :mod:`huefringe.codecs` cannot read, or a block or
+        sphere of no size.
+    """
+    if not isinstance(raw, dict):
+        raise BenchConfigError(source, "the bench configuration must be a YAML mapping")
+    schema = sl_bench_schema()
+    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(raw), key=lambda e: list(map(str, e.absolute_path)))
+    if errors:
+        raise BenchConfigError(source, "; ".join(
+            f"at {'.'.join(map(str, e.absolute_path)) or 'top level'}: {e.message}" for e in errors[:3]))
+    cfg = copy.deepcopy(raw)
+    _fill_defaults(cfg, schema, schema)
+    kind = cfg["scene"]["kind"]
+    _fill_defaults(cfg["scene"], schema["$defs"][f"scene_{kind}"], schema)
+    if "poses" in cfg:
+        _fill_defaults(cfg["poses"], schema["properties"]["poses"], schema)
+    try:
+        _spec(cfg)
+    except Exception as exc:  # noqa: BLE001 - any sequence problem is the configuration's
+        raise BenchConfigError(source, f"sequence: {exc}") from exc
+    for i, b in enumerate(cfg["scene"].get("blocks", [])):
+        if not (b[2] > b[0] and b[3] > b[1] and b[4] > 0):
+            raise BenchConfigError(source, f"scene.blocks.{i}: x1 > x0, y1 > y0 and a positive height expected")
+    for i, s in enumerate(cfg["scene"].get("spheres", [])):
+        if not s[2] > 0:
+            raise BenchConfigError(source, f"scene.spheres.{i}: a positive radius expected")
+    return cfg
+
+
+def sl_session_plan(cfg: dict[str, Any]) -> dict[str, Any]:
+    """What :func:`write_sl_session` writes for ``cfg``, without writing (for a workflow planner).
+
+    Returns
+    -------
+    dict
+        ``id``; ``poses`` (bool: ``poses/`` and ``board:``); ``pose_names``; ``board`` (the
+        board mapping or None); ``calibration_session`` (the relative path or None); ``features``
+        (bool: ``features.yaml``); ``ground_truth`` (bool); ``frames`` (captures per sequence);
+        ``format`` (``structured-light-session/1``).
+    """
+    cfg = validate_sl_bench_config(cfg)
+    poses = "poses" in cfg
+    return {
+        "id": cfg["id"],
+        "format": "structured-light-session/1",
+        "poses": poses,
+        "pose_names": [f"pose_{i:02d}" for i in range(cfg["poses"]["count"])] if poses else [],
+        "board": dict(cfg["poses"]["board"]) if poses else None,
+        "calibration_session": cfg.get("calibration_session"),
+        "features": _writes_features(cfg),
+        "ground_truth": bool(cfg["ground_truth"]),
+        "frames": _spec(cfg).n_frames,
+    }
+
+
+def _writes_features(cfg: dict[str, Any]) -> bool:
+    return bool(cfg["features"]["enabled"]) and "poses" not in cfg
+
+
+def _spec(cfg: dict[str, Any]) -> Any:
+    from huefringe.codecs.sequence import sequence_from_mapping
+
+    doc = {**cfg["sequence"], "frames": "[0-9][0-9][0-9][0-9].png"}
+    return sequence_from_mapping(doc, "<sequence>", ".")
+
+
+def _scene(cfg: dict[str, Any]) -> Any:
+    from .rig import CompositeScene, PlaneScene
+
+    s = cfg["scene"]
+    if s["kind"] == "board":
+        return PlaneScene(point=tuple(s["point"]), tilt_deg=tuple(s["tilt_deg"]))
+    return CompositeScene(tilt_deg=tuple(s["tilt_deg"]), origin=tuple(s["origin"]),
+                          blocks=tuple(tuple(b) for b in s["blocks"]), spheres=tuple(tuple(b) for b in s["spheres"]))
+
+
+def scene_truth(cfg: dict[str, Any]) -> dict[str, Any]:
+    """The truth of ``cfg``'s scene on its rig's camera pixels, float64.
+
+    Returns
+    -------
+    dict
+        ``rig`` (:class:`~huefringe.bench.rig.BenchRig`), ``scene``, ``names`` (face label ->
+        name), ``label`` (H, W) face labels (see :class:`~huefringe.bench.rig.CompositeScene`; 0
+        everywhere on a board), ``seen`` (surface in view), ``shadow`` (seen but not lit directly:
+        cast or attached shadow), ``lit`` (lit directly and inside the projector's image), ``u``,
+        ``v`` (true projector coordinates, NaN where not ``lit``), ``xyz`` (H, W, 3) true points,
+        NaN where not ``lit``.
+    """
+    from .rig import RIGS
+
+    rig = RIGS[cfg["rig"]]
+    scene = _scene(cfg)
+    cast = scene.cast(rig.rays)
+    xyz, seen = cast[0], cast[1]
+    label = cast[2] if len(cast) > 2 and cast[2].dtype.kind == "i" else np.zeros(seen.shape, dtype=np.int64)
+    lit = scene.lit(rig, xyz, seen)
+    m = rig.coordinates(xyz, lit, np.random.default_rng(0), 0.0)
+    valid = m["valid"]
+    names = scene.names() if hasattr(scene, "names") else {0: "board"}
+    return {"rig": rig, "scene": scene, "names": names, "label": label, "seen": seen, "shadow": seen & ~lit,
+            "lit": valid, "u": m["u_true"], "v": m["v_true"], "xyz": np.where(valid[..., None], xyz, np.nan)}
+
+
+def largest_box(mask: NDArray[np.bool_]) -> tuple[int, int, int, int] | None:
+    """The largest axis-aligned rectangle of ``True`` pixels, ``(x0, y0, x1, y1)`` with columns
+    ``x0 .. x1-1`` and rows ``y0 .. y1-1``; None for an empty mask."""
+    h, w = mask.shape
+    heights = np.zeros(w + 1, dtype=np.int64)
+    best, box = 0, None
+    for y in range(h):
+        heights[:w] = np.where(mask[y], heights[:w] + 1, 0)
+        stack: list[int] = []
+        for x in range(w + 1):
+            while stack and heights[stack[-1]] >= heights[x]:
+                top = stack.pop()
+                left = stack[-1] + 1 if stack else 0
+                area = int(heights[top]) * (x - left)
+                if area > best:
+                    best, box = area, (left, y - int(heights[top]) + 1, x, y + 1)
+            stack.append(x)
+    return box
+
+
+def _face_box(mask: NDArray[np.bool_], margin: int) -> tuple[int, int, int, int] | None:
+    """The largest box in ``mask`` eroded by ``margin`` pixels (the image border counts as outside)."""
+    ys, xs = np.nonzero(mask)
+    if len(ys) == 0:
+        return None
+    y0, y1, x0, x1 = ys.min(), ys.max() + 1, xs.min(), xs.max() + 1
+    k = np.ones((2 * margin + 1, 2 * margin + 1), np.uint8)
+    sub = np.zeros((y1 - y0 + 2, x1 - x0 + 2), np.uint8)
+    sub[1:-1, 1:-1] = mask[y0:y1, x0:x1]
+    full = np.zeros(mask.shape, np.uint8)
+    full[y0:y1, x0:x1] = cv2.erode(sub, k, borderType=cv2.BORDER_CONSTANT, borderValue=0)[1:-1, 1:-1]
+    full[:margin], full[-margin:], full[:, :margin], full[:, -margin:] = 0, 0, 0, 0
+    b = largest_box(full[y0:y1, x0:x1].astype(bool))
+    return None if b is None else (int(b[0] + x0), int(b[1] + y0), int(b[2] + x0), int(b[3] + y0))
+
+
+def features_from_truth(truth: dict[str, Any], *, margin_px: int = 6, tolerance_mm: float = 0.05,
+                        base_boxes: int = 3, min_side_px: int = 20) -> dict[str, Any]:
+    """``features.yaml``'s content from :func:`scene_truth`: boxes inside each face (face label
+    and direct light, eroded by ``margin_px``), nominal values from the scene.
+
+    The base (label 0) gets up to ``base_boxes`` boxes, largest first, each at least
+    ``min_side_px`` on a side; each block top a ``steps`` entry (``block-<h>``, nominal height),
+    a ``planes`` entry (``top-<h>``, nominal flatness 0) and a ``distances`` entry to the base;
+    each sphere a ``spheres`` entry (nominal radius). On a board the whole board is the base and
+    one plane (``board``).
+    """
+    label, lit, names, scene = truth["label"], truth["lit"], truth["names"], truth["scene"]
+    out: dict[str, Any] = {"tolerance_mm": float(tolerance_mm)}
+    base_mask = (label == 0) & lit
+    boxes: list[list[int]] = []
+    free = base_mask.copy()
+    for _ in range(base_boxes):
+        b = _face_box(free, margin_px)
+        if b is None or min(b[2] - b[0], b[3] - b[1]) < min_side_px:
+            break
+        boxes.append(list(b))
+        free[max(b[1] - margin_px, 0):b[3] + margin_px, max(b[0] - margin_px, 0):b[2] + margin_px] = False
+    if not boxes:
+        raise ValueError("no box fits on the base plane")
+    out["base"] = {"boxes": boxes}
+    blocks = getattr(scene, "blocks", ())
+    spheres = getattr(scene, "spheres", ())
+    if not blocks and not spheres:
+        out["planes"] = [{"name": names[0], "box": list(boxes[0]), "nominal_flatness_mm": 0.0}]
+        return out
+    steps, planes, distances, balls = [], [], [], []
+    for k, (*_, h) in enumerate(blocks, start=1):
+        b = _face_box((label == k) & lit, margin_px)
+        if b is None:
+            continue
+        tag = names[k].removeprefix("block-")
+        steps.append({"name": names[k], "box": list(b), "nominal_mm": float(h)})
+        planes.append({"name": f"top-{tag}", "box": list(b), "nominal_flatness_mm": 0.0})
+        distances.append({"name": f"top-{tag}-to-base", "planes": [f"top-{tag}", "base"], "nominal_mm": float(h)})
+    for j, (*_, r) in enumerate(spheres, start=1):
+        k = len(blocks) + j
+        b = _face_box((label == k) & lit, margin_px)
+        if b is not None:
+            balls.append({"name": names[k], "box": list(b), "nominal_radius_mm": float(r)})
+    for key, val in (("steps", steps), ("planes", planes), ("distances", distances), ("spheres", balls)):
+        if val:
+            out[key] = val
+    return out
+
+
+def _write_tiff(path: Path, a: NDArray[np.floating]) -> None:
+    import tifffile
+
+    tifffile.imwrite(path, np.ascontiguousarray(a, dtype=np.float32), photometric="rgb" if a.ndim == 3 else "minisblack")
+
+
+def write_sl_session(cfg: dict[str, Any], out_dir: str | os.PathLike[str]) -> Path:
+    """Write the structured-light session of ``cfg`` at ``out_dir``.
+
+    Everything is written into a temporary folder beside ``out_dir``, checked with
+    ``load_sl_session(..., deep=True)`` and then moved into place (replacing a previous session
+    there; a folder that is neither empty nor a session is refused).
+
+    Parameters
+    ----------
+    cfg : dict
+        A structured-light bench configuration (validated here again).
+    out_dir : path
+        The session folder.
+
+    Returns
+    -------
+    Path
+        ``out_dir``.
+
+    Raises
+    ------
+    BenchConfigError
+        On an invalid configuration.
+    FileExistsError
+        If ``out_dir`` exists and is neither empty nor a session.
+    """
+    from huefringe.codecs.sequence import sequence_to_mapping
+    from huefringe.rig.calibrate import Board
+    from huefringe.session import load_sl_session
+
+    from .rig import write_captures, write_pose_folders
+    from .writer import _prepare_target, _swap_into_place
+
+    cfg = validate_sl_bench_config(cfg)
+    out = Path(out_dir)
+    _prepare_target(out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".partial", dir=out.parent))
+    try:
+        spec = _spec(cfg)
+        truth = scene_truth(cfg)
+        rig = truth["rig"]
+        cam = cfg["camera"]
+        rng = np.random.default_rng([cfg["seed"], 1])
+        write_captures(rig, spec, tmp / "captures", truth["u"], truth["v"], truth["lit"], rng,
+                       noise_dn=cam["noise_dn"], albedo=cam["albedo"], ambient=cam["ambient"], name="{:04d}.png")
+        w, h = rig.camera_size
+        meta: dict[str, Any] = {
+            "format": "structured-light-session/1",
+            "id": cfg["id"],
+            "camera": {"width": w, "height": h, "bit_depth": 8, "channels": 1},
+            "projector": {"width": spec.projector_width, "height": spec.projector_height},
+            "sequence": {"file": "sequence.yaml", "frames": spec.n_frames},
+        }
+        if "poses" in cfg:
+            p = cfg["poses"]
+            board = Board(p["board"]["cols"], p["board"]["rows"], float(p["board"]["pitch_mm"]), p["board"]["kind"])
+            write_pose_folders(rig, board, spec, p["count"], p["seed"], tmp / "poses", corner_image=False,
+                               printed=True, noise_dn=cam["noise_dn"], ambient=cam["ambient"],
+                               folder_name="pose_{:02d}", frame_name="{:04d}.png")
+            meta["poses"] = [f"pose_{i:02d}" for i in range(p["count"])]
+            meta["board"] = {"cols": board.cols, "rows": board.rows, "pitch_mm": board.pitch_mm, "kind": board.kind}
+        if cfg.get("calibration_session"):
+            meta["calibration"] = {"session": cfg["calibration_session"]}
+        notes = cfg.get("notes") or (f"huefringe bench rig {cfg['rig']}, scene {cfg['scene']['kind']}, "
+                                     f"noise {cam['noise_dn']:g} DN, ambient {cam['ambient']:g}")
+        meta["provenance"] = {"instrument": f"huefringe virtual bench rig {cfg['rig']} "
+                                            f"(camera {w} x {h}, projector {spec.projector_width} x {spec.projector_height})",
+                              "simulated": True, "notes": notes}
+        if cfg["ground_truth"]:
+            (tmp / "ground_truth").mkdir()
+            _write_tiff(tmp / "ground_truth" / "x.tiff", truth["u"])
+            _write_tiff(tmp / "ground_truth" / "y.tiff", truth["v"])
+            _write_tiff(tmp / "ground_truth" / "xyz.tiff", truth["xyz"])
+        if _writes_features(cfg):
+            f = cfg["features"]
+            feats = features_from_truth(truth, margin_px=f["margin_px"], tolerance_mm=f["tolerance_mm"],
+                                        base_boxes=f["base_boxes"])
+            (tmp / "features.yaml").write_text(yaml.safe_dump(feats, sort_keys=False, default_flow_style=None),
+                                               encoding="utf-8")
+        stored = {**sequence_to_mapping(spec), "frames": "[0-9][0-9][0-9][0-9].png"}
+        (tmp / "sequence.yaml").write_text(yaml.safe_dump(stored, sort_keys=False, default_flow_style=None),
+                                           encoding="utf-8")
+        (tmp / "session.yaml").write_text(yaml.safe_dump(meta, sort_keys=False), encoding="utf-8")
+        load_sl_session(tmp, deep=True)
+        _swap_into_place(tmp, out)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return out
