@@ -25,7 +25,9 @@ from rig_helpers import BOARD, HALF_WINDOW_PX, MIN_PIXELS, SL_RIG, SL_SEQUENCE  
 from huefringe.bench.rig import RIGS, write_pose_folders  # noqa: E402
 from huefringe.codecs import load_sequence  # noqa: E402
 from huefringe.rig import detect_corners, projector_corners  # noqa: E402
-from huefringe.rig.folders import decode_folder_uv  # noqa: E402
+from huefringe.codecs import read_captures  # noqa: E402
+from huefringe.rig.measure import decode_frame  # noqa: E402
+from huefringe.settings import load_config  # noqa: E402
 
 
 def main(n: int, rigs: list[str]) -> None:
@@ -46,7 +48,7 @@ def one(name: str, n: int) -> None:
             err: dict[str, list[np.ndarray]] = {"w": [], "u": [], "cam": []}
             for i, (R, t) in enumerate(poses):
                 f = root / str(printed) / f"pose_{i:02d}"
-                d = decode_folder_uv(f, spec)
+                d = decode_frame(read_captures(f, spec), spec, load_config())
                 c = detect_corners(d["mean"] if printed else cv2.imread(str(f / "board.png"), cv2.IMREAD_GRAYSCALE), BOARD)
                 ray = np.column_stack([cv2.undistortPoints(c.reshape(-1, 1, 2), cal.camera_matrix, cal.camera_distortion,
                                                            None, None, None, (3, 300, 1e-15)).reshape(-1, 2), np.ones(len(c))])

@@ -33,9 +33,14 @@ def bench(tmp_path_factory):
 
 
 def test_captures_to_calibration_to_cloud(bench, capsys):
+    from huefringe.io import read_tiff
+    from huefringe.metrology import flatness_u
+
     root, rig = bench
     assert main(["rig-calibrate", str(root / "poses"), str(root / "seq.yaml"), str(root / "calib.yml"),
                  "--board", "9x7", "--pitch-mm", "12"]) == 0
+    out = capsys.readouterr().out
+    assert "camera alone" in out and "stereo (joint model)" in out and "leave-one-pose-out" in out
     calib = read_calibration(root / "calib.yml")
     truth = rig.calibration
     assert abs(calib.camera_matrix[0, 0] / truth.camera_matrix[0, 0] - 1) < 0.003
@@ -43,14 +48,21 @@ def test_captures_to_calibration_to_cloud(bench, capsys):
     assert abs(calib.baseline_mm - truth.baseline_mm) < 0.3
     report = json.loads((root / "calib.report.json").read_text())
     assert [p["name"] for p in report["poses"]] == [f"pose_{i:02d}" for i in range(6)]
-    assert main(["rig-measure", str(root / "plane"), str(root / "seq.yaml"), str(root / "calib.yml"),
-                 str(root / "out"), "--box", "200,150,300,250"]) == 0
-    rep = json.loads((root / "out" / "report.json").read_text())
-    assert rep["plane"]["form_deviation_mm"] < 0.02
-    assert rep["plane"]["rms_mm"] < 2 * rep["median_sigma_mm"][2] + 0.01
-    assert abs(rep["boxes"]["box0"]["mean_height_mm"]) < 0.02
-    for name in ("cloud.ply", "mesh.ply", "height.tiff", "height.x3p"):
-        assert (root / "out" / name).stat().st_size > 1000
+    assert set(report["rms_definitions"]) >= {"camera", "projector", "stereo"}
+    assert len(json.loads((root / "calib.jackknife.json").read_text())["left_out"]) == 6
+    # captures in a folder: assembled into OUTDIR/session, then measured as the workflow measures a session
+    assert main(["rig-measure", str(root / "plane"), str(root / "seq.yaml"), str(root / "calib.yml"), str(root / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "no features.yaml in the session, so no metrology report" in out
+    assert (root / "out" / "session" / "session.yaml").is_file()
+    xyz, sigma = read_tiff(root / "out/xyz/frame_0000.tiff"), read_tiff(root / "out/xyz/frame_0000_sigma.tiff")
+    ok = np.isfinite(xyz).all(axis=-1)
+    flat = flatness_u(xyz[ok], sigma[ok])
+    assert flat["rms_form_mm"] < 0.02 and flat["rms_mm"] < 2 * np.median(np.linalg.norm(sigma[ok], axis=-1)) + 0.01
+    for name in ("cloud/frame_0000.ply", "mesh/frame_0000.ply", "height/frame_0000.tiff", "x3p/frame_0000.x3p",
+                 "renders/frame_0000_top.png"):
+        assert (root / "out" / name).stat().st_size > 1000, name
+    assert not (root / "out" / "metrology").exists()
 
 
 def test_refusals_name_the_files(bench, tmp_path, capsys):
@@ -63,7 +75,10 @@ def test_refusals_name_the_files(bench, tmp_path, capsys):
     err = capsys.readouterr().err
     assert "pose_00: the 8 x 6 chessboard was not found" in err and "pose_05" in err
     assert not (tmp_path / "c.yml").exists()
+    # pose folders without a board named: refused before any work
+    assert main(["rig-calibrate", str(root / "poses"), str(root / "seq.yaml"), str(tmp_path / "c.yml")]) == 2
+    assert "--board COLSxROWS and --pitch-mm MM" in capsys.readouterr().err
     assert main(["rig-measure", str(root / "plane"), str(root / "seq.yaml"), str(tmp_path / "none.yml"),
                  str(tmp_path / "out")]) == 2
-    assert "none.yml: no such file" in capsys.readouterr().err
+    assert "none.yml: missing calibration file" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()

@@ -271,8 +271,34 @@ def _is_sl_session(path: str) -> bool:
     return session_format(path) == FORMAT
 
 
+def _config(files: list[str] | None) -> dict[str, Any]:
+    """The packaged defaults with each ``--configfile`` over them, as the workflow reads them."""
+    from huefringe.settings import load_config
+
+    try:
+        return load_config(*(files or []))
+    except (OSError, ValueError, TypeError) as exc:
+        raise SystemExit(f"REFUSED: --configfile {' '.join(files or [])}: cannot be read ({exc})") from None
+
+
+def _print_calibration(out: str, report: dict[str, Any], baseline_mm: float) -> None:
+    print("  per pose, RMS reprojection error against the final joint model (board pose from the camera):")
+    for p in report["poses"]:
+        flag = "" if p["used"] else "  DOES NOT FIT: left out"
+        print(f"    {p['name']}: camera {p['camera_rms_px']:.3f} px, projector {p['projector_rms_px']:.3f} px{flag}")
+    r = report["rms_px"]
+    print(f"OK: {out}: RMS of the fit over all used corners: camera alone {r['camera']:.3f} px, projector alone "
+          f"{r['projector']:.3f} px, stereo (joint model) {r['stereo']:.3f} px; baseline {baseline_mm:.1f} mm; "
+          f"{len(report['jackknife_poses'])} leave-one-pose-out calibrations for the calibration's uncertainty"
+          + (f"; poses left out: {', '.join(report['rejected'])}" if report["rejected"] else ""))
+
+
 def _cmd_rig_calibrate(args: argparse.Namespace) -> int:
-    from huefringe.rig.folders import RigError, calibrate_folders, calibrate_session
+    import json
+
+    from huefringe.rig.measure import RigError, calibrate_folders, write_rig_calibration
+    from huefringe.session import SessionError
+    from huefringe.stages import calibrate_rig_session
 
     sl = bool(args.inputs) and _is_sl_session(args.inputs[0])
     if len(args.inputs) != (2 if sl else 3):
@@ -280,62 +306,72 @@ def _cmd_rig_calibrate(args: argparse.Namespace) -> int:
               f"{len(args.inputs)} argument(s): {' '.join(args.inputs)}", file=sys.stderr)
         return 2
     out = args.inputs[-1]
-    try:
-        board = _board(args.board, args.pitch_mm, args.kind)
-    except ValueError:
-        print(f"REFUSED: --board {args.board!r}: COLSxROWS of inner corners expected (e.g. 9x7)", file=sys.stderr)
-        return 2
+    board = None
+    if args.board or not sl:
+        if not args.board or args.pitch_mm is None:
+            print("REFUSED: --board COLSxROWS and --pitch-mm MM name the board (a session may carry them as board:)",
+                  file=sys.stderr)
+            return 2
+        try:
+            board = _board(args.board, args.pitch_mm, args.kind)
+        except ValueError:
+            print(f"REFUSED: --board {args.board!r}: COLSxROWS of inner corners expected (e.g. 9x7)", file=sys.stderr)
+            return 2
+    cfg = _config(args.configfile)
     try:
         if sl:
-            calib, report = calibrate_session(args.inputs[0], out, board)
+            files = calibrate_rig_session(args.inputs[0], out, cfg, board)
         else:
-            calib, report = calibrate_folders(args.inputs[0], args.inputs[1], out, board)
-    except RigError as exc:
+            files = write_rig_calibration(calibrate_folders(args.inputs[0], args.inputs[1], board, cfg), out)
+    except (RigError, SessionError) as exc:
         print(f"REFUSED: {exc}", file=sys.stderr)
         return 2
-    for p in report.poses:
-        flag = "" if p["used"] else "  DOES NOT FIT: left out"
-        print(f"  {p['name']}: camera {p['camera_rms_px']:.3f} px, projector {p['projector_rms_px']:.3f} px{flag}")
-    print(f"OK: {out}: RMS camera {report.rms_px['camera']:.3f} px, projector {report.rms_px['projector']:.3f} px, "
-          f"stereo {report.rms_px['stereo']:.3f} px; baseline {calib.baseline_mm:.1f} mm"
-          + (f"; poses left out: {', '.join(report.rejected)}" if report.rejected else ""))
+    from huefringe.rig import read_calibration
+
+    _print_calibration(out, json.loads(Path(files["report"]).read_text()), read_calibration(out).baseline_mm)
     return 0
 
 
 def _cmd_rig_measure(args: argparse.Namespace) -> int:
-    from huefringe.rig.folders import RigError, measure_folder, measure_session
+    import json
 
-    boxes, base = {}, []
-    for flag, texts in (("--box", args.box), ("--base", args.base)):
-        for text in texts or []:
-            try:
-                box = tuple(int(v) for v in text.split(","))
-                assert len(box) == 4
-            except (ValueError, AssertionError):
-                print(f"REFUSED: {flag} {text!r}: x0,y0,x1,y1 in camera pixels expected", file=sys.stderr)
-                return 2
-            if flag == "--box":
-                boxes[f"box{len(boxes)}"] = box
-            else:
-                base.append(box)
+    from huefringe.rig.measure import RigError
+    from huefringe.session import SessionError, assemble_sl_session
+    from huefringe.stages import measure_rig_session
+
     sl = bool(args.inputs) and _is_sl_session(args.inputs[0])
-    if (sl and len(args.inputs) != 2) or (not sl and (len(args.inputs) < 4 or args.calibration)):
-        print("REFUSED: give SESSION OUTDIR [--calibration FILE ...] (a structured-light session) or "
-              f"CAPTURES SEQUENCE CALIBRATION... OUTDIR; got {' '.join(args.inputs)}", file=sys.stderr)
+    if (sl and len(args.inputs) != 2) or (not sl and (len(args.inputs) != 4 or args.calibration)):
+        print("REFUSED: give SESSION OUTDIR [--calibration FILE] (a structured-light session) or "
+              f"CAPTURES SEQUENCE CALIBRATION OUTDIR; got {' '.join(args.inputs)}", file=sys.stderr)
         return 2
-    outdir = args.inputs[-1]
+    outdir = Path(args.inputs[-1])
+    if outdir.exists() and any(outdir.iterdir()):
+        print(f"REFUSED: {outdir}: already exists and is not empty; give a new folder", file=sys.stderr)
+        return 2
+    cfg = _config(args.configfile)
+    made = not outdir.exists()
     try:
         if sl:
-            rep = measure_session(args.inputs[0], outdir, boxes=boxes, calibration=args.calibration, base=base)
-        else:
-            rep = measure_folder(args.inputs[0], args.inputs[1], args.inputs[2:-1], outdir, boxes=boxes, base=base)
-    except RigError as exc:
+            session, calibration = args.inputs[0], args.calibration
+        else:  # captures in a folder: assembled into OUTDIR/session first, then measured as a session
+            session = assemble_sl_session(args.inputs[0], args.inputs[1], outdir / "session", calibration=args.inputs[2])
+            calibration = None
+        files = measure_rig_session(session, outdir, cfg, calibration=calibration)
+    except (RigError, SessionError) as exc:
+        if made and outdir.exists():
+            import shutil
+
+            shutil.rmtree(outdir)
         print(f"REFUSED: {exc}", file=sys.stderr)
         return 2
-    boxes_text = "".join(f"; {k} {v['mean_height_mm']:.4f} mm above the plane" for k, v in rep["boxes"].items())
-    print(f"OK: {outdir}: {rep['points']} points ({rep['coverage']:.1%} of pixels), plane RMS "
-          f"{rep['plane']['rms_mm']:.4f} mm, form deviation {rep['plane']['form_deviation_mm']:.4f} mm, "
-          f"median sigma_z {rep['median_sigma_mm'][2]:.4f} mm{boxes_text}")
+    qa = json.loads(files["qa"].read_text())
+    head = (f"OK: {outdir}: {qa['points']} points ({qa['valid_fraction']:.1%} of the camera), triangulation "
+            f"{qa['triangulation']}")
+    if "json" in files:
+        c = json.loads(files["json"].read_text())["conformity"]
+        print(f"{c['decision'].upper()} (ISO 14253-1) - {c['reason']}\n  report: {files['html']}\n{head}")
+    else:
+        print(f"{head}; no features.yaml in the session, so no metrology report (what to measure: docs/rig.md)")
     return 0
 
 
@@ -348,31 +384,33 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", required=True, metavar="{check,bench,patterns,session,sl-session,decode,rig-calibrate,rig-measure,archive,verify}")
 
     p = sub.add_parser("rig-calibrate", help="calibrate a projector-camera rig from board poses of coded captures",
-                       usage="huefringe rig-calibrate (SESSION | POSES SEQUENCE) OUT --board COLSxROWS --pitch-mm MM")
+                       usage="huefringe rig-calibrate (SESSION | POSES SEQUENCE) OUT [--board COLSxROWS --pitch-mm MM] "
+                             "[--configfile FILE ...]")
     p.add_argument("inputs", nargs="+", metavar="SESSION | POSES SEQUENCE, OUT",
                    help="a structured-light session with poses/ (corners in each pose's mean frame), or a folder of "
                         "pose folders (each with the sequence's captures and optionally board.png) and the sequence "
                         "YAML (both projector axes); then the calibration to write (OpenCV FileStorage: .yml, .xml "
-                        "or .json), its report beside it")
-    p.add_argument("--board", required=True, help="inner corners (circles) COLSxROWS, e.g. 9x7")
-    p.add_argument("--pitch-mm", type=float, required=True, help="square size (circle spacing), mm")
+                        "or .json), its report (.report.json) and leave-one-pose-out calibrations (.jackknife.json) "
+                        "beside it")
+    p.add_argument("--board", help="inner corners (circles) COLSxROWS, e.g. 9x7 (default: the session's board:)")
+    p.add_argument("--pitch-mm", type=float, help="square size (circle spacing), mm")
     p.add_argument("--kind", choices=["chessboard", "circles", "acircles"], default="chessboard")
+    p.add_argument("--configfile", nargs="+", metavar="FILE", help="YAML files overriding the packaged defaults "
+                   "(codecs, rig), as snakemake --configfile")
     p.set_defaults(func=_cmd_rig_calibrate)
 
-    p = sub.add_parser("rig-measure", help="triangulate captures with a rig calibration: cloud, mesh, height map, X3P, "
-                                           "figures, report",
-                       usage="huefringe rig-measure (SESSION | CAPTURES SEQUENCE CALIBRATION...) OUTDIR "
-                             "[--box x0,y0,x1,y1 ...] [--base x0,y0,x1,y1 ...] [--calibration FILE ...]")
-    p.add_argument("inputs", nargs="+", metavar="SESSION | CAPTURES SEQUENCE CALIBRATION..., OUTDIR",
-                   help="a structured-light session (its captures/ and calibration/), or a folder of the sequence's "
-                        "captures, the sequence YAML and the calibration file(s) (huefringe, SLStudio, "
-                        "scan3d-capture or OpenCV stereo layout); then the output folder")
-    p.add_argument("--calibration", nargs="+", help="with a SESSION: calibration file(s) to use instead of its calibration/")
-    p.add_argument("--box", action="append", help="x0,y0,x1,y1 camera pixels (columns x0..x1-1, rows y0..y1-1): report "
-                                                 "the mean height above the plane there")
-    p.add_argument("--base", action="append", help="x0,y0,x1,y1 camera pixels on the surface heights are measured from: "
-                                                  "the plane is fitted to the points in these boxes (repeatable; "
-                                                  "default: every point)")
+    p = sub.add_parser("rig-measure", help="measure a structured-light session as the workflow does: X, Y, Z per camera "
+                                           "pixel, cloud, mesh, height map, X3P, renders, report with U and the decision",
+                       usage="huefringe rig-measure (SESSION | CAPTURES SEQUENCE CALIBRATION) OUTDIR "
+                             "[--calibration FILE] [--configfile FILE ...]")
+    p.add_argument("inputs", nargs="+", metavar="SESSION | CAPTURES SEQUENCE CALIBRATION, OUTDIR",
+                   help="a structured-light session (its captures/, calibration/ and features.yaml), or a folder of "
+                        "the sequence's captures, the sequence YAML and the calibration file (assembled into "
+                        "OUTDIR/session first); then a new output folder, written in the layout of results/<id>/")
+    p.add_argument("--calibration", help="with a SESSION: the calibration file to use instead of its calibration/ "
+                                         "(a file rig-calibrate wrote brings its leave-one-pose-out calibrations)")
+    p.add_argument("--configfile", nargs="+", metavar="FILE", help="YAML files overriding the packaged defaults "
+                   "(codecs, rig, mesh, render), as snakemake --configfile")
     p.set_defaults(func=_cmd_rig_measure)
 
     p = sub.add_parser("check", help="validate a capture session (capture-session/1 or structured-light-session/1); exit 1 if it is refused")

@@ -212,12 +212,7 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, S
         path = Path(entry)
         full = path if path.is_absolute() else base / path
         try:
-            if (full / "session.yaml").exists() or str(path) not in bench_sessions:
-                plan = _from_session(full)
-                plan.path = path
-            else:
-                ref = bench_sessions[str(path)]
-                plan = _from_bench(path, bench_config_for(ref, base), bench_yaml(ref, base))
+            plan = _plan_folder(path, base, bench_sessions)
         except SessionError as exc:
             refused.append(f"session {entry} is refused:\n{exc}")
             continue
@@ -225,34 +220,58 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, S
             refused.append(f"session {entry} cannot be written by the bench:\n{exc}")
             continue
         _add(plans, plan, config)
-    refused += _link_calibrations(plans, base, config)
+    refused += _link_calibrations(plans, base, config, bench_sessions)
     if refused:
         head = f"{len(refused)} of {len(config['sessions'])} sessions refused:\n" if len(refused) > 1 else ""
         raise PlanError(head + "\n".join(refused))
     return plans
 
 
-def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[str, Any]) -> list[str]:
+def _plan_folder(path: Path, base: Path, bench_sessions: dict[str, str]) -> SessionPlan:
+    """The plan of the session folder ``path``: read from it, or from the bench YAML that writes it."""
+    full = path if path.is_absolute() else base / path
+    if (full / "session.yaml").exists() or str(path) not in bench_sessions:
+        plan = _from_session(full)
+        plan.path = path
+        return plan
+    ref = bench_sessions[str(path)]
+    cfg_path = bench_yaml(ref, base)
+    if bench.bench_kind(cfg_path) == SL_FORMAT:
+        return _from_sl_bench(path, cfg_path)
+    return _from_bench(path, bench_config_for(ref, base), cfg_path)
+
+
+def _from_sl_bench(path: Path, cfg_path: Path) -> SessionPlan:
+    info = bench.sl_session_plan(bench.load_sl_bench_config(cfg_path))
+    cal = info["calibration_session"]
+    return SessionPlan(path=path, id=str(info["id"]), frames=[0], phase_shift=[], ground_truth=bool(info["ground_truth"]),
+                       specimen=bool(info["features"]), bench=str(cfg_path), kind="structured-light",
+                       calibrate=bool(info["poses"]), calibration_session=None if cal is None else path / cal)
+
+
+def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[str, Any],
+                       bench_sessions: dict[str, str]) -> list[str]:
     """Give each structured-light session its calibration: its own file, the session it names (added to
     the run, calibration only, when the configuration does not list it) or its own poses."""
     def full(p: Path) -> Path:
         return (p if p.is_absolute() else base / p).resolve()
 
     by_path = {full(p.path): p for p in plans.values()}
+    bench_by_path = {full(Path(k)): Path(k) for k in bench_sessions}
     refused = []
     for plan in list(plans.values()):
         if plan.kind != "structured-light" or plan.calibration_file:
             continue
         if plan.calibration_session is not None:
-            target = plan.calibration_session.resolve()
+            target = full(plan.calibration_session)
             other = by_path.get(target)
             if other is None:
                 try:
-                    other = _from_session(target)
-                except SessionError as exc:
+                    other = _plan_folder(bench_by_path.get(target, target), base, bench_sessions)
+                except (SessionError, bench.BenchConfigError) as exc:
                     refused.append(f"session {plan.path}: its calibration session {target} is refused:\n{exc}")
                     continue
-                other.path, other.measure = target, False
+                other.measure = False
                 _add(plans, other, config)
                 by_path[target] = other
             if not other.calibrate:

@@ -31,9 +31,11 @@ rule rig_measure:
     input:
         session=session_yaml,
         calibration=rig_calibration,
+        jackknife=rig_jackknife,
     output:
         xyz=R("{sid}", "xyz", "frame_0000.tiff"),
         xyz_sigma=R("{sid}", "xyz", "frame_0000_sigma.tiff"),
+        xyz_u=R("{sid}", "xyz", "frame_0000_u.tiff"),
         decoded=R("{sid}", "decode", "frame_0000.tiff"),
         cloud=R("{sid}", "cloud", "frame_0000.ply"),
         height=R("{sid}", "height", "frame_0000.tiff"),
@@ -124,7 +126,7 @@ rule rig_accuracy:
     input:
         session=session_yaml,
         xyz=R("{sid}", "xyz", "frame_0000.tiff"),
-        xyz_sigma=R("{sid}", "xyz", "frame_0000_sigma.tiff"),
+        xyz_u=R("{sid}", "xyz", "frame_0000_u.tiff"),
     output:
         accuracy=R("{sid}", "accuracy.json"),
     log:

@@ -143,7 +143,7 @@ def build_report_json(
         if key in method_result:
             report[key] = _plain(method_result[key])
     report["verdict"] = "PASS" if all(s["pass"] for s in report["steps"]) else "FAIL"
-    report["conformity"] = conformity([*report["steps"], *figures], tol)
+    report["conformity"] = conformity([*report["steps"], *figures], tol, "figure" if figures else "step")
     if "base" in method_result:
         report["base"] = _plain(method_result["base"])
     for key, value in (extras or {}).items():
@@ -157,7 +157,7 @@ def build_report_json(
 CONFORMITY_DECISIONS: tuple[str, ...] = ("conforms", "does not conform", "undecided")
 
 
-def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float) -> dict[str, Any]:
+def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float, noun: str = "step") -> dict[str, Any]:
     """The report's headline: the ISO 14253-1 decision for the whole specimen, with its reason.
 
     Parameters
@@ -168,6 +168,8 @@ def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float) -> dict[
         (a flatness: nominal 0, ``error_mm`` = the value) follows the same rule.
     tolerance_mm : float
         T, the tolerance on each step's mean height (for every entry without its own).
+    noun : str
+        What the entries are called in the reason (``step``; ``figure`` for a report with form figures).
 
     Returns
     -------
@@ -211,10 +213,10 @@ def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float) -> dict[
         decision = "undecided"
         reason = ("; ".join(says(st, "undecided") for st in zone["undecided"])
                   + ": the uncertainty U does not allow a decision"
-                  + (f" ({len(zone['pass'])} of {n} steps conform)" if zone["pass"] else ""))
+                  + (f" ({len(zone['pass'])} of {n} {noun}s conform)" if zone["pass"] else ""))
     else:
         decision = "conforms"
-        reason = f"every step's |error| <= T - U: conformance proven for all {n} steps"
+        reason = f"every {noun}'s |error| <= T - U: conformance proven for all {n} {noun}s"
     return {"decision": decision, "reason": reason, "rule": rule,
             "conforming": [st["name"] for st in zone["pass"]], "undecided": [st["name"] for st in zone["undecided"]],
             "nonconforming": [st["name"] for st in zone["fail"]]}

@@ -40,6 +40,7 @@ __all__ = [
     "calibrate_folders",
     "calibrate_poses",
     "calibrate_sl_session",
+    "calibration_spread",
     "decode_frame",
     "height_over_plane",
     "measure_sl_frame",
@@ -336,6 +337,37 @@ def measure_sl_frame(session: Any, calib: RigCalibration, cfg: dict[str, Any]) -
     except SequenceError as exc:
         raise RigError(str(exc)) from None
     return triangulate_frame(d, calib, cfg, where=str(session.root / "captures"), spec=session.spec)
+
+
+def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibration]]) -> tuple[F64, F64]:
+    """The calibration's standard uncertainty of every point: the jackknife spread of the point
+    triangulated again with each leave-one-pose-out calibration.
+
+    Returns
+    -------
+    u_axes : ndarray, shape (H, W, 3)
+        Per axis, ``sqrt((J - 1) / J * sum_j (p_j - mean)^2)``; zero without leave-one-out calibrations.
+    u_ray : ndarray, shape (H, W)
+        The same along the point's camera ray (where a triangulated point's error lies).
+    """
+    u_axes = np.where(frame.valid[..., None], np.zeros(3), np.nan)
+    u_ray = np.where(frame.valid, 0.0, np.nan)
+    if not jackknife:
+        return u_axes, u_ray
+    d = frame.decoded
+    use = {"u": frame.mode in ("u", "both"), "v": frame.mode in ("v", "both")}
+    pts = []
+    for _, c in jackknife:
+        t = triangulate(c, d["u"] if use["u"] else None, d["v"] if use["v"] else None,
+                        valid=frame.valid, mode=frame.mode)  # type: ignore[arg-type]
+        pts.append(t.xyz[frame.valid])
+    p = np.stack(pts)
+    n = len(jackknife)
+    dev = p - p.mean(axis=0)
+    ray = frame.xyz[frame.valid] / np.linalg.norm(frame.xyz[frame.valid], axis=-1, keepdims=True)
+    u_axes[frame.valid] = np.sqrt((n - 1) / n * np.sum(dev**2, axis=0))
+    u_ray[frame.valid] = np.sqrt((n - 1) / n * np.sum(np.einsum("jik,ik->ji", dev, ray) ** 2, axis=0))
+    return u_axes, u_ray
 
 
 def along_normal_sigma(xyz: F64, sigma: F64, normal: F64) -> F64:

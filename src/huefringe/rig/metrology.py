@@ -33,6 +33,8 @@ __all__ = ["METHOD", "base_plane", "feature_values", "rig_report", "xyz_accuracy
 
 F64 = NDArray[np.float64]
 METHOD = "coded-light-triangulation"
+_JACKKNIFED = ("height_mm", "rms_form_mm", "distance_mm", "parallelism_mm", "radius_mm")
+"""The figures recomputed with each leave-one-pose-out calibration (the calibration term)."""
 
 
 def base_plane(frame: RigFrame, features: Any) -> Any:
@@ -59,17 +61,13 @@ def feature_values(xyz: F64, sigma: F64, features: Any) -> dict[str, dict[str, A
         try:
             if f.kind == "step":
                 out[f.name] = step_height_u(*_points(xyz, sigma, masks["base"]), *_points(xyz, sigma, masks[f.name]))
-                out[f.name]["value_mm"] = out[f.name]["height_mm"]
             elif f.kind == "plane":
-                r = flatness_u(*_points(xyz, sigma, masks[f.name]))
-                out[f.name] = {**r, "value_mm": r["rms_form_mm"]}
+                out[f.name] = flatness_u(*_points(xyz, sigma, masks[f.name]))
             elif f.kind == "distance":
                 b, a = f.planes or ("", "")
-                r = plane_pair_u(*_points(xyz, sigma, masks[a]), *_points(xyz, sigma, masks[b]))
-                out[f.name] = {**r, "value_mm": r["distance_mm"]}
+                out[f.name] = plane_pair_u(*_points(xyz, sigma, masks[a]), *_points(xyz, sigma, masks[b]))
             elif f.kind == "sphere":
-                r = fit_sphere_u(*_points(xyz, sigma, masks[f.name]))
-                out[f.name] = {**r, "value_mm": r["radius_mm"]}
+                out[f.name] = fit_sphere_u(*_points(xyz, sigma, masks[f.name]))
         except ValueError as exc:
             raise RigError(f"{features.path}: {f.name}: {exc}") from None
     return out
@@ -142,7 +140,7 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
     values = feature_values(xyz, sigma, feats)
     loo = read_jackknife(jackknife) if jackknife else []
     mode = _mode(decoded, config)
-    jack: dict[str, list[float]] = {n: [] for n in values}
+    jack: dict[tuple[str, str], list[float]] = {}
     if loo:
         need = np.zeros(valid.shape, dtype=bool)
         for r in feats.regions().values():
@@ -151,28 +149,37 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
         for _, c in loo:
             xj, sj = _retriangulate(c, decoded, mode, need)
             for n, v in feature_values(xj, sj, feats).items():
-                jack[n].append(float(v["value_mm"]))
+                for key in _JACKKNIFED:
+                    if key in v:
+                        jack.setdefault((n, key), []).append(float(v[key]))
+
+    def u_cal(name: str, key: str) -> float | None:
+        return jackknife_u(jack[(name, key)]) if loo else None
+
     steps, forms = [], {"flatness": [], "distances": [], "parallelism": [], "spheres": []}
     for f in feats.features:
         v = values[f.name]
-        u_cal = jackknife_u(jack[f.name]) if loo else None
         if f.kind == "step":
-            steps.append(_entry(f.name, v["height_mm"], f.nominal_mm, f.tolerance_mm, v["u_mm"], u_cal,
+            steps.append(_entry(f.name, v["height_mm"], f.nominal_mm, f.tolerance_mm, v["u_mm"], u_cal(f.name, "height_mm"),
                                 {"points": {"base": v["n_base"], "top": v["n_top"]}}))
         elif f.kind == "plane":
-            forms["flatness"].append(_entry(f.name, v["rms_form_mm"], f.nominal_mm, f.tolerance_mm, v["u_rms_form_mm"], u_cal, {
+            forms["flatness"].append(_entry(f.name, v["rms_form_mm"], f.nominal_mm, f.tolerance_mm, v["u_rms_form_mm"],
+                                            u_cal(f.name, "rms_form_mm"), {
                 "figure": "flatness FLTq (RMS of the least-squares residuals, noise removed)",
                 "pv_form_mm": v["pv_form_mm"], "u_pv_form_mm": v["u_pv_form_mm"], "rms_mm": v["rms_mm"],
                 "pv_mm": v["pv_mm"], "rms_noise_mm": v["rms_noise_mm"], "pv_noise_mm": v["pv_noise_mm"], "points": v["n"]}))
         elif f.kind == "distance":
-            forms["distances"].append(_entry(f.name, v["distance_mm"], f.nominal_mm, f.tolerance_mm, v["u_distance_mm"], u_cal, {
-                "figure": f"distance of {f.planes[0]} from {f.planes[1]}" if f.planes else "distance",
+            a, b = f.planes or ("", "")
+            forms["distances"].append(_entry(f.name, v["distance_mm"], f.nominal_mm, f.tolerance_mm, v["u_distance_mm"],
+                                             u_cal(f.name, "distance_mm"), {
+                "figure": f"distance of {a} from {b}",
                 "angle_deg": float(np.degrees(v["angle_rad"])), "u_angle_deg": float(np.degrees(v["u_angle_rad"]))}))
             forms["parallelism"].append(_entry(f"{f.name}-parallelism", v["parallelism_mm"], 0.0, f.tolerance_mm,
-                                               v["u_parallelism_mm"], None if not loo else 0.0, {
-                "figure": f"parallelism of {f.planes[0]} to {f.planes[1]} (zone width over its extent)" if f.planes else "parallelism"}))
+                                               v["u_parallelism_mm"], u_cal(f.name, "parallelism_mm"), {
+                "figure": f"parallelism of {a} to {b} (zone width over its extent)"}))
         elif f.kind == "sphere":
-            forms["spheres"].append(_entry(f.name, v["radius_mm"], f.nominal_mm, f.tolerance_mm, v["u_radius_mm"], u_cal, {
+            forms["spheres"].append(_entry(f.name, v["radius_mm"], f.nominal_mm, f.tolerance_mm, v["u_radius_mm"],
+                                           u_cal(f.name, "radius_mm"), {
                 "figure": "radius of the least-squares sphere", "centre_mm": v["centre_mm"],
                 "form_rms_mm": v.get("rms_form_mm"), "form_pv_mm": v.get("pv_form_mm"), "points": v["n"]}))
     forms = {k: v for k, v in forms.items() if v}
@@ -207,15 +214,25 @@ def _mode(decoded: F64, config: Mapping[str, Any]) -> str:
     return "both" if all(has) else ("u" if has[0] else "v")
 
 
-def xyz_accuracy(xyz: F64, sigma: F64, truth: F64) -> dict[str, Any]:
+def xyz_accuracy(xyz: F64, u: F64, truth: F64) -> dict[str, Any]:
     """Errors of triangulated points against the true X, Y, Z (benches).
+
+    Parameters
+    ----------
+    xyz : ndarray, shape (H, W, 3)
+    u : ndarray, shape (H, W, 4)
+        Combined standard uncertainties ``u_x, u_y, u_z`` and ``u_ray`` along the camera ray
+        (``xyz/frame_NNNN_u.tiff``).
+    truth : ndarray, shape (H, W, 3)
+        NaN where the projector lights no surface directly.
 
     Returns
     -------
     dict
-        ``pixels`` (valid and true), ``valid_without_truth`` (valid pixels where the truth has no
-        directly lit surface: shadow, background), per-axis RMS and the along-ray error's
-        median, 95th percentile, and the share with ``|e| <= 2u`` (u the along-ray uncertainty).
+        ``pixels`` (valid with truth), ``valid_without_truth`` (valid pixels no projector light
+        reaches directly: shadow, background), per-axis RMS, the along-ray error's median and 95th
+        percentile, and the share of pixels with ``|e_ray| <= 2 u_ray`` and, per axis,
+        ``|e| <= 2 u``.
     """
     valid = np.isfinite(xyz).all(axis=-1)
     true = np.isfinite(truth).all(axis=-1)
@@ -223,14 +240,16 @@ def xyz_accuracy(xyz: F64, sigma: F64, truth: F64) -> dict[str, Any]:
     e = (xyz - truth)[both]
     ray = truth[both] / np.linalg.norm(truth[both], axis=-1, keepdims=True)
     along = np.abs(np.einsum("ij,ij->i", e, ray))
-    u = np.linalg.norm(sigma[both], axis=-1)
+    uu = u[both]
     return {
         "pixels": int(both.sum()), "valid_without_truth": int((valid & ~true).sum()),
         "coverage_of_truth": float(both.sum() / max(int(true.sum()), 1)),
         "rms_xyz_mm": np.sqrt(np.mean(e**2, axis=0)).tolist(),
         "median_abs_error_mm": float(np.median(along)) if along.size else None,
         "p95_abs_error_mm": float(np.percentile(along, 95)) if along.size else None,
-        "within_2u": float(np.mean(along <= 2 * u)) if along.size else None,
-        "error_measure": "|e . r|, the error along the camera ray r (where the triangulation's error lies)",
+        "median_u_ray_mm": float(np.median(uu[:, 3])) if along.size else None,
+        "within_2u": float(np.mean(along <= 2 * uu[:, 3])) if along.size else None,
+        "within_2u_xyz": np.mean(np.abs(e) <= 2 * uu[:, :3], axis=0).tolist() if along.size else None,
+        "error_measure": "|e . r|, the error along the camera ray r (where a triangulated point's error lies), "
+                         "against u_ray; per axis |e_x|, |e_y|, |e_z| against u_x, u_y, u_z",
     }
-

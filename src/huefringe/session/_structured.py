@@ -351,7 +351,8 @@ def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
         problems += calibration_problems(calib, cam["width"], cam["height"])
     elif "session" in meta.get("calibration", {}):
         calib_session = (root / meta["calibration"]["session"]).resolve()
-        problems += calibration_session_problems(calib_session, yaml_path, meta)
+        if (calib_session / "session.yaml").exists():  # an absent one is refused where it is needed (plan, rig-measure)
+            problems += calibration_session_problems(calib_session, yaml_path, meta)
     features = None
     if (root / FEATURES_FILE).exists():
         features, fp = load_features(root / FEATURES_FILE, cam["width"], cam["height"])

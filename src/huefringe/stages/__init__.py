@@ -49,6 +49,9 @@ from ._archive import (  # noqa: F401
 from ._run import (  # noqa: F401
     log,
     measure_session,
+    RIG_OUTPUTS,
+    calibrate_rig_session,
+    measure_rig_session,
     stage_kwargs,
     run_from_snakemake,
 )
@@ -72,6 +75,9 @@ __all__ = [
     "hue_table",
     "measure_frames",
     "measure_session",
+    "RIG_OUTPUTS",
+    "calibrate_rig_session",
+    "measure_rig_session",
     "mesh",
     "metrology",
     "plane_calibration",

@@ -21,9 +21,11 @@ from huefringe.rig.measure import (
     RigError,
     RigFrame,
     calibrate_sl_session,
+    calibration_spread,
     height_over_plane,
     measure_sl_frame,
     plane_grid,
+    read_jackknife,
     write_rig_calibration,
 )
 from huefringe.rig.metrology import base_plane, rig_report
@@ -56,22 +58,30 @@ def _calibration_files(session: str, calibration: str) -> str:
     return calibration or str(load_sl_session(session).calibration)
 
 
-def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: str, xyz_sigma: str, decoded: str,
-                cloud: str, height: str, uncertainty: str, x3p: str, qa: str, quality: str) -> None:
-    """Decode and triangulate a structured-light session's captures: X, Y, Z and sigma on the camera
-    grid, the decoded coordinates, the organised cloud, the height over the base plane (features'
-    ``base``, else every point) resampled on the plane's grid, its X3P, and the QA record and figure."""
+def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: str, xyz_sigma: str, xyz_u: str,
+                decoded: str, cloud: str, height: str, uncertainty: str, x3p: str, qa: str, quality: str,
+                jackknife: Any = "") -> None:
+    """Decode and triangulate a structured-light session's captures: X, Y, Z on the camera grid with
+    the decoded coordinates' noise (``xyz_sigma``) and the combined standard uncertainty with the
+    calibration's term (``xyz_u``), the decoded coordinates, the organised cloud, the height over the
+    base plane (features' ``base``, else every point) resampled on the plane's grid, its X3P, and
+    the QA record and figure."""
     s = load_sl_session(session)
     cfg = dict(config)
     calib = read_calibration(_calibration_files(session, calibration))
     f = measure_sl_frame(s, calib, cfg)
+    loo = read_jackknife(_one(jackknife)) if _one(jackknife) else []
+    u_cal, u_cal_ray = calibration_spread(f, loo)
+    noise_ray = np.linalg.norm(f.sigma, axis=-1)
+    u_all = np.concatenate([np.hypot(f.sigma, u_cal), np.hypot(noise_ray, u_cal_ray)[..., None]], axis=-1)
     write_tiff(xyz, f.xyz.astype(np.float32))
     write_tiff(xyz_sigma, f.sigma.astype(np.float32))
+    write_tiff(xyz_u, u_all.astype(np.float32))
     d = f.decoded
     nan = np.full(f.valid.shape, np.nan)
     maps = [d[k] if d[k] is not None else nan for k in ("u", "v", "sigma_u", "sigma_v")]
     write_tiff(decoded, np.stack(maps, axis=-1).astype(np.float32))
-    _write_cloud(cloud, f)
+    _write_cloud(cloud, f, u_all)
     plane = base_plane(f, s.features)
     h_cam, u_cam = height_over_plane(f, plane.centroid, plane.normal)
     grid = plane_grid(f, h_cam, u_cam, plane.centroid, plane.normal)
@@ -86,6 +96,10 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
                        "points": plane.n, "fitted_to": "features base" if s.features and s.features.base else "every point"},
         "grid": {k: v for k, v in grid.items() if k not in ("height", "uncertainty")},
         "calibration": str(_calibration_files(session, calibration)),
+        "calibration_term": {"leave_one_out_calibrations": len(loo),
+                             "median_u_ray_mm": float(np.nanmedian(u_cal_ray)) if loo else None,
+                             "note": "jackknife over the calibration's board poses" if loo else
+                                     "not available: the calibration file comes without its board poses"},
     })
     fig = quality_figure({k: v for k, v in d["decoded"].items()}, f"{s.id}: decoded projector coordinates")
     write_figure_png(fig, quality, dpi=90)
@@ -93,8 +107,10 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
              s.id, int(f.valid.sum()), 100 * f.valid.mean(), f.mode, plane.rms_mm)
 
 
-def _write_cloud(path: str, f: RigFrame) -> None:
-    """The organised cloud: every valid point with its camera pixel (row, column), sigma_x/y/z, grey."""
+def _write_cloud(path: str, f: RigFrame, u: Any) -> None:
+    """The organised cloud: every valid point with its camera pixel (row, column), the decoded
+    coordinates' noise ``sigma_x/y/z``, the combined standard uncertainty ``u_x/y/z`` (with the
+    calibration's term) and the mean capture as grey."""
     rows, cols = np.nonzero(f.valid)
     grey = f.decoded["mean"][rows, cols]
     top = float(np.nanmax(f.decoded["mean"])) or 1.0
@@ -102,7 +118,8 @@ def _write_cloud(path: str, f: RigFrame) -> None:
     sig = f.sigma[rows, cols]
     write_points(path, f.xyz[rows, cols], np.repeat(g[:, None], 3, axis=1),
                  scalars={"row": rows.astype(np.float32), "col": cols.astype(np.float32),
-                          "sigma_x": sig[:, 0], "sigma_y": sig[:, 1], "sigma_z": sig[:, 2]})
+                          "sigma_x": sig[:, 0], "sigma_y": sig[:, 1], "sigma_z": sig[:, 2],
+                          "u_x": u[rows, cols, 0], "u_y": u[rows, cols, 1], "u_z": u[rows, cols, 2]})
 
 
 def rig_surfaces(session: str, height: str, uncertainty: str, mesh: Mapping[str, Any], render: Mapping[str, Any],
@@ -144,7 +161,7 @@ def rig_metrology(session: str, config: Mapping[str, Any], calibration: str, xyz
                figures={"render": render, "height": height_map, "decode_quality": quality})
 
 
-def rig_accuracy(session: str, xyz: str, xyz_sigma: str, accuracy: str) -> None:
+def rig_accuracy(session: str, xyz: str, xyz_u: str, accuracy: str) -> None:
     """Errors of the triangulated X, Y, Z against the session's ``ground_truth/xyz.tiff`` (benches):
     per-axis and along-ray statistics, and the share of valid pixels with ``|e| <= 2u``."""
     from huefringe.rig.metrology import xyz_accuracy
@@ -152,7 +169,7 @@ def rig_accuracy(session: str, xyz: str, xyz_sigma: str, accuracy: str) -> None:
     s = load_sl_session(session)
     if "xyz" not in s.ground_truth:
         raise RigError(f"{s.root}: no ground_truth/xyz.tiff")
-    write_json(accuracy, xyz_accuracy(read_tiff(xyz), read_tiff(xyz_sigma), read_tiff(s.ground_truth["xyz"])))
+    write_json(accuracy, xyz_accuracy(read_tiff(xyz), read_tiff(xyz_u), read_tiff(s.ground_truth["xyz"])))
 
 
 __all__ = ["rig_accuracy", "rig_calibrate", "rig_measure", "rig_metrology", "rig_surfaces"]

@@ -21,6 +21,7 @@ from huefringe.session import SessionError, load_session
 from huefringe.x3p import X3PError
 from ._calibration import camera_calibration, hue_table, plane_calibration
 from ._measurement import baseline_frames, cloud_frames, measure_frames
+from ._rig import rig_accuracy, rig_calibrate, rig_measure, rig_metrology, rig_surfaces
 
 
 log = logging.getLogger("huefringe")
@@ -71,6 +72,85 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
     paths["session"] = s
     paths["camera"] = cam
     return paths
+
+
+RIG_OUTPUTS: dict[str, str] = {
+    "xyz": "xyz/frame_0000.tiff", "xyz_sigma": "xyz/frame_0000_sigma.tiff", "xyz_u": "xyz/frame_0000_u.tiff",
+    "decoded": "decode/frame_0000.tiff", "cloud": "cloud/frame_0000.ply", "height": "height/frame_0000.tiff",
+    "uncertainty": "uncertainty/frame_0000.tiff", "x3p": "x3p/frame_0000.x3p", "qa": "qa/frames/frame_0000.json",
+    "quality": "qa/frame_0000_decode.png", "ply": "mesh/frame_0000.ply", "stl": "mesh/frame_0000.stl",
+    "stats": "mesh/frame_0000.stats.json", "top": "renders/frame_0000_top.png",
+    "oblique1": "renders/frame_0000_oblique1.png", "oblique2": "renders/frame_0000_oblique2.png",
+    "height_map": "renders/frame_0000_height.png", "uncertainty_map": "renders/frame_0000_uncertainty.png",
+    "json": "metrology/report.json", "html": "metrology/report.html", "accuracy": "accuracy.json",
+}
+"""The files of a structured-light session under its results folder (``workflow/rules/rig.smk``)."""
+
+
+def calibrate_rig_session(session: str | Path, out: str | Path, config: Mapping[str, Any], board: Any = None) -> dict[str, Path]:
+    """The workflow's ``rig_calibrate`` without Snakemake: ``out`` (FileStorage), its report and the
+    leave-one-pose-out calibrations beside it; ``board`` overrides the session's."""
+    from huefringe.rig.measure import calibrate_sl_session, write_rig_calibration
+    from huefringe.session import load_sl_session
+
+    if board is None:
+        out = Path(out)
+        rig_calibrate(str(session), config, str(out), str(out.with_suffix(".report.json")),
+                      str(out.with_suffix(".jackknife.json")))
+        return {"calibration": out, "report": out.with_suffix(".report.json"), "jackknife": out.with_suffix(".jackknife.json")}
+    return write_rig_calibration(calibrate_sl_session(load_sl_session(session), dict(config), board), out)
+
+
+def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[str, Any], *,
+                        calibration: str | Path | None = None, surfaces: bool = True) -> dict[str, Path]:
+    """A structured-light session measured without Snakemake: the workflow's ``rig_measure``,
+    ``rig_surfaces``, ``rig_metrology`` (with ``features.yaml``) and ``rig_accuracy`` (with
+    ``ground_truth/xyz.tiff``) in that order, into ``out`` in the results layout
+    (:data:`RIG_OUTPUTS`).
+
+    ``calibration`` (default: the session's own ``calibration/`` file, or the session that
+    ``calibration: {session: PATH}`` names, calibrated first into ``out/calib/rig.yml``) may be a
+    calibration that :func:`calibrate_rig_session` wrote: its report and leave-one-pose-out
+    calibrations beside it are then used as the workflow uses them. Returns the paths written.
+    """
+    from huefringe.session import load_sl_session
+
+    s = load_sl_session(session)
+    out = Path(out)
+    if calibration is None and s.calibration is not None:
+        calibration = s.calibration
+    elif calibration is None and s.calibration_session is not None:
+        if not (s.calibration_session / "session.yaml").is_file():
+            raise RigError(f"{s.root / 'session.yaml'}: calibration/session: {s.calibration_session} holds no session")
+        (out / "calib").mkdir(parents=True, exist_ok=True)
+        calibration = calibrate_rig_session(s.calibration_session, out / "calib" / "rig.yml", config)["calibration"]
+    elif calibration is None:
+        raise RigError(f"{s.root / 'session.yaml'}: no calibration in the session; give one "
+                       "(huefringe rig-measure SESSION OUTDIR --calibration FILE)")
+    calibration = Path(calibration)
+    beside = {k: calibration.with_suffix(f".{k}.json") for k in ("jackknife", "report")}
+    beside = {k: str(v) if v.is_file() else "" for k, v in beside.items()}
+    p = {k: out / v for k, v in RIG_OUTPUTS.items()}
+    keep = ["xyz", "xyz_sigma", "xyz_u", "decoded", "cloud", "height", "uncertainty", "x3p", "qa", "quality"]
+    keep += ["ply", "stl", "stats", "top", "oblique1", "oblique2", "height_map", "uncertainty_map"] if surfaces else []
+    keep += ["json", "html"] if s.features is not None else []
+    keep += ["accuracy"] if "xyz" in s.ground_truth else []
+    for k in keep:
+        p[k].parent.mkdir(parents=True, exist_ok=True)
+    rig_measure(str(s.root), config, str(calibration), **{k: str(p[k]) for k in (
+        "xyz", "xyz_sigma", "xyz_u", "decoded", "cloud", "height", "uncertainty", "x3p", "qa", "quality")},
+        jackknife=beside["jackknife"])
+    if surfaces:
+        rig_surfaces(str(s.root), str(p["height"]), str(p["uncertainty"]), config["mesh"], config["render"],
+                     **{k: str(p[k]) for k in ("ply", "stl", "stats", "top", "oblique1", "oblique2", "height_map", "uncertainty_map")})
+    if s.features is not None:
+        rig_metrology(str(s.root), config, str(calibration), str(p["xyz"]), str(p["xyz_sigma"]), str(p["decoded"]),
+                      str(p["qa"]), str(p["top"]) if surfaces else "", str(p["height_map"]) if surfaces else "",
+                      str(p["quality"]), str(p["json"]), str(p["html"]), jackknife=beside["jackknife"],
+                      calibration_report=beside["report"])
+    if "xyz" in s.ground_truth:
+        rig_accuracy(str(s.root), str(p["xyz"]), str(p["xyz_u"]), str(p["accuracy"]))
+    return {k: p[k] for k in keep}
 
 
 # --------------------------------------------------------------------------- Snakemake adapter
