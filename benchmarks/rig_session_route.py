@@ -1,70 +1,92 @@
-"""The rig route from captures, as a lab runs it: bench-rig captures -> structured-light sessions ->
-rig-calibrate -> rig-measure, against truth (docs/rig.md, "End to end from a structured-light session").
+"""The rig route against truth, as the workflow runs it: bench structured-light sessions (a calibration
+session of printed-board poses, the composite gauge with blocks and a ball, a flat board) ->
+rig_calibrate -> rig_measure -> rig_metrology -> rig_accuracy (docs/rig.md, "Measured on the bench").
 
-Usage: ./run python benchmarks/rig_session_route.py [--seed S] [N_POSES ...]   (default 6, seed 4: the
-documented pose set; about 20 s per case)
-For each pose count: the flat board's form deviation and plane RMS (mm) and the steps' heights
-(truth 2, 5, 10 mm) with the calibration from printed-board poses (corners in the captures' mean),
-from the same poses with board.png (white-light corner images), and with the true calibration.
+Usage: ./run python benchmarks/rig_session_route.py [--rigs tune,holdout-wide,holdout-narrow]
+                                                    [--seeds 4,5,6] [--poses 8] [--work DIR]
+Each (rig, pose seed) case writes its sessions with huefringe.bench (the presets rig-poses,
+rig-gauge, rig-board with the rig, the pose seed and count replaced), calibrates and measures them
+with huefringe.stages.calibrate_rig_session / measure_rig_session (the workflow's stages), and
+prints one row per figure: error, U (k = 2), |error| <= U, and the per-pixel X, Y, Z coverage
+|e_ray| <= 2 u_ray. About 25 s per case on one core.
 """
 
 from __future__ import annotations
 
+import argparse
 import json
-import sys
 import tempfile
+import time
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
-from rig_helpers import BOARD, SL_BASE, SL_RIG, SL_TOPS, write_rig_captures  # noqa: E402
-
-from huefringe.bench.rig import RIGS, write_pose_folders  # noqa: E402
-from huefringe.cli import main  # noqa: E402
-from huefringe.codecs import load_sequence  # noqa: E402
-from huefringe.rig import write_calibration  # noqa: E402
+from huefringe.bench import load_sl_bench_config, write_sl_session
+from huefringe.settings import load_config
+from huefringe.stages import calibrate_rig_session, measure_rig_session
 
 
-def run(*args: str) -> None:
-    if main(list(args)) != 0:
-        raise SystemExit(f"failed: huefringe {' '.join(args)}")
+def case(work: Path, rig: str, seed: int, poses: int) -> dict:
+    root = work / f"{rig}-s{seed}"
+    cfg = load_sl_bench_config("rig-poses")
+    cfg.update(rig=rig)
+    cfg["poses"].update(seed=seed, count=poses)
+    write_sl_session(cfg, root / "rig-poses")
+    for name in ("rig-gauge", "rig-board"):
+        c = load_sl_bench_config(name)
+        c.update(rig=rig, calibration_session="../rig-poses")
+        write_sl_session(c, root / name)
+    conf = load_config()
+    t0 = time.perf_counter()
+    calib = calibrate_rig_session(root / "rig-poses", root / "results/rig-poses/calib/rig.yml", conf)["calibration"]
+    t_cal = time.perf_counter() - t0
+    out = {"rig": rig, "seed": seed, "poses": poses, "calibrate_s": t_cal, "figures": [], "pixels": {}}
+    for name in ("rig-gauge", "rig-board"):
+        t0 = time.perf_counter()
+        files = measure_rig_session(root / name, root / "results" / name, conf, calibration=calib, surfaces=False)
+        out[f"measure_{name}_s"] = time.perf_counter() - t0
+        rep = json.loads(files["json"].read_text())
+        for f in rep["steps"] + [e for v in rep["forms"].values() for e in v]:
+            out["figures"].append({"session": name, "name": f["name"], "nominal": f["nominal_mm"], "value": f["mean_mm"],
+                                   "error": f["error_mm"], "U": f["U_mm"], "u_cal": f["uncertainty_budget"]["calibration_mm"],
+                                   "u_pts": f["uncertainty_budget"]["points_mm"]})
+        out["pixels"][name] = json.loads(files["accuracy"].read_text())
+    return out
 
 
-def measure(r: Path, calib: Path, out: Path) -> tuple[dict, dict]:
-    run("rig-measure", str(r / "board"), str(r / "sequence.yaml"), str(calib), str(out / "board"))
-    boxes = [a for b in SL_BASE for a in ("--base", ",".join(map(str, b)))]
-    boxes += [a for b in SL_TOPS.values() for a in ("--box", ",".join(map(str, b)))]
-    run("rig-measure", str(r / "steps"), str(r / "sequence.yaml"), str(calib), str(out / "steps"), *boxes)
-    return (json.loads((out / "board/report.json").read_text()), json.loads((out / "steps/report.json").read_text()))
-
-
-def main_(poses: list[int], seed: int = 4) -> None:
-    print("| poses | corners from | stereo RMS px | flat form mm | flat plane RMS mm | steps 2 / 5 / 10 mm (error %) |")
-    print("|---|---|---|---|---|---|")
-    for n in poses:
-        with tempfile.TemporaryDirectory() as tmp:
-            root = Path(tmp)
-            r = root / "rig"
-            write_rig_captures(r, n_poses=n, seed=seed)
-            run("sl-session", str(r / "board"), str(r / "sequence.yaml"), str(root / "s"), "--poses", str(r / "poses"))
-            run("rig-calibrate", str(root / "s"), str(root / "printed.yml"), "--board", "9x7", "--pitch-mm", "12")
-            write_pose_folders(RIGS[SL_RIG], BOARD, load_sequence(r / "sequence.yaml"), n, seed, root / "poses_img")
-            run("rig-calibrate", str(root / "poses_img"), str(r / "sequence.yaml"), str(root / "image.yml"),
-                "--board", "9x7", "--pitch-mm", "12")
-            write_calibration(root / "truth.yml", RIGS[SL_RIG].calibration)
-            for name in ("printed", "image", "truth"):
-                rep = json.loads((root / f"{name}.report.json").read_text()) if name != "truth" else None
-                board, steps = measure(r, root / f"{name}.yml", root / name)
-                hs = [(v["mean_height_mm"], h) for (h, v) in zip(SL_TOPS, steps["boxes"].values(), strict=True)]
-                label = {"printed": "captures' mean (session)", "image": "board.png", "truth": "true calibration"}[name]
-                stereo = f"{rep['rms_px']['stereo']:.3f}" if rep else "-"
-                print(f"| {n} | {label} | {stereo} | "
-                      f"{board['plane']['form_deviation_mm']:.4f} | {board['plane']['rms_mm']:.4f} | "
-                      + " / ".join(f"{m:.4f} ({100 * (m / h - 1):+.2f})" for m, h in hs) + " |", flush=True)
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rigs", default="tune,holdout-wide,holdout-narrow")
+    ap.add_argument("--seeds", default="4,5,6")
+    ap.add_argument("--poses", type=int, default=8)
+    ap.add_argument("--work")
+    a = ap.parse_args()
+    work = Path(a.work) if a.work else Path(tempfile.mkdtemp(prefix="rig-route-"))
+    rows = []
+    for rig in a.rigs.split(","):
+        for seed in (int(s) for s in a.seeds.split(",")):
+            r = case(work, rig, seed, a.poses)
+            rows.append(r)
+            print(f"\n## {rig}, pose seed {seed}, {a.poses} poses (calibration {r['calibrate_s']:.1f} s, "
+                  f"gauge {r['measure_rig-gauge_s']:.1f} s, board {r['measure_rig-board_s']:.1f} s)")
+            print("| session | figure | nominal mm | error mm | error % | U mm | u calibration mm | u points mm | |e| <= U |")
+            print("|---|---|---|---|---|---|---|---|---|")
+            for f in r["figures"]:
+                pct = f"{100 * f['error'] / f['nominal']:+.3f}" if f["nominal"] else ""
+                ucal = f["u_cal"] if isinstance(f["u_cal"], float) else float("nan")
+                print(f"| {f['session']} | {f['name']} | {f['nominal']:g} | {f['error']:+.4f} | {pct} | {f['U']:.4f} | "
+                      f"{ucal:.4f} | {f['u_pts']:.4f} | {'yes' if abs(f['error']) <= f['U'] else 'NO'} |")
+            for name, p in r["pixels"].items():
+                print(f"pixels {name}: {p['pixels']} valid with truth ({p['coverage_of_truth']:.1%} of the lit), "
+                      f"{p['valid_without_truth']} valid without direct light; |e_ray| median {p['median_abs_error_mm']:.4f} "
+                      f"p95 {p['p95_abs_error_mm']:.4f} mm, median u_ray {p['median_u_ray_mm']:.4f} mm, "
+                      f"|e_ray| <= 2u {p['within_2u']:.3f}")
+    figs = [f for r in rows for f in r["figures"]]
+    inside = sum(abs(f["error"]) <= f["U"] for f in figs)
+    print(f"\nall cases: {inside} of {len(figs)} figures with |error| <= U (k = 2)")
+    steps = [f for f in figs if f["name"].startswith("block-")]
+    print("steps within 0.3 %:", sum(abs(f["error"]) <= 0.003 * f["nominal"] for f in steps), "of", len(steps))
+    (work / "rig_session_route.json").write_text(json.dumps(rows, indent=1))
+    print(f"raw: {work / 'rig_session_route.json'}")
 
 
 if __name__ == "__main__":
-    args = sys.argv[1:]
-    seed = int(args[args.index("--seed") + 1]) if "--seed" in args else 4
-    if "--seed" in args:
-        del args[args.index("--seed"): args.index("--seed") + 2]
-    main_([int(a) for a in args] or [6], seed)
+    main()

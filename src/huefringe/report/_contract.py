@@ -288,7 +288,8 @@ def validate_report(report: Mapping[str, Any]) -> None:
         if report["verdict"] != want:
             problems.append(f"verdict {report['verdict']} but the steps say {want}")
     if "conformity" in report and tol_f is not None:
-        want_c = conformity(report["steps"], tol_f)["decision"]
+        figures = [e for v in (report.get("forms") or {}).values() for e in v]
+        want_c = conformity([*report["steps"], *figures], tol_f)["decision"]
         if report["conformity"].get("decision") != want_c:
             problems.append(f"conformity decision {report['conformity'].get('decision')!r} but the steps say {want_c!r}")
     if "baseline" in report:

@@ -161,7 +161,8 @@ def write_calibration(path: str | os.PathLike[str], calib: RigCalibration, layou
     if out.suffix.lower() not in (".yml", ".yaml", ".xml", ".json"):
         raise CalibrationFileError(f"{out}: FileStorage writes .yml, .yaml, .xml or .json")
     keys = KEY_MAPS[layout]
-    fd, tmp = tempfile.mkstemp(suffix=out.suffix, dir=out.parent if out.parent.exists() else None)
+    out.parent.mkdir(parents=True, exist_ok=True)  # the temporary file beside the target: one rename, one file system
+    fd, tmp = tempfile.mkstemp(suffix=out.suffix, dir=out.parent)
     os.close(fd)
     try:
         fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
