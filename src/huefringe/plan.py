@@ -278,6 +278,7 @@ def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[s
                 refused.append(f"session {plan.path}: its calibration session {target} has no poses and board to calibrate from")
                 continue
             plan.calibrated_by = other.id
+            plan.calibrate = False  # measured with the named session's calibration, not with poses of its own
         elif plan.calibrate:
             plan.calibrated_by = plan.id
         elif plan.measure:

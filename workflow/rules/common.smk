@@ -117,31 +117,49 @@ def render_outputs(sid, n):
 
 
 def rig_calibration(w):
-    """The calibration a structured-light session is measured with: its own file, or the
-    calib/rig.yml the workflow makes from the poses of the session that calibrates it.
-    """
+    """The calibration a structured-light session is measured with: its own file, or
+    results/<sid>/calib/rig.yml (calibrated from its poses, or copied from the session that
+    calibrates it)."""
     plan = PLANS[w.sid]
     if plan.calibration_file:
         return str(Path(session_dir(w)) / plan.calibration_file)
-    return R(plan.calibrated_by, "calib", "rig.yml")
+    return R(w.sid, "calib", "rig.yml")
 
 
 def rig_jackknife(w):
-    plan = PLANS[w.sid]
     return (
         []
-        if plan.calibration_file
-        else [R(plan.calibrated_by, "calib", "rig.jackknife.json")]
+        if PLANS[w.sid].calibration_file
+        else [R(w.sid, "calib", "rig.jackknife.json")]
     )
 
 
 def rig_calibration_report(w):
-    plan = PLANS[w.sid]
     return (
-        []
-        if plan.calibration_file
-        else [R(plan.calibrated_by, "calib", "rig.report.json")]
+        [] if PLANS[w.sid].calibration_file else [R(w.sid, "calib", "rig.report.json")]
     )
+
+
+def rig_calibration_source(w):
+    """The calibration files of the session that calibrates session ``w.sid``."""
+    src = PLANS[w.sid].calibrated_by
+    return {
+        "source_calibration": R(src, "calib", "rig.yml"),
+        "source_report": R(src, "calib", "rig.report.json"),
+        "source_jackknife": R(src, "calib", "rig.jackknife.json"),
+    }
+
+
+#: structured-light sessions calibrated from their own poses, and those measured with another's calibration
+CALIBRATE_SID = "|".join(re.escape(s) for s in RIG_IDS if PLANS[s].calibrate) or "^$"
+BORROW_SID = (
+    "|".join(
+        re.escape(s)
+        for s in RIG_IDS
+        if PLANS[s].calibrated_by not in (None, s) and not PLANS[s].calibrate
+    )
+    or "^$"
+)
 
 
 def rig_targets(sid):

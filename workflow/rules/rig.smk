@@ -14,7 +14,7 @@ rule rig_calibrate:
     log:
         "logs/{sid}/rig_calibrate.log",
     wildcard_constraints:
-        sid=RIG_SID,
+        sid=CALIBRATE_SID,
     conda:
         "../envs/huefringe.yaml"
     threads: 1
@@ -25,6 +25,26 @@ rule rig_calibrate:
         config=config,
     script:
         "../../scripts/rig_calibrate.py"
+
+
+rule rig_calibration_from:
+    input:
+        unpack(rig_calibration_source),
+    output:
+        calibration=R("{sid}", "calib", "rig.yml"),
+        report=R("{sid}", "calib", "rig.report.json"),
+        jackknife=R("{sid}", "calib", "rig.jackknife.json"),
+    log:
+        "logs/{sid}/rig_calibration_from.log",
+    wildcard_constraints:
+        sid=BORROW_SID,
+    conda:
+        "../envs/huefringe.yaml"
+    threads: 1
+    resources:
+        **rule_resources("rig_calibration_from", mem_mb=500, runtime=5),
+    script:
+        "../../scripts/rig_calibration_from.py"
 
 
 rule rig_measure:
@@ -125,7 +145,9 @@ rule rig_metrology:
 rule rig_accuracy:
     input:
         session=session_yaml,
+        calibration=rig_calibration,
         xyz=R("{sid}", "xyz", "frame_0000.tiff"),
+        xyz_sigma=R("{sid}", "xyz", "frame_0000_sigma.tiff"),
         xyz_u=R("{sid}", "xyz", "frame_0000_u.tiff"),
     output:
         accuracy=R("{sid}", "accuracy.json"),

@@ -92,7 +92,7 @@ def combine_u(*terms: float) -> float:
     return float(np.sqrt(np.sum(u**2)))
 
 
-def jackknife_u(values: ArrayLike) -> float:
+def jackknife_u(values: ArrayLike, *, t_scaled: bool = False) -> float:
     """Jackknife standard error of a figure recomputed with each leave-one-out calibration.
 
     Parameters
@@ -100,25 +100,32 @@ def jackknife_u(values: ArrayLike) -> float:
     values : array_like, shape (n,)
         The figure (a step height, a radius, ...) measured with the ``n`` calibrations that each
         leave one calibration pose out.
+    t_scaled : bool
+        Return the standard deviation of the t-distribution with ``n - 1`` degrees of freedom that
+        this standard error scales (JCGM 101:2008, 6.4.9): ``se * sqrt((n - 1) / (n - 3))``, so that
+        ``2 u`` is a 95 % interval although the term rests on a few poses (``n >= 4``).
 
     Returns
     -------
     float
-        ``sqrt((n - 1) / n * sum((x_i - mean(x)) ** 2))``: the standard uncertainty the
-        calibration contributes to the figure measured with all poses.
+        ``sqrt((n - 1) / n * sum((x_i - mean(x)) ** 2))`` (times the factor above with
+        ``t_scaled``): the standard uncertainty the calibration contributes to the figure
+        measured with all poses.
 
     Raises
     ------
     ValueError
-        Fewer than 2 values, or a non-finite value.
+        Fewer than 2 values (4 with ``t_scaled``), or a non-finite value.
     """
     x = np.asarray(values, dtype=np.float64).ravel()
-    if x.size < 2:
-        raise ValueError(f"jackknife_u needs at least 2 leave-one-out values; {x.size} given")
+    need = 4 if t_scaled else 2
+    if x.size < need:
+        raise ValueError(f"jackknife_u needs at least {need} leave-one-out values; {x.size} given")
     if not np.isfinite(x).all():
         raise ValueError("jackknife_u: every leave-one-out value must be finite")
     n = x.size
-    return float(np.sqrt((n - 1) / n * np.sum((x - x.mean()) ** 2)))
+    se = float(np.sqrt((n - 1) / n * np.sum((x - x.mean()) ** 2)))
+    return se * float(np.sqrt((n - 1) / (n - 3))) if t_scaled else se
 
 
 def _form(r: F64, s: F64, J: F64, hat: F64, draws: int, seed: int) -> dict[str, float]:
@@ -387,7 +394,9 @@ def plane_pair_u(a_points: ArrayLike, a_sigma: ArrayLike, b_points: ArrayLike, b
         ``[0, pi/2]``) with ``u_angle_rad``; ``parallelism_mm``: the width, along a's normal, of
         the zone parallel to a that contains b's fitted plane over b's points (ISO 1101
         parallelism of b's least-squares plane; b's own form is its flatness, not included),
-        with ``u_parallelism_mm``; ``n_a``, ``n_b``.
+        with ``u_parallelism_mm``; ``tilt``: b's normal less its part along a's normal (a signed
+        3-vector of length ``sin(angle)``, for a jackknife over calibrations, whose spread a
+        magnitude hides) and ``zone_per_tilt_mm``, ``parallelism_mm`` per unit of it; ``n_a``, ``n_b``.
 
     Raises
     ------
@@ -427,9 +436,12 @@ def plane_pair_u(a_points: ArrayLike, a_sigma: ArrayLike, b_points: ArrayLike, b
         ua = math.sqrt((np.trace(a.cov[1:, 1:]) + np.trace(b.cov[1:, 1:])) / 2.0)
         ext = float(np.ptp(qb @ b.axes.T, axis=0).max())
         u = np.array([ua, ua * ext])
+    tilt = nb0 - (nb0 @ a.normal) * a.normal
+    d_unit = (qb - np.outer(qb @ nb0, nb0)) @ (tilt / max(float(np.linalg.norm(tilt)), 1e-300))
+    zone_per_tilt = float(np.ptp(d_unit)) if np.linalg.norm(tilt) > 0 else float(np.ptp(qb @ b.axes.T, axis=0).max())
     return {"distance_mm": m["value"], "u_distance_mm": m["u_mm"], "angle_rad": float(f0[0]),
             "u_angle_rad": float(u[0]), "parallelism_mm": float(f0[1]), "u_parallelism_mm": float(u[1]),
-            "n_a": a.n, "n_b": b.n}  # fmt: skip
+            "tilt": tilt.tolist(), "zone_per_tilt_mm": zone_per_tilt, "n_a": a.n, "n_b": b.n}  # fmt: skip
 
 
 # --------------------------------------------------------------------------------------------

@@ -135,6 +135,16 @@ def calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board:
         period), poses whose board or corners were not found, too few usable poses; every
         problem at once.
     """
+    threads = cv2.getNumThreads()
+    cv2.setNumThreads(1)  # OpenCV's threaded corner search and calibration differ in the last digits from run to run
+    try:
+        return _calibrate_poses(poses, spec, board, cfg, where)
+    finally:
+        cv2.setNumThreads(threads)
+
+
+def _calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board: Board, cfg: dict[str, Any],
+                     where: Path) -> RigCalibrationRun:
     rc = cfg["rig"]
     problems: list[str] = []
     missing = [a for a in ("x", "y") if a not in spec.axes()]
@@ -289,6 +299,8 @@ class RigFrame:
         :func:`decode_frame`'s maps (``u``, ``v``, sigmas, validity, modulation, ``mean``).
     mode : str
         The triangulation: ``u``, ``v`` (ray against a projector plane) or ``both`` (ray-ray).
+    sigma_ray : ndarray, shape (H, W)
+        The decoded coordinates' noise along each point's camera ray, mm.
     """
 
     xyz: F64
@@ -296,6 +308,7 @@ class RigFrame:
     valid: NDArray[np.bool_]
     decoded: dict[str, Any]
     mode: str
+    sigma_ray: F64
 
 
 def triangulate_frame(d: dict[str, Any], calib: RigCalibration, cfg: dict[str, Any], *, where: str,
@@ -323,7 +336,7 @@ def triangulate_frame(d: dict[str, Any], calib: RigCalibration, cfg: dict[str, A
     t = triangulate(calib, ti.u, ti.v, sigma_u=ti.sigma_u, sigma_v=ti.sigma_v, valid=ti.valid, mode=ti.mode)
     if int(t.valid.sum()) < 3:
         raise RigError(f"{where}: {int(t.valid.sum())} pixels decoded and triangulated; nothing to measure")
-    return RigFrame(t.xyz, t.sigma, t.valid, d, ti.mode)
+    return RigFrame(t.xyz, t.sigma, t.valid, d, ti.mode, t.sigma_ray)
 
 
 def measure_sl_frame(session: Any, calib: RigCalibration, cfg: dict[str, Any]) -> RigFrame:
@@ -346,7 +359,10 @@ def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibratio
     Returns
     -------
     u_axes : ndarray, shape (H, W, 3)
-        Per axis, ``sqrt((J - 1) / J * sum_j (p_j - mean)^2)``; zero without leave-one-out calibrations.
+        Per axis, ``sqrt((J - 1) / J * sum_j (p_j - mean)^2) * sqrt((J - 1) / (J - 3))``: the
+        jackknife standard error as the standard deviation of the t-distribution with ``J - 1``
+        degrees of freedom (JCGM 101, :func:`huefringe.metrology.jackknife_u`); zero without
+        leave-one-out calibrations.
     u_ray : ndarray, shape (H, W)
         The same along the point's camera ray (where a triangulated point's error lies).
     """
@@ -363,10 +379,13 @@ def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibratio
         pts.append(t.xyz[frame.valid])
     p = np.stack(pts)
     n = len(jackknife)
+    if n < 4:
+        raise RigError(f"{n} leave-one-pose-out calibrations; the calibration's term needs at least 4")
     dev = p - p.mean(axis=0)
     ray = frame.xyz[frame.valid] / np.linalg.norm(frame.xyz[frame.valid], axis=-1, keepdims=True)
-    u_axes[frame.valid] = np.sqrt((n - 1) / n * np.sum(dev**2, axis=0))
-    u_ray[frame.valid] = np.sqrt((n - 1) / n * np.sum(np.einsum("jik,ik->ji", dev, ray) ** 2, axis=0))
+    scale = (n - 1) / n * (n - 1) / (n - 3)
+    u_axes[frame.valid] = np.sqrt(scale * np.sum(dev**2, axis=0))
+    u_ray[frame.valid] = np.sqrt(scale * np.sum(np.einsum("jik,ik->ji", dev, ray) ** 2, axis=0))
     return u_axes, u_ray
 
 

@@ -7,8 +7,9 @@ Every figure's standard uncertainty combines two terms:
 - **points**: the decoded coordinates' noise propagated through the triangulation to each point
   (along its camera ray) and through the fit (:mod:`huefringe.metrology`'s ``*_u`` functions);
 - **calibration**: the leave-one-pose-out (jackknife) standard error of the figure recomputed
-  with the rig calibrated again without each board pose in turn
-  (:func:`huefringe.metrology.jackknife_u`). A session measured with a calibration file that
+  with the rig calibrated again without each board pose in turn, as the standard deviation of
+  the t-distribution with ``n - 1`` degrees of freedom it scales, so that ``U = 2u`` stays a 95 %
+  interval with few poses (:func:`huefringe.metrology.jackknife_u` with ``t_scaled``). A session measured with a calibration file that
   comes without its poses has no such term; the report says so for every figure.
 """
 
@@ -152,9 +153,11 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
                 for key in _JACKKNIFED:
                     if key in v:
                         jack.setdefault((n, key), []).append(float(v[key]))
+                for i, t in enumerate(v.get("tilt", [])):
+                    jack.setdefault((n, f"tilt{i}"), []).append(float(t))
 
     def u_cal(name: str, key: str) -> float | None:
-        return jackknife_u(jack[(name, key)]) if loo else None
+        return jackknife_u(jack[(name, key)], t_scaled=True) if loo else None
 
     steps, forms = [], {"flatness": [], "distances": [], "parallelism": [], "spheres": []}
     for f in feats.features:
@@ -174,8 +177,11 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
                                              u_cal(f.name, "distance_mm"), {
                 "figure": f"distance of {a} from {b}",
                 "angle_deg": float(np.degrees(v["angle_rad"])), "u_angle_deg": float(np.degrees(v["u_angle_rad"]))}))
+            # the calibration's term of a zone width: the spread of the signed tilt vector (not of its
+            # magnitude, which folds every leave-one-out tilt onto one side)
+            u_tilt = combine_u(*(u_cal(f.name, f"tilt{i}") or 0.0 for i in range(3))) if loo else None
             forms["parallelism"].append(_entry(f"{f.name}-parallelism", v["parallelism_mm"], 0.0, f.tolerance_mm,
-                                               v["u_parallelism_mm"], u_cal(f.name, "parallelism_mm"), {
+                                               v["u_parallelism_mm"], None if u_tilt is None else u_tilt * v["zone_per_tilt_mm"], {
                 "figure": f"parallelism of {a} to {b} (zone width over its extent)"}))
         elif f.kind == "sphere":
             forms["spheres"].append(_entry(f.name, v["radius_mm"], f.nominal_mm, f.tolerance_mm, v["u_radius_mm"],
@@ -214,7 +220,8 @@ def _mode(decoded: F64, config: Mapping[str, Any]) -> str:
     return "both" if all(has) else ("u" if has[0] else "v")
 
 
-def xyz_accuracy(xyz: F64, u: F64, truth: F64) -> dict[str, Any]:
+def xyz_accuracy(xyz: F64, u: F64, truth: F64, *, sigma: F64 | None = None, calibration: RigCalibration | None = None,
+                 true_uv: Mapping[str, F64] | None = None) -> dict[str, Any]:
     """Errors of triangulated points against the true X, Y, Z (benches).
 
     Parameters
@@ -225,6 +232,12 @@ def xyz_accuracy(xyz: F64, u: F64, truth: F64) -> dict[str, Any]:
         (``xyz/frame_NNNN_u.tiff``).
     truth : ndarray, shape (H, W, 3)
         NaN where the projector lights no surface directly.
+    sigma, calibration, true_uv : optional
+        The decoded coordinates' noise (``xyz/frame_NNNN_sigma.tiff``: per axis and along the
+        ray), the calibration the frame
+        was triangulated with and the true projector coordinates (``ground_truth/x.tiff``,
+        ``y.tiff``): the decoding's own error, ``xyz`` against the true coordinates triangulated
+        with the same calibration, is then scored against ``sigma`` (``decoding``).
 
     Returns
     -------
@@ -241,7 +254,7 @@ def xyz_accuracy(xyz: F64, u: F64, truth: F64) -> dict[str, Any]:
     ray = truth[both] / np.linalg.norm(truth[both], axis=-1, keepdims=True)
     along = np.abs(np.einsum("ij,ij->i", e, ray))
     uu = u[both]
-    return {
+    out: dict[str, Any] = {
         "pixels": int(both.sum()), "valid_without_truth": int((valid & ~true).sum()),
         "coverage_of_truth": float(both.sum() / max(int(true.sum()), 1)),
         "rms_xyz_mm": np.sqrt(np.mean(e**2, axis=0)).tolist(),
@@ -253,3 +266,18 @@ def xyz_accuracy(xyz: F64, u: F64, truth: F64) -> dict[str, Any]:
         "error_measure": "|e . r|, the error along the camera ray r (where a triangulated point's error lies), "
                          "against u_ray; per axis |e_x|, |e_y|, |e_z| against u_x, u_y, u_z",
     }
+    if sigma is not None and calibration is not None and true_uv and {"x", "y"} >= set(true_uv):
+        ok = both & np.logical_and.reduce([np.isfinite(v) for v in true_uv.values()])
+        rows, cols = np.nonzero(ok)
+        t = triangulate(calibration, true_uv["x"][ok] if "x" in true_uv else None, true_uv["y"][ok] if "y" in true_uv else None,
+                        pixels=np.column_stack([cols, rows]).astype(np.float64))
+        e_dec = np.abs(np.einsum("ij,ij->i", xyz[ok] - t.xyz, t.xyz / np.linalg.norm(t.xyz, axis=-1, keepdims=True)))
+        s_dec = sigma[ok][:, 3]
+        good = np.isfinite(e_dec)
+        out["decoding"] = {
+            "what": "the decoded coordinates' error alone: xyz against the true projector coordinates triangulated with "
+                    "the same calibration, along the ray, against the decoded coordinates' noise sigma",
+            "pixels": int(good.sum()), "median_abs_error_mm": float(np.median(e_dec[good])),
+            "median_sigma_mm": float(np.median(s_dec[good])), "within_2sigma": float(np.mean(e_dec[good] <= 2 * s_dec[good])),
+        }
+    return out

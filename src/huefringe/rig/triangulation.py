@@ -41,11 +41,16 @@ class Triangulated:
         Standard uncertainties of ``X, Y, Z``, mm, from the decoded coordinates' uncertainties.
     valid : ndarray of bool, shape (...)
         Where a point was triangulated (a decoded, finite coordinate in front of both devices).
+    sigma_ray : ndarray, shape (...)
+        Standard uncertainty of the point along its camera ray (mm): with one axis decoded the
+        whole error lies there; with both (ray-ray) the point also moves off the ray, which
+        ``sigma`` holds and this does not.
     """
 
     xyz: F64
     sigma: F64
     valid: NDArray[np.bool_]
+    sigma_ray: F64
 
 
 def undistort(points: ArrayLike, K: F64, dist: F64) -> F64:
@@ -211,19 +216,25 @@ def triangulate(
     sub = {k: coords[k][idx] for k in need}
     pts = solve(sub)
     var = np.zeros_like(pts)
+    var_ray = np.zeros(len(pts))
+    ray = d / np.linalg.norm(d, axis=1, keepdims=True)
     for k in need:
         s = sig[k][idx]
         if not np.any(s > 0):
             continue
         hi = solve({**sub, k: sub[k] + _DELTA_PX})
         lo = solve({**sub, k: sub[k] - _DELTA_PX})
-        var += ((hi - lo) / (2 * _DELTA_PX) * s[:, None]) ** 2
+        grad = (hi - lo) / (2 * _DELTA_PX)
+        var += (grad * s[:, None]) ** 2
+        var_ray += (np.einsum("ij,ij->i", grad, ray) * s) ** 2
     in_front = np.isfinite(pts).all(axis=1) & (pts[:, 2] > 0)
     in_front &= ((pts @ calib.R.T + calib.T)[:, 2] > 0)
     xyz = np.full((ref.size, 3), np.nan)
     sigma = np.full((ref.size, 3), np.nan)
+    sigma_ray = np.full(ref.size, np.nan)
     xyz[idx[in_front]] = pts[in_front]
     sigma[idx[in_front]] = np.sqrt(var[in_front])
+    sigma_ray[idx[in_front]] = np.sqrt(var_ray[in_front])
     good = np.zeros(ref.size, dtype=bool)
     good[idx[in_front]] = True
-    return Triangulated(xyz.reshape(*shape, 3), sigma.reshape(*shape, 3), good.reshape(shape))
+    return Triangulated(xyz.reshape(*shape, 3), sigma.reshape(*shape, 3), good.reshape(shape), sigma_ray.reshape(shape))

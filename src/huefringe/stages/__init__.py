@@ -37,6 +37,7 @@ from ._surfaces import (  # noqa: F401
 from ._rig import (  # noqa: F401
     rig_accuracy,
     rig_calibrate,
+    rig_calibration_from,
     rig_measure,
     rig_metrology,
     rig_surfaces,
@@ -59,6 +60,7 @@ from ._run import (  # noqa: F401
 __all__ = [
     "rig_accuracy",
     "rig_calibrate",
+    "rig_calibration_from",
     "rig_measure",
     "rig_metrology",
     "rig_surfaces",

@@ -4,6 +4,7 @@ triangulated, and turned into the same outputs and report as capture sessions.""
 from __future__ import annotations
 
 import logging
+import shutil
 from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
@@ -13,7 +14,7 @@ import trimesh
 
 from huefringe.codecs.output import quality_figure
 from huefringe.cloud import write_points
-from huefringe.io import read_tiff, tiff_pixel_pitch_mm, write_figure_png, write_json, write_tiff
+from huefringe.io import atomic_path, read_tiff, tiff_pixel_pitch_mm, write_figure_png, write_json, write_tiff
 from huefringe.mesh import attach_sigma, clean_mesh, export_mesh, height_to_mesh, stats_path
 from huefringe.render import camera_for_field, height_map_figure, render_views, uncertainty_map_figure
 from huefringe.rig import read_calibration
@@ -49,6 +50,15 @@ def rig_calibrate(session: str, config: Mapping[str, Any], calibration: str, rep
              r.get("projector", np.nan), r.get("stereo", np.nan), run.calibration.baseline_mm)
 
 
+def rig_calibration_from(source_calibration: str, source_report: str, source_jackknife: str, calibration: str,
+                         report: str, jackknife: str) -> None:
+    """The calibration of the session that calibrates this one, copied byte for byte into this
+    session's ``calib/`` (so that its results and archive hold what it was measured with)."""
+    for src, dst in ((source_calibration, calibration), (source_report, report), (source_jackknife, jackknife)):
+        with atomic_path(dst) as tmp:
+            shutil.copyfile(src, tmp)
+
+
 def _one(files: Any) -> str:
     """A rule input given as an optional one-element list: the file, or ''."""
     return files if isinstance(files, str) else (str(files[0]) if len(files) else "")
@@ -72,10 +82,9 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
     f = measure_sl_frame(s, calib, cfg)
     loo = read_jackknife(_one(jackknife)) if _one(jackknife) else []
     u_cal, u_cal_ray = calibration_spread(f, loo)
-    noise_ray = np.linalg.norm(f.sigma, axis=-1)
-    u_all = np.concatenate([np.hypot(f.sigma, u_cal), np.hypot(noise_ray, u_cal_ray)[..., None]], axis=-1)
+    u_all = np.concatenate([np.hypot(f.sigma, u_cal), np.hypot(f.sigma_ray, u_cal_ray)[..., None]], axis=-1)
     write_tiff(xyz, f.xyz.astype(np.float32))
-    write_tiff(xyz_sigma, f.sigma.astype(np.float32))
+    write_tiff(xyz_sigma, np.concatenate([f.sigma, f.sigma_ray[..., None]], axis=-1).astype(np.float32))
     write_tiff(xyz_u, u_all.astype(np.float32))
     d = f.decoded
     nan = np.full(f.valid.shape, np.nan)
@@ -156,20 +165,25 @@ def rig_metrology(session: str, config: Mapping[str, Any], calibration: str, xyz
     14253-1 decision, and the calibration's summary (:func:`huefringe.rig.metrology.rig_report`)."""
     s = load_sl_session(session)
     rig_report(s, dict(config), calibration=_calibration_files(session, calibration), xyz=read_tiff(xyz),
-               sigma=read_tiff(xyz_sigma), decoded=read_tiff(decoded), jackknife=_one(jackknife),
+               sigma=read_tiff(xyz_sigma)[..., :3], decoded=read_tiff(decoded), jackknife=_one(jackknife),
                calibration_report=_one(calibration_report), json_path=json, html_path=html,
                figures={"render": render, "height": height_map, "decode_quality": quality})
 
 
-def rig_accuracy(session: str, xyz: str, xyz_u: str, accuracy: str) -> None:
+def rig_accuracy(session: str, calibration: str, xyz: str, xyz_sigma: str, xyz_u: str, accuracy: str) -> None:
     """Errors of the triangulated X, Y, Z against the session's ``ground_truth/xyz.tiff`` (benches):
-    per-axis and along-ray statistics, and the share of valid pixels with ``|e| <= 2u``."""
+    per-axis and along-ray statistics and the share of valid pixels with ``|e| <= 2u``; and the
+    decoding's own error (the true projector coordinates triangulated with the same calibration)
+    against the decoded coordinates' noise sigma (:func:`huefringe.rig.metrology.xyz_accuracy`)."""
     from huefringe.rig.metrology import xyz_accuracy
 
     s = load_sl_session(session)
     if "xyz" not in s.ground_truth:
         raise RigError(f"{s.root}: no ground_truth/xyz.tiff")
-    write_json(accuracy, xyz_accuracy(read_tiff(xyz), read_tiff(xyz_u), read_tiff(s.ground_truth["xyz"])))
+    calib = read_calibration(_calibration_files(session, calibration))
+    true_uv = {a: read_tiff(s.ground_truth[a]).astype(np.float64) for a in ("x", "y") if a in s.ground_truth}
+    write_json(accuracy, xyz_accuracy(read_tiff(xyz), read_tiff(xyz_u), read_tiff(s.ground_truth["xyz"]),
+                                      sigma=read_tiff(xyz_sigma), calibration=calib, true_uv=true_uv))
 
 
-__all__ = ["rig_accuracy", "rig_calibrate", "rig_measure", "rig_metrology", "rig_surfaces"]
+__all__ = ["rig_accuracy", "rig_calibrate", "rig_calibration_from", "rig_measure", "rig_metrology", "rig_surfaces"]

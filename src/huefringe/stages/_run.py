@@ -149,7 +149,7 @@ def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[st
                       str(p["quality"]), str(p["json"]), str(p["html"]), jackknife=beside["jackknife"],
                       calibration_report=beside["report"])
     if "xyz" in s.ground_truth:
-        rig_accuracy(str(s.root), str(p["xyz"]), str(p["xyz_u"]), str(p["accuracy"]))
+        rig_accuracy(str(s.root), str(calibration), str(p["xyz"]), str(p["xyz_sigma"]), str(p["xyz_u"]), str(p["accuracy"]))
     return {k: p[k] for k in keep}
 
 
