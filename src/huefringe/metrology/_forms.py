@@ -128,7 +128,7 @@ def jackknife_u(values: ArrayLike, *, t_scaled: bool = False) -> float:
     return se * float(np.sqrt((n - 1) / (n - 3))) if t_scaled else se
 
 
-def _form(r: F64, s: F64, J: F64, hat: F64, draws: int, seed: int) -> dict[str, float]:
+def _form(r: F64, s: F64, J: F64, hat: F64, draws: int, seed: int, noise_rel_u: float = 0.0) -> dict[str, float]:
     """RMS and PV of residuals ``r`` as measured and corrected for the noise ``s`` (see :func:`flatness_u`)."""
     n = len(r)
     rms, pv = float(np.sqrt(np.mean(r**2))), float(r.max() - r.min())
@@ -136,6 +136,7 @@ def _form(r: F64, s: F64, J: F64, hat: F64, draws: int, seed: int) -> dict[str, 
     ms_noise = float(np.sum(s**2 * keep) / n)
     form_sq = max(0.0, float(np.sum(s**2 * (r**2 - s**2 * keep))))
     v = math.sqrt(4.0 * form_sq + 2.0 * float(np.sum(s**4 * keep**2))) / n  # u of the mean square
+    v = math.hypot(v, 2.0 * ms_noise * noise_rel_u)  # and of the noise subtracted from it
     x = float(np.mean(r**2)) - ms_noise
     rms_form = math.sqrt(max(0.0, x))
     hi = math.sqrt(max(0.0, x) + 2.0 * v) - rms_form
@@ -320,7 +321,8 @@ def step_height_u(base_points: ArrayLike, base_sigma: ArrayLike, top_points: Arr
             "n_top": len(q), "rms_base_mm": plane.rms_mm, "chi2_base": plane.chi2}  # fmt: skip
 
 
-def flatness_u(points: ArrayLike, sigma: ArrayLike, *, draws: int = PV_NOISE_DRAWS, seed: int = 0) -> dict[str, Any]:
+def flatness_u(points: ArrayLike, sigma: ArrayLike, *, draws: int = PV_NOISE_DRAWS, seed: int = 0,
+               noise_rel_u: float = 0.0) -> dict[str, Any]:
     """Least-squares flatness (RMS and peak-to-valley of the orthogonal residuals), noise-corrected.
 
     Parameters
@@ -331,6 +333,11 @@ def flatness_u(points: ArrayLike, sigma: ArrayLike, *, draws: int = PV_NOISE_DRA
         Monte Carlo draws of the noise-only residuals for ``pv_noise_mm``.
     seed : int
         Seed of that Monte Carlo's ``numpy.random.Generator`` (the result is deterministic).
+    noise_rel_u : float
+        Relative standard uncertainty of ``sigma`` itself (e.g. of a noise scale estimated from the
+        data): the noise's mean square subtracted from the residuals' carries twice that relative
+        uncertainty, which ``u_rms_form_mm`` then includes (it dominates where the form is small
+        against the noise).
 
     Returns
     -------
@@ -366,7 +373,7 @@ def flatness_u(points: ArrayLike, sigma: ArrayLike, *, draws: int = PV_NOISE_DRA
     p, s = _clean(points, sigma, 4, "flatness")
     plane, r, sn, J = _plane(p, s)
     _, hat = _sandwich(J, sn**2)
-    out = _form(r, sn, J, hat, int(draws), int(seed))
+    out = _form(r, sn, J, hat, int(draws), int(seed), float(noise_rel_u))
     return {"n": plane.n, **out, "normal": plane.normal.tolist(), "chi2": plane.chi2}
 
 
@@ -449,15 +456,17 @@ def plane_pair_u(a_points: ArrayLike, a_sigma: ArrayLike, b_points: ArrayLike, b
 # --------------------------------------------------------------------------------------------
 
 
-def fit_sphere_u(points: ArrayLike, sigma: ArrayLike, *, draws: int = PV_NOISE_DRAWS, seed: int = 0) -> dict[str, Any]:
+def fit_sphere_u(points: ArrayLike, sigma: ArrayLike, *, draws: int = PV_NOISE_DRAWS, seed: int = 0,
+                 noise_rel_u: float = 0.0) -> dict[str, Any]:
     """Geometric least-squares sphere with the uncertainty of its centre and radius, and its form.
 
     Parameters
     ----------
     points, sigma : array_like, shape (..., 3)
         Points on the sphere (mm, camera frame) and their per-axis standard uncertainties.
-    draws, seed : int
-        Monte Carlo of the noise's peak-to-valley, as :func:`flatness_u`.
+    draws, seed, noise_rel_u :
+        Monte Carlo of the noise's peak-to-valley and the noise's own relative uncertainty, as
+        :func:`flatness_u`.
 
     Returns
     -------
@@ -498,7 +507,7 @@ def fit_sphere_u(points: ArrayLike, sigma: ArrayLike, *, draws: int = PV_NOISE_D
     J = np.column_stack([-radial, -np.ones(len(p))])
     sr = _along(p, s, radial)
     cov, hat = _sandwich(J, sr**2)
-    out = _form(r, sr, J, hat, int(draws), int(seed))
+    out = _form(r, sr, J, hat, int(draws), int(seed), float(noise_rel_u))
     chi2 = float(np.sum((r / sr) ** 2) / (len(p) - 4)) if (sr > 0).all() else math.nan
     return {"centre_mm": x[:3].tolist(), "u_centre_mm": np.sqrt(np.diag(cov)[:3]).tolist(),
             "radius_mm": float(x[3]), "u_radius_mm": float(np.sqrt(cov[3, 3])), "cov": cov.tolist(),

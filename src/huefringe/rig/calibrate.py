@@ -83,10 +83,13 @@ class CalibrationReport:
     poses: list[dict[str, Any]] = field(default_factory=list)
     rejected: list[str] = field(default_factory=list)
     rms_px: dict[str, float] = field(default_factory=dict)
+    form_floor: dict[str, Any] | None = None
+    """The calibration boards' flatness with the final calibration (:mod:`huefringe.rig.measure`), when measured."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
-        return {"rms_px": self.rms_px, "rejected": self.rejected, "poses": self.poses}
+        out = {"rms_px": self.rms_px, "rejected": self.rejected, "poses": self.poses}
+        return out if self.form_floor is None else {**out, "form_floor": self.form_floor}
 
 
 def detect_corners(image: ArrayLike, board: Board) -> F64 | None:

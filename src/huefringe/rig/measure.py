@@ -26,6 +26,7 @@ from scipy.spatial import cKDTree
 
 from huefringe.codecs import DecodeOptions, SequenceError, decode_sequence, load_sequence, read_captures
 from huefringe.io import atomic_path
+from huefringe.metrology import flatness_u
 from huefringe.rig.calibrate import Board, CalibrationReport, PoseObservation, calibrate_rig, detect_corners, projector_corners
 from huefringe.rig.decoded import RelativeCoordinateError, relative_axes_problems, triangulation_inputs
 from huefringe.rig.filestorage import write_calibration
@@ -147,6 +148,7 @@ def _calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board
                      where: Path) -> RigCalibrationRun:
     rc = cfg["rig"]
     problems: list[str] = []
+    decoded: dict[str, dict[str, Any]] = {}
     missing = [a for a in ("x", "y") if a not in spec.axes()]
     if missing:
         raise RigError(f"{where}: calibration needs both projector axes (x and y) in the sequence; it codes "
@@ -168,6 +170,7 @@ def _calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board
         o = _observe(name, folder, d, image, board, rc, problems)
         if o is not None:
             obs.append(o)
+            decoded[name] = d
             size = (d["mean"].shape[1], d["mean"].shape[0])
     if len(obs) < rc["min_poses"]:
         problems.append(f"{where}: {len(obs)} usable poses; a calibration needs at least {rc['min_poses']}")
@@ -184,7 +187,31 @@ def _calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board
             # no second rejection round: each leave-one-out fit sees the final fit's poses, less one
             c, _ = calibrate_rig([p for p in used if p is not o], board, size, proj, outlier_factor=np.inf, **kw)
             jack.append((o.name, c))
+    report.form_floor = _board_form(calib, used, decoded, cfg)
     return RigCalibrationRun(calib, report, tuple(jack), board)
+
+
+def _board_form(calib: RigCalibration, poses: list[PoseObservation], decoded: dict[str, dict[str, Any]],
+                cfg: dict[str, Any]) -> dict[str, Any]:
+    """The instrument's form floor: the flatness (noise removed) of each calibration board, measured
+    with the final calibration inside its corners' hull; a flat board shows the short-range errors
+    that the decoded noise does not (the RMS over the poses is the floor)."""
+    per = {}
+    for o in poses:
+        d = decoded[o.name]
+        hull = cv2.convexHull(o.camera.astype(np.float32).reshape(-1, 1, 2))
+        mask = np.zeros(d["mean"].shape, dtype=np.uint8)
+        cv2.fillConvexPoly(mask, np.round(hull).astype(np.int32), 1)
+        frame = triangulate_frame(d, calib, cfg, where=o.name)
+        m = frame.valid & mask.astype(bool)
+        if m.sum() < 100:
+            continue
+        p, sg = frame.xyz[m], frame.sigma[m]
+        per[o.name] = flatness_u(p, sg, draws=16)["rms_form_mm"]
+    floor = float(np.sqrt(np.mean(np.square(list(per.values()))))) if per else None
+    return {"rms_form_mm": floor, "per_pose_mm": per,
+            "what": "flatness FLTq (noise removed) of each calibration board with the final calibration, and their RMS: "
+                    "the form floor every flatness and sphere form figure carries as an uncertainty term"}
 
 
 def calibrate_sl_session(session: Any, cfg: dict[str, Any], board: Board | None = None) -> RigCalibrationRun:

@@ -15,6 +15,7 @@ Every figure's standard uncertainty combines two terms:
 
 from __future__ import annotations
 
+import json
 import os
 from collections.abc import Mapping
 from pathlib import Path
@@ -30,10 +31,14 @@ from huefringe.rig.model import RigCalibration
 from huefringe.rig.triangulation import triangulate
 from huefringe.uncertainty import conformance
 
-__all__ = ["METHOD", "base_plane", "feature_values", "rig_report", "xyz_accuracy"]
+__all__ = ["METHOD", "base_plane", "feature_values", "noise_scale", "rig_report", "xyz_accuracy"]
 
 F64 = NDArray[np.float64]
 METHOD = "coded-light-triangulation"
+NOISE_MODEL_REL_U = 0.02
+"""Least relative standard uncertainty of the noise removed from a form figure (FLTq, a sphere's
+form): on the bench rigs the residuals' variance on flat faces exceeds the neighbour-difference
+noise by up to 4 % (2 % in sigma), noise correlated over a few pixels."""
 _JACKKNIFED = ("height_mm", "rms_form_mm", "distance_mm", "parallelism_mm", "radius_mm")
 """The figures recomputed with each leave-one-pose-out calibration (the calibration term)."""
 
@@ -53,8 +58,51 @@ def _points(xyz: F64, sigma: F64, mask: NDArray[np.bool_]) -> tuple[F64, F64]:
     return xyz[ok], sigma[ok]
 
 
+def noise_scale(xyz: F64, sigma: F64, mask: NDArray[np.bool_], centre: F64, normal: F64 | None = None) -> tuple[float, float]:
+    """The decoded noise's scale on a region, from the data: neighbouring pixels' residuals differ by
+    the noise alone where the surface is smooth at the pixel scale.
+
+    The residuals are the distances from a plane (``centre``, ``normal``) or, without ``normal``,
+    from a sphere's centre (the radial distances, whose mean the difference removes). Over every
+    pair of 4-neighbours in ``mask``, ``k^2 = sum (r_i - r_j)^2 / sum (s_i^2 + s_j^2)`` with ``s`` the
+    predicted noise along the residual's direction.
+
+    Returns
+    -------
+    k : float
+        The factor the predicted noise is to be scaled by on this region.
+    rel_u : float
+        Relative standard uncertainty of the noise on the region: the statistical ``sqrt(2 / n) / 2``
+        for ``n`` / 2 independent pairs (each pixel serves in up to four), and never below
+        :data:`NOISE_MODEL_REL_U` (neighbour differences do not see noise correlated over a few
+        pixels, which the residuals' variance holds).
+    """
+    ok = mask & np.isfinite(xyz).all(axis=-1) & np.isfinite(sigma).all(axis=-1)
+    ray = xyz / np.linalg.norm(xyz, axis=-1, keepdims=True)
+    if normal is not None:
+        r = (xyz - centre) @ normal
+        direction = np.broadcast_to(normal, xyz.shape)
+    else:
+        off = xyz - centre
+        r = np.linalg.norm(off, axis=-1)
+        direction = off / r[..., None]
+    s2 = (np.abs(np.einsum("...i,...i", ray, direction)) * np.linalg.norm(sigma, axis=-1)) ** 2
+    num = den = 0.0
+    n = 0
+    for sl_a, sl_b in (((slice(None), slice(1, None)), (slice(None), slice(None, -1))),
+                       ((slice(1, None), slice(None)), (slice(None, -1), slice(None)))):
+        both = ok[sl_a] & ok[sl_b]
+        num += float(np.sum((r[sl_a] - r[sl_b])[both] ** 2))
+        den += float(np.sum((s2[sl_a] + s2[sl_b])[both]))
+        n += int(both.sum())
+    if n < 10 or den <= 0:
+        return 1.0, 0.5
+    return float(np.sqrt(num / den)), max(NOISE_MODEL_REL_U, float(np.sqrt(2.0 / (n / 2.0)) / 2.0))
+
+
 def feature_values(xyz: F64, sigma: F64, features: Any) -> dict[str, dict[str, Any]]:
-    """Every figure of ``features`` on one triangulated frame: name -> the fit's result."""
+    """Every figure of ``features`` on one triangulated frame: name -> the fit's result (the form
+    figures with the region's noise scaled to what the data show, :func:`noise_scale`)."""
     shape = xyz.shape[:2]
     masks = {name: r.mask(shape) for name, r in features.regions().items()}
     out: dict[str, dict[str, Any]] = {}
@@ -63,12 +111,18 @@ def feature_values(xyz: F64, sigma: F64, features: Any) -> dict[str, dict[str, A
             if f.kind == "step":
                 out[f.name] = step_height_u(*_points(xyz, sigma, masks["base"]), *_points(xyz, sigma, masks[f.name]))
             elif f.kind == "plane":
-                out[f.name] = flatness_u(*_points(xyz, sigma, masks[f.name]))
+                p, sg = _points(xyz, sigma, masks[f.name])
+                pl = fit_plane_u(p, sg)
+                k, rel = noise_scale(xyz, sigma, masks[f.name], pl.centroid, pl.normal)
+                out[f.name] = {**flatness_u(p, k * sg, noise_rel_u=rel), "noise_scale": k, "noise_scale_rel_u": rel}
             elif f.kind == "distance":
                 b, a = f.planes or ("", "")
                 out[f.name] = plane_pair_u(*_points(xyz, sigma, masks[a]), *_points(xyz, sigma, masks[b]))
             elif f.kind == "sphere":
-                out[f.name] = fit_sphere_u(*_points(xyz, sigma, masks[f.name]))
+                p, sg = _points(xyz, sigma, masks[f.name])
+                first = fit_sphere_u(p, sg)
+                k, rel = noise_scale(xyz, sigma, masks[f.name], np.asarray(first["centre_mm"]))
+                out[f.name] = {**fit_sphere_u(p, k * sg, noise_rel_u=rel), "noise_scale": k, "noise_scale_rel_u": rel}
         except ValueError as exc:
             raise RigError(f"{features.path}: {f.name}: {exc}") from None
     return out
@@ -89,8 +143,8 @@ def _retriangulate(calib: RigCalibration, decoded: F64, mode: str, mask: NDArray
 
 
 def _entry(name: str, value: float, nominal: float, tol: float, u_points: float, u_cal: float | None,
-           extra: Mapping[str, Any]) -> dict[str, Any]:
-    u = combine_u(u_points, u_cal or 0.0)
+           extra: Mapping[str, Any], u_floor: float | None = None) -> dict[str, Any]:
+    u = combine_u(u_points, u_cal or 0.0, u_floor or 0.0)
     err = value - nominal
     return {
         "name": name, "nominal_mm": nominal, "mean_mm": value, "std_mm": None, "error_mm": err,
@@ -98,7 +152,8 @@ def _entry(name: str, value: float, nominal: float, tol: float, u_points: float,
         "u_mm": u, "U_mm": 2.0 * u, "tolerance_mm": tol, "conformance": conformance(err, tol, 2.0 * u),
         "uncertainty_budget": {"points_mm": u_points,
                                "calibration_mm": u_cal if u_cal is not None else "not available: the calibration file "
-                                                                                   "comes without its board poses"},
+                                                                                   "comes without its board poses",
+                               **({} if u_floor is None else {"form_floor_mm": u_floor})},
         **extra,
     }
 
@@ -156,6 +211,9 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
                 for i, t in enumerate(v.get("tilt", [])):
                     jack.setdefault((n, f"tilt{i}"), []).append(float(t))
 
+    cal_doc = json.loads(Path(calibration_report).read_text(encoding="utf-8")) if calibration_report else {}
+    floor = (cal_doc.get("form_floor") or {}).get("rms_form_mm")  # the calibration boards' flatness
+
     def u_cal(name: str, key: str) -> float | None:
         return jackknife_u(jack[(name, key)], t_scaled=True) if loo else None
 
@@ -167,10 +225,11 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
                                 {"points": {"base": v["n_base"], "top": v["n_top"]}}))
         elif f.kind == "plane":
             forms["flatness"].append(_entry(f.name, v["rms_form_mm"], f.nominal_mm, f.tolerance_mm, v["u_rms_form_mm"],
-                                            u_cal(f.name, "rms_form_mm"), {
+                                            u_cal(f.name, "rms_form_mm"), u_floor=floor, extra={
                 "figure": "flatness FLTq (RMS of the least-squares residuals, noise removed)",
                 "pv_form_mm": v["pv_form_mm"], "u_pv_form_mm": v["u_pv_form_mm"], "rms_mm": v["rms_mm"],
-                "pv_mm": v["pv_mm"], "rms_noise_mm": v["rms_noise_mm"], "pv_noise_mm": v["pv_noise_mm"], "points": v["n"]}))
+                "pv_mm": v["pv_mm"], "rms_noise_mm": v["rms_noise_mm"], "pv_noise_mm": v["pv_noise_mm"], "points": v["n"],
+                "noise_scale": v["noise_scale"]}))
         elif f.kind == "distance":
             a, b = f.planes or ("", "")
             forms["distances"].append(_entry(f.name, v["distance_mm"], f.nominal_mm, f.tolerance_mm, v["u_distance_mm"],
@@ -198,10 +257,8 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
         "forms": forms,
         "provenance": collect_provenance(session.id, dict(config), inputs),
     }
-    if calibration_report and Path(calibration_report).is_file():
-        import json
-
-        extras["rig_calibration"] = json.loads(Path(calibration_report).read_text(encoding="utf-8"))
+    if cal_doc:
+        extras["rig_calibration"] = cal_doc
     report = build_report_json(session.id, specimen, method_result, extras=extras,
                                figures=[e for k in ("flatness", "distances", "parallelism", "spheres") for e in forms.get(k, [])])
     from huefringe.io import write_json
