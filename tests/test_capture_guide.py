@@ -15,6 +15,8 @@ import numpy as np
 import pytest
 import yaml
 
+from bench_helpers import REPO
+
 from huefringe import cli
 from huefringe.assemble import fringe_profile, fringe_spectrum
 from huefringe.session import load_session, read_rgb_codes
@@ -29,12 +31,14 @@ def rehearsal_section() -> str:
     return text[start:] if end < 0 else text[start:end]
 
 
-def guide_commands(section: str) -> list[list[str]]:
+def guide_commands(section: str, programs: tuple[str, ...] = ("huefringe",)) -> list[list[str]]:
+    """The ``./run PROGRAM ...`` lines of the section's bash block, without ``./run`` (and without
+    ``huefringe`` when it is the only program)."""
     block = re.search(r"```bash\n(.*?)```", section, re.S).group(1)
     joined = re.sub(r"\\\n\s*", " ", block)
     cmds = [shlex.split(line) for line in joined.splitlines() if line.startswith("./run ")]
-    assert all(c[:2] == ["./run", "huefringe"] for c in cmds)
-    return [c[2:] for c in cmds]
+    assert all(c[1] in programs for c in cmds), cmds
+    return [c[2:] for c in cmds] if programs == ("huefringe",) else [c[1:] for c in cmds]
 
 
 def test_the_guides_rehearsal_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
@@ -79,9 +83,13 @@ def rig_section() -> str:
 
 
 def test_the_guides_rig_route_runs_as_written(tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys) -> None:
-    """Section 10 on bench-rig captures: sl-session, check, calibrate, measure, archive, verify;
-    the calibration, the flat board and the steps against the bench's truth."""
+    """Section 10 on bench-rig captures: sessions assembled and checked, then the workflow from
+    captures to report.html (calibration included) and the archives; against the bench's truth."""
     import json
+    import os
+    import shutil
+    import subprocess
+    import sys
 
     from rig_helpers import BOARD, SL_BASE, SL_TOPS, write_rig_captures
 
@@ -89,51 +97,52 @@ def test_the_guides_rig_route_runs_as_written(tmp_path: Path, monkeypatch: pytes
     from huefringe.rig import read_calibration
 
     section = rig_section()
-    cmds = guide_commands(section)
-    assert [c[0] for c in cmds] == ["sl-session", "check", "rig-calibrate", "rig-measure", "sl-session", "check",
-                                    "rig-measure", "archive", "verify"]
-    seq = yaml.safe_load(re.search(r"`rig/sequence.yaml`, in\s+full:\n\n```yaml\n(.*?)```", section, re.S).group(1))
+    cmds = guide_commands(section, ("huefringe", "snakemake"))
+    assert [c[0] if c[0] == "snakemake" else c[1] for c in cmds] == [
+        "sl-session", "sl-session", "check", "check", "snakemake", "snakemake", "verify"]
+    blocks = {name: yaml.safe_load(re.search(rf"`rig/{name}.yaml`, in\s+full:\n\n```yaml\n(.*?)```", section, re.S).group(1))
+              for name in ("sequence", "features", "sessions")}
     monkeypatch.chdir(tmp_path)
-    rig = write_rig_captures(Path("rig"), seq)["rig"]
+    rig = write_rig_captures(Path("rig"), blocks["sequence"])["rig"]
+    for name in ("features", "sessions"):
+        Path(f"rig/{name}.yaml").write_text(yaml.safe_dump(blocks[name]))
+    shutil.copyfile(REPO / "config.yaml", "config.yaml")  # the commands run in the repository's folder
     for args in cmds:
-        assert cli.main(args) == 0, (args, capsys.readouterr())
+        if args[0] == "snakemake":
+            proc = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory",
+                                   str(tmp_path), *args[1:]], capture_output=True, text=True,
+                                  env={**os.environ, "PYTHONHASHSEED": "0"})
+            assert proc.returncode == 0, proc.stderr[-5000:]
+        else:
+            assert cli.main(args[1:]) == 0, (args, capsys.readouterr())
     # the conventions the page states: --board counts inner corners, --pitch-mm the square
-    cal_args = cmds[2]
-    assert cal_args[cal_args.index("--board") + 1] == f"{BOARD.cols}x{BOARD.rows}"
-    assert float(cal_args[cal_args.index("--pitch-mm") + 1]) == BOARD.pitch_mm
-    # --base on the base plane, each --box on one block's top: [x0, x1) columns, [y0, y1) rows
+    assembly = cmds[0]
+    assert assembly[assembly.index("--board") + 1] == f"{BOARD.cols}x{BOARD.rows}"
+    assert float(assembly[assembly.index("--pitch-mm") + 1]) == BOARD.pitch_mm
+    # the features' boxes: base boxes on the base plane, each step's on its block's top
     label = StepsScene().cast(rig.rays)[2]
-    measure = cmds[6]
-    boxes = [tuple(int(v) for v in measure[i + 1].split(",")) for i, a in enumerate(measure) if a == "--box"]
-    bases = [tuple(int(v) for v in measure[i + 1].split(",")) for i, a in enumerate(measure) if a == "--base"]
-    assert tuple(bases) == SL_BASE and boxes == list(SL_TOPS.values())
-    for (x0, y0, x1, y1), k in [*((b, 0) for b in bases), *((b, i + 1) for i, b in enumerate(boxes))]:
-        assert (label[y0:y1, x0:x1] == k).all(), ((x0, y0, x1, y1), k)
-    # the calibration against the rig's truth
-    calib, truth = read_calibration("rig/calib.yml"), rig.calibration
+    feats = blocks["features"]
+    assert [tuple(b) for b in feats["base"]["boxes"]] == list(SL_BASE)
+    assert [tuple(s["box"]) for s in feats["steps"]] == list(SL_TOPS.values())
+    for box, k in [*((b, 0) for b in SL_BASE), *((b, i + 1) for i, b in enumerate(SL_TOPS.values()))]:
+        x0, y0, x1, y1 = box
+        assert (label[y0:y1, x0:x1] == k).all(), (box, k)
+    # the calibration the workflow made, against the rig's truth
+    calib, truth = read_calibration("results/board/calib/rig.yml"), rig.calibration
     for dev in ("camera_matrix", "projector_matrix"):
         assert abs(getattr(calib, dev)[0, 0] / getattr(truth, dev)[0, 0] - 1) < 0.003, dev
     assert abs(calib.baseline_mm - truth.baseline_mm) < 0.3
-    # the flat board: form deviation (bench target 0.02 mm; measured 0.019 mm, docs/rig.md)
-    board = json.loads(Path("results/board/report.json").read_text())
-    print("flat board: form", board["plane"]["form_deviation_mm"], "rms", board["plane"]["rms_mm"])
-    assert board["plane"]["form_deviation_mm"] < 0.025
-    assert board["plane"]["rms_mm"] < 2 * board["median_sigma_mm"][2]
-    # the steps (truth 2, 5, 10 mm; measured +0.022, +0.009, -0.009 mm, docs/rig.md)
-    steps = json.loads(Path("results/steps/report.json").read_text())
-    assert steps["session_id"] == "steps" and steps["plane"]["fitted_to"] == [list(b) for b in SL_BASE]
-    for (height, _), (name, got) in zip(SL_TOPS.items(), steps["boxes"].items(), strict=True):
-        print(f"step {height} mm: {got['mean_height_mm']:.4f} mm")
-        assert abs(got["mean_height_mm"] - height) < 0.03, (name, height, got)
-    assert abs(steps["boxes"]["box2"]["mean_height_mm"] / 10.0 - 1) < 0.003
-    # everything the capture-session route writes, renders included (not blank)
-    import cv2
-
-    for name in ("cloud.ply", "mesh.ply", "height.tiff", "height.x3p", "height.png", "mesh_top.png",
-                 "mesh_oblique1.png", "mesh_oblique2.png", "report.json"):
-        assert name in steps["files"] and Path("results/steps", name).stat().st_size > 1000, name
-    top = cv2.imread("results/steps/mesh_top.png")
-    assert top is not None and top.std() > 10
+    # the report: every figure's truth inside its U, the steps within 1 %
+    doc = json.loads(Path("results/steps/metrology/report.json").read_text())
+    for s in doc["steps"]:
+        print(f"step {s['name']}: {s['mean_mm']:.4f} mm, U {s['U_mm']:.4f} mm")
+        assert abs(s["error_mm"]) <= s["U_mm"] and abs(s["error_pct"]) < 1.0, s
+    for f in (e for v in doc["forms"].values() for e in v):
+        assert abs(f["error_mm"]) <= f["U_mm"], f
+    assert doc["conformity"]["decision"] in ("conforms", "undecided")
+    for rel in ("xyz/frame_0000.tiff", "cloud/frame_0000.ply", "height/frame_0000.tiff", "x3p/frame_0000.x3p",
+                "mesh/frame_0000.ply", "renders/frame_0000_top.png", "metrology/report.html"):
+        assert Path("results/steps", rel).stat().st_size > 1000, rel
     out = capsys.readouterr().out
     assert "OK: structured-light session 'board'" in out and "6 calibration poses" in out
-    assert "files match their sha256" in out and "session 'steps'" in out
+    assert "files match their sha256" in out

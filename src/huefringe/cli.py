@@ -202,9 +202,21 @@ def _cmd_sl_session(args: argparse.Namespace) -> int:
     from huefringe.session import SessionError
     from huefringe.session import assemble_sl_session
 
+    board = None
+    if args.board:
+        try:
+            if args.pitch_mm is None or not args.pitch_mm > 0:
+                raise ValueError("no pitch")
+            b = _board(args.board, args.pitch_mm, args.kind)
+        except (ValueError, TypeError):
+            print(f"REFUSED: --board {args.board!r} --pitch-mm {args.pitch_mm}: COLSxROWS of inner corners and the "
+                  "square size in mm expected (e.g. --board 9x7 --pitch-mm 12)", file=sys.stderr)
+            return 2
+        board = {"cols": b.cols, "rows": b.rows, "pitch_mm": b.pitch_mm, "kind": b.kind}
     try:
         out = assemble_sl_session(args.captures, args.sequence, args.out, calibration=args.calibration,
-                                  poses=args.poses, session_id=args.id)
+                                  poses=args.poses, session_id=args.id, board=board, features=args.features,
+                                  calibration_session=args.calibration_session)
     except SessionError as exc:
         print(f"REFUSED: no session written ({len(exc.problems)} problem(s)):", file=sys.stderr)
         for p in exc.problems:
@@ -482,6 +494,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--calibration", help="OpenCV FileStorage calibration of the rig (.yml/.yaml/.xml/.json), stored "
                                          "in the session as calibration/rig.<ext> with its sha256")
     p.add_argument("--poses", help="folder of calibration pose folders, each holding one full sequence of captures")
+    p.add_argument("--board", help="with --poses: the board they show, inner corners COLSxROWS (e.g. 9x7)")
+    p.add_argument("--pitch-mm", type=float, help="with --board: the square size, mm")
+    p.add_argument("--kind", choices=["chessboard", "circles", "acircles"], default="chessboard",
+                   help="with --board: the target (default chessboard)")
+    p.add_argument("--features", help="what to measure: a features YAML (base, steps, planes, distances, spheres in "
+                                      "camera pixels), stored as features.yaml")
+    p.add_argument("--calibration-session", help="the session whose poses calibrate this one (instead of --calibration)")
     p.add_argument("--id", help="session id ([a-z0-9-]+; default the YAML's id, else OUT's name)")
     p.set_defaults(func=_cmd_sl_session)
 

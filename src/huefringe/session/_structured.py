@@ -457,6 +457,9 @@ def assemble_sl_session(
     calibration: str | os.PathLike[str] | None = None,
     poses: str | os.PathLike[str] | None = None,
     session_id: str | None = None,
+    board: dict[str, Any] | None = None,
+    features: str | os.PathLike[str] | None = None,
+    calibration_session: str | os.PathLike[str] | None = None,
 ) -> Path:
     """Write a checked structured-light session at ``out_dir`` from a folder of captures.
 
@@ -479,6 +482,10 @@ def assemble_sl_session(
         folder of pose folders each holding one full sequence (copied to ``poses/<name>/``).
     session_id : str, optional
         Overrides the YAML's ``id``; default the output folder's name in ``[a-z0-9-]``.
+    board, features, calibration_session : optional
+        Override the YAML's: the board the poses show (``cols``, ``rows``, ``pitch_mm``,
+        ``kind``), a features YAML (copied to ``features.yaml``), the session whose poses
+        calibrate this one (written as a path relative to ``out_dir``).
 
     Returns
     -------
@@ -518,10 +525,13 @@ def assemble_sl_session(
         problems.append(Problem(seq_yaml, "provenance must be a mapping (captured_at, operator, instrument, source, license, notes)"))
     calib = Path(calibration) if calibration else (seq_yaml.parent / str(extra["calibration"]) if extra.get("calibration") else None)
     poses_dir = Path(poses) if poses else (seq_yaml.parent / str(extra["poses"]) if extra.get("poses") else None)
-    calib_session = seq_yaml.parent / str(extra["calibration_session"]) if extra.get("calibration_session") else None
+    calib_session = (Path(calibration_session) if calibration_session else
+                     seq_yaml.parent / str(extra["calibration_session"]) if extra.get("calibration_session") else None)
+    if board:
+        extra["board"] = board
     if calib_session is not None and calib is not None:
         problems.append(Problem(seq_yaml, "calibration and calibration_session both given: name one"))
-    features = seq_yaml.parent / str(extra["features"]) if extra.get("features") else None
+    features = Path(features) if features else (seq_yaml.parent / str(extra["features"]) if extra.get("features") else None)
 
     if spec is None:  # the sequence is refused: the calibration is still checked, against the first capture
         glob = doc.get("frames") if isinstance(doc.get("frames"), str) and doc.get("frames") else "*.png"
