@@ -329,7 +329,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
         xg = np.empty(w, np.float32)  # scratch: the gathered neighbours
         ig = np.empty(w, np.float32)
         sg = np.empty(w, np.float32)
-        cg = np.zeros(w, np.float32)  # the gathered carried values (0 without ``carry``)
+        cg = np.empty(w, np.float32)  # the gathered carried values (``carry``)
         pcc = np.empty(w, np.float32)
         n = 0
         if full:
@@ -409,31 +409,48 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                 du = -r
                 while du <= r:
                     # the neighbours gathered into contiguous scratch rows (the arithmetic below
-                    # is not vectorised on gathered loads), 0 inverse variance outside the image
-                    for q in range(n):
-                        uu = pu[q] + du
-                        inb = (uu >= 0) & (uu < w)
-                        uc = min(max(uu, 0), w - 1)
-                        xg[q] = d[vv, uc]
-                        ig[q] = inv[vv, uc] if inb else zero
-                        sg[q] = s2[vv, uc]
+                    # is not vectorised on gathered loads), 0 inverse variance outside the image;
+                    # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to sums
+                    # that start at +0 and so are never -0: bit for bit as skipping it. The
+                    # carried map in loops of its own (the same operations on the rest)
                     if carry:
                         for q in range(n):
                             uu = pu[q] + du
-                            cg[q] = c[vv, min(max(uu, 0), w - 1)]
-                    # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to
-                    # sums that start at +0 and so are never -0: bit for bit as skipping it
-                    for q in range(n):
-                        x = xg[q]
-                        iv = ig[q]
-                        dm = x - pm[q]
-                        dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                        keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
-                        diff = x - pdc[q]
-                        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                        pacc[q] += iv * diff if keep else zero
-                        pw[q] += iv if keep else zero
-                        pcc[q] += iv * cg[q] if keep else zero
+                            inb = (uu >= 0) & (uu < w)
+                            uc = min(max(uu, 0), w - 1)
+                            xg[q] = d[vv, uc]
+                            ig[q] = inv[vv, uc] if inb else zero
+                            sg[q] = s2[vv, uc]
+                            cg[q] = c[vv, uc]
+                        for q in range(n):
+                            x = xg[q]
+                            iv = ig[q]
+                            dm = x - pm[q]
+                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            diff = x - pdc[q]
+                            diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                            pacc[q] += iv * diff if keep else zero
+                            pw[q] += iv if keep else zero
+                            pcc[q] += iv * cg[q] if keep else zero
+                    else:
+                        for q in range(n):
+                            uu = pu[q] + du
+                            inb = (uu >= 0) & (uu < w)
+                            uc = min(max(uu, 0), w - 1)
+                            xg[q] = d[vv, uc]
+                            ig[q] = inv[vv, uc] if inb else zero
+                            sg[q] = s2[vv, uc]
+                        for q in range(n):
+                            x = xg[q]
+                            iv = ig[q]
+                            dm = x - pm[q]
+                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            diff = x - pdc[q]
+                            diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                            pacc[q] += iv * diff if keep else zero
+                            pw[q] += iv if keep else zero
                     du += step if step > 0 else 1
             if r >= radius or r == max_radius:
                 # a pixel stops once its weights reach the target (or at the last ring): its
