@@ -6,6 +6,8 @@ import numpy as np
 from numpy.typing import NDArray
 from numba import njit, prange
 
+from huefringe import _threads  # noqa: F401  (numba's threading layer, before any parallel launch)
+
 
 @njit(cache=True, inline="always", error_model="numpy")
 def denoise_weight(d, sg, valid):  # pragma: no cover - compiled
