@@ -133,6 +133,11 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
     return out, wout, rad
 
 
+#: ``_adaptive_pass``'s carry arguments when nothing is carried
+_NO_CARRY = (False, np.empty((1, 1), np.float32), np.empty((1, 1), np.float32), np.empty((1, 1), np.float32),
+             np.empty((1, 1)))
+
+
 def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
     """The compiled pass (all of a row's pixels through each window offset together) gives the
     pixel-by-pixel loop's bits: noisy pixels near the borders, invalid neighbours, a step."""
@@ -156,13 +161,13 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
     for max_radius, target, reject in ((4, 0.0008, 0.002), (6, 0.0005, 0.001), (2, 0.0009, 0.0)):
         tw, rw = np.float32(1 / target**2), np.float32(1 / reject**2 if reject else 0.0)
         got, got_w, got_rad = (np.empty_like(dz) for _ in range(3))
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, got_rad, True, *rings, 0.0)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, got_rad, True, *rings, 0.0, *_NO_CARRY)
         want, want_w, want_rad = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw)
         assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))  # the final weight sums too
         assert np.array_equal(got_rad[ok], want_rad[ok])  # and each pixel's final window
         assert got_rad[ok].max() > 1  # windows grew
         bare, bare_w = np.empty_like(dz), np.empty_like(dz)
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, False, *rings, 0.0)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, False, *rings, 0.0, *_NO_CARRY)
         assert np.array_equal(bare.view(np.uint32), got.view(np.uint32))
         assert np.array_equal(bare_w.view(np.uint32), got_w.view(np.uint32))
         grown = (inv > 0) & (wfirst < tw)
@@ -192,7 +197,7 @@ def test_adaptive_boxes_are_the_box_mean_where_one_level_and_rings_at_a_step() -
     tables = [np.empty((h + 1, w + 1)) for _ in range(4)]
     _level_tables(dz, inv, *tables)
     got, got_w, got_rad = (np.empty_like(dz) for _ in range(3))
-    _adaptive_pass(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, got, got_w, got_rad, True, *tables, 3.0)
+    _adaptive_pass(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, got, got_w, got_rad, True, *tables, 3.0, *_NO_CARRY)
     want, want_w, _ = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw)
     ok = inv > 0
     grown = ok & (wfirst < tw)
@@ -265,3 +270,90 @@ def test_first_pass_sums_are_the_exact_sums_where_nothing_was_rejected() -> None
         if equal:
             rej = ~took_all & (inv > 0)
             assert np.max(np.abs(got_c[rej] - cn[rej])) < 1e-3
+
+
+def _carried_by_pixel(d, s2, inv, c, first, wfirst, out, radius, max_radius, k2, target_w):
+    """Each pixel's ``sum w c / sum w`` over the neighbours its final window accepted, by the
+    filter's definition (float32 decisions, float64 sums): the fixed window's test against the
+    pixel itself, the grown window's (rings in order, stopping at the target) against its
+    first-pass estimate; the first pass's where the grown window found less support."""
+    f32 = np.float32
+    two_pi, inv_two_pi, pi = f32(2 * np.pi), f32(1 / (2 * np.pi)), f32(np.pi)
+
+    def wrapped(x):
+        return f32(x - two_pi * np.floor(f32((x + pi) * inv_two_pi)))
+
+    h, w = d.shape
+    cm = np.zeros((h, w))
+    for v in range(h):
+        for u in range(w):
+            if inv[v, u] <= 0:
+                continue
+            sums = []
+            for r_max, ref, s_ref in ((radius, d[v, u], s2[v, u]), (max_radius, first[v, u], f32(1) / wfirst[v, u])):
+                sw = sc = 0.0
+                wf = f32(0)
+                for r in range(r_max + 1):
+                    for dv in range(-r, r + 1):
+                        dus = range(-r, r + 1) if abs(dv) == r else (-r, r)
+                        for du in dus:
+                            vv, uu = v + dv, u + du
+                            if 0 <= vv < h and 0 <= uu < w and inv[vv, uu] > 0:
+                                dm = wrapped(f32(d[vv, uu] - ref))
+                                if f32(dm * dm) <= f32(k2 * f32(s2[vv, uu] + s_ref)):
+                                    sw += float(inv[vv, uu])
+                                    sc += float(inv[vv, uu]) * float(c[vv, uu])
+                                    wf = f32(wf + inv[vv, uu])
+                    if r_max == max_radius and r >= radius and wf >= target_w:
+                        break
+                sums.append((sc / sw, wf))
+            grown = max_radius > radius and wfirst[v, u] < target_w and sums[1][1] >= wfirst[v, u]
+            cm[v, u] = sums[1][0] if grown else sums[0][0]
+    return cm
+
+
+def test_carried_map_is_the_mean_over_the_accepted_neighbours() -> None:
+    """``carry_mean``: each pixel's weighted mean of the carried map over the neighbours its window
+    accepted (fixed and grown windows), against that definition pixel by pixel, beside a step whose
+    far side carries a large value the filter rejects (the whole window's mean takes it in there,
+    which is the test's contrast); the phase and the weight sums are the same bits with or without
+    it, and a small phase change is carried as the filter passes it (the two filtered maps'
+    difference, where no decision moves)."""
+    from huefringe.phase import _denoise_weights, window_sums
+
+    rng = np.random.default_rng(5)
+    h, w = 30, 41
+    sigma = np.where(rng.random((h, w)) < 0.3, 0.02, 0.004) * rng.uniform(0.5, 2, (h, w))
+    d = wrap(np.where(np.arange(w)[None, :] >= 20, 1.4, 0.4) + rng.normal(0, 1, (h, w)) * sigma)
+    valid = rng.random((h, w)) > 0.05
+    c = np.where(np.arange(w)[None, :] >= 20, 0.5, 0.0) + rng.normal(0, 1e-3, (h, w))
+    c = c.astype(np.float32)
+    dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
+    _denoise_weights(d, sigma, valid, dz, s2, inv)
+    k2 = np.float32(9.0)
+    for kw in ({}, {"max_radius": 5, "target_sigma": 0.0007}):
+        cm = np.empty((h, w), np.float32)
+        ws, ws0 = np.empty((h, w), np.float32), np.empty((h, w), np.float32)
+        got = denoise_phase(d, sigma, valid, radius=2, carry=c, carry_mean=cm, weight_sum=ws, **kw)
+        bare = denoise_phase(d, sigma, valid, radius=2, weight_sum=ws0, **kw)
+        assert np.array_equal(got.view(np.uint32), bare.view(np.uint32))
+        assert np.array_equal(ws.view(np.uint32), ws0.view(np.uint32))
+        first, wfirst = (denoise_phase(d, sigma, valid, radius=2), np.empty((h, w), np.float32))
+        denoise_phase(d, sigma, valid, radius=2, weight_sum=wfirst)
+        want = _carried_by_pixel(dz, s2, inv, c, first, wfirst, got, 2, kw.get("max_radius", 2), k2,
+                                 np.float32(1 / kw["target_sigma"] ** 2) if kw else np.float32(0))
+        ok = inv > 0
+        np.testing.assert_allclose(cm[ok], want[ok], rtol=1e-5, atol=1e-7)
+        assert np.all(cm[~ok] == 0)
+        left = ok & (np.arange(w)[None, :] < 20)
+        assert np.max(np.abs(cm[left])) < 0.01  # the far side's 0.5 is not carried across the step
+        whole = window_sums(inv, c, 2, np.ones((h, w), np.float32))[0]
+        assert np.max(np.abs(whole[left])) > 0.1  # the whole window's mean would have taken it
+    # a phase change too small to move a decision is carried as the filter passes it
+    kw = {"max_radius": 5, "target_sigma": 0.0007}
+    small = (1e-4 * rng.standard_normal((h, w))).astype(np.float32)
+    cm = np.empty((h, w), np.float32)
+    f0 = denoise_phase(d, sigma, valid, radius=2, carry=small, carry_mean=cm, **kw).astype(np.float64)
+    f1 = denoise_phase(d + small, sigma, valid, radius=2, **kw).astype(np.float64)
+    ok = np.isfinite(f0) & np.isfinite(f1)
+    assert np.median(np.abs((f1 - f0)[ok] - cm[ok])) < 0.02 * np.median(np.abs(cm[ok]))

@@ -32,6 +32,8 @@ from numpy.typing import NDArray
 from numba import njit, prange
 from scipy import ndimage
 
+from huefringe import _threads  # noqa: F401  (numba's threading layer, before any parallel launch)
+
 __all__ = ["blur_from_phases", "blur_from_white", "blur_uncertainty", "correct", "correct_pair", "lean", "white_floor"]
 
 #: white level (full scale 1) below which the normalised fringe is not formed (noise, shadow)

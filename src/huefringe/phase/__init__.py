@@ -30,6 +30,7 @@ from ._passes import (  # noqa: F401
     _denoise_weights,
     _denoise_row,
     _denoise_kernel,
+    _denoise_kernel_carry,
     _window_sums,
     _box_sums,
     window_sums,

@@ -7,7 +7,7 @@ from numpy.typing import NDArray
 
 from huefringe.settings import defaults
 
-from ._passes import _adaptive_pass, _denoise_kernel, _denoise_weights, _level_tables, window_sums
+from ._passes import _adaptive_pass, _denoise_kernel, _denoise_kernel_carry, _denoise_weights, _level_tables, window_sums
 
 
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
@@ -49,8 +49,10 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         pixels where it is not (steps, outliers) grow ring by ring. 0 = rings everywhere.
     carry, carry_mean : float32 ndarray, optional
         ``carry_mean`` receives each pixel's weighted mean of ``carry`` (finite everywhere) over
-        its final window, ``sum(w carry) / sum(w)`` (:func:`window_sums`): another map filtered
-        with this phase's weights, e.g. a small change of the phase to first order.
+        the neighbours its final window accepted, ``sum(w carry) / sum(w)`` (0 where not valid):
+        another map filtered with this phase's weights and decisions, i.e. the filtered change of
+        a phase change too small to move them (accumulated beside the weights; the filtered phase
+        and the other sums are the same bits with or without it).
     weight_sum : float32 ndarray, optional
         Receives each pixel's sum of the weights ``1 / sigma^2`` of the neighbours it averaged
         (0 where not valid): the filtered phase's variance from independent pixel noise is
@@ -130,7 +132,7 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
     if carry_mean is not None and (carry_mean.shape != out.shape or carry_mean.dtype != np.float32
                                    or not carry_mean.flags.c_contiguous):
         raise ValueError("carry_mean must be a C-contiguous float32 array of the phase's shape")
-    full = ratio_sum is not None or support is not None or carry is not None
+    full = ratio_sum is not None or support is not None
     if ratio_sum is not None and ratio is None:
         raise ValueError("ratio_sum needs ratio")
     r2 = (np.ascontiguousarray(ratio, np.float32) if ratio is not None else np.ones(out.shape, np.float32)) \
@@ -139,7 +141,16 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
         raise ValueError(f"ratio has shape {r2.shape}, the phase {out.shape}")
     wsum = np.empty(out.shape, np.float32)
     k2 = np.float32(float(k) ** 2)
-    _denoise_kernel(*arrays, int(radius), k2, out, wsum)
+    c = np.empty((1, 1), np.float32)
+    cfirst = np.empty((1, 1), np.float32)
+    if carry is not None:  # carried beside the weights, over the accepted neighbours
+        c = np.ascontiguousarray(carry, np.float32)
+        if c.shape != out.shape:
+            raise ValueError(f"carry has shape {c.shape}, the phase {out.shape}")
+        cfirst = np.empty(out.shape, np.float32)
+        _denoise_kernel_carry(arrays[0], arrays[1], arrays[2], c, int(radius), k2, out, wsum, cfirst)
+    else:
+        _denoise_kernel(*arrays, int(radius), k2, out, wsum)
     if (max_radius > radius and target_sigma > 0) or reject_sigma > 0:
         final = np.empty_like(out)
         wfinal = weight_sum if weight_sum is not None else np.empty_like(wsum)
@@ -148,25 +159,28 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
         rad = np.empty(out.shape if full else (1, 1), np.float32)
         grows = max_radius > radius and target_sigma > 0 and box_chi_z > 0
         tables = [np.empty((h + 1, w + 1) if grows else (1, 1)) for h, w in [arrays[0].shape] for _ in range(4)]
+        scar = np.empty((1, 1))
         if grows:
             _level_tables(arrays[0], arrays[2], *tables)
+            if carry is not None:  # the boxes' sums of w carry
+                scar = np.zeros((out.shape[0] + 1, out.shape[1] + 1))
+                np.cumsum(np.cumsum(arrays[2].astype(np.float64) * c, axis=0), axis=1, out=scar[1:, 1:])
+        cfinal = carry_mean if carry is not None else np.empty((1, 1), np.float32)
         _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), k2, target_w, reject_w, final,
-                       wfinal, rad, full, *tables, float(box_chi_z) if grows else 0.0)
+                       wfinal, rad, full, *tables, float(box_chi_z) if grows else 0.0, carry is not None, c, cfirst,
+                       cfinal, scar)
         out, wsum = final, wfinal
     else:
         rad = np.float32(radius)
         if weight_sum is not None:
             weight_sum[...] = wsum
+        if carry is not None:
+            carry_mean[...] = cfirst
     if full:
         rsum, cnt = window_sums(arrays[2], r2, rad, wsum)
         for dst, src in ((ratio_sum, rsum), (support, cnt)):
             if dst is not None:
                 dst[...] = src
-        if carry is not None:
-            c = np.ascontiguousarray(carry, np.float32)
-            if c.shape != out.shape:
-                raise ValueError(f"carry has shape {c.shape}, the phase {out.shape}")
-            carry_mean[...] = window_sums(arrays[2], c, rad, np.ones(out.shape, np.float32))[0]
     return out
 
 

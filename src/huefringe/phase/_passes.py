@@ -6,6 +6,8 @@ import numpy as np
 from numpy.typing import NDArray
 from numba import njit, prange
 
+from huefringe import _threads  # noqa: F401  (numba's threading layer, before any parallel launch)
+
 
 @njit(cache=True, inline="always", error_model="numpy")
 def denoise_weight(d, sg, valid):  # pragma: no cover - compiled
@@ -69,6 +71,50 @@ def _denoise_kernel(d, s2, inv, radius, k2, out, wout):  # pragma: no cover - co
         for u in range(w):
             out[v, u] = d[v, u] + acc[u] / wsum[u] if inv[v, u] > 0 else np.float32(np.nan)
             wout[v, u] = wsum[u] if inv[v, u] > 0 else np.float32(0.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _denoise_row_carry(dj, di, sj2, si2, inv, cj, k2, acc, wsum, cacc):  # pragma: no cover - compiled
+    """:func:`_denoise_row` (the same operations on ``acc`` and ``wsum``) and ``cacc += w c`` over
+    the same accepted neighbours."""
+    two_pi = np.float32(2.0 * np.pi)
+    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
+    pi = np.float32(np.pi)
+    zero = np.float32(0.0)
+    for u in range(dj.size):
+        diff = dj[u] - di[u]
+        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)  # to [-pi, pi)
+        keep = diff * diff <= k2 * (si2[u] + sj2[u])
+        wj = inv[u] if keep else zero
+        acc[u] += wj * diff
+        wsum[u] += wj
+        cacc[u] += wj * cj[u]
+
+
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+def _denoise_kernel_carry(d, s2, inv, c, radius, k2, out, wout, cout):  # pragma: no cover - compiled
+    """:func:`_denoise_kernel` (the same bits in ``out`` and ``wout``) and ``cout``, each pixel's
+    weighted mean of ``c`` over the neighbours it accepted, ``sum w c / sum w`` (0 where not valid):
+    the filtered change of a phase change ``c`` small enough not to move the accept decisions."""
+    h, w = d.shape
+    for v in prange(h):
+        acc = np.zeros(w, np.float32)
+        wsum = np.zeros(w, np.float32)
+        cacc = np.zeros(w, np.float32)
+        for dv in range(-radius, radius + 1):
+            vv = v + dv
+            if vv < 0 or vv >= h:
+                continue
+            for du in range(-radius, radius + 1):
+                u0 = max(0, -du)
+                u1 = min(w, w - du)
+                _denoise_row_carry(d[vv, u0 + du : u1 + du], d[v, u0:u1], s2[vv, u0 + du : u1 + du], s2[v, u0:u1],
+                                   inv[vv, u0 + du : u1 + du], c[vv, u0 + du : u1 + du], k2, acc[u0:u1],
+                                   wsum[u0:u1], cacc[u0:u1])
+        for u in range(w):
+            out[v, u] = d[v, u] + acc[u] / wsum[u] if inv[v, u] > 0 else np.float32(np.nan)
+            wout[v, u] = wsum[u] if inv[v, u] > 0 else np.float32(0.0)
+            cout[v, u] = cacc[u] / wsum[u] if inv[v, u] > 0 else np.float32(0.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
@@ -235,7 +281,7 @@ def _box(t, v0, v1, u0, u1):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
-                   rad, full, sw, sc, ss, sn, chi_z):
+                   rad, full, sw, sc, ss, sn, chi_z, carry, c, cfirst, cout, scar):
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
@@ -261,7 +307,13 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     estimate within ``k`` combined sigma; at the first box that reaches ``target_w`` (or the
     last) it stops. A box that fails either test (a step, an outlier, a slope steep for
     the noise) sends the pixel through the ring pass above. Rows run in parallel (``prange``):
-    each pixel's result depends only on the inputs, not on the threads."""
+    each pixel's result depends only on the inputs, not on the threads.
+
+    With ``carry``, ``cout`` receives each pixel's weighted mean of ``c`` over the neighbours its
+    final window accepted, ``sum w c / sum w``: ``cfirst`` (the first pass's, from
+    :func:`_denoise_kernel_carry`) where the first pass stands, the ring pass's own sums where it
+    grew, the box's (``scar``: the summed-area table of ``w c``) where a box was taken. The phase,
+    ``wout`` and ``rad`` are the same bits with or without it."""
     h, w = d.shape
     nan = np.float32(np.nan)
     two_pi = np.float32(2.0 * np.pi)
@@ -279,10 +331,15 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
         xg = np.empty(w, np.float32)  # scratch: the gathered neighbours
         ig = np.empty(w, np.float32)
         sg = np.empty(w, np.float32)
+        cg = np.empty(w, np.float32)  # the gathered carried values (``carry``)
+        pcc = np.empty(w, np.float32)
         n = 0
         if full:
             for u in range(w):
                 rad[v, u] = radius
+        if carry:
+            for u in range(w):
+                cout[v, u] = cfirst[v, u]
         for u in range(w):
             out[v, u] = first[v, u]
             wout[v, u] = wfirst[v, u]
@@ -324,6 +381,8 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                             val = dc + dd
                             if full:
                                 rad[v, u] = r
+                            if carry:
+                                cout[v, u] = np.float32(_box(scar, v0, v1, u0, u1) / bw)
                         out[v, u] = val if wb >= reject_w else nan
                         wout[v, u] = wb
                         done = True
@@ -341,6 +400,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
             pdc[q] = d[v, u]
             pacc[q] = 0.0
             pw[q] = 0.0
+            pcc[q] = 0.0
         for r in range(0, max_radius + 1):
             for dv in range(-r, r + 1):
                 vv = v + dv
@@ -351,26 +411,48 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                 du = -r
                 while du <= r:
                     # the neighbours gathered into contiguous scratch rows (the arithmetic below
-                    # is not vectorised on gathered loads), 0 inverse variance outside the image
-                    for q in range(n):
-                        uu = pu[q] + du
-                        inb = (uu >= 0) & (uu < w)
-                        uc = min(max(uu, 0), w - 1)
-                        xg[q] = d[vv, uc]
-                        ig[q] = inv[vv, uc] if inb else zero
-                        sg[q] = s2[vv, uc]
-                    # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to
-                    # sums that start at +0 and so are never -0: bit for bit as skipping it
-                    for q in range(n):
-                        x = xg[q]
-                        iv = ig[q]
-                        dm = x - pm[q]
-                        dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                        keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
-                        diff = x - pdc[q]
-                        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                        pacc[q] += iv * diff if keep else zero
-                        pw[q] += iv if keep else zero
+                    # is not vectorised on gathered loads), 0 inverse variance outside the image;
+                    # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to sums
+                    # that start at +0 and so are never -0: bit for bit as skipping it. The
+                    # carried map in loops of its own (the same operations on the rest)
+                    if carry:
+                        for q in range(n):
+                            uu = pu[q] + du
+                            inb = (uu >= 0) & (uu < w)
+                            uc = min(max(uu, 0), w - 1)
+                            xg[q] = d[vv, uc]
+                            ig[q] = inv[vv, uc] if inb else zero
+                            sg[q] = s2[vv, uc]
+                            cg[q] = c[vv, uc]
+                        for q in range(n):
+                            x = xg[q]
+                            iv = ig[q]
+                            dm = x - pm[q]
+                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            diff = x - pdc[q]
+                            diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                            pacc[q] += iv * diff if keep else zero
+                            pw[q] += iv if keep else zero
+                            pcc[q] += iv * cg[q] if keep else zero
+                    else:
+                        for q in range(n):
+                            uu = pu[q] + du
+                            inb = (uu >= 0) & (uu < w)
+                            uc = min(max(uu, 0), w - 1)
+                            xg[q] = d[vv, uc]
+                            ig[q] = inv[vv, uc] if inb else zero
+                            sg[q] = s2[vv, uc]
+                        for q in range(n):
+                            x = xg[q]
+                            iv = ig[q]
+                            dm = x - pm[q]
+                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            diff = x - pdc[q]
+                            diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                            pacc[q] += iv * diff if keep else zero
+                            pw[q] += iv if keep else zero
                     du += step if step > 0 else 1
             if r >= radius or r == max_radius:
                 # a pixel stops once its weights reach the target (or at the last ring): its
@@ -389,6 +471,8 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                             val = pdc[q] + pacc[q] / wsum
                             if full:
                                 rad[v, u] = r
+                            if carry:
+                                cout[v, u] = pcc[q] / wsum
                         out[v, u] = val if wsum >= reject_w else nan
                         wout[v, u] = wsum
                         continue
@@ -398,6 +482,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                     pdc[keep_n] = pdc[q]
                     pacc[keep_n] = pacc[q]
                     pw[keep_n] = pw[q]
+                    pcc[keep_n] = pcc[q]
                     keep_n += 1
                 n = keep_n
                 if n == 0:

@@ -204,6 +204,8 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
             log.info("removed %s, left by an interrupted run", stale)
     import numba  # the compiled passes' rows run on the job's threads (rule ``threads``), no more
 
+    from huefringe import _threads  # noqa: F401  (the threading layer, before set_num_threads starts it)
+
     numba.set_num_threads(max(1, min(int(getattr(smk, "threads", 1) or 1), numba.config.NUMBA_NUM_THREADS)))
     t0 = time.perf_counter()
     try:

@@ -12,6 +12,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from huefringe import _threads  # noqa: F401  (numba's threading layer, before any parallel launch)
 from huefringe.uncertainty.calibration import PixelBudget, TERMS, _INTERP_LUT, _encode_interp
 
 __all__ = ["add_lateral", "edge_floor", "height_uncertainty", "lateral_term", "split_terms", "texture_delta",
