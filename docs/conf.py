@@ -74,7 +74,7 @@ html_show_sourcelink = False
 # lands under "More" (huefringe_docs.contents), so pages added by later work always appear
 huefringe_sections = [
     ("Using huefringe", ["guide", "capture*", "rig*", "spec/capture-session", "spec/results",
-                         "spec/structured-light-session", "outputs",
+                         "spec/structured-light-session", "spec/results-structured-light", "outputs",
                          "configuration", "cluster*", "archives*", "x3p*", "api"]),
     ("Method and design", ["method", "design*"]),
     ("Measured", ["demo", "accuracy", "accuracy-texture", "accuracy-cameras", "accuracy-*", "uncertainty*", "noise*",

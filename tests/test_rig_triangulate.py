@@ -24,7 +24,7 @@ def _measure(rig, calib, scene, mode, seed=0, sigma=COORD_SIGMA_PX, stride=2):
     t = triangulate(calib, m["u"].ravel(), m["v"].ravel() if mode == "both" else None, sigma_u=m["sigma"].ravel(),
                     sigma_v=m["sigma"].ravel() if mode == "both" else None, valid=m["valid"].ravel(), pixels=pix)
     shape = xyz.shape[:2]
-    t = type(t)(t.xyz.reshape(*shape, 3), t.sigma.reshape(*shape, 3), t.valid.reshape(shape))
+    t = type(t)(t.xyz.reshape(*shape, 3), t.sigma.reshape(*shape, 3), t.valid.reshape(shape), t.sigma_ray.reshape(shape))
     return t, xyz, [e for e in extra]
 
 

@@ -48,7 +48,8 @@ def slurm(tmp_path_factory: pytest.TempPathFactory):
 
 
 def _workdir(path: Path) -> Path:
-    """A small gauge-block bench session with phase-shift captures, in two batches of two frames."""
+    """A small gauge-block bench session with phase-shift captures, in two batches of two frames,
+    and the bench rig's gauge (a structured-light session) with the session that calibrates it."""
     path.mkdir(parents=True)
     bench = bench_config("demo", width=200, height=150, hue_bands=24, repeats=2, frames=FRAMES, id="slurm-demo")
     bench["scene"]["blocks"] = [
@@ -58,8 +59,9 @@ def _workdir(path: Path) -> Path:
     ]
     (path / "bench.yaml").write_text(yaml.safe_dump(bench))
     cfg = json.loads(json.dumps(CONFIG))
-    cfg["sessions"] = ["sessions/slurm-demo"]
-    cfg["bench_sessions"] = {"sessions/slurm-demo": "bench.yaml"}
+    cfg["sessions"] = ["sessions/slurm-demo", "sessions/rig-gauge"]
+    cfg["bench_sessions"] = {"sessions/slurm-demo": "bench.yaml", "sessions/rig-gauge": "rig-gauge",
+                             "sessions/rig-poses": "rig-poses"}
     cfg["render"].update(width=320, height=240)
     cfg["measurement"]["parallel_jobs"] = 2
     cfg.pop("table1", None)
@@ -149,6 +151,8 @@ def test_profile_run_matches_a_local_run_byte_for_byte(slurm: LocalSlurm, tmp_pa
     ran_locally = sorted(r for r in re.findall(r"Finished jobid: \d+ \(Rule: (\S+)\)", local_log) if r != "all")
     assert sorted(str(d["rule"]) for d in declared.values()) == ran_locally
     assert len(ran_locally) >= 19 and ran_locally.count("hue_table") == 2
+    assert {"rig_calibrate", "rig_calibration_from", "rig_measure", "rig_surfaces", "rig_metrology",
+            "rig_accuracy"} <= set(ran_locally)
     rows = slurm.run("squeue", "--states=all", "--noheader", "--format=%i|%T|%C|%m|%l|%k", check=True).stdout
     seen = {}
     for row in rows.split():

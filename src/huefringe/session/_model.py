@@ -41,8 +41,30 @@ class SessionError(ValueError):
         return cls(Problem(Path(path), message))
 
 
+class SessionMeta:
+    """What both session formats' ``session.yaml`` say alike: the id and the camera's image."""
+
+    meta: dict[str, Any]
+
+    @property
+    def id(self) -> str:
+        return str(self.meta["id"])
+
+    @property
+    def width(self) -> int:
+        return int(self.meta["camera"]["width"])
+
+    @property
+    def height(self) -> int:
+        return int(self.meta["camera"]["height"])
+
+    @property
+    def bit_depth(self) -> int:
+        return int(self.meta["camera"]["bit_depth"])
+
+
 @dataclass(frozen=True)
-class Session:
+class Session(SessionMeta):
     """A validated capture session: its metadata and the paths of all its files."""
 
     root: Path
@@ -60,22 +82,6 @@ class Session:
     ground_truth_xy: dict[int, Path] = field(default_factory=dict)
     """Extension (bench sessions): the true X, Y of each pixel, ``ground_truth/xy/frame_NNNN.tiff``,
     float32 (H, W, 2) in mm, NaN where unseen."""
-
-    @property
-    def id(self) -> str:
-        return str(self.meta["id"])
-
-    @property
-    def width(self) -> int:
-        return int(self.meta["camera"]["width"])
-
-    @property
-    def height(self) -> int:
-        return int(self.meta["camera"]["height"])
-
-    @property
-    def bit_depth(self) -> int:
-        return int(self.meta["camera"]["bit_depth"])
 
     @property
     def pixel_pitch_mm(self) -> float:

@@ -42,7 +42,7 @@ from huefringe.codecs.sequence import (
 )
 from ._features import FEATURES_FILE, Features, load_features
 from ._images import IMAGE_SUFFIXES, ImageInfo, image_info
-from ._model import Problem, SessionError
+from ._model import Problem, SessionError, SessionMeta
 from ._validate import _normalise_dates
 
 __all__ = [
@@ -71,7 +71,7 @@ _NUM = re.compile(r"(\d+)")
 
 
 @dataclass(frozen=True)
-class SLSession:
+class SLSession(SessionMeta):
     """A validated structured-light session: metadata, its sequence and the paths of its files."""
 
     root: Path
@@ -88,22 +88,6 @@ class SLSession:
     """The session whose ``poses/`` calibrate this one (``calibration: {session: PATH}``), resolved."""
     features: Features | None = None
     """``features.yaml``: what to measure."""
-
-    @property
-    def id(self) -> str:
-        return str(self.meta["id"])
-
-    @property
-    def width(self) -> int:
-        return int(self.meta["camera"]["width"])
-
-    @property
-    def height(self) -> int:
-        return int(self.meta["camera"]["height"])
-
-    @property
-    def bit_depth(self) -> int:
-        return int(self.meta["camera"]["bit_depth"])
 
     @property
     def board(self) -> dict[str, Any] | None:

@@ -1,0 +1,87 @@
+"""Milliseconds per frame of the rig route's stages beside the I/O floor of the same run.
+
+Usage: ./run python benchmarks/bench_rig_stages.py [--rounds 3] [--work DIR]
+
+The bench's rig-poses and rig-gauge sessions (640 x 480 camera, 38 captures of N = 4 phase and
+Gray code on both axes) are written once; then, per round, on one core: reading the 38 captures
+(the I/O floor: OpenCV's PNG decoding), decoding them (`huefringe.codecs.decode_sequence`),
+triangulating (`huefringe.rig.triangulate`, ray-ray with propagated sigma), the calibration's
+per-pixel term (8 leave-one-pose-out triangulations), the height over the base plane and its grid,
+and the features' figures with their calibration term (`huefringe.rig.metrology`). Speed is
+reported as ratios to the I/O floor of the same run; no test asserts it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from huefringe.bench import load_sl_bench_config, write_sl_session
+from huefringe.rig.measure import (
+    calibrate_sl_session,
+    calibration_spread,
+    decode_frame,
+    height_over_plane,
+    plane_grid,
+    triangulate_frame,
+)
+from huefringe.rig.metrology import base_plane, feature_values
+from huefringe.session import load_sl_session
+from huefringe.settings import load_config
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--rounds", type=int, default=3)
+    ap.add_argument("--work")
+    a = ap.parse_args()
+    cv2.setNumThreads(1)
+    import numba
+
+    numba.set_num_threads(1)
+    work = Path(a.work) if a.work else Path(tempfile.mkdtemp(prefix="rig-stages-"))
+    for name in ("rig-poses", "rig-gauge"):
+        if not (work / name / "session.yaml").exists():
+            write_sl_session(load_sl_bench_config(name), work / name)
+    cfg = load_config({"codecs": {"noise": {"read_dn": 1.0, "full_well_e": None}}})
+    s = load_sl_session(work / "rig-gauge")
+    t0 = time.perf_counter()
+    run = calibrate_sl_session(load_sl_session(work / "rig-poses"), cfg)
+    t_cal = time.perf_counter() - t0
+    times: dict[str, list[float]] = {}
+
+    def clock(key: str, fn, *args, **kw):
+        t = time.perf_counter()
+        out = fn(*args, **kw)
+        times.setdefault(key, []).append(1000 * (time.perf_counter() - t))
+        return out
+
+    for _ in range(a.rounds):
+        images = clock("read 38 captures (I/O floor)", s.read_captures)
+        d = clock("decode", decode_frame, images, s.spec, cfg)
+        f = clock("triangulate", triangulate_frame, d, run.calibration, cfg, where="bench", spec=s.spec)
+        clock("calibration term (8 triangulations)", calibration_spread, f, list(run.jackknife))
+        plane = clock("base plane", base_plane, f, s.features)
+        h, u = clock("height over plane", height_over_plane, f, plane.centroid, plane.normal)
+        clock("height grid", plane_grid, f, h, u, plane.centroid, plane.normal)
+        clock("features' figures", feature_values, f.xyz, f.sigma, s.features)
+    floor = float(np.median(times["read 38 captures (I/O floor)"]))
+    print(f"rig route, {s.width} x {s.height}, {len(s.captures)} captures, one core, median of {a.rounds} rounds "
+          f"(calibration from 8 poses with 8 leave-one-out fits: {t_cal:.1f} s)")
+    print("| stage | ms per frame | x I/O floor |")
+    print("|---|---|---|")
+    total = 0.0
+    for k, v in times.items():
+        ms = float(np.median(v))
+        total += ms if not k.startswith("read") else 0.0
+        print(f"| {k} | {ms:.1f} | {ms / floor:.2f} |")
+    print(f"| compute (all but reading) | {total:.1f} | {total / floor:.2f} |")
+
+
+if __name__ == "__main__":
+    main()
