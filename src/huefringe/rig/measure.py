@@ -379,9 +379,19 @@ def measure_sl_frame(session: Any, calib: RigCalibration, cfg: dict[str, Any]) -
     return triangulate_frame(d, calib, cfg, where=str(session.root / "captures"), spec=session.spec)
 
 
-def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibration]]) -> tuple[F64, F64]:
+CALIBRATION_SPREAD_STRIDE = 4
+"""The calibration's per-pixel term is computed every this many camera pixels along both axes and
+interpolated between them (it varies with the calibration's smooth errors, not from pixel to pixel)."""
+
+
+def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibration]],
+                       stride: int = CALIBRATION_SPREAD_STRIDE) -> tuple[F64, F64]:
     """The calibration's standard uncertainty of every point: the jackknife spread of the point
     triangulated again with each leave-one-pose-out calibration.
+
+    The points are triangulated again on every ``stride``-th pixel of each axis; the spread is
+    interpolated bilinearly between them (weights normalised over the valid samples, so a sample
+    across an invalid region does not count).
 
     Returns
     -------
@@ -397,22 +407,39 @@ def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibratio
     u_ray = np.where(frame.valid, 0.0, np.nan)
     if not jackknife:
         return u_axes, u_ray
+    n = len(jackknife)
+    if n < 4:
+        raise RigError(f"{n} leave-one-pose-out calibrations; the calibration's term needs at least 4")
+    h, w = frame.valid.shape
+    sample = np.zeros_like(frame.valid)
+    sample[::stride, ::stride] = True
+    sample &= frame.valid
     d = frame.decoded
     use = {"u": frame.mode in ("u", "both"), "v": frame.mode in ("v", "both")}
     pts = []
     for _, c in jackknife:
         t = triangulate(c, d["u"] if use["u"] else None, d["v"] if use["v"] else None,
-                        valid=frame.valid, mode=frame.mode)  # type: ignore[arg-type]
-        pts.append(t.xyz[frame.valid])
+                        valid=sample, mode=frame.mode)  # type: ignore[arg-type]
+        pts.append(t.xyz[sample])
     p = np.stack(pts)
-    n = len(jackknife)
-    if n < 4:
-        raise RigError(f"{n} leave-one-pose-out calibrations; the calibration's term needs at least 4")
     dev = p - p.mean(axis=0)
-    ray = frame.xyz[frame.valid] / np.linalg.norm(frame.xyz[frame.valid], axis=-1, keepdims=True)
+    ray = frame.xyz[sample] / np.linalg.norm(frame.xyz[sample], axis=-1, keepdims=True)
     scale = (n - 1) / n * (n - 1) / (n - 3)
-    u_axes[frame.valid] = np.sqrt(scale * np.sum(dev**2, axis=0))
-    u_ray[frame.valid] = np.sqrt(scale * np.sum(np.einsum("jik,ik->ji", dev, ray) ** 2, axis=0))
+    coarse = np.zeros(((h + stride - 1) // stride, (w + stride - 1) // stride, 5), dtype=np.float32)
+    got = np.isfinite(dev).all(axis=(0, 2))
+    rows, cols = np.nonzero(sample)
+    vals = np.column_stack([np.sqrt(scale * np.sum(dev**2, axis=0)),
+                            np.sqrt(scale * np.sum(np.einsum("jik,ik->ji", dev, ray) ** 2, axis=0)), np.ones(len(ray))])
+    coarse[rows[got] // stride, cols[got] // stride] = vals[got]
+    # bilinear between the samples (pixel i*stride of the full grid is sample i), weights normalised
+    yy = np.arange(h) / stride
+    xx = np.arange(w) / stride
+    fine = cv2.remap(coarse, *np.meshgrid(xx.astype(np.float32), yy.astype(np.float32)), cv2.INTER_LINEAR,
+                     borderMode=cv2.BORDER_REPLICATE)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        est = fine[..., :4] / fine[..., 4:5]
+    u_axes[frame.valid] = est[frame.valid][:, :3]
+    u_ray[frame.valid] = est[frame.valid][:, 3]
     return u_axes, u_ray
 
 

@@ -54,8 +54,8 @@ def base_plane(frame: RigFrame, features: Any) -> Any:
 
 
 def _points(xyz: F64, sigma: F64, mask: NDArray[np.bool_]) -> tuple[F64, F64]:
-    ok = mask & np.isfinite(xyz).all(axis=-1)
-    return xyz[ok], sigma[ok]
+    """The region's points with finite coordinates (``mask`` already holds only valid pixels)."""
+    return xyz[mask], sigma[mask]
 
 
 def noise_scale(xyz: F64, sigma: F64, mask: NDArray[np.bool_], centre: F64, normal: F64 | None = None) -> tuple[float, float]:
@@ -77,6 +77,11 @@ def noise_scale(xyz: F64, sigma: F64, mask: NDArray[np.bool_], centre: F64, norm
         :data:`NOISE_MODEL_REL_U` (neighbour differences do not see noise correlated over a few
         pixels, which the residuals' variance holds).
     """
+    rows, cols = np.nonzero(mask)
+    if rows.size == 0:
+        return 1.0, 0.5
+    box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
+    xyz, sigma, mask = xyz[box], sigma[box], mask[box]
     ok = mask & np.isfinite(xyz).all(axis=-1) & np.isfinite(sigma).all(axis=-1)
     ray = xyz / np.linalg.norm(xyz, axis=-1, keepdims=True)
     if normal is not None:
@@ -104,7 +109,8 @@ def feature_values(xyz: F64, sigma: F64, features: Any) -> dict[str, dict[str, A
     """Every figure of ``features`` on one triangulated frame: name -> the fit's result (the form
     figures with the region's noise scaled to what the data show, :func:`noise_scale`)."""
     shape = xyz.shape[:2]
-    masks = {name: r.mask(shape) for name, r in features.regions().items()}
+    finite = np.isfinite(xyz).all(axis=-1) & np.isfinite(sigma).all(axis=-1)
+    masks = {name: r.mask(shape) & finite for name, r in features.regions().items()}
     out: dict[str, dict[str, Any]] = {}
     for f in features.features:
         try:
