@@ -156,3 +156,41 @@ def test_archive_target_packs_the_rig_session_and_its_calibration_session(run: P
         assert any(n.startswith("session/poses/pose_07/") for n in zf.namelist())
     index = json.loads((run / "results/archives.json").read_text())
     assert sorted(a["session"] for a in index["archives"]) == ["rig-gauge", "rig-poses"]
+
+
+def test_a_phase_only_sequence_is_refused_as_a_user_meets_it(tmp_path: Path, capsys) -> None:
+    """A rig's 12-step phase shifting without Gray code: sl-session and check take it (it decodes),
+    but neither rig-measure nor the workflow triangulates it; each says which block is missing."""
+    import cv2
+
+    from huefringe import codecs as C
+    from huefringe.bench.rig import RIGS
+    from huefringe.cli import main
+
+    seq = {"projector": {"width": 800, "height": 600}, "frames": "img_*.png",
+           "blocks": [{"phase": {"axis": "x", "period_px": 40, "steps": 12}}]}
+    caps = tmp_path / "caps"
+    caps.mkdir()
+    spec = C.sequence_from_mapping(seq, tmp_path / "seq.yaml", caps)
+    for i, im in enumerate(C.generate(spec)):
+        cv2.imwrite(str(caps / f"img_{i + 1}.png"), np.round(20 + 0.8 * im[:480, :640]).astype(np.uint8))
+    (tmp_path / "seq.yaml").write_text(yaml.safe_dump(seq))
+    from huefringe.rig import write_calibration
+
+    write_calibration(tmp_path / "rig.yml", RIGS["tune"].calibration)
+    assert main(["sl-session", str(caps), str(tmp_path / "seq.yaml"), str(tmp_path / "s"),
+                 "--calibration", str(tmp_path / "rig.yml")]) == 0
+    assert main(["check", "--deep", str(tmp_path / "s")]) == 0
+    capsys.readouterr()
+    assert main(["rig-measure", str(tmp_path / "s"), str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert "axis x: the phase block (period 40 px) has no absolute order (no Gray code or second period on x)" in err
+    assert "cannot triangulate a relative projector coordinate" in err and not (tmp_path / "out").exists()
+    work = rig_workdir(tmp_path / "wf")
+    cfg = yaml.safe_load((work / "config.yaml").read_text())
+    cfg["sessions"], cfg["bench_sessions"] = [str(tmp_path / "s")], {}
+    (work / "config.yaml").write_text(yaml.safe_dump(cfg))
+    cmd = [sys.executable, "-m", "snakemake", "-s", str(REPO / "Snakefile"), "--directory", str(work), "--cores", "1"]
+    proc = subprocess.run(cmd, capture_output=True, text=True)
+    assert proc.returncode != 0 and "has no absolute order" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (work / "results").exists()

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from huefringe import bench
+from huefringe.rig.decoded import relative_axes_problems
 from huefringe.session import SL_FORMAT, SessionError, load_session, load_sl_session, session_format
 
 
@@ -260,6 +261,10 @@ def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[s
     bench_by_path = {full(Path(k)): Path(k) for k in bench_sessions}
     refused = []
     for plan in list(plans.values()):
+        if plan.kind == "structured-light" and plan.measure and plan.bench is None:
+            spec = load_sl_session(full(plan.path)).spec
+            refused += [f"session {plan.path} is refused:\n{full(plan.path) / 'sequence.yaml'}: {p}"
+                        for p in relative_axes_problems(spec, config["rig"]["triangulation"])]
         if plan.kind != "structured-light" or plan.calibration_file:
             continue
         if plan.calibration_session is not None:
