@@ -126,6 +126,7 @@ HUE_MODEL_WORDS: dict[str, str] = {
 
 _STEP_HEAD = ("Mean (mm)", "Std σ (mm)", "±3σ (mm)", "Error (mm)", "Error / nominal (%)", "Error / range (%)", "Pass")
 _BUDGET_TERMS = ("noise", "table", "interpolation", "reference", "model")
+_RIG_BUDGET_TERMS = ("points_mm", "calibration_mm")
 _ZONE_CLASS = {"pass": "ok", "fail": "bad", "undecided": "undecided"}
 
 
@@ -346,7 +347,8 @@ def _context(report: Mapping[str, Any], figures: Mapping[str, str | os.PathLike[
         "u_steps": u_steps,
         "u_validation": (report.get("accuracy") or {}).get("trapezoidal-hsi", {}).get("uncertainty"),
         "step_head": _STEP_HEAD,
-        "budget_terms": _BUDGET_TERMS,
+        "budget_terms": _RIG_BUDGET_TERMS if report.get("geometry") else _BUDGET_TERMS,
+        "rig": bool(report.get("geometry")),
         "zone_class": _ZONE_CLASS,
         "conditions": _conditions(report),
         "flat_steps": _flat_rows(report, box_mm if box_mm is not None and pitch is not None else pitch),

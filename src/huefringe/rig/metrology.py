@@ -261,7 +261,8 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
         "geometry": {"route": "structured light: decoded projector coordinates triangulated with the rig calibration",
                      "triangulation": mode, "calibration": str(calibration)},
         "forms": forms,
-        "provenance": collect_provenance(session.id, dict(config), inputs),
+        "provenance": {**collect_provenance(session.id, dict(config), inputs),
+                       "capture": session.meta.get("provenance") or {}},
     }
     if cal_doc:
         extras["rig_calibration"] = cal_doc
