@@ -194,3 +194,23 @@ def test_a_phase_only_sequence_is_refused_as_a_user_meets_it(tmp_path: Path, cap
     proc = subprocess.run(cmd, capture_output=True, text=True)
     assert proc.returncode != 0 and "has no absolute order" in proc.stderr and "Traceback" not in proc.stderr
     assert not (work / "results").exists()
+
+
+def test_a_calibration_file_without_poses_is_said_in_every_figure_and_the_headline(run: Path, tmp_path: Path, capsys) -> None:
+    from huefringe.cli import main
+
+    seq = yaml.safe_load((run / "sessions/rig-gauge/sequence.yaml").read_text())
+    (tmp_path / "seq.yaml").write_text(yaml.safe_dump(seq))
+    assert main(["sl-session", str(run / "sessions/rig-gauge/captures"), str(tmp_path / "seq.yaml"), str(tmp_path / "s"),
+                 "--calibration", str(run / "results/rig-poses/calib/rig.yml"),
+                 "--features", str(run / "sessions/rig-gauge/features.yaml")]) == 0
+    assert main(["rig-measure", str(tmp_path / "s"), str(tmp_path / "out")]) == 0
+    out = capsys.readouterr().out
+    assert "every U lacks the calibration's term" in out
+    doc = json.loads((tmp_path / "out/metrology/report.json").read_text())
+    for f in doc["steps"] + [e for v in doc["forms"].values() for e in v]:
+        assert f["uncertainty_budget"]["calibration_mm"].startswith("not available"), f
+    # the same decoded points as the workflow's, which had the calibration's poses beside it
+    a = tifffile.imread(tmp_path / "out/xyz/frame_0000.tiff")
+    b = tifffile.imread(run / "results/rig-gauge/xyz/frame_0000.tiff")
+    np.testing.assert_array_equal(a, b)

@@ -268,6 +268,9 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
         extras["rig_calibration"] = cal_doc
     report = build_report_json(session.id, specimen, method_result, extras=extras,
                                figures=[e for k in ("flatness", "distances", "parallelism", "spheres") for e in forms.get(k, [])])
+    if not loo:  # said in the headline too: this U lacks a term, and a decision read from it must know that
+        report["conformity"]["reason"] += ("; every U lacks the calibration's term (the calibration file comes without its "
+                                           "board poses, so its uncertainty is not known here)")
     from huefringe.io import write_json
 
     write_json(json_path, report)
