@@ -202,17 +202,12 @@ def _cmd_sl_session(args: argparse.Namespace) -> int:
     from huefringe.session import SessionError
     from huefringe.session import assemble_sl_session
 
-    board = None
-    if args.board:
-        try:
-            if args.pitch_mm is None or not args.pitch_mm > 0:
-                raise ValueError("no pitch")
-            b = _board(args.board, args.pitch_mm, args.kind)
-        except (ValueError, TypeError):
-            print(f"REFUSED: --board {args.board!r} --pitch-mm {args.pitch_mm}: COLSxROWS of inner corners and the "
-                  "square size in mm expected (e.g. --board 9x7 --pitch-mm 12)", file=sys.stderr)
-            return 2
-        board = {"cols": b.cols, "rows": b.rows, "pitch_mm": b.pitch_mm, "kind": b.kind}
+    try:
+        b = _board(args)
+    except ValueError as exc:
+        print(f"REFUSED: {exc}", file=sys.stderr)
+        return 2
+    board = None if b is None else {"cols": b.cols, "rows": b.rows, "pitch_mm": b.pitch_mm, "kind": b.kind}
     try:
         out = assemble_sl_session(args.captures, args.sequence, args.out, calibration=args.calibration,
                                   poses=args.poses, session_id=args.id, board=board, features=args.features,
@@ -270,11 +265,20 @@ def _cmd_decode(args: argparse.Namespace) -> int:
     return 0
 
 
-def _board(text: str, pitch: float, kind: str) -> Any:
+def _board(args: argparse.Namespace) -> Any:
+    """``--board COLSxROWS --pitch-mm MM [--kind]`` as a :class:`huefringe.rig.Board`, None without
+    ``--board``; ValueError saying what to give."""
     from huefringe.rig import Board
 
-    cols, rows = (int(v) for v in text.lower().split("x"))
-    return Board(cols, rows, pitch, kind)
+    if not args.board:
+        return None
+    try:
+        cols, rows = (int(v) for v in args.board.lower().split("x"))
+    except ValueError:
+        raise ValueError(f"--board {args.board!r}: COLSxROWS of inner corners expected (e.g. 9x7)") from None
+    if args.pitch_mm is None or not args.pitch_mm > 0:
+        raise ValueError(f"--board {args.board} needs --pitch-mm MM, the side of one square in mm")
+    return Board(cols, rows, args.pitch_mm, args.kind)
 
 
 def _is_sl_session(path: str) -> bool:
@@ -318,17 +322,15 @@ def _cmd_rig_calibrate(args: argparse.Namespace) -> int:
               f"{len(args.inputs)} argument(s): {' '.join(args.inputs)}", file=sys.stderr)
         return 2
     out = args.inputs[-1]
-    board = None
-    if args.board or not sl:
-        if not args.board or args.pitch_mm is None:
-            print("REFUSED: --board COLSxROWS and --pitch-mm MM name the board (a session may carry them as board:)",
-                  file=sys.stderr)
-            return 2
-        try:
-            board = _board(args.board, args.pitch_mm, args.kind)
-        except ValueError:
-            print(f"REFUSED: --board {args.board!r}: COLSxROWS of inner corners expected (e.g. 9x7)", file=sys.stderr)
-            return 2
+    try:
+        board = _board(args)
+    except ValueError as exc:
+        print(f"REFUSED: {exc}", file=sys.stderr)
+        return 2
+    if board is None and not sl:
+        print("REFUSED: --board COLSxROWS and --pitch-mm MM name the board (a session may carry them as board:)",
+              file=sys.stderr)
+        return 2
     cfg = _config(args.configfile)
     try:
         if sl:

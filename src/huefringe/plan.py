@@ -67,6 +67,8 @@ class SessionPlan:
     """Structured light: id of the session whose ``calib/rig.yml`` this one is measured with."""
     measure: bool = True
     """False for a calibration session that only the sessions naming it brought into the run."""
+    sequence: Any = field(default=None, repr=False)
+    """Structured light, read from the folder: its ``huefringe.codecs.SequenceSpec``."""
 
     def frame_selection(self, sel: Any) -> list[int]:
         if sel == "first":
@@ -93,6 +95,7 @@ def _from_sl_session(path: Path) -> SessionPlan:
         calibrate=bool(s.poses) and s.board is not None,
         calibration_file=cal.get("file"),
         calibration_session=s.calibration_session,
+        sequence=s.spec,
     )
 
 
@@ -261,10 +264,9 @@ def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[s
     bench_by_path = {full(Path(k)): Path(k) for k in bench_sessions}
     refused = []
     for plan in list(plans.values()):
-        if plan.kind == "structured-light" and plan.measure and plan.bench is None:
-            spec = load_sl_session(full(plan.path)).spec
+        if plan.measure and plan.sequence is not None:
             refused += [f"session {plan.path} is refused:\n{full(plan.path) / 'sequence.yaml'}: {p}"
-                        for p in relative_axes_problems(spec, config["rig"]["triangulation"])]
+                        for p in relative_axes_problems(plan.sequence, config["rig"]["triangulation"])]
         if plan.kind != "structured-light" or plan.calibration_file:
             continue
         if plan.calibration_session is not None:

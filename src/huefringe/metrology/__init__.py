@@ -82,6 +82,7 @@ from ._forms import (  # noqa: F401
     flatness_u,
     jackknife_u,
     plane_pair_u,
+    sigma_along,
     step_height_u,
 )
 from ._evaluate import (  # noqa: F401
@@ -114,4 +115,5 @@ __all__ = [
     "plane_pair_u",
     "step_height",
     "step_height_u",
+    "sigma_along",
 ]

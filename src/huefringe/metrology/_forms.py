@@ -59,10 +59,28 @@ def _clean(points: ArrayLike, sigma: ArrayLike, need: int, what: str) -> tuple[F
     return p, s
 
 
-def _along(p: F64, s: F64, direction: F64) -> F64:
-    """Standard uncertainty of each point along unit ``direction`` (3,) or (N, 3): ``|n . p/|p|| ||sigma||``."""
-    d = p / np.linalg.norm(p, axis=1, keepdims=True)
-    return np.abs(np.sum(d * direction, axis=-1)) * np.linalg.norm(s, axis=1)
+def sigma_along(points: ArrayLike, sigma: ArrayLike, direction: ArrayLike) -> F64:
+    """Standard uncertainty of each triangulated point along a unit ``direction``.
+
+    A triangulated point's error lies along its camera ray (camera at the origin), so its standard
+    uncertainty along ``direction`` is ``|direction . p / |p|| * ||sigma||``.
+
+    Parameters
+    ----------
+    points, sigma : array_like, shape (..., 3)
+        Points (mm) and their per-axis standard uncertainties.
+    direction : array_like, shape (3,) or (..., 3)
+        Unit direction(s), e.g. a plane's normal or each point's radial direction on a sphere.
+
+    Returns
+    -------
+    ndarray, shape (...)
+        NaN where a point is not finite.
+    """
+    p = np.asarray(points, dtype=np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = p / np.linalg.norm(p, axis=-1, keepdims=True)
+        return np.abs(np.sum(d * np.asarray(direction, dtype=np.float64), axis=-1)) * np.linalg.norm(np.asarray(sigma, dtype=np.float64), axis=-1)
 
 
 def _sandwich(J: F64, var: F64) -> tuple[F64, F64]:
@@ -234,7 +252,7 @@ def _plane(p: F64, s: F64) -> tuple[PlaneFit, F64, F64, F64]:
     e2 = np.cross(normal, e1)
     r = (p - c) @ normal
     J = np.column_stack([np.ones(len(p)), (p - c) @ e1, (p - c) @ e2])
-    sn = _along(p, s, normal)
+    sn = sigma_along(p, s, normal)
     cov, _ = _sandwich(J, sn**2)
     chi2 = float(np.sum((r / sn) ** 2) / (len(p) - 3)) if (sn > 0).all() and len(p) > 3 else math.nan
     fit = PlaneFit(c, normal, np.vstack([e1, e2]), float(np.sqrt(np.mean(r**2))), len(p), cov, chi2)
@@ -278,7 +296,7 @@ def fit_plane_u(points: ArrayLike, sigma: ArrayLike) -> PlaneFit:
 def _mean_distance(plane: PlaneFit, q: F64, sq: F64) -> dict[str, float]:
     """Mean distance of points ``q`` from ``plane`` and its u: the points' noise and the plane's offset and tilt."""
     h = float(np.mean(plane.distance(q)))
-    u_points = float(np.sqrt(np.sum(_along(q, sq, plane.normal) ** 2)) / len(q))
+    u_points = float(np.sqrt(np.sum(sigma_along(q, sq, plane.normal) ** 2)) / len(q))
     u_plane = float(plane.u_at(q.mean(axis=0))[0])
     lever = float(np.linalg.norm((q.mean(axis=0) - plane.centroid) @ plane.axes.T))
     return {"u_mm": math.hypot(u_points, u_plane), "u_points_mm": u_points, "u_plane_mm": u_plane,
@@ -505,7 +523,7 @@ def fit_sphere_u(points: ArrayLike, sigma: ArrayLike, *, draws: int = PV_NOISE_D
     r = res(x)
     radial = (p - x[:3]) / np.linalg.norm(p - x[:3], axis=1, keepdims=True)
     J = np.column_stack([-radial, -np.ones(len(p))])
-    sr = _along(p, s, radial)
+    sr = sigma_along(p, s, radial)
     cov, hat = _sandwich(J, sr**2)
     out = _form(r, sr, J, hat, int(draws), int(seed), float(noise_rel_u))
     chi2 = float(np.sum((r / sr) ** 2) / (len(p) - 4)) if (sr > 0).all() else math.nan

@@ -26,7 +26,7 @@ from scipy.spatial import cKDTree
 
 from huefringe.codecs import DecodeOptions, SequenceError, decode_sequence, load_sequence, read_captures
 from huefringe.io import atomic_path
-from huefringe.metrology import flatness_u
+from huefringe.metrology import flatness_u, sigma_along
 from huefringe.rig.calibrate import Board, CalibrationReport, PoseObservation, calibrate_rig, detect_corners, projector_corners
 from huefringe.rig.decoded import RelativeCoordinateError, relative_axes_problems, triangulation_inputs
 from huefringe.rig.filestorage import write_calibration
@@ -161,11 +161,10 @@ def _calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board
         except SequenceError as exc:
             problems.append(str(exc))
             continue
-        for key in ("u", "v"):
-            if d["absolute_" + key] is False:
-                problems.append(f"{where}: axis {'x' if key == 'u' else 'y'} is decoded relative to one fringe period only "
-                                "(no Gray code or second period): a calibration needs absolute projector coordinates")
-        if any(d["absolute_" + k] is False for k in ("u", "v")):
+        relative = [axis for axis, key in (("x", "u"), ("y", "v")) if d["absolute_" + key] is False]
+        problems += [f"{where}: axis {axis} is decoded relative to one fringe period only (no Gray code or second "
+                     "period): a calibration needs absolute projector coordinates" for axis in relative]
+        if relative:
             continue
         o = _observe(name, folder, d, image, board, rc, problems)
         if o is not None:
@@ -443,20 +442,11 @@ def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibratio
     return u_axes, u_ray
 
 
-def along_normal_sigma(xyz: F64, sigma: F64, normal: F64) -> F64:
-    """Standard uncertainty of each point along ``normal``: the triangulated error lies along the
-    camera ray (camera at the origin), so it is ``|n . p / |p|| * ||sigma||``."""
-    r = np.linalg.norm(xyz, axis=-1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        cos = np.abs(xyz @ normal) / r
-    return cos * np.linalg.norm(sigma, axis=-1)
-
-
 def height_over_plane(frame: RigFrame, centroid: F64, normal: F64) -> tuple[F64, F64]:
     """Signed distance of every valid point from the plane (``normal`` towards the camera) and its
     standard uncertainty, on the camera grid (NaN where not valid)."""
     h = np.where(frame.valid, (frame.xyz - centroid) @ normal, np.nan)
-    u = np.where(frame.valid, along_normal_sigma(frame.xyz, frame.sigma, normal), np.nan)
+    u = np.where(frame.valid, sigma_along(frame.xyz, frame.sigma, normal), np.nan)
     return h, u
 
 

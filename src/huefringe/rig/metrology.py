@@ -24,7 +24,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe.metrology import combine_u, fit_plane_u, fit_sphere_u, flatness_u, jackknife_u, plane_pair_u, step_height_u
+from huefringe.metrology import combine_u, fit_plane_u, fit_sphere_u, flatness_u, jackknife_u, plane_pair_u, sigma_along, step_height_u
 from huefringe.report import build_report_json, collect_provenance, write_report_html
 from huefringe.rig.measure import RigError, RigFrame, read_jackknife
 from huefringe.rig.model import RigCalibration
@@ -83,15 +83,14 @@ def noise_scale(xyz: F64, sigma: F64, mask: NDArray[np.bool_], centre: F64, norm
     box = (slice(rows.min(), rows.max() + 1), slice(cols.min(), cols.max() + 1))
     xyz, sigma, mask = xyz[box], sigma[box], mask[box]
     ok = mask & np.isfinite(xyz).all(axis=-1) & np.isfinite(sigma).all(axis=-1)
-    ray = xyz / np.linalg.norm(xyz, axis=-1, keepdims=True)
     if normal is not None:
         r = (xyz - centre) @ normal
-        direction = np.broadcast_to(normal, xyz.shape)
+        direction = normal
     else:
         off = xyz - centre
         r = np.linalg.norm(off, axis=-1)
         direction = off / r[..., None]
-    s2 = (np.abs(np.einsum("...i,...i", ray, direction)) * np.linalg.norm(sigma, axis=-1)) ** 2
+    s2 = sigma_along(xyz, sigma, direction) ** 2
     num = den = 0.0
     n = 0
     for sl_a, sl_b in (((slice(None), slice(1, None)), (slice(None), slice(None, -1))),

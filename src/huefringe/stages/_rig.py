@@ -29,18 +29,21 @@ from huefringe.rig.measure import (
     read_jackknife,
     write_rig_calibration,
 )
-from huefringe.rig.metrology import base_plane, rig_report
-from huefringe.session import load_sl_session
+from huefringe.rig.calibrate import Board
+from huefringe.rig.metrology import base_plane, rig_report, xyz_accuracy
+from huefringe.session import SLSession, load_sl_session
 from huefringe.x3p import write_height_x3p
 
 log = logging.getLogger("huefringe")
 
 
-def rig_calibrate(session: str, config: Mapping[str, Any], calibration: str, report: str, jackknife: str) -> None:
+def rig_calibrate(session: str, config: Mapping[str, Any], calibration: str, report: str, jackknife: str,
+                  board: Board | None = None) -> None:
     """Calibrate the rig from a structured-light session's poses: ``calib/rig.yml``, its report
-    (per-pose RMS, poses left out, both RMS definitions) and the leave-one-pose-out calibrations."""
+    (per-pose RMS, poses left out, both RMS definitions) and the leave-one-pose-out calibrations;
+    ``board`` overrides the session's."""
     s = load_sl_session(session)
-    run = calibrate_sl_session(s, dict(config))
+    run = calibrate_sl_session(s, dict(config), board)
     files = write_rig_calibration(run, calibration)
     if (str(files["report"]), str(files["jackknife"])) != (report, jackknife):
         raise RuntimeError(f"calibration files went to {files}, the workflow expects {report}, {jackknife}")
@@ -64,8 +67,9 @@ def _one(files: Any) -> str:
     return files if isinstance(files, str) else (str(files[0]) if len(files) else "")
 
 
-def _calibration_files(session: str, calibration: str) -> str:
-    return calibration or str(load_sl_session(session).calibration)
+def _calibration_file(s: SLSession, calibration: str) -> str:
+    """The rule's calibration input, else the session's own ``calibration/`` file."""
+    return calibration or str(s.calibration)
 
 
 def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: str, xyz_sigma: str, xyz_u: str,
@@ -78,7 +82,8 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
     the QA record and figure."""
     s = load_sl_session(session)
     cfg = dict(config)
-    calib = read_calibration(_calibration_files(session, calibration))
+    calib_file = _calibration_file(s, calibration)
+    calib = read_calibration(calib_file)
     f = measure_sl_frame(s, calib, cfg)
     loo = read_jackknife(_one(jackknife)) if _one(jackknife) else []
     u_cal, u_cal_ray = calibration_spread(f, loo)
@@ -104,13 +109,13 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
         "base_plane": {"centroid_mm": plane.centroid.tolist(), "normal": plane.normal.tolist(), "rms_mm": plane.rms_mm,
                        "points": plane.n, "fitted_to": "features base" if s.features and s.features.base else "every point"},
         "grid": {k: v for k, v in grid.items() if k not in ("height", "uncertainty")},
-        "calibration": str(_calibration_files(session, calibration)),
+        "calibration": calib_file,
         "calibration_term": {"leave_one_out_calibrations": len(loo),
                              "median_u_ray_mm": float(np.nanmedian(u_cal_ray)) if loo else None,
                              "note": "jackknife over the calibration's board poses" if loo else
                                      "not available: the calibration file comes without its board poses"},
     })
-    fig = quality_figure({k: v for k, v in d["decoded"].items()}, f"{s.id}: decoded projector coordinates")
+    fig = quality_figure(d["decoded"], f"{s.id}: decoded projector coordinates")
     write_figure_png(fig, quality, dpi=90)
     log.info("%s: %d points (%.1f %% of the camera), triangulation %s, base plane RMS %.4f mm",
              s.id, int(f.valid.sum()), 100 * f.valid.mean(), f.mode, plane.rms_mm)
@@ -164,7 +169,7 @@ def rig_metrology(session: str, config: Mapping[str, Any], calibration: str, xyz
     steps, flatness, plane distances and parallelism, spheres, each with U (k = 2) and the ISO
     14253-1 decision, and the calibration's summary (:func:`huefringe.rig.metrology.rig_report`)."""
     s = load_sl_session(session)
-    rig_report(s, dict(config), calibration=_calibration_files(session, calibration), xyz=read_tiff(xyz),
+    rig_report(s, dict(config), calibration=_calibration_file(s, calibration), xyz=read_tiff(xyz),
                sigma=read_tiff(xyz_sigma)[..., :3], decoded=read_tiff(decoded), jackknife=_one(jackknife),
                calibration_report=_one(calibration_report), json_path=json, html_path=html,
                figures={"render": render, "height": height_map, "decode_quality": quality})
@@ -175,12 +180,10 @@ def rig_accuracy(session: str, calibration: str, xyz: str, xyz_sigma: str, xyz_u
     per-axis and along-ray statistics and the share of valid pixels with ``|e| <= 2u``; and the
     decoding's own error (the true projector coordinates triangulated with the same calibration)
     against the decoded coordinates' noise sigma (:func:`huefringe.rig.metrology.xyz_accuracy`)."""
-    from huefringe.rig.metrology import xyz_accuracy
-
     s = load_sl_session(session)
     if "xyz" not in s.ground_truth:
         raise RigError(f"{s.root}: no ground_truth/xyz.tiff")
-    calib = read_calibration(_calibration_files(session, calibration))
+    calib = read_calibration(_calibration_file(s, calibration))
     true_uv = {a: read_tiff(s.ground_truth[a]).astype(np.float64) for a in ("x", "y") if a in s.ground_truth}
     write_json(accuracy, xyz_accuracy(read_tiff(xyz), read_tiff(xyz_u), read_tiff(s.ground_truth["xyz"]),
                                       sigma=read_tiff(xyz_sigma), calibration=calib, true_uv=true_uv))

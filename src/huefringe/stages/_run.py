@@ -17,7 +17,7 @@ from huefringe.io import remove_stale_parts
 from huefringe.metrology import MetrologyError
 from huefringe.perframe import FrameError
 from huefringe.rig.measure import RigError
-from huefringe.session import SessionError, load_session
+from huefringe.session import SessionError, load_session, load_sl_session
 from huefringe.x3p import X3PError
 from ._calibration import camera_calibration, hue_table, plane_calibration
 from ._measurement import baseline_frames, cloud_frames, measure_frames
@@ -74,31 +74,31 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
     return paths
 
 
-RIG_OUTPUTS: dict[str, str] = {
+RIG_MEASURE: dict[str, str] = {
     "xyz": "xyz/frame_0000.tiff", "xyz_sigma": "xyz/frame_0000_sigma.tiff", "xyz_u": "xyz/frame_0000_u.tiff",
     "decoded": "decode/frame_0000.tiff", "cloud": "cloud/frame_0000.ply", "height": "height/frame_0000.tiff",
     "uncertainty": "uncertainty/frame_0000.tiff", "x3p": "x3p/frame_0000.x3p", "qa": "qa/frames/frame_0000.json",
-    "quality": "qa/frame_0000_decode.png", "ply": "mesh/frame_0000.ply", "stl": "mesh/frame_0000.stl",
-    "stats": "mesh/frame_0000.stats.json", "top": "renders/frame_0000_top.png",
-    "oblique1": "renders/frame_0000_oblique1.png", "oblique2": "renders/frame_0000_oblique2.png",
-    "height_map": "renders/frame_0000_height.png", "uncertainty_map": "renders/frame_0000_uncertainty.png",
-    "json": "metrology/report.json", "html": "metrology/report.html", "accuracy": "accuracy.json",
+    "quality": "qa/frame_0000_decode.png",
 }
-"""The files of a structured-light session under its results folder (``workflow/rules/rig.smk``)."""
+RIG_SURFACES: dict[str, str] = {
+    "ply": "mesh/frame_0000.ply", "stl": "mesh/frame_0000.stl", "stats": "mesh/frame_0000.stats.json",
+    "top": "renders/frame_0000_top.png", "oblique1": "renders/frame_0000_oblique1.png",
+    "oblique2": "renders/frame_0000_oblique2.png", "height_map": "renders/frame_0000_height.png",
+    "uncertainty_map": "renders/frame_0000_uncertainty.png",
+}
+RIG_REPORT: dict[str, str] = {"json": "metrology/report.json", "html": "metrology/report.html"}
+RIG_OUTPUTS: dict[str, str] = {**RIG_MEASURE, **RIG_SURFACES, **RIG_REPORT, "accuracy": "accuracy.json"}
+"""The files of a structured-light session under its results folder (``workflow/rules/rig.smk``),
+by the stage that writes them (``rig_measure``, ``rig_surfaces``, ``rig_metrology``, ``rig_accuracy``)."""
 
 
 def calibrate_rig_session(session: str | Path, out: str | Path, config: Mapping[str, Any], board: Any = None) -> dict[str, Path]:
     """The workflow's ``rig_calibrate`` without Snakemake: ``out`` (FileStorage), its report and the
     leave-one-pose-out calibrations beside it; ``board`` overrides the session's."""
-    from huefringe.rig.measure import calibrate_sl_session, write_rig_calibration
-    from huefringe.session import load_sl_session
-
-    if board is None:
-        out = Path(out)
-        rig_calibrate(str(session), config, str(out), str(out.with_suffix(".report.json")),
-                      str(out.with_suffix(".jackknife.json")))
-        return {"calibration": out, "report": out.with_suffix(".report.json"), "jackknife": out.with_suffix(".jackknife.json")}
-    return write_rig_calibration(calibrate_sl_session(load_sl_session(session), dict(config), board), out)
+    out = Path(out)
+    files = {"calibration": out, "report": out.with_suffix(".report.json"), "jackknife": out.with_suffix(".jackknife.json")}
+    rig_calibrate(str(session), config, str(out), str(files["report"]), str(files["jackknife"]), board)
+    return files
 
 
 def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[str, Any], *,
@@ -113,8 +113,6 @@ def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[st
     calibration that :func:`calibrate_rig_session` wrote: its report and leave-one-pose-out
     calibrations beside it are then used as the workflow uses them. Returns the paths written.
     """
-    from huefringe.session import load_sl_session
-
     s = load_sl_session(session)
     out = Path(out)
     if calibration is None and s.calibration is not None:
@@ -122,7 +120,6 @@ def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[st
     elif calibration is None and s.calibration_session is not None:
         if not (s.calibration_session / "session.yaml").is_file():
             raise RigError(f"{s.root / 'session.yaml'}: calibration/session: {s.calibration_session} holds no session")
-        (out / "calib").mkdir(parents=True, exist_ok=True)
         calibration = calibrate_rig_session(s.calibration_session, out / "calib" / "rig.yml", config)["calibration"]
     elif calibration is None:
         raise RigError(f"{s.root / 'session.yaml'}: no calibration in the session; give one "
@@ -131,18 +128,15 @@ def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[st
     beside = {k: calibration.with_suffix(f".{k}.json") for k in ("jackknife", "report")}
     beside = {k: str(v) if v.is_file() else "" for k, v in beside.items()}
     p = {k: out / v for k, v in RIG_OUTPUTS.items()}
-    keep = ["xyz", "xyz_sigma", "xyz_u", "decoded", "cloud", "height", "uncertainty", "x3p", "qa", "quality"]
-    keep += ["ply", "stl", "stats", "top", "oblique1", "oblique2", "height_map", "uncertainty_map"] if surfaces else []
-    keep += ["json", "html"] if s.features is not None else []
-    keep += ["accuracy"] if "xyz" in s.ground_truth else []
+    keep = [*RIG_MEASURE, *(RIG_SURFACES if surfaces else ()), *(RIG_REPORT if s.features is not None else ()),
+            *(("accuracy",) if "xyz" in s.ground_truth else ())]
     for k in keep:
         p[k].parent.mkdir(parents=True, exist_ok=True)
-    rig_measure(str(s.root), config, str(calibration), **{k: str(p[k]) for k in (
-        "xyz", "xyz_sigma", "xyz_u", "decoded", "cloud", "height", "uncertainty", "x3p", "qa", "quality")},
-        jackknife=beside["jackknife"])
+    rig_measure(str(s.root), config, str(calibration), **{k: str(p[k]) for k in RIG_MEASURE},
+                jackknife=beside["jackknife"])
     if surfaces:
         rig_surfaces(str(s.root), str(p["height"]), str(p["uncertainty"]), config["mesh"], config["render"],
-                     **{k: str(p[k]) for k in ("ply", "stl", "stats", "top", "oblique1", "oblique2", "height_map", "uncertainty_map")})
+                     **{k: str(p[k]) for k in RIG_SURFACES})
     if s.features is not None:
         rig_metrology(str(s.root), config, str(calibration), str(p["xyz"]), str(p["xyz_sigma"]), str(p["decoded"]),
                       str(p["qa"]), str(p["top"]) if surfaces else "", str(p["height_map"]) if surfaces else "",
