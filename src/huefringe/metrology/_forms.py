@@ -304,7 +304,7 @@ def _mean_distance(plane: PlaneFit, q: F64, sq: F64) -> dict[str, float]:
 
 
 def step_height_u(base_points: ArrayLike, base_sigma: ArrayLike, top_points: ArrayLike,
-                  top_sigma: ArrayLike) -> dict[str, Any]:  # fmt: skip
+                  top_sigma: ArrayLike, *, base: PlaneFit | None = None) -> dict[str, Any]:  # fmt: skip
     """Mean height of a top region above the base plane, with its standard uncertainty.
 
     Parameters
@@ -313,6 +313,9 @@ def step_height_u(base_points: ArrayLike, base_sigma: ArrayLike, top_points: Arr
         Points of the datum (base) region and their per-axis standard uncertainties, mm.
     top_points, top_sigma : array_like, shape (..., 3)
         Points of the top region and their uncertainties, mm.
+    base : PlaneFit, optional
+        :func:`fit_plane_u` of ``base_points`` and ``base_sigma`` when the caller has it already
+        (several steps on one base); the base points are then not fitted again.
 
     Returns
     -------
@@ -330,9 +333,8 @@ def step_height_u(base_points: ArrayLike, base_sigma: ArrayLike, top_points: Arr
     ValueError
         Fewer than 3 usable base points or no usable top point.
     """
-    p, s = _clean(base_points, base_sigma, 3, "the base plane")
     q, sq = _clean(top_points, top_sigma, 1, "the top region")
-    plane = _plane(p, s)[0]
+    plane = base if base is not None else _plane(*_clean(base_points, base_sigma, 3, "the base plane"))[0]
     m = _mean_distance(plane, q, sq)
     return {"height_mm": m["value"], "u_mm": m["u_mm"], "u_top_mm": m["u_points_mm"],
             "u_base_mm": m["u_plane_mm"], "lever_arm_mm": m["lever_arm_mm"], "n_base": plane.n,

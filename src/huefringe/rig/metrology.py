@@ -111,10 +111,13 @@ def feature_values(xyz: F64, sigma: F64, features: Any) -> dict[str, dict[str, A
     finite = np.isfinite(xyz).all(axis=-1) & np.isfinite(sigma).all(axis=-1)
     masks = {name: r.mask(shape) & finite for name, r in features.regions().items()}
     out: dict[str, dict[str, Any]] = {}
+    base: Any = None
     for f in features.features:
         try:
             if f.kind == "step":
-                out[f.name] = step_height_u(*_points(xyz, sigma, masks["base"]), *_points(xyz, sigma, masks[f.name]))
+                if base is None:
+                    base = fit_plane_u(*_points(xyz, sigma, masks["base"]))
+                out[f.name] = step_height_u(*_points(xyz, sigma, masks["base"]), *_points(xyz, sigma, masks[f.name]), base=base)
             elif f.kind == "plane":
                 p, sg = _points(xyz, sigma, masks[f.name])
                 pl = fit_plane_u(p, sg)
