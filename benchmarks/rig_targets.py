@@ -19,7 +19,7 @@ from rig_helpers import COORD_SIGMA_PX, calibrated  # noqa: E402
 
 from huefringe.bench.rig import PlaneScene, SphereScene, StepsScene  # noqa: E402
 from huefringe.rig import triangulate  # noqa: E402
-from huefringe.rig.forms import fit_plane, fit_sphere, form_deviation, plane_distance  # noqa: E402
+from huefringe.metrology import fit_plane_u, fit_sphere_u, form_deviation, step_height_u  # noqa: E402
 
 CASES = [("tune", 8, 1), ("tune", 6, 2), ("holdout-wide", 6, 7), ("holdout-wide", 10, 3),
          ("holdout-narrow", 8, 11), ("holdout-narrow", 6, 5)]
@@ -45,10 +45,10 @@ def main() -> None:
         pp = [np.hypot(*(K[:2, 2] - Kt[:2, 2]))
               for K, Kt in ((cal.camera_matrix, tr.camera_matrix), (cal.projector_matrix, tr.projector_matrix))]
         t, _, _, ms_u = measure(rig, cal, PlaneScene(), "u", seed)
-        pl = fit_plane(t.xyz[t.valid])
+        pl = fit_plane_u(t.xyz[t.valid], t.sigma[t.valid])
         form = form_deviation(pl, t.xyz[t.valid])
         t, _, (sph,), ms_b = measure(rig, cal, SphereScene(), "both", seed)
-        dr = fit_sphere(t.xyz[t.valid & sph]).radius - SphereScene().radius
+        dr = fit_sphere_u(t.xyz[t.valid & sph], t.sigma[t.valid & sph])["radius_mm"] - SphereScene().radius
         sc = StepsScene()
         t, xyz, (lab,), _ = measure(rig, cal, sc, "u", seed)
         R, o = sc.frame()
@@ -58,7 +58,8 @@ def main() -> None:
             band = (lab == 0) & (loc[..., 1] > y0) & (loc[..., 1] < y1) & (
                 ((loc[..., 0] > x0 - 13) & (loc[..., 0] < x0 - 3)) | ((loc[..., 0] > x1 + 3) & (loc[..., 0] < x1 + 13)))
             top = (lab == k) & (loc[..., 0] > x0 + 3) & (loc[..., 0] < x1 - 3)
-            steps.append((plane_distance(fit_plane(t.xyz[t.valid & band]), t.xyz[t.valid & top]) / h - 1) * 100)
+            m = step_height_u(t.xyz[t.valid & band], t.sigma[t.valid & band], t.xyz[t.valid & top], t.sigma[t.valid & top])
+            steps.append((m["height_mm"] / h - 1) * 100)
         print(f"{name} {n} {seed} | {f[0]:.3f}/{f[1]:.3f} | {pp[0]:.2f}/{pp[1]:.2f} | "
               f"{rep.rms_px['stereo'] / ref.rms_px['stereo']:.3f} | {form:.4f} / {pl.rms_mm:.4f} | {dr:+.4f} | "
               f"{' '.join(f'{s:+.3f}' for s in steps)} | {ms_u:.0f}/{ms_b:.0f}")

@@ -8,7 +8,7 @@ from rig_helpers import COORD_SIGMA_PX, calibrated
 
 from huefringe.bench.rig import RIGS, PlaneScene, SphereScene, StepsScene
 from huefringe.rig import triangulate
-from huefringe.rig.forms import fit_plane, fit_sphere, form_deviation, plane_distance
+from huefringe.metrology import fit_plane_u, fit_sphere_u, form_deviation, step_height_u
 
 CASES = [("tune", 8, 1), ("holdout-wide", 6, 7), ("holdout-narrow", 8, 11)]
 
@@ -54,7 +54,7 @@ def test_flat_board_is_flat(rig_name, n_poses, seed):
     for scene in (PlaneScene(), PlaneScene(point=(-10.0, 5.0, 480.0), tilt_deg=(-12.0, 15.0))):
         t, _, _ = _measure(rig, cal, scene, "u", seed=seed)
         pts = t.xyz[t.valid]
-        plane = fit_plane(pts)
+        plane = fit_plane_u(pts, t.sigma[t.valid])
         assert form_deviation(plane, pts) < 0.02                      # systematic departure from flat
         # the point-to-plane spread is the propagated noise
         assert plane.rms_mm < 1.2 * np.sqrt(np.mean(np.sum(t.sigma[t.valid] ** 2 * plane.normal**2, axis=1)))
@@ -65,8 +65,8 @@ def test_sphere_radius(rig_name, n_poses, seed):
     rig, cal, _, _ = calibrated(rig_name, n_poses, seed)
     scene = SphereScene()
     t, _, (sphere,) = _measure(rig, cal, scene, "both", seed=seed)
-    fit = fit_sphere(t.xyz[t.valid & sphere])
-    assert abs(fit.radius - scene.radius) < 0.05
+    fit = fit_sphere_u(t.xyz[t.valid & sphere], t.sigma[t.valid & sphere])
+    assert abs(fit["radius_mm"] - scene.radius) < 0.05
 
 
 @pytest.mark.parametrize(("rig_name", "n_poses", "seed"), CASES)
@@ -81,5 +81,5 @@ def test_step_heights(rig_name, n_poses, seed):
         band = (label == 0) & (local[..., 1] > y0) & (local[..., 1] < y1) & (
             ((local[..., 0] > x0 - 13) & (local[..., 0] < x0 - 3)) | ((local[..., 0] > x1 + 3) & (local[..., 0] < x1 + 13)))
         top = (label == k) & (local[..., 0] > x0 + 3) & (local[..., 0] < x1 - 3)
-        base = fit_plane(t.xyz[t.valid & band])
-        assert abs(plane_distance(base, t.xyz[t.valid & top]) / h - 1) < 0.003, k
+        step = step_height_u(t.xyz[t.valid & band], t.sigma[t.valid & band], t.xyz[t.valid & top], t.sigma[t.valid & top])
+        assert abs(step["height_mm"] / h - 1) < 0.003, k

@@ -293,6 +293,22 @@ def fit_plane_u(points: ArrayLike, sigma: ArrayLike) -> PlaneFit:
     return _plane(p, s)[0]
 
 
+def form_deviation(plane: PlaneFit, points: ArrayLike, degree: int = 4) -> float:
+    """RMS of the systematic departure of ``points`` from ``plane`` (bowing, tilt of parts), mm.
+
+    The orthogonal residuals are fitted by a polynomial of total ``degree`` in the plane's own
+    coordinates (``plane.axes``, scaled to [-1, 1]); the RMS of that fit is the form error
+    without the points' random noise.
+    """
+    p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    p = p[np.isfinite(p).all(axis=1)]
+    r = plane.distance(p)
+    s, t = ((p - plane.centroid) @ plane.axes.T).T
+    s, t = s / np.abs(s).max(), t / np.abs(t).max()
+    A = np.column_stack([s**i * t**j for i in range(degree + 1) for j in range(degree + 1 - i)])
+    return float(np.sqrt(np.mean((A @ np.linalg.lstsq(A, r, rcond=None)[0]) ** 2)))
+
+
 def _mean_distance(plane: PlaneFit, q: F64, sq: F64) -> dict[str, float]:
     """Mean distance of points ``q`` from ``plane`` and its u: the points' noise and the plane's offset and tilt."""
     h = float(np.mean(plane.distance(q)))
