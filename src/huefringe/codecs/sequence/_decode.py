@@ -104,9 +104,9 @@ def generate(spec: SequenceSpec, dtype: type[np.integer] = np.uint8) -> NDArray[
                 v = (0.5 + 0.5 * np.cos(TWO_PI * (u - b.origin_px) / b.period_px + d)) ** b.encoding_gamma
                 out[i] = np.broadcast_to(np.round(v * full), (h, w))
         else:
-            g = index_to_gray(np.floor(coords[b.axis] / b.cell_px).astype(np.int64))
+            g = index_to_gray(np.floor(coords[b.axis] / b.code_cell_px).astype(np.int64))
             i = sl.start
-            for k in range(b.bits - 1, -1, -1):
+            for k in range(b.code_bits - 1, -1, -1):
                 bit = np.broadcast_to(((g >> k) & 1).astype(bool), (h, w))
                 out[i] = np.where(bit, full, 0)
                 i += 1
@@ -297,7 +297,11 @@ def _phase_axis(
 
     absolute = True
     ref: NDArray[np.float64] | None = None
-    if gray:
+    if gray and gray[0][0].complementary:
+        ref, m = _complementary_reference(stack, spec, gray[0], blocks, wraps, flats, opts, scale, reasons)
+        margin = np.maximum(margin, m)
+        chain = [s for s in stages if s[0] < gray[0][0].cell_px]
+    elif gray:
         gb, gsl = gray[0]
         cells = int(np.ceil(extent / gb.cell_px))
         # start at the finest stage the full Gray code resolves with room to spare, else the coarsest
@@ -337,6 +341,40 @@ def _phase_axis(
     coord = np.sum([c * i for c, i in zip(coords, inv, strict=True)], axis=0) / wsum
     sigma = 1.0 / np.sqrt(wsum)
     return coord, sigma, margin, absolute
+
+
+def _complementary_reference(
+    stack: NDArray, spec: SequenceSpec, gray: tuple[GrayBlock, slice], blocks: list[tuple[PhaseBlock, slice]],
+    wraps: list[NDArray[np.float64]], flats: dict[str, NDArray], opts: DecodeOptions, scale: float,
+    reasons: NDArray[np.uint8],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The absolute coordinate of the phase block of period ``cell_px`` from a complementary Gray code.
+
+    The ``bits + 1`` patterns are one Gray code ``V2`` of half cells: ``k1 = V2 >> 1`` is the
+    ``bits``-bit cell, ``k2 = (V2 + 1) >> 1`` the period edge nearest the pixel. In the middle
+    half of a period (wrapped coordinate ``P / 4 < w < 3 P / 4``) the order is ``k1``, whose
+    stripe edges are a quarter period away; in the edge quarters it is ``k2`` (``w <= P / 4``) or
+    ``k2 - 1`` (``w >= 3 P / 4``), whose extra bit's stripe edges lie mid-period. Returns the
+    coordinate and the order margin (at most 0.25 + noise where the codes are read right).
+    """
+    gb, sl = gray
+    thr = _gray_threshold(stack, spec, gb, flats)
+    frames = stack[sl]
+    lim = opts.min_gray_contrast_dn * scale
+    if thr is None:
+        dec = decode_gray(frames[0::2], lim, inverse=frames[1::2])
+    else:
+        dec = decode_gray(frames, lim, reference=thr)
+    cells = int(np.ceil(spec.extent(gb.axis) / gb.cell_px))
+    _flag(reasons, ~dec.valid | (dec.index >= 2 * cells), Reason.GRAY)
+    i = next(j for j, (b, _) in enumerate(blocks) if np.isclose(b.period_px, gb.cell_px, rtol=1e-9, atol=1e-9))
+    period = blocks[i][0].period_px
+    w = wraps[i]
+    v2 = dec.index.astype(np.int64)
+    k1, k2 = v2 >> 1, (v2 + 1) >> 1
+    middle = (w > 0.25 * period) & (w < 0.75 * period)
+    ref = np.where(middle, (k1 + 0.5) * period, k2 * period)
+    return orders_from_reference(w, period, ref)
 
 
 def decode_sequence(
