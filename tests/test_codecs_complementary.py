@@ -223,3 +223,27 @@ blocks:
                 assert ((d.reasons & Reason.ORDER) > 0)[m["valid"]].mean() > 0.2
     for axis in ("x", "y"):
         assert kept[True, axis] > 0.995 and kept[False, axis] < 0.8
+
+
+def test_an_unclear_bit_the_order_depends_on_is_flagged_not_misread():
+    """A coarse Gray bit washed out to its threshold (a specular streak, a pixel the bit's stripe
+    never lit clearly): mid-period pixels, whose order is k1, and edge pixels whose cell edge is
+    not that bit's are flagged GRAY; edge pixels at that bit's own edges keep their k2 order."""
+    spec = SequenceSpec((PhaseBlock("x", 32.0, D4, origin_px=16.0), GrayBlock("x", 5, 32.0, False, True),
+                         PhaseBlock("y", 32.0, D4), GrayBlock("y", 4, 32.0, False, True)), 1024, 512)
+    ux, uy = warp((96, 128), spec)
+    frames = render(spec, ux, uy, noise=False).astype(np.float32)
+    thr = frames[:4].mean(axis=0)
+    bit = 2  # the third x pattern, Gray bit 2 (of 4 .. 0): it changes between cells 8 m + 3 and 8 m + 4
+    frames[4 + bit] = thr + 0.5  # read as 1 everywhere, with no contrast
+    dec = decode_sequence(np.clip(np.round(frames), 0, 255).astype(np.uint8), spec, DecodeOptions.from_config())["x"]
+    assert not dec.valid.all()
+    err = np.abs(dec.coord - ux)[dec.valid]
+    assert err.max() < 0.2  # nothing kept a cell or a period away
+    w = np.mod(ux, 32.0)
+    middle = (w > 9) & (w < 23)
+    gray = (dec.reasons & Reason.GRAY) > 0
+    assert gray[middle].all()
+    k2 = np.round((ux + 0.5) / 32.0)  # the nearest Gray cell edge (cells start half a pixel before the fringes)
+    own_edge = (np.abs(ux + 0.5 - 32.0 * k2) < 7) & (k2 % 8 == 4)  # that bit's own edges: the other code decides
+    assert own_edge.sum() > 100 and dec.valid[own_edge].mean() > 0.99

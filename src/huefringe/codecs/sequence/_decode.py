@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe.codecs.graycode import decode_gray, index_to_gray
+from huefringe.codecs.graycode import decode_gray, gray_to_index, index_to_gray
 from huefringe.codecs.nstep import TWO_PI, NoiseModel, wrapped_phase
 from huefringe.codecs.temporal import heterodyne, number_theoretic, orders_from_reference
 from ._spec import (
@@ -353,26 +353,42 @@ def _complementary_reference(
     The ``bits + 1`` patterns are one Gray code ``V2`` of half cells: ``k1 = V2 >> 1`` is the
     ``bits``-bit cell, ``k2 = (V2 + 1) >> 1`` the period edge nearest the pixel. In the middle
     half of a period (wrapped coordinate ``P / 4 < w < 3 P / 4``) the order is ``k1``, whose
-    stripe edges are a quarter period away; in the edge quarters it is ``k2`` (``w <= P / 4``) or
-    ``k2 - 1`` (``w >= 3 P / 4``), whose extra bit's stripe edges lie mid-period. Returns the
-    coordinate and the order margin (at most 0.25 + noise where the codes are read right).
+    stripe edges are a quarter period away: every one of its bits must be clear of its threshold.
+    In the edge quarters it is ``k2`` (``w <= P / 4``) or ``k2 - 1`` (``w >= 3 P / 4``), which a
+    misread of the one Gray bit that changes at that cell edge leaves unchanged: the extra bit
+    (its stripe edges lie mid-period) and every other bit must be clear. A pixel failing this is
+    flagged ``GRAY``. Returns the coordinate and the order margin (at most 0.25 + noise where
+    the codes are read right).
     """
     gb, sl = gray
     thr = _gray_threshold(stack, spec, gb, flats)
     frames = stack[sl]
-    lim = opts.min_gray_contrast_dn * scale
-    if thr is None:
-        dec = decode_gray(frames[0::2], lim, inverse=frames[1::2])
-    else:
-        dec = decode_gray(frames, lim, reference=thr)
-    cells = int(np.ceil(spec.extent(gb.axis) / gb.cell_px))
-    _flag(reasons, ~dec.valid | (dec.index >= 2 * cells), Reason.GRAY)
+    pats = frames[0::2] if thr is None else frames
+    n = gb.bits
+    code = np.zeros(stack.shape[1:], np.int64)
+    contrast = []
+    for j in range(n + 1):
+        d = pats[j].astype(np.float32) - (frames[2 * j + 1].astype(np.float32) if thr is None else thr)
+        code = (code << 1) | (d > 0)
+        contrast.append(np.abs(d))
+    v2 = gray_to_index(code)  # the bits + 1-bit code of half cells
+    k1 = v2 >> 1
+    k2 = (v2 + 1) >> 1
+    # the Gray bit that changes between cells k2 - 1 and k2: the lowest set bit of k2 (pattern n - 1 - it)
+    low = k2 & -k2
+    edge_bit = np.where((k2 > 0) & (k2 < 2**n), n - 1 - np.log2(np.maximum(low, 1)).round().astype(np.int64), -1)
+    lim = np.float32(opts.min_gray_contrast_dn * scale)
+    mid_clear = np.ones(k1.shape, bool)
+    edge_clear = contrast[n] >= lim
+    for j in range(n):
+        ok = contrast[j] >= lim
+        mid_clear &= ok
+        edge_clear &= ok | (edge_bit == j)
     i = next(j for j, (b, _) in enumerate(blocks) if np.isclose(b.period_px, gb.cell_px, rtol=1e-9, atol=1e-9))
-    period = blocks[i][0].period_px
-    w = wraps[i]
-    v2 = dec.index.astype(np.int64)
-    k1, k2 = v2 >> 1, (v2 + 1) >> 1
+    period, w = blocks[i][0].period_px, wraps[i]
     middle = (w > 0.25 * period) & (w < 0.75 * period)
+    cells = int(np.ceil(spec.extent(gb.axis) / gb.cell_px))
+    _flag(reasons, ~np.where(middle, mid_clear, edge_clear) | (k1 >= cells), Reason.GRAY)
     ref = np.where(middle, (k1 + 0.5) * period, k2 * period)
     return orders_from_reference(w, period, ref)
 
