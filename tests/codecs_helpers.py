@@ -44,9 +44,9 @@ def render(spec: SequenceSpec, ux: np.ndarray, uy: np.ndarray, *, bits: int = 8,
             pats = [(0.5 + 0.5 * np.cos(2 * np.pi * (c - b.origin_px) / b.period_px + d)) ** (b.encoding_gamma * spec.projector_gamma)
                     for d in b.shifts_rad]
         else:
-            g = index_to_gray(np.floor((u[b.axis] + 0.5) / b.cell_px).astype(np.int64))
+            g = index_to_gray(np.floor((u[b.axis] + 0.5) / b.code_cell_px).astype(np.int64))
             pats = []
-            for k in range(b.bits - 1, -1, -1):
+            for k in range(b.code_bits - 1, -1, -1):
                 bit = ((g >> k) & 1).astype(np.float64)
                 pats.append(bit)
                 if b.inverse:

@@ -82,3 +82,34 @@ def test_refusals_name_the_files(bench, tmp_path, capsys):
                  str(tmp_path / "out")]) == 2
     assert "none.yml: missing calibration file" in capsys.readouterr().err
     assert not (tmp_path / "out").exists()
+
+
+def test_an_slmaster_folder_measures_as_it_was_written(tmp_path, capsys):
+    """A folder as an SLMaster rig leaves it: BMP frames, four-step fringes of one Gray cell's period
+    then the complementary Gray code, no inverses, no white or black, and its caliInfo.yml: the
+    cloud lies on the true plane."""
+    from huefringe.io import read_tiff
+    from huefringe.rig import write_calibration
+
+    rig = RIGS["holdout-wide"]
+    seq = {"projector": {"width": 800, "height": 600}, "frames": "*.bmp", "blocks": [
+        {"phase": {"axis": "x", "period_px": 16, "steps": 4, "origin_px": 8}},
+        {"gray": {"axis": "x", "bits": 6, "cell_px": 16, "inverse": False, "complementary": True}},
+        {"phase": {"axis": "y", "period_px": 16, "steps": 4, "origin_px": 8}},
+        {"gray": {"axis": "y", "bits": 6, "cell_px": 16, "inverse": False, "complementary": True}}]}
+    (tmp_path / "sequence.yaml").write_text(yaml.safe_dump(seq))
+    spec = load_sequence(tmp_path / "sequence.yaml")
+    xyz_true, ok = PlaneScene(point=(0.0, 0.0, 430.0)).cast(rig.rays)
+    m = rig.coordinates(xyz_true, ok, np.random.default_rng(0), 0.0)
+    write_captures(rig, spec, tmp_path / "scan", m["u_true"], m["v_true"], m["valid"], np.random.default_rng(1),
+                   name="{:d}.bmp")
+    write_calibration(tmp_path / "caliInfo.yml", rig.calibration, layout="slmaster")
+    assert main(["rig-measure", str(tmp_path / "scan"), str(tmp_path / "sequence.yaml"), str(tmp_path / "caliInfo.yml"),
+                 str(tmp_path / "out")]) == 0
+    capsys.readouterr()
+    xyz = read_tiff(tmp_path / "out/xyz/frame_0000.tiff")
+    sigma = read_tiff(tmp_path / "out/xyz/frame_0000_sigma.tiff")[..., :3]
+    got = np.isfinite(xyz).all(axis=-1)
+    assert got[m["valid"]].mean() > 0.99 and not got[~m["valid"]].any()
+    err = np.linalg.norm(xyz[got] - xyz_true[got], axis=-1)
+    assert np.median(err) < 0.02 and np.percentile(err, 99.9) < 5 * np.median(np.linalg.norm(sigma[got], axis=-1))

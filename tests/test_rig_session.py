@@ -44,8 +44,8 @@ def captures(tmp_path: Path) -> tuple[Path, Path]:
 
 
 def test_calibration_is_read_as_the_full_model(tmp_path: Path) -> None:
-    # the four layouts read_calibration knows are accepted, with or without the camera size
-    for layout in ("huefringe", "slstudio", "scan3d", "opencv-stereo"):
+    # the layouts read_calibration knows are accepted, with or without the camera size
+    for layout in ("huefringe", "slstudio", "scan3d", "opencv-stereo", "slmaster"):
         assert calibration_problems(write_calibration(tmp_path / f"{layout}.yml", _calib(), layout), 64, 48) == []
     # a camera-only calibration (no projector, no pose) is not a rig's calibration
     fs = cv2.FileStorage(str(tmp_path / "camera.yml"), cv2.FILE_STORAGE_WRITE)
@@ -58,6 +58,8 @@ def test_calibration_is_read_as_the_full_model(tmp_path: Path) -> None:
     # another camera: by its size (slstudio's frameWidth/Height), by its principal point (scan3d: no size keys)
     (p,) = calibration_problems(write_calibration(tmp_path / "big.yml", _calib((1280, 1024)), "slstudio"), 64, 48)
     assert p.message == "calibrated for a 1280 x 1024 camera, the captures are 64 x 48"
+    (p,) = calibration_problems(write_calibration(tmp_path / "caliInfo.yml", _calib((1280, 1024)), "slmaster"), 64, 48)
+    assert p.message == "calibrated for a 1280 x 1024 camera, the captures are 64 x 48"  # SLMaster's S
     (p,) = calibration_problems(write_calibration(tmp_path / "off.yml", _calib((0, 0), cx=640.0), "scan3d"), 64, 48)
     assert p.message.startswith("principal point (640, 23.5) px lies outside the 64 x 48 captures")
 

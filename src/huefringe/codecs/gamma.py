@@ -114,8 +114,8 @@ def estimate_projector_gamma(
     for b, sl in spec.slices():
         if isinstance(b, GrayBlock) and b.inverse:
             dec = decode_gray(flat[sl][0::2, None, :], 0.0, inverse=flat[sl][1::2, None, :])
-            gray_ref[b.axis] = (dec.index[0] + 0.5) * b.cell_px - 0.5
-            gray_cell[b.axis] = b.cell_px
+            gray_ref[b.axis] = (dec.index[0] + 0.5) * b.code_cell_px - 0.5
+            gray_cell[b.axis] = b.code_cell_px
     per_block = []
     for (b, _), nv in zip(blocks, naive, strict=True):
         if b.axis not in gray_ref or gray_cell[b.axis] > b.period_px / 8:  # too coarse to see a harmonic

@@ -16,11 +16,36 @@ Key map (every layout stores the projector's pose as ``X_p = R X_c + T``, camera
 - ``scan3d``: ``cam_K``, ``cam_kc``, ``proj_K``, ``proj_kc``, ``R``, ``T``; optional ``cam_error``,
   ``proj_error``, ``stereo_error``.
 - ``opencv-stereo``: ``M1``, ``D1`` (camera), ``M2``, ``D2`` (projector), ``R``, ``T``.
+- ``slmaster``: ``M1``, ``D1`` (camera), ``M4``, ``D4`` (projector), ``Rlp``, ``Tlp``; optional
+  ``S`` (the camera's width and height as a 2 x 1 matrix).
 
 ``slstudio`` is SLStudio's ``CalibrationData`` (also its ``*_error`` scalars); ``scan3d`` is
 Moreno & Taubin's *scan3d-capture* ``calibration.yml`` (``cam_error``, ``proj_error``,
 ``stereo_error``); ``opencv-stereo`` is OpenCV's ``samples/cpp/stereo_calib.cpp`` pair of files
 with the camera as device 1 and the projector as device 2.
+
+``slmaster`` is SLMaster's ``caliInfo.yml`` (Practice3DVision/SLMaster, read at commit d1a0fe4
+for its conventions only). Its monocular (camera + projector) file holds, in this order, ``M1``,
+``D1``, ``S``, ``M4``, ``D4``, ``Rlp``, ``Tlp`` (``src/calibration/caliPacker.cpp``,
+``writeCaliInfo``, the projector branch; ``data/monocularCamera/caliInfo.yml``), every node an
+``opencv-matrix`` of doubles, distortion as a 1 x 5 row. Its conventions, each verified in its
+sources:
+
+- ``M1``/``D1`` are the (left) camera, ``M4``/``D4`` the projector (``src/cameras/caliInfo.h``,
+  the comments of ``M1_`` and ``M4_``); ``M2``/``D2`` (right camera) and ``M3``/``D3`` (colour
+  camera) of its binocular and trinocular files are not read. ``K1`` (an eight-parameter
+  phase-to-depth model) is not read either.
+- ``Rlp``, ``Tlp`` map the camera frame to the projector frame, ``X_p = Rlp X_c + Tlp``: they come
+  from ``cv::solvePnPRansac`` of board points expressed in the camera frame against their projector
+  pixels (``gui/src/CalibrateEngine.cpp``, ``calibrateProjector``, lines 925-968), and the
+  projector's projection matrix is ``M4 [Rlp | Tlp]`` with the camera at the origin
+  (``gui/src/CameraEngine.cpp``, lines 737-750). This is huefringe's convention: no conversion.
+- ``Tlp`` is in the board's unit (its feature distance), millimetres in SLMaster's GUI (depth
+  limits 0-1500, ``gui/qml/res/config/monocularCameraConfig.json``).
+- ``S`` is ``(cols, rows)`` = ``(width, height)`` of the camera images
+  (``gui/src/CalibrateEngine.cpp`` line 83; read back as ``cv::Size(S(0), S(1))`` in
+  ``src/cameras/binocular/binoocularCamer.cpp`` line 38). The projector's size is not in the file.
+- Distortion is OpenCV's ``k1, k2, p1, p2, k3`` (``cv::calibrateCamera``'s output).
 """
 
 from __future__ import annotations
@@ -62,8 +87,20 @@ KEY_MAPS: dict[str, dict[str, str]] = {
         "camera_matrix": "M1", "camera_distortion": "D1", "projector_matrix": "M2",
         "projector_distortion": "D2", "R": "R", "T": "T",
     },
+    "slmaster": {
+        "camera_matrix": "M1", "camera_distortion": "D1", "projector_matrix": "M4",
+        "projector_distortion": "D4", "R": "Rlp", "T": "Tlp", "camera_size": "S",
+    },
 }
-"""Layout name -> {huefringe field: the file's key}; the six fields of ``_FIELDS`` are required."""
+"""Layout name -> {huefringe field: the file's key}; the six fields of ``_FIELDS`` are required.
+
+``camera_size`` names a 2 x 1 matrix holding the camera's ``(width, height)``."""
+
+_WRITE_ORDER: dict[str, tuple[str, ...]] = {
+    "slmaster": ("camera_matrix", "camera_distortion", "camera_size", "projector_matrix", "projector_distortion",
+                 "R", "T"),
+}
+"""Layouts written in their own software's key order (distortion as a 1 x N row); others in ``_FIELDS``'s."""
 
 
 class CalibrationFileError(ValueError):
@@ -140,6 +177,12 @@ def read_calibration(*paths: str | os.PathLike[str], layout: str | None = None) 
     keys = KEY_MAPS[complete[0]]
     get = {f: nodes.get(keys[f]) for f in keys}
     sizes = [int(get[s]) if isinstance(get.get(s), float) else 0 for s in _SIZES]
+    if "camera_size" in keys and get["camera_size"] is not None:
+        wh = np.asarray(get["camera_size"], dtype=np.float64).reshape(-1)
+        if wh.size != 2:
+            raise CalibrationFileError(f"{names} ({complete[0]} layout): {keys['camera_size']} has {wh.size} values; "
+                                       "2 expected (camera width, height)")
+        sizes[0], sizes[1] = int(round(wh[0])), int(round(wh[1]))
     try:
         return RigCalibration(
             **{f: np.asarray(get[f], dtype=np.float64) for f in _FIELDS},
@@ -166,9 +209,18 @@ def write_calibration(path: str | os.PathLike[str], calib: RigCalibration, layou
     os.close(fd)
     try:
         fs = cv2.FileStorage(tmp, cv2.FILE_STORAGE_WRITE)
-        for f in _FIELDS:
-            a = np.asarray(getattr(calib, f), dtype=np.float64)
-            fs.write(keys[f], a.reshape(-1, 1) if a.ndim == 1 else a)
+        if layout in _WRITE_ORDER:
+            for f in _WRITE_ORDER[layout]:
+                if f == "camera_size":
+                    if all(calib.camera_size):
+                        fs.write(keys[f], np.array(calib.camera_size, dtype=np.float64).reshape(2, 1))
+                    continue
+                a = np.asarray(getattr(calib, f), dtype=np.float64)
+                fs.write(keys[f], a.reshape(1, -1) if f.endswith("distortion") else a.reshape(3, -1))
+        else:
+            for f in _FIELDS:
+                a = np.asarray(getattr(calib, f), dtype=np.float64)
+                fs.write(keys[f], a.reshape(-1, 1) if a.ndim == 1 else a)
         sizes = (*calib.camera_size, *calib.projector_size)
         for s, v in zip(_SIZES, sizes, strict=True):
             if s in keys and v:

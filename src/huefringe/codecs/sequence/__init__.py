@@ -16,6 +16,11 @@ covering the projector, the number-theoretic search over the periods decides. Ev
 of the axis is then unwrapped against the finest stage and the results are averaged with
 weights ``1 / u**2``: the coordinate's uncertainty is that of the weighted mean.
 
+A complementary Gray code (``complementary: true``: one more pattern, the half-cell stripes of
+the next Gray bit) beside a phase block of period ``cell_px`` takes each pixel's order from the
+``bits``-bit code in the middle half of the period and from the ``bits + 1``-bit code in its
+edge quarters (:class:`GrayBlock`).
+
 A Gray code alone decodes to the centre of each pixel's cell (standard uncertainty
 ``cell_px / sqrt(12)``) where every bit is clear of its threshold. An axis with one period, or
 periods that repeat within the projector (:func:`periods_cover`), is relative
@@ -36,6 +41,8 @@ YAML form (:func:`load_sequence`), blocks in capture order::
       - phase: {axis: x, period_px: 66.6667, shifts_deg: [-120, 0, 120]}
       - phase: {axis: x, period_px: 100, steps: 4, encoding_gamma: 1.0, origin_px: 0}
       - gray: {axis: x, bits: 5, cell_px: 100, inverse: true}   # or cells: 20; inverse defaults to true
+      - phase: {axis: y, period_px: 60, steps: 12, origin_px: 30}
+      - gray: {axis: y, bits: 4, cell_px: 60, inverse: false, complementary: true}   # 5 patterns
       - skip: 1                 # a frame captured but not used
       - white
       - black

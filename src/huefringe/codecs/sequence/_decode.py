@@ -9,7 +9,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe.codecs.graycode import decode_gray, index_to_gray
+from huefringe.codecs.graycode import decode_gray, gray_to_index, index_to_gray
 from huefringe.codecs.nstep import TWO_PI, NoiseModel, wrapped_phase
 from huefringe.codecs.temporal import heterodyne, number_theoretic, orders_from_reference
 from ._spec import (
@@ -104,9 +104,9 @@ def generate(spec: SequenceSpec, dtype: type[np.integer] = np.uint8) -> NDArray[
                 v = (0.5 + 0.5 * np.cos(TWO_PI * (u - b.origin_px) / b.period_px + d)) ** b.encoding_gamma
                 out[i] = np.broadcast_to(np.round(v * full), (h, w))
         else:
-            g = index_to_gray(np.floor(coords[b.axis] / b.cell_px).astype(np.int64))
+            g = index_to_gray(np.floor(coords[b.axis] / b.code_cell_px).astype(np.int64))
             i = sl.start
-            for k in range(b.bits - 1, -1, -1):
+            for k in range(b.code_bits - 1, -1, -1):
                 bit = np.broadcast_to(((g >> k) & 1).astype(bool), (h, w))
                 out[i] = np.where(bit, full, 0)
                 i += 1
@@ -297,7 +297,11 @@ def _phase_axis(
 
     absolute = True
     ref: NDArray[np.float64] | None = None
-    if gray:
+    if gray and gray[0][0].complementary:
+        ref, m = _complementary_reference(stack, spec, gray[0], blocks, wraps, flats, opts, scale, reasons)
+        margin = np.maximum(margin, m)
+        chain = [s for s in stages if s[0] < gray[0][0].cell_px]
+    elif gray:
         gb, gsl = gray[0]
         cells = int(np.ceil(extent / gb.cell_px))
         # start at the finest stage the full Gray code resolves with room to spare, else the coarsest
@@ -337,6 +341,56 @@ def _phase_axis(
     coord = np.sum([c * i for c, i in zip(coords, inv, strict=True)], axis=0) / wsum
     sigma = 1.0 / np.sqrt(wsum)
     return coord, sigma, margin, absolute
+
+
+def _complementary_reference(
+    stack: NDArray, spec: SequenceSpec, gray: tuple[GrayBlock, slice], blocks: list[tuple[PhaseBlock, slice]],
+    wraps: list[NDArray[np.float64]], flats: dict[str, NDArray], opts: DecodeOptions, scale: float,
+    reasons: NDArray[np.uint8],
+) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """The absolute coordinate of the phase block of period ``cell_px`` from a complementary Gray code.
+
+    The ``bits + 1`` patterns are one Gray code ``V2`` of half cells: ``k1 = V2 >> 1`` is the
+    ``bits``-bit cell, ``k2 = (V2 + 1) >> 1`` the period edge nearest the pixel. In the middle
+    half of a period (wrapped coordinate ``P / 4 < w < 3 P / 4``) the order is ``k1``, whose
+    stripe edges are a quarter period away: every one of its bits must be clear of its threshold.
+    In the edge quarters it is ``k2`` (``w <= P / 4``) or ``k2 - 1`` (``w >= 3 P / 4``), which a
+    misread of the one Gray bit that changes at that cell edge leaves unchanged: the extra bit
+    (its stripe edges lie mid-period) and every other bit must be clear. A pixel failing this is
+    flagged ``GRAY``. Returns the coordinate and the order margin (at most 0.25 + noise where
+    the codes are read right).
+    """
+    gb, sl = gray
+    thr = _gray_threshold(stack, spec, gb, flats)
+    frames = stack[sl]
+    pats = frames[0::2] if thr is None else frames
+    n = gb.bits
+    code = np.zeros(stack.shape[1:], np.int64)
+    contrast = []
+    for j in range(n + 1):
+        d = pats[j].astype(np.float32) - (frames[2 * j + 1].astype(np.float32) if thr is None else thr)
+        code = (code << 1) | (d > 0)
+        contrast.append(np.abs(d))
+    v2 = gray_to_index(code)  # the bits + 1-bit code of half cells
+    k1 = v2 >> 1
+    k2 = (v2 + 1) >> 1
+    # the Gray bit that changes between cells k2 - 1 and k2: the lowest set bit of k2 (pattern n - 1 - it)
+    low = k2 & -k2
+    edge_bit = np.where((k2 > 0) & (k2 < 2**n), n - 1 - np.log2(np.maximum(low, 1)).round().astype(np.int64), -1)
+    lim = np.float32(opts.min_gray_contrast_dn * scale)
+    mid_clear = np.ones(k1.shape, bool)
+    edge_clear = contrast[n] >= lim
+    for j in range(n):
+        ok = contrast[j] >= lim
+        mid_clear &= ok
+        edge_clear &= ok | (edge_bit == j)
+    i = next(j for j, (b, _) in enumerate(blocks) if np.isclose(b.period_px, gb.cell_px, rtol=1e-9, atol=1e-9))
+    period, w = blocks[i][0].period_px, wraps[i]
+    middle = (w > 0.25 * period) & (w < 0.75 * period)
+    cells = int(np.ceil(spec.extent(gb.axis) / gb.cell_px))
+    _flag(reasons, ~np.where(middle, mid_clear, edge_clear) | (k1 >= cells), Reason.GRAY)
+    ref = np.where(middle, (k1 + 0.5) * period, k2 * period)
+    return orders_from_reference(w, period, ref)
 
 
 def decode_sequence(

@@ -82,16 +82,35 @@ class GrayBlock:
     each pattern is followed by its inverse (OpenCV's layout); without, bits are read against the
     mean of the sequence's white and black frames, or, without those, against the mean of the
     same axis' phase-shift frames.
+
+    ``complementary`` adds one pattern after the ``bits`` patterns (two with ``inverse``): the
+    last bit of the ``bits + 1``-bit Gray code of cells ``cell_px / 2``, whose stripes are half as
+    wide as the finest cell's (Zhang, Su et al., Opt. Lasers Eng. 50 (2012) 574, the complementary
+    Gray code). It needs a phase block of period ``cell_px`` on the same axis: the fringe order
+    is the ``bits``-bit cell ``k1`` in the middle half of each period and ``k2 = (V2 + 1) // 2``
+    of the ``bits + 1``-bit code ``V2`` in the quarters at its edges (``k2 - 1`` in the last
+    quarter), so that neither code is read near its own stripe edges.
     """
 
     axis: Axis
     bits: int
     cell_px: float
     inverse: bool = True
+    complementary: bool = False
 
     @property
     def n_frames(self) -> int:
-        return self.bits * (2 if self.inverse else 1)
+        return self.code_bits * (2 if self.inverse else 1)
+
+    @property
+    def code_bits(self) -> int:
+        """Patterns of the block (without inverses): ``bits``, plus one when complementary."""
+        return self.bits + int(self.complementary)
+
+    @property
+    def code_cell_px(self) -> float:
+        """The finest stripe's width: ``cell_px``, halved when complementary."""
+        return self.cell_px / 2.0 if self.complementary else self.cell_px
 
 
 @dataclass(frozen=True)
@@ -258,7 +277,7 @@ def opencv_gray_blocks(width: int, height: int, cell_px: float = 1.0) -> tuple[G
     Examples
     --------
     >>> opencv_gray_blocks(20, 11, 100)[0]
-    GrayBlock(axis='x', bits=5, cell_px=100, inverse=True)
+    GrayBlock(axis='x', bits=5, cell_px=100, inverse=True, complementary=False)
     """
     return GrayBlock("x", bits_for(width), cell_px, True), GrayBlock("y", bits_for(height), cell_px, True)
 
@@ -357,7 +376,7 @@ def _gray_block(d: Any, where: str, problems: list[str]) -> GrayBlock | None:
     if not isinstance(d, dict):
         problems.append(f"{where}: expected a mapping with axis, cells or bits, cell_px")
         return None
-    unknown = set(d) - {"axis", "cells", "bits", "cell_px", "inverse"}
+    unknown = set(d) - {"axis", "cells", "bits", "cell_px", "inverse", "complementary"}
     if unknown:
         problems.append(f"{where}: unknown keys {sorted(unknown)}")
     axis = d.get("axis")
@@ -380,9 +399,12 @@ def _gray_block(d: Any, where: str, problems: list[str]) -> GrayBlock | None:
     inverse = d.get("inverse", True)
     if not isinstance(inverse, bool):
         problems.append(f"{where}.inverse must be true or false, got {inverse!r}")
-    if axis not in ("x", "y") or bits is None or cell is None or not isinstance(inverse, bool):
+    comp = d.get("complementary", False)
+    if not isinstance(comp, bool):
+        problems.append(f"{where}.complementary must be true or false, got {comp!r}")
+    if axis not in ("x", "y") or bits is None or cell is None or not isinstance(inverse, bool) or not isinstance(comp, bool):
         return None
-    return GrayBlock(axis, bits, cell, inverse)
+    return GrayBlock(axis, bits, cell, inverse, comp)
 
 
 def load_sequence(path: str | Path, captures: str | Path | None = None) -> SequenceSpec:
@@ -497,6 +519,13 @@ def _check_spec(spec: SequenceSpec) -> None:
         if any(not g.inverse for g in grays) and not {"white", "black"} <= flats and not has_phase:
             problems.append(f"axis {axis}: a Gray code without inverses is read against the white and black "
                             "frames' mean or the same axis' phase frames' mean; the sequence has neither")
+        periods = [b.period_px for b in spec.blocks if isinstance(b, PhaseBlock) and b.axis == axis]
+        for g in grays:
+            if g.complementary and not any(np.isclose(p, g.cell_px, rtol=1e-9, atol=1e-9) for p in periods):
+                have = ", ".join(f"{p:g}" for p in periods) or "none"
+                problems.append(f"axis {axis}: a complementary Gray code needs a phase block of period_px equal to "
+                                f"its cell_px {g.cell_px:g} on the same axis (the edge quarters of each period choose "
+                                f"its extra bit); phase periods on axis {axis}: {have}")
     if problems:
         raise SequenceError("; ".join(problems))
 
@@ -570,8 +599,10 @@ def sequence_to_mapping(spec: SequenceSpec) -> dict[str, Any]:
                                      "shifts_deg": [float(f"{np.degrees(d):.12g}") for d in b.shifts_rad],
                                      "encoding_gamma": float(b.encoding_gamma), "origin_px": float(b.origin_px)}})
         else:
-            blocks.append({"gray": {"axis": b.axis, "bits": int(b.bits), "cell_px": float(b.cell_px),
-                                    "inverse": bool(b.inverse)}})
+            gray = {"axis": b.axis, "bits": int(b.bits), "cell_px": float(b.cell_px), "inverse": bool(b.inverse)}
+            if b.complementary:
+                gray["complementary"] = True
+            blocks.append({"gray": gray})
     return {"projector": {"width": int(spec.projector_width), "height": int(spec.projector_height),
                           "gamma": float(spec.projector_gamma)},
             "frames": spec.frames, "blocks": blocks}
