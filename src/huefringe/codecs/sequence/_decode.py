@@ -85,6 +85,8 @@ def generate(spec: SequenceSpec, dtype: type[np.integer] = np.uint8) -> NDArray[
 
     Examples
     --------
+    >>> from huefringe.codecs.sequence import FlatBlock, PhaseBlock, SequenceSpec, generate
+    >>> from huefringe.codecs.nstep import equal_shifts
     >>> spec = SequenceSpec((PhaseBlock("x", 16.0, tuple(equal_shifts(4))), FlatBlock("white")), 64, 8)
     >>> generate(spec).shape, int(generate(spec)[0, 0, 0]), int(generate(spec)[2, 0, 0])
     ((5, 8, 64), 255, 0)
