@@ -45,6 +45,12 @@ class Reason(enum.IntFlag):
         failure), or the coordinate is not finite.
     ``OUTSIDE``
         The absolute coordinate lies outside the projector.
+    ``RAY``
+        Set after triangulation, where both projector axes are decoded: the camera ray and the
+        projector ray of ``(u, v)`` do not meet. The decoded projector pixel lies farther from
+        the camera pixel's epipolar line than ``max_ray_sigma`` times the distance's standard
+        uncertainty from ``sigma_u, sigma_v``, and farther than ``ray_floor_px``
+        (:func:`huefringe.rig.triangulation.epipolar_residual`).
     """
 
     SHADOW = 1
@@ -53,6 +59,7 @@ class Reason(enum.IntFlag):
     GRAY = 8
     ORDER = 16
     OUTSIDE = 32
+    RAY = 64
 
 
 @dataclass(frozen=True)
