@@ -380,8 +380,9 @@ def ray_test(d: dict[str, Any], ti: TriangulationInputs, calib: RigCalibration, 
     out = dict(d)
     for axis, key in (("x", "u"), ("y", "v")):
         a = dec[axis]
-        reasons = a.reasons.copy() if a.reasons.size else np.where(a.valid, 0, Reason.ORDER).astype(np.uint8)
-        reasons[bad] |= np.uint8(Reason.RAY)
+        reasons = a.reasons.copy()
+        if reasons.size:           # a Decoded built without reason codes keeps none
+            reasons[bad] |= np.uint8(Reason.RAY)
         valid = a.valid & ~bad
         dec[axis] = replace(a, coord=np.where(valid, a.coord, np.nan), sigma=np.where(valid, a.sigma, np.nan),
                             valid=valid, reasons=reasons)
