@@ -126,3 +126,60 @@ def test_gray_code_only_folder_decodes_through_the_command(tmp_path, capsys):
     yy, xx = np.mgrid[0:96, 0:128]
     assert np.array_equal(cx, xx) and np.array_equal(cy, yy)
     assert np.allclose(read_tiff(out / "sigma_x.tif"), 1 / np.sqrt(12))
+
+
+def test_an_explicit_frame_list_uses_a_folder_with_extra_frames_as_it_is(folder, tmp_path, capsys):
+    """The same captures under names whose numbers do not give the order, among frames the
+    sequence does not use (a colour frame, another exposure), named in ``frames:`` one by one."""
+    import shutil
+
+    from huefringe.session import assemble_sl_session, load_sl_session
+
+    caps, seq, _, _ = folder
+    n = load_sequence(seq).n_frames
+    messy = tmp_path / "messy"
+    messy.mkdir()
+    order = np.random.default_rng(5).permutation(n)           # capture i stored as img_<order[i]>
+    listed = []
+    for i in range(n):
+        name = f"img_{order[i]:02d}.png"
+        shutil.copyfile(caps / f"cap_{i + 1}.png", messy / name)
+        listed.append(name)
+    junk = np.random.default_rng(6).integers(0, 256, (48, 64), dtype=np.uint8)
+    for extra in ("img_99.png", "colour_01.png", "cap_1.png"):
+        cv2.imwrite(str(messy / extra), junk)
+    seq_list = tmp_path / "seq_list.yaml"
+    seq_list.write_text(yaml.safe_dump({**SEQ, "frames": listed}))
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main(["decode", str(caps), str(seq), str(a)]) == 0
+    assert main(["decode", str(messy), str(seq_list), str(b)]) == 0
+    for f in ("coord_x.tif", "coord_y.tif", "sigma_x.tif", "sigma_y.tif", "reasons_x.png", "reasons_y.png"):
+        assert (a / f).read_bytes() == (b / f).read_bytes(), f
+    # sl-session takes the listed files in their order as well: the stored captures are the clean folder's
+    s = load_sl_session(assemble_sl_session(messy, seq_list, tmp_path / "session"))
+    assert [p.read_bytes() for p in s.captures] == [(caps / f"cap_{i + 1}.png").read_bytes() for i in range(n)]
+    # written back by the sequence writer as a list, read back equal
+    from huefringe.codecs import sequence_from_mapping, sequence_to_mapping
+
+    spec = load_sequence(seq_list)
+    assert sequence_to_mapping(spec)["frames"] == listed
+    assert sequence_from_mapping(sequence_to_mapping(spec), seq_list, tmp_path) == spec
+    capsys.readouterr()
+
+
+def test_a_wrong_frame_list_is_refused_with_every_problem(folder, tmp_path, capsys):
+    caps, seq, _, _ = folder
+    n = load_sequence(seq).n_frames
+    names = [f"cap_{i + 1}.png" for i in range(n)]
+    bad = tmp_path / "bad.yaml"
+    bad.write_text(yaml.safe_dump({**SEQ, "frames": [*names[:-1], names[0], "sub/x.png"]}))
+    assert main(["decode", str(caps), str(bad), str(tmp_path / "o")]) != 0
+    err = capsys.readouterr().err
+    assert str(bad) in err
+    assert "cap_1.png listed more than once" in err and "'sub/x.png'" in err and f"{n + 1} file names, the blocks have {n} frames" in err
+    missing = tmp_path / "missing.yaml"
+    missing.write_text(yaml.safe_dump({**SEQ, "frames": [*names[:-2], "gone_a.png", "gone_b.png"]}))
+    assert main(["decode", str(caps), str(missing), str(tmp_path / "o")]) != 0
+    err = capsys.readouterr().err
+    assert "gone_a.png: missing capture" in err and "gone_b.png: missing capture" in err
+    assert not (tmp_path / "o").exists()

@@ -63,6 +63,18 @@ def test_captures_to_calibration_to_cloud(bench, capsys):
                  "renders/frame_0000_top.png"):
         assert (root / "out" / name).stat().st_size > 1000, name
     assert not (root / "out" / "metrology").exists()
+    # the ray test: counted in the QA record, its thresholds from --configfile as every codecs threshold
+    v = json.loads((root / "out/qa/frames/frame_0000.json").read_text())["validity"]
+    assert v["ray_test"]["dropped"] == 0 and v["ray_test"]["tested"] == int(ok.sum())
+    assert v["ray_test"]["ray_floor_px"] == 0.75 and v["dropped_pixels"]["x"]["ray"] == 0
+    strict = root / "strict.yaml"
+    strict.write_text("codecs: {max_ray_sigma: 0.5, ray_floor_px: 0.0}\n")
+    assert main(["rig-measure", str(root / "plane"), str(root / "seq.yaml"), str(root / "calib.yml"), str(root / "out2"),
+                 "--configfile", str(strict)]) == 0
+    v2 = json.loads((root / "out2/qa/frames/frame_0000.json").read_text())["validity"]
+    assert v2["ray_test"]["max_ray_sigma"] == 0.5 and v2["ray_test"]["dropped"] > 0.2 * v2["ray_test"]["tested"]
+    assert v2["dropped_pixels"]["x"]["ray"] == v2["dropped_pixels"]["y"]["ray"] == v2["ray_test"]["dropped"]
+    capsys.readouterr()
 
 
 def test_refusals_name_the_files(bench, tmp_path, capsys):

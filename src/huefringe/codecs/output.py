@@ -13,7 +13,8 @@
 ``reasons_<axis>.png``
     8-bit grey: per pixel the bits of the validity tests that dropped it (0 where valid;
     :class:`~huefringe.codecs.Reason`: 1 shadow, 2 low signal, 4 saturated, 8 Gray code,
-    16 fringe order, 32 outside the projector).
+    16 fringe order, 32 outside the projector; 64, the ray test after triangulation, is never
+    set by ``decode``, which does not triangulate).
 ``quality.png``
     Coordinate, modulation and uncertainty maps side by side, one row per axis.
 ``decode.json``
@@ -39,7 +40,7 @@ from huefringe.codecs.gamma import estimate_projector_gamma
 from huefringe.codecs.sequence import Decoded, DecodeOptions, Reason, SequenceError, decode_sequence, load_sequence, read_captures
 from huefringe.io import publish_dir, write_figure_png, write_json, write_png_rgb, write_tiff
 
-__all__ = ["decode_folder", "quality_figure"]
+__all__ = ["decode_folder", "dropped_by", "quality_figure"]
 
 
 def _finite(obj: Any) -> Any:
@@ -53,17 +54,32 @@ def _finite(obj: Any) -> Any:
     return obj
 
 
-def quality_figure(decoded: dict[str, Decoded], title: str, max_width_px: int = 900) -> Any:
-    """Coordinate, modulation and uncertainty maps, one row per axis (Matplotlib figure)."""
+def dropped_by(reasons: Any) -> Any:
+    """Per pixel, the index in :class:`~huefringe.codecs.Reason` (1 = shadow .. 7 = ray) of the first
+    test that dropped it, 0 where valid (the reasons panel of :func:`quality_figure`)."""
+    r = np.asarray(reasons, dtype=np.uint8)
+    out = np.zeros(r.shape, dtype=np.uint8)
+    for i, reason in reversed(list(enumerate(Reason, start=1))):
+        out[(r & np.uint8(reason)) != 0] = i
+    return out
+
+
+def quality_figure(decoded: dict[str, Decoded], title: str, max_width_px: int = 900, *, reasons: bool = False) -> Any:
+    """Coordinate, modulation and uncertainty maps, one row per axis (Matplotlib figure); with
+    ``reasons``, a fourth map of the first test that dropped each pixel (:func:`dropped_by`)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from matplotlib.colors import ListedColormap
 
     rows = list(decoded.items())
     h, w = rows[0][1].coord.shape
-    step = max(1, math.ceil(w / (max_width_px / 3)))
-    fig, axes = plt.subplots(len(rows), 3, figsize=(10.5, 2.6 * len(rows) * h / w + 0.6 * len(rows)), squeeze=False)
+    cols = 4 if reasons else 3
+    step = max(1, math.ceil(w / (max_width_px / cols)))
+    fig, axes = plt.subplots(len(rows), cols, figsize=(3.5 * cols, 2.6 * len(rows) * h / w + 0.6 * len(rows)), squeeze=False)
+    names = ["valid", *(r.name.lower().replace("_", " ") for r in Reason)]
+    palette = ListedColormap(["#ffffff", "#303030", "#7f7f7f", "#d62728", "#ff7f0e", "#9467bd", "#1f77b4", "#2ca02c"][: len(names)])
     for r, (axis, d) in enumerate(rows):
         sl = (slice(None, None, step), slice(None, None, step))
         name = "column" if axis == "x" else "row"
@@ -72,6 +88,9 @@ def quality_figure(decoded: dict[str, Decoded], title: str, max_width_px: int = 
             (d.modulation[sl], "gray", f"modulation {axis} [DN]", (0, float(np.nanpercentile(d.modulation, 99.5)))),
             (d.sigma[sl], "magma", f"u({axis}) [projector px]", (0, float(np.nanpercentile(d.sigma, 99))) if d.valid.any() else None),
         ]
+        if reasons:
+            panels.append((dropped_by(d.reasons)[sl] if d.reasons.size else np.zeros(d.coord[sl].shape, np.uint8),
+                           palette, f"dropped {axis} by (first failed test)", (-0.5, len(names) - 0.5)))
         for c, (img, cmap, label, lim) in enumerate(panels):
             ax = axes[r, c]
             im = ax.imshow(img, cmap=cmap, vmin=None if lim is None else lim[0], vmax=None if lim is None else lim[1], interpolation="nearest")
@@ -80,6 +99,8 @@ def quality_figure(decoded: dict[str, Decoded], title: str, max_width_px: int = 
             ax.set_yticks([])
             cb = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02)
             cb.ax.tick_params(labelsize=7)
+            if cmap is palette:
+                cb.set_ticks(range(len(names)), labels=names)
     fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     return fig
@@ -174,7 +195,7 @@ def decode_folder(
             a: {
                 "absolute": d.absolute,
                 "valid_fraction": float(d.valid.mean()),
-                "dropped_fraction": {r.name.lower(): float(((d.reasons & r) != 0).mean()) for r in Reason},
+                "dropped_fraction": {r.name.lower(): float(((d.reasons & r) != 0).mean()) for r in Reason if r is not Reason.RAY},
                 "median_sigma_px": float(np.nanmedian(d.sigma)) if d.valid.any() else None,
             }
             for a, d in decoded.items()

@@ -15,7 +15,7 @@ from __future__ import annotations
 import json
 import os
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -24,14 +24,14 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from huefringe.codecs import DecodeOptions, SequenceError, decode_sequence, load_sequence, read_captures
+from huefringe.codecs import DecodeOptions, Reason, SequenceError, decode_sequence, load_sequence, read_captures
 from huefringe.io import atomic_path
 from huefringe.metrology import flatness_u, sigma_along
 from huefringe.rig.calibrate import Board, CalibrationReport, PoseObservation, calibrate_rig, detect_corners, projector_corners
-from huefringe.rig.decoded import RelativeCoordinateError, relative_axes_problems, triangulation_inputs
+from huefringe.rig.decoded import RelativeCoordinateError, TriangulationInputs, relative_axes_problems, triangulation_inputs
 from huefringe.rig.filestorage import write_calibration
 from huefringe.rig.model import RigCalibration
-from huefringe.rig.triangulation import triangulate
+from huefringe.rig.triangulation import epipolar_residual, triangulate
 
 __all__ = [
     "RigCalibrationRun",
@@ -46,6 +46,7 @@ __all__ = [
     "height_over_plane",
     "measure_sl_frame",
     "plane_grid",
+    "ray_test",
     "read_jackknife",
     "triangulate_frame",
     "write_rig_calibration",
@@ -327,6 +328,11 @@ class RigFrame:
         The triangulation: ``u``, ``v`` (ray against a projector plane) or ``both`` (ray-ray).
     sigma_ray : ndarray, shape (H, W)
         The decoded coordinates' noise along each point's camera ray, mm.
+    ray_residual : ndarray, shape (H, W) or None
+        With both axes (``mode == 'both'``): how far the camera and projector rays miss, in
+        projector pixels (:func:`~huefringe.rig.triangulation.epipolar_residual`), at every pixel
+        that passed the decoding's tests (NaN elsewhere); pixels that failed the ray test are
+        flagged :attr:`~huefringe.codecs.Reason.RAY` in ``decoded``. None with one axis.
     """
 
     xyz: F64
@@ -335,6 +341,59 @@ class RigFrame:
     decoded: dict[str, Any]
     mode: str
     sigma_ray: F64
+    ray_residual: F64 | None = None
+
+
+def ray_test(d: dict[str, Any], ti: TriangulationInputs, calib: RigCalibration, cfg: dict[str, Any]
+             ) -> tuple[dict[str, Any], TriangulationInputs, F64 | None]:
+    """Drop the pixels whose camera ray and projector ray miss each other (both axes decoded).
+
+    A pixel fails when its decoded projector pixel lies farther from the camera pixel's epipolar
+    line than ``codecs.max_ray_sigma`` times the distance's standard uncertainty from the decoded
+    coordinates' sigmas and farther than ``codecs.ray_floor_px`` (the calibration's own epipolar
+    error, which the decoded sigmas do not hold). Such a pixel carries a wrong fringe order or
+    Gray cell the decoding's own tests missed, or light that did not come straight from the
+    projector (interreflection, a blurred edge).
+
+    Returns
+    -------
+    d : dict
+        :func:`decode_frame`'s maps with the failing pixels not valid (``u``, ``v`` NaN) and
+        flagged :attr:`~huefringe.codecs.Reason.RAY` in both axes' ``reasons``; ``d`` itself
+        when the test does not apply (one axis) or drops nothing.
+    inputs : TriangulationInputs
+        ``ti`` without the failing pixels.
+    residual : ndarray or None
+        The miss in projector pixels at every pixel of ``ti.valid`` (NaN elsewhere); None with one axis.
+    """
+    if ti.mode != "both" or ti.u is None or ti.v is None:
+        return d, ti, None
+    c = cfg["codecs"]
+    k, floor = float(c.get("max_ray_sigma", np.inf)), float(c.get("ray_floor_px", 0.0))
+    r, s = epipolar_residual(calib, ti.u, ti.v, sigma_u=ti.sigma_u, sigma_v=ti.sigma_v)
+    with np.errstate(invalid="ignore"):
+        bad = ti.valid & (np.abs(r) > np.maximum(k * s, floor))
+    if not bad.any():
+        return d, ti, r
+    keep = ti.valid & ~bad
+    dec = dict(d["decoded"])
+    out = dict(d)
+    for axis, key in (("x", "u"), ("y", "v")):
+        a = dec[axis]
+        reasons = a.reasons.copy()
+        if reasons.size:           # a Decoded built without reason codes keeps none
+            reasons[bad] |= np.uint8(Reason.RAY)
+        valid = a.valid & ~bad
+        dec[axis] = replace(a, coord=np.where(valid, a.coord, np.nan), sigma=np.where(valid, a.sigma, np.nan),
+                            valid=valid, reasons=reasons)
+        out[key] = np.where(valid, d[key], np.nan)
+        out["valid_" + key] = valid
+        out["sigma_" + key] = dec[axis].sigma
+    out["decoded"] = dec
+    nan = np.where(keep, 0.0, np.nan)
+    ti = replace(ti, u=ti.u + nan, v=ti.v + nan, sigma_u=None if ti.sigma_u is None else ti.sigma_u + nan,
+                 sigma_v=None if ti.sigma_v is None else ti.sigma_v + nan, valid=keep)
+    return out, ti, r
 
 
 def triangulate_frame(d: dict[str, Any], calib: RigCalibration, cfg: dict[str, Any], *, where: str,
@@ -342,7 +401,8 @@ def triangulate_frame(d: dict[str, Any], calib: RigCalibration, cfg: dict[str, A
     """Triangulate decoded maps ``d`` with ``calib``; refuse what cannot be absolute X, Y, Z.
 
     Only pixels whose every validity test passed are triangulated
-    (:func:`huefringe.rig.decoded.triangulation_inputs`).
+    (:func:`huefringe.rig.decoded.triangulation_inputs`); with both axes, only those whose
+    camera and projector rays meet (:func:`ray_test`).
 
     Raises
     ------
@@ -359,10 +419,11 @@ def triangulate_frame(d: dict[str, Any], calib: RigCalibration, cfg: dict[str, A
         ti = triangulation_inputs(d["decoded"], spec, cfg["rig"]["triangulation"])
     except RelativeCoordinateError as exc:
         raise RigError(f"{where}: {exc}") from None
+    d, ti, residual = ray_test(d, ti, calib, cfg)
     t = triangulate(calib, ti.u, ti.v, sigma_u=ti.sigma_u, sigma_v=ti.sigma_v, valid=ti.valid, mode=ti.mode)
     if int(t.valid.sum()) < 3:
         raise RigError(f"{where}: {int(t.valid.sum())} pixels decoded and triangulated; nothing to measure")
-    return RigFrame(t.xyz, t.sigma, t.valid, d, ti.mode, t.sigma_ray)
+    return RigFrame(t.xyz, t.sigma, t.valid, d, ti.mode, t.sigma_ray, residual)
 
 
 def measure_sl_frame(session: Any, calib: RigCalibration, cfg: dict[str, Any]) -> RigFrame:

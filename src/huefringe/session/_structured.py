@@ -37,6 +37,7 @@ from huefringe.codecs.sequence import (
     PhaseBlock,
     SequenceError,
     SequenceSpec,
+    capture_files,
     sequence_from_mapping,
     sequence_to_mapping,
 )
@@ -394,7 +395,14 @@ def _frame_key(p: Path) -> tuple[int, str]:
 
 
 def _sequence_files(folder: Path, spec: SequenceSpec, where: Path, problems: list[Problem]) -> list[Path]:
-    """The captures of ``spec.frames`` in ``folder``, sorted by the last number in their names."""
+    """The captures of ``spec.frames`` in ``folder``: a glob's matches sorted by the last number in
+    their names, or the listed files in their order."""
+    if not isinstance(spec.frames, str):
+        files, found = capture_files(folder, spec)
+        problems += [Problem(p, msg) for p, msg in found]
+        files = [p for p in files if p.is_file()]
+        problems += [Problem(p, "not a PNG, TIFF or BMP capture") for p in files if p.suffix.lower() not in SL_IMAGE_SUFFIXES]
+        return files
     if not folder.is_dir():
         problems.append(Problem(folder, "not a folder of captures"))
         return []
@@ -518,9 +526,13 @@ def assemble_sl_session(
     features = Path(features) if features else (seq_yaml.parent / str(extra["features"]) if extra.get("features") else None)
 
     if spec is None:  # the sequence is refused: the calibration is still checked, against the first capture
+        listed = doc.get("frames") if isinstance(doc.get("frames"), list) else None
         glob = doc.get("frames") if isinstance(doc.get("frames"), str) and doc.get("frames") else "*.png"
-        first = sorted((p for p in captures.glob(glob) if p.suffix.lower() in SL_IMAGE_SUFFIXES), key=_frame_key)[:1] \
-            if captures.is_dir() else []
+        if listed is not None:
+            first = [captures / str(f) for f in listed if isinstance(f, str) and (captures / f).is_file()][:1]
+        else:
+            first = sorted((p for p in captures.glob(glob) if p.suffix.lower() in SL_IMAGE_SUFFIXES), key=_frame_key)[:1] \
+                if captures.is_dir() else []
         files, info = [], None
         if first:
             try:

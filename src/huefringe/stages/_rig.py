@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 import trimesh
 
+from huefringe.codecs import Reason
 from huefringe.codecs.output import quality_figure
 from huefringe.cloud import write_points
 from huefringe.io import atomic_path, read_tiff, tiff_pixel_pitch_mm, write_figure_png, write_json, write_tiff
@@ -110,15 +111,33 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
                        "points": plane.n, "fitted_to": "features base" if s.features and s.features.base else "every point"},
         "grid": {k: v for k, v in grid.items() if k not in ("height", "uncertainty")},
         "calibration": calib_file,
+        "validity": _validity(f, cfg),
         "calibration_term": {"leave_one_out_calibrations": len(loo),
                              "median_u_ray_mm": float(np.nanmedian(u_cal_ray)) if loo else None,
                              "note": "jackknife over the calibration's board poses" if loo else
                                      "not available: the calibration file comes without its board poses"},
     })
-    fig = quality_figure(d["decoded"], f"{s.id}: decoded projector coordinates")
+    fig = quality_figure(d["decoded"], f"{s.id}: decoded projector coordinates", reasons=True)
     write_figure_png(fig, quality, dpi=90)
     log.info("%s: %d points (%.1f %% of the camera), triangulation %s, base plane RMS %.4f mm",
              s.id, int(f.valid.sum()), 100 * f.valid.mean(), f.mode, plane.rms_mm)
+
+
+def _validity(f: RigFrame, cfg: Mapping[str, Any]) -> dict[str, Any]:
+    """Camera pixels each validity test dropped, per axis (:class:`~huefringe.codecs.Reason`; a pixel
+    may fail several), and the ray test's thresholds and misses."""
+    dec = f.decoded["decoded"]
+    out: dict[str, Any] = {"dropped_pixels": {a: {r.name.lower(): int(((d.reasons & r) != 0).sum()) for r in Reason}
+                                              for a, d in dec.items() if d.reasons.size}}
+    if f.ray_residual is not None:
+        r = np.abs(f.ray_residual[np.isfinite(f.ray_residual)])
+        out["ray_test"] = {
+            "max_ray_sigma": float(cfg["codecs"].get("max_ray_sigma", np.inf)), "ray_floor_px": float(cfg["codecs"].get("ray_floor_px", 0.0)),
+            "tested": int(r.size), "dropped": int(((dec["x"].reasons & Reason.RAY) != 0).sum()),
+            "median_miss_px": float(np.median(r)) if r.size else None,
+            "p99_miss_px": float(np.percentile(r, 99)) if r.size else None,
+            "what": "distance of the decoded projector pixel from the camera pixel's epipolar line (projector px)"}
+    return out
 
 
 def _write_cloud(path: str, f: RigFrame, u: Any) -> None:

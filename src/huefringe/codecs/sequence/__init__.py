@@ -36,7 +36,8 @@ bits of the failed tests per pixel.
 YAML form (:func:`load_sequence`), blocks in capture order::
 
     projector: {width: 1920, height: 1080, gamma: 1.0}
-    frames: "pat*.png"          # the captures, sorted by the number in their names
+    frames: "pat*.png"          # the captures, sorted by the number in their names; or a list of
+                                # file names in capture order: [img_03.bmp, img_04.bmp, ...]
     blocks:
       - phase: {axis: x, period_px: 66.6667, shifts_deg: [-120, 0, 120]}
       - phase: {axis: x, period_px: 100, steps: 4, encoding_gamma: 1.0, origin_px: 0}
@@ -80,6 +81,7 @@ from ._spec import (  # noqa: F401
 from ._decode import (  # noqa: F401
     _NUM,
     _frame_key,
+    capture_files,
     read_captures,
     generate,
     _as_stack,
@@ -107,6 +109,7 @@ __all__ = [
     "kamino410_sequence",
     "load_sequence",
     "opencv_gray_blocks",
+    "capture_files",
     "read_captures",
     "sequence_from_mapping",
     "sequence_to_mapping",

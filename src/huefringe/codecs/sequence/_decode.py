@@ -36,8 +36,36 @@ def _frame_key(p: Path) -> tuple[int, str]:
     return (int(nums[-1]) if nums else -1, p.name)
 
 
+def capture_files(folder: str | Path, spec: SequenceSpec) -> tuple[list[Path], list[tuple[Path, str]]]:
+    """The capture files of ``spec`` in ``folder``, in capture order, and every problem found.
+
+    ``spec.frames`` a glob: the matching files sorted by the last number in their names, their
+    count the sequence's; a list of names: those files in that order, each present.
+
+    Returns
+    -------
+    files : list of Path
+    problems : list of (Path, str)
+        Each naming the file or folder concerned (empty when the files are usable).
+    """
+    folder = Path(folder)
+    if not folder.is_dir():
+        return [], [(folder, "not a folder of captures")]
+    if not isinstance(spec.frames, str):
+        files = [folder / name for name in spec.frames]
+        problems = [(f, f"missing capture {i} of the sequence's frames list") for i, f in enumerate(files) if not f.is_file()]
+        if len(files) != spec.n_frames:
+            problems.append((folder, f"{len(files)} files listed in frames, the sequence has {spec.n_frames} frames"))
+        return files, problems
+    files = sorted((p for p in folder.glob(spec.frames) if p.is_file()), key=_frame_key)
+    if len(files) != spec.n_frames:
+        return files, [(folder, f"{len(files)} files match {spec.frames!r}, the sequence has {spec.n_frames} frames "
+                                f"({', '.join(type(b).__name__ + '[' + str(b.n_frames) + ']' for b in spec.blocks)})")]
+    return files, []
+
+
 def read_captures(folder: str | Path, spec: SequenceSpec) -> list[NDArray[np.number]]:
-    """The captures of ``spec.frames`` in ``folder``, grayscale, sorted by the last number in their names.
+    """The captures of ``spec.frames`` in ``folder`` (:func:`capture_files`), grayscale, in capture order.
 
     Any format OpenCV reads (PNG, TIFF, BMP, ...); colour captures are converted to grayscale
     (OpenCV's BGR -> gray weights).
@@ -47,15 +75,9 @@ def read_captures(folder: str | Path, spec: SequenceSpec) -> list[NDArray[np.num
     SequenceError
         Naming the folder or file: a wrong count, an unreadable file, mixed sizes or dtypes.
     """
-    folder = Path(folder)
-    if not folder.is_dir():
-        raise SequenceError(f"{folder}: not a folder of captures")
-    files = sorted(folder.glob(spec.frames), key=_frame_key)
-    if len(files) != spec.n_frames:
-        raise SequenceError(
-            f"{folder}: {len(files)} files match {spec.frames!r}, the sequence has {spec.n_frames} frames "
-            f"({', '.join(type(b).__name__ + '[' + str(b.n_frames) + ']' for b in spec.blocks)})"
-        )
+    files, found = capture_files(folder, spec)
+    if found:
+        raise SequenceError("; ".join(f"{p}: {msg}" for p, msg in found))
     problems, images = [], []
     for f in files:
         im = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)

@@ -45,6 +45,12 @@ class Reason(enum.IntFlag):
         failure), or the coordinate is not finite.
     ``OUTSIDE``
         The absolute coordinate lies outside the projector.
+    ``RAY``
+        Set after triangulation, where both projector axes are decoded: the camera ray and the
+        projector ray of ``(u, v)`` do not meet. The decoded projector pixel lies farther from
+        the camera pixel's epipolar line than ``max_ray_sigma`` times the distance's standard
+        uncertainty from ``sigma_u, sigma_v``, and farther than ``ray_floor_px``
+        (:func:`huefringe.rig.triangulation.epipolar_residual`).
     """
 
     SHADOW = 1
@@ -53,6 +59,7 @@ class Reason(enum.IntFlag):
     GRAY = 8
     ORDER = 16
     OUTSIDE = 32
+    RAY = 64
 
 
 @dataclass(frozen=True)
@@ -151,15 +158,17 @@ class SequenceSpec:
     projector_gamma : float
         The display's response exponent; times each block's ``encoding_gamma`` it is the fringe
         profile's exponent :func:`~huefringe.codecs.nstep.profile_lut` undoes (1 = linear).
-    frames : str
-        Glob of the captures inside a folder, sorted by the last number in their names.
+    frames : str or tuple of str
+        Glob of the captures inside a folder, sorted by the last number in their names; or the
+        file names in capture order, one per frame (a folder with other files, or names whose
+        numbers do not give the order, used as it is).
     """
 
     blocks: tuple[Block, ...]
     projector_width: int
     projector_height: int
     projector_gamma: float = 1.0
-    frames: str = "*.png"
+    frames: str | tuple[str, ...] = "*.png"
 
     @property
     def n_frames(self) -> int:
@@ -448,7 +457,10 @@ def sequence_from_mapping(doc: Any, path: str | Path, base: str | Path) -> Seque
             raise SequenceError(f"{path}: kamino410 needs exactly config and program")
         spec = kamino410_sequence(base / str(k["config"]), k["program"])
         if "frames" in doc:
-            spec = replace(spec, frames=str(doc["frames"]))
+            kp: list[str] = []
+            spec = replace(spec, frames=_frames(doc["frames"], spec.n_frames, kp))
+            if kp:
+                raise SequenceError(f"{path}: " + "; ".join(kp))
         if "projector" in doc and isinstance(doc["projector"], dict) and "gamma" in doc["projector"]:
             spec = replace(spec, projector_gamma=float(doc["projector"]["gamma"]))
         return spec
@@ -470,8 +482,6 @@ def sequence_from_mapping(doc: Any, path: str | Path, base: str | Path) -> Seque
             problems.append(f"projector.gamma must be > 0, got {g}")
         gamma = g if g else 1.0
     frames = doc.get("frames", "*.png")
-    if not isinstance(frames, str) or not frames:
-        problems.append(f"frames: expected a glob such as 'pat*.png', got {frames!r}")
     raw = doc.get("blocks")
     blocks: list[Block] = []
     if not isinstance(raw, list) or not raw:
@@ -497,14 +507,34 @@ def sequence_from_mapping(doc: Any, path: str | Path, base: str | Path) -> Seque
             problems.append(f"{where}: expected phase: {{...}}, gray: {{...}}, skip: N, white or black, got {item!r}")
     if not problems and not any(isinstance(b, PhaseBlock | GrayBlock) for b in blocks):
         problems.append("blocks: no phase or gray block: nothing to decode")
+    frames = _frames(frames, None if problems else sum(b.n_frames for b in blocks), problems)
     if problems:
         raise SequenceError(f"{path}: " + "; ".join(problems))
-    spec = SequenceSpec(tuple(blocks), int(w), int(h), float(gamma), str(frames))
+    spec = SequenceSpec(tuple(blocks), int(w), int(h), float(gamma), frames)
     try:
         _check_spec(spec)
     except SequenceError as exc:
         raise SequenceError(f"{path}: {exc}") from None
     return spec
+
+
+def _frames(v: Any, n_frames: int | None, problems: list[str]) -> str | tuple[str, ...]:
+    """``frames``: a glob, or a list of file names in capture order (no duplicates, one per frame)."""
+    if isinstance(v, str) and v:
+        return v
+    if not isinstance(v, list) or not v:
+        problems.append(f"frames: expected a glob such as 'pat*.png' or a list of file names in capture order, got {v!r}")
+        return "*.png"
+    bad = [f for f in v if not isinstance(f, str) or not f or "/" in f or "\\" in f]
+    if bad:
+        problems.append(f"frames: file names inside the captures' folder expected, got {', '.join(map(repr, bad))}")
+    names = [f for f in v if isinstance(f, str)]
+    dup = sorted({f for f in names if names.count(f) > 1})
+    if dup:
+        problems.append(f"frames: {', '.join(dup)} listed more than once")
+    if n_frames is not None and len(v) != n_frames:
+        problems.append(f"frames: {len(v)} file names, the blocks have {n_frames} frames")
+    return tuple(names)
 
 
 def _check_spec(spec: SequenceSpec) -> None:
@@ -605,4 +635,4 @@ def sequence_to_mapping(spec: SequenceSpec) -> dict[str, Any]:
             blocks.append({"gray": gray})
     return {"projector": {"width": int(spec.projector_width), "height": int(spec.projector_height),
                           "gamma": float(spec.projector_gamma)},
-            "frames": spec.frames, "blocks": blocks}
+            "frames": spec.frames if isinstance(spec.frames, str) else list(spec.frames), "blocks": blocks}
