@@ -20,7 +20,8 @@ Every image's colour-cycle start phase is drawn from the session seed and the im
 error over the valid pixels and its row-periodic component
 (:func:`huefringe.row_banding.row_periodic_rms` of the error map), the worst step error, the
 fraction of valid pixels with ``|e| <= 2u``, the object table's valid fraction, and what the QA
-says (``calib/planes.json``, ``row_banding``: amplitude in rad and mm, suspected). Frame means.
+says (``calib/planes.json``: ``row_banding``, amplitude in rad and mm; ``colour_flicker``, the
+reference bands' hue spread between repeats; which of them warn). Frame means.
 About 4 min on one shared core with ``--frames 2``.
 """
 
@@ -92,6 +93,7 @@ def score(paths: dict, out: Path) -> dict:
         "cov2u": float(np.mean(cov)),
         "table_valid": float(table["valid_fraction"]),
         "qa": planes["row_banding"],
+        "flicker": planes["colour_flicker"],
     }
 
 
@@ -104,8 +106,8 @@ def main() -> None:
     config = load_config(REPO / "config.yaml")
     t0 = time.perf_counter()
     print("| camera and projector | RMS error um | row-periodic um | step errors um (green, blue, red) | |e| <= 2u "
-          "| object table valid | QA banding rad (mm) | QA suspected |")
-    print("| --- | ---: | ---: | --- | ---: | ---: | ---: | --- |")
+          "| object table valid | QA row banding rad (mm) | QA colour flicker rad | QA warns |")
+    print("| --- | ---: | ---: | --- | ---: | ---: | ---: | ---: | --- |")
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         for name in args.cases:
@@ -114,10 +116,11 @@ def main() -> None:
             out = root / "results" / cfg["session"]["id"]
             r = score(stages.measure_session(session, out, config), out)
             steps = ", ".join(f"{v:+.0f}" for v in r["steps_um"].values())
-            qa = r["qa"]
+            qa, fl = r["qa"], r["flicker"]
+            warns = [w for w, rec in (("row banding", qa), ("colour flicker", fl)) if rec["suspected"]]
             print(f"| {name} | {r['rms_um']:.1f} | {r['row_periodic_um']:.1f} | {steps} | {r['cov2u']:.3f} "
-                  f"| {r['table_valid']:.3f} | {qa['amplitude_rad']:.3f} ({qa['amplitude_mm']:.4f}) "
-                  f"| {'yes' if qa['suspected'] else 'no'} |", flush=True)
+                  f"| {r['table_valid']:.3f} | {qa['amplitude_rad']:.3f} ({qa['amplitude_mm']:.3f}) "
+                  f"| {fl['amplitude_rad']:.4f} | {', '.join(warns) or 'no'} |", flush=True)
     print(f"\n{time.perf_counter() - t0:.0f} s")
 
 

@@ -13,8 +13,9 @@ from huefringe.bench.colour_sequence import ColourSequence, Shutter, row_weights
 from huefringe.bench.radiometry import Pattern
 from huefringe.bench.simulator import Bench
 from huefringe.height import fit_poly2d
-from huefringe.pipeline import _plane_phases, session_hue_table, session_plane_calibration
-from huefringe.row_banding import THRESHOLD_RAD, row_banding, row_periodic_rms
+from huefringe.pipeline import _plane_phases, reference_colour_flicker, session_hue_table, session_plane_calibration
+from huefringe.row_banding import (FLICKER_THRESHOLD_RAD, THRESHOLD_RAD, repeat_hue_flicker, row_banding,
+                                   row_periodic_rms)
 from huefringe.session import load_session
 
 from bench_helpers import CONFIG
@@ -169,6 +170,22 @@ def test_detector_stays_quiet_on_noise_and_below_threshold():
     assert THRESHOLD_RAD == 0.02
 
 
+def test_flicker_is_the_spread_of_the_repeats_mean_hue():
+    rng = np.random.default_rng(3)
+    offsets = [[0.0, 0.02, -0.02], [0.1, 0.1, 0.1], [6.27, 0.0, 0.0133]]  # the last one across the wrap
+    hues = [[np.mod(2.0 + o + 0.05 * rng.standard_normal((60, 80)), 2 * np.pi) for o in band] for band in offsets]
+    hues[0][0][:5] = np.nan
+    fl = repeat_hue_flicker(hues)
+    dev = [0.0, 0.02, -0.02, 0.0, 0.0, 0.0, 6.27 - 2 * np.pi - 0.0011, -0.0011, 0.0133 - 0.0011]
+    assert fl.amplitude_rad == pytest.approx(np.sqrt(np.sum(np.square(dev)) / 6), rel=0.02)
+    assert fl.bands == 3 and fl.repeats == 3 and fl.suspected
+    assert fl.max_rad == pytest.approx(0.02, abs=1e-3)
+    quiet = repeat_hue_flicker([[np.full((4, 4), 1.0), np.full((4, 4), 1.0 + 1e-4)]])
+    assert quiet.amplitude_rad == pytest.approx(np.sqrt(2) * 5e-5) and not quiet.suspected
+    none = repeat_hue_flicker([[np.full((4, 4), 1.0)]])
+    assert none.amplitude_rad is None and not none.suspected and FLICKER_THRESHOLD_RAD == 0.005
+
+
 def _phases(session: Path):
     s = load_session(session)
     cal = CONFIG["calibration"]
@@ -177,12 +194,19 @@ def _phases(session: Path):
 
 
 def test_qa_fires_on_a_rolling_shutter_and_stays_quiet_on_3ccd_and_whole_cycles(tmp_path):
-    out = {}
+    out, flicker = {}, {}
     for name, over in {"3ccd": {}, "whole": {"sequence": 2, "line_us": 100},
-                       "rolling": {"sequence": 2.25, "line_us": 100}}.items():
+                       "rolling": {"sequence": 2.25, "line_us": 100}, "global": {"sequence": 2.25}}.items():
         cfg = _cfg(**over)
+        cfg["session"]["repeats"] = 2
         s, t, _ = _phases(bench.write_session(cfg, tmp_path / cfg["session"]["id"]))
-        out[name] = session_plane_calibration(s, t, CONFIG["hue_model"], CONFIG["calibration"]).stats["row_banding"]
+        stats = session_plane_calibration(s, t, CONFIG["hue_model"], CONFIG["calibration"]).stats
+        out[name], flicker[name] = stats["row_banding"], stats["colour_flicker"]
+    # a global shutter: every image its own colour balance, uniform over it: the repeats disagree, no rows
+    assert flicker["global"]["suspected"] and flicker["global"]["amplitude_rad"] > 5 * FLICKER_THRESHOLD_RAD
+    assert not out["global"]["suspected"]
+    for quiet in ("3ccd", "whole"):
+        assert flicker[quiet]["amplitude_rad"] < 0.1 * FLICKER_THRESHOLD_RAD and not flicker[quiet]["suspected"]
     assert not out["3ccd"]["suspected"] and not out["whole"]["suspected"]
     assert out["3ccd"]["amplitude_rad"] < 0.25 * THRESHOLD_RAD and out["whole"]["amplitude_rad"] < 0.25 * THRESHOLD_RAD
     rb = out["rolling"]
@@ -194,6 +218,7 @@ def test_qa_fires_on_a_rolling_shutter_and_stays_quiet_on_3ccd_and_whole_cycles(
     phase = {}
     for name, over in {"plain": {"noiseless": True}, "dlp": {"sequence": 2.25, "line_us": 100, "noiseless": True}}.items():
         cfg = _cfg(**over)
+        cfg["session"]["repeats"] = 2
         _, _, (ph, valid) = _phases(bench.write_session(cfg, tmp_path / cfg["session"]["id"]))
         phase[name] = (ph, valid)
     for z, key in ((0.0, "0.000"), (3.0, "3.000"), (6.0, "6.000")):

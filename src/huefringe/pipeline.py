@@ -241,7 +241,41 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     if lut is not None:  # its residual on the planes (reported; not added to u: docs/uncertainty.md)
         cal.stats.setdefault("uncertainty", {})["phase_error_residual_u_rad"] = phase_error_residual_rad(lut.stats)
     cal.stats["row_banding"] = plane_row_banding(s, decoded, valid, cal)
+    cal.stats["colour_flicker"] = reference_colour_flicker(s, hue_model, calibration, reader)
     return cal
+
+
+#: reference hue bands (evenly spaced, every repeat) the colour-flicker QA reads
+FLICKER_BANDS = 16
+
+
+def reference_colour_flicker(s: Session, hue_model: str, calibration: Mapping[str, Any],
+                             reader: CaptureReader | None = None) -> dict[str, Any]:
+    """The reference bands' colour flicker (:func:`huefringe.row_banding.repeat_hue_flicker`):
+    whether a uniform band's white-balanced hue changes between its repeats (a colour-sequential
+    projector with an exposure that is not a whole number of its colour cycles, a flickering
+    light, auto white balance). Reads up to :data:`FLICKER_BANDS` bands, every repeat. QA only.
+
+    Returns the record kept in ``calib/planes.json`` (``colour_flicker``): the
+    :class:`~huefringe.row_banding.ColourFlicker` fields (``amplitude_rad`` None with one repeat);
+    a suspected flicker is also logged as a warning.
+    """
+    if s.repeats < 2:
+        return row_banding.ColourFlicker(None, None, 0, s.repeats, False, row_banding.FLICKER_THRESHOLD_RAD).to_dict()
+    read = (reader or CaptureReader()).rgb
+    white = read(s.reference_white)
+    n = len(s.reference_bands)
+    picks = sorted({int(round(i * n / min(n, FLICKER_BANDS))) % n for i in range(min(n, FLICKER_BANDS))})
+    hues = [[hue_of(white_balance(read(p), white), hue_model, min_saturation=calibration["min_saturation"])
+             for p in s.reference_bands[i]] for i in picks]
+    fl = row_banding.repeat_hue_flicker(hues)
+    if fl.suspected:
+        _log.warning("%s: the repeats of a uniform hue band differ in hue by %.4f rad (standard deviation over %d "
+                     "bands): the colour balance changes from image to image (a colour-sequential projector filmed "
+                     "with an exposure that is not a whole number of its colour cycles, flickering light, auto white "
+                     "balance?). See docs/capture.md, 'Colour-sequential projectors'",
+                     s.root / "reference" / "hue", fl.amplitude_rad, fl.bands)
+    return fl.to_dict()
 
 
 _log = logging.getLogger("huefringe")

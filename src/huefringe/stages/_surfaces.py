@@ -150,6 +150,13 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
                         "heights carry a row-periodic error that their u does not hold (docs/capture.md, "
                         "'Colour-sequential projectors')", s.id, banding["amplitude_rad"],
                         "?" if banding.get("amplitude_mm") is None else f"{banding['amplitude_mm']:.4f}")
+    flicker = plane_stats.get("colour_flicker")
+    if flicker is not None:  # the reference bands' hue between repeats (huefringe.row_banding)
+        extras["calibration"]["colour_flicker"] = dict(flicker)
+        if flicker.get("suspected"):
+            log.warning("%s: the repeats of a uniform hue band differ in hue by %.4f rad: each image has its own "
+                        "colour balance, an error the heights' u does not hold (docs/capture.md, "
+                        "'Colour-sequential projectors')", s.id, flicker["amplitude_rad"])
     if accuracy:
         extras["accuracy"] = jsonlib.loads(Path(accuracy[0]).read_text())
     frame_qa = [jsonlib.loads(Path(p).read_text()) for p in qa]
