@@ -13,6 +13,7 @@ them, so both give the same numbers. The chains themselves are :mod:`huefringe.k
 from __future__ import annotations
 
 import json
+import logging
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -21,7 +22,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe import kernel, phase_error, texture
+from huefringe import kernel, phase_error, row_banding, texture
 from huefringe.camera import CameraModel, CaptureReader, bayer_resampling, camera_record, corrections, mixing_band_pairs
 from huefringe.colour import hue as hue_of
 from huefringe.colour import white_balance
@@ -213,6 +214,7 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
         Naming the plane folder, the plane images and ``session.yaml``.
     """
     phases, valid = _plane_phases(s, t, hue_model, calibration, reader)
+    decoded = phases  # as decoded: the phase-error table learned from these planes would fit part of their banding
     lut = phase_error.from_calibration(phases, valid, calibration, phase_error=phase_error_table,
                                        figure=phase_error_figure, summary=phase_error_summary)
     phases = {z: phase_error.correct(p, None if lut is None else lut.error) for z, p in phases.items()}
@@ -238,7 +240,92 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     cal.stats["texture_blur"] = info
     if lut is not None:  # its residual on the planes (reported; not added to u: docs/uncertainty.md)
         cal.stats.setdefault("uncertainty", {})["phase_error_residual_u_rad"] = phase_error_residual_rad(lut.stats)
+    cal.stats["row_banding"] = plane_row_banding(s, decoded, valid, cal)
+    cal.stats["colour_flicker"] = reference_colour_flicker(s, hue_model, calibration, reader)
     return cal
+
+
+#: reference hue bands (evenly spaced, every repeat) the colour-flicker QA reads
+FLICKER_BANDS = 16
+
+
+def reference_colour_flicker(s: Session, hue_model: str, calibration: Mapping[str, Any],
+                             reader: CaptureReader | None = None) -> dict[str, Any]:
+    """The reference bands' colour flicker (:func:`huefringe.row_banding.repeat_hue_flicker`):
+    whether a uniform band's white-balanced hue changes between its repeats (a colour-sequential
+    projector with an exposure that is not a whole number of its colour cycles, a flickering
+    light, auto white balance). Reads up to :data:`FLICKER_BANDS` bands, every repeat. QA only.
+
+    Returns the record kept in ``calib/planes.json`` (``colour_flicker``): the
+    :class:`~huefringe.row_banding.ColourFlicker` fields (``amplitude_rad`` None with one repeat);
+    a suspected flicker is also logged as a warning.
+    """
+    if s.repeats < 2:
+        return row_banding.ColourFlicker(None, None, 0, s.repeats, False, row_banding.FLICKER_THRESHOLD_RAD).to_dict()
+    read = (reader or CaptureReader()).rgb
+    white = read(s.reference_white)
+    n = len(s.reference_bands)
+    picks = sorted({int(round(i * n / min(n, FLICKER_BANDS))) % n for i in range(min(n, FLICKER_BANDS))})
+    hues = [[hue_of(white_balance(read(p), white), hue_model, min_saturation=calibration["min_saturation"])
+             for p in s.reference_bands[i]] for i in picks]
+    fl = row_banding.repeat_hue_flicker(hues)
+    if fl.suspected:
+        _log.warning("%s: the repeats of a uniform hue band differ in hue by %.4f rad (standard deviation over %d "
+                     "bands): the colour balance changes from image to image (a colour-sequential projector filmed "
+                     "with an exposure that is not a whole number of its colour cycles, flickering light, auto white "
+                     "balance?). See docs/capture.md, 'Colour-sequential projectors'",
+                     s.root / "reference" / "hue", fl.amplitude_rad, fl.bands)
+    return fl.to_dict()
+
+
+_log = logging.getLogger("huefringe")
+
+
+def plane_row_banding(s: Session, phases: Mapping[float, NDArray[np.floating]],
+                      valid: Mapping[float, NDArray[np.bool_]], cal: PlaneCalibration) -> dict[str, Any]:
+    """The calibration planes' row banding (:func:`huefringe.row_banding.row_banding`): a
+    colour-sequential projector filmed with an exposure that is not a whole number of its colour
+    cycles (docs/capture.md). QA only: nothing measured depends on it. ``phases``: as decoded,
+    before the phase-error table (learned from the same planes, it would take part of their own
+    banding, which the object frames, each with its own, do not share).
+
+    Returns the record kept in ``calib/planes.json`` (``row_banding``): per plane (key: height in
+    mm, ``%.3f``) the :class:`~huefringe.row_banding.RowBanding` fields or ``{"error": why}``;
+    ``amplitude_rad``, ``amplitude_px`` and ``period_rows`` of the plane with the largest
+    amplitude, ``amplitude_mm`` (that phase through the reference's median phase-to-height slope
+    ``1 / a``), ``suspected`` (any plane's) and ``threshold_rad``. A suspected banding is also
+    logged as a warning.
+    """
+    planes: dict[str, Any] = {}
+    worst: row_banding.RowBanding | None = None
+    for z in sorted(phases):
+        try:
+            rb = row_banding.row_banding(phases[z], valid[z], period_px=s.period_px)
+        except PlaneCalibrationError as exc:
+            planes[f"{z:.3f}"] = {"error": str(exc)}
+            continue
+        planes[f"{z:.3f}"] = rb.to_dict()
+        if worst is None or rb.amplitude_rad > worst.amplitude_rad:
+            worst = rb
+    out: dict[str, Any] = {"planes": planes, "threshold_rad": row_banding.THRESHOLD_RAD}
+    if worst is None:
+        out.update(amplitude_rad=None, amplitude_px=None, amplitude_mm=None, period_rows=None, suspected=False)
+        return out
+    a = np.abs(np.asarray(cal.a, np.float64))
+    a = a[np.isfinite(a) & (a > 0)]
+    mm_per_rad = float(1.0 / np.median(a)) if a.size else None
+    out.update(amplitude_rad=worst.amplitude_rad, amplitude_px=worst.amplitude_px,
+               amplitude_mm=None if mm_per_rad is None else worst.amplitude_rad * mm_per_rad,
+               period_rows=worst.period_rows,
+               suspected=any(bool(p.get("suspected")) for p in planes.values()))
+    if out["suspected"]:
+        _log.warning("%s: the calibration planes' phase bands along the rows (%.3f rad RMS = %.2f px of the fringe, "
+                     "about %s mm of height, every %s rows): a colour-sequential (single-chip DLP) projector "
+                     "filmed with an exposure that is not a whole number of its colour cycles? See docs/capture.md, "
+                     "'Colour-sequential projectors'", s.root / "reference" / "planes", worst.amplitude_rad,
+                     worst.amplitude_px, "?" if out["amplitude_mm"] is None else f"{out['amplitude_mm']:.4f}",
+                     "?" if worst.period_rows is None else f"{worst.period_rows:.0f}")
+    return out
 
 
 #: object frames the texture-blur estimate reads (pairs of them)

@@ -26,6 +26,10 @@ load_sl_bench_config(ref), write_sl_session(config, out_dir), sl_session_plan(co
     shadows, features.yaml, ground truth); the plan says what a session holds without writing.
 code_phase, projector_ray_x0, analytic_phase_difference, simulate_capture, Bench, Pattern
     Lower-level pure pieces used by the tests.
+colour_sequence.ColourSequence, colour_sequence.Shutter, colour_sequence.row_weights
+    A colour-sequential (single-chip DLP) projector and the camera's global or rolling shutter:
+    the per-row channel weights of an image (bench keys ``projector.colour_sequence``,
+    ``camera.shutter``).
 
 The measuring modules never import this package (design.md).
 """

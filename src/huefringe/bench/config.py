@@ -227,6 +227,22 @@ def _check_camera(cfg: dict[str, Any], source: str | Path, top_mm: float) -> Non
     if sensor.get("kind") == "bayer" and (int(s["width"]) % 2 or int(s["height"]) % 2):
         raise BenchConfigError(source, f"camera.sensor: a Bayer sensor needs an even width and height, "
                                        f"got {s['width']} x {s['height']}")
+    seq, shutter = cfg["projector"].get("colour_sequence"), cam.get("shutter") or {}
+    if seq is not None:
+        if float(cam["exposure_ms"]) <= 0.0:
+            raise BenchConfigError(source, "projector.colour_sequence needs camera.exposure_ms > 0 (an instant "
+                                           "exposure sees one colour segment)")
+        if sum(float(d) for d in seq["duty"]) > 1.0 + 1e-9:
+            raise BenchConfigError(source, f"projector.colour_sequence.duty: the shares of R, G and B sum to "
+                                           f"{sum(seq['duty']):.4f}, more than one cycle")
+        missing = [c for c in "RGB" if c not in seq["segments"]]
+        if missing:
+            raise BenchConfigError(source, f"projector.colour_sequence.segments {seq['segments']!r} never shows "
+                                           f"{', '.join(missing)}")
+    if shutter.get("kind") == "rolling" and shutter.get("line_time_us") is None:
+        raise BenchConfigError(source, "camera.shutter: a rolling shutter needs line_time_us")
+    if shutter.get("kind") != "rolling" and shutter.get("line_time_us") is not None:
+        raise BenchConfigError(source, "camera.shutter.line_time_us is only meaningful with kind: rolling")
     model = cam.get("model", "telecentric")
     wd = cam.get("working_distance_mm")
     if model == "pinhole":

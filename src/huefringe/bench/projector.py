@@ -215,27 +215,29 @@ def capture_patterns(config: dict[str, Any], patterns_dir: str | os.PathLike[str
     digits = max(4, len(str(len(rows))))
     uniform = {"reference": bench.uniform_capturer(plane_z=0.0), "object": bench.uniform_capturer(None)}
 
-    def shoot(pattern: Pattern, session_path: str) -> Callable[[np.random.Generator], NDArray[Any]]:
+    def shoot(pattern: Pattern, session_path: str, ph: float | None) -> Callable[[np.random.Generator], NDArray[Any]]:
+        # ph: the colour-cycle start phase of a colour-sequential projector (None without one)
         m = _PATH.match(session_path)
         assert m is not None
         if m["z"] is not None:
-            return lambda rng: bench.capture(pattern, plane_z=float(m["z"]), rng=rng)
+            return lambda rng: bench.capture(pattern, plane_z=float(m["z"]), rng=rng, colour_phase=ph)
         if m["frame"] is not None:
-            return lambda rng: bench.capture(pattern, t=bench.frame_time(int(m["frame"])), rng=rng)
+            return lambda rng: bench.capture(pattern, t=bench.frame_time(int(m["frame"])), rng=rng, colour_phase=ph)
         if m["ps"] is not None:
-            return lambda rng: bench.capture(pattern, t=bench.phase_shift_time(int(m["ps"]), int(m["s"])), rng=rng)
+            return lambda rng: bench.capture(pattern, t=bench.phase_shift_time(int(m["ps"]), int(m["s"])), rng=rng,
+                                             colour_phase=ph)
         if pattern.kind == "uniform":
-            return lambda rng: uniform[m["part"]](pattern, rng)
+            return lambda rng: uniform[m["part"]](pattern, rng, ph)
         z = 0.0 if m["part"] == "reference" else None
-        return lambda rng: bench.capture(pattern, plane_z=z, rng=rng)
+        return lambda rng: bench.capture(pattern, plane_z=z, rng=rng, colour_phase=ph)
 
     out.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.", suffix=".part", dir=out.parent))
     try:
         jobs = []
         for row in rows:
-            make = shoot(patterns[row.image], row.session_path)
             rel = row.session_path.removesuffix(".png") + ext  # the bench session's noise stream of this file
+            make = shoot(patterns[row.image], row.session_path, bench.colour_phase(rel))
             target = tmp / f"IMG_{row.order + 1:0{digits}d}.png"
 
             def run(make: Callable[[np.random.Generator], NDArray[Any]] = make, rel: str = rel,

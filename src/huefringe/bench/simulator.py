@@ -16,6 +16,14 @@ the image by what the lens shows beyond it), then every camera (sub-)sample take
 the plate point its ray meets (per colour channel for chromatic aberration; the pinhole's rays
 cast against the surface's height field), by bilinear interpolation of the plate grid, before
 the lens blur and the sensor.
+
+Colour-sequential projector (:mod:`.colour_sequence`, only with ``projector.colour_sequence``):
+each capture takes a start phase of the projector's colour cycle (``colour_phase``, drawn per
+image by :meth:`Bench.colour_phase`), and the projector's light reaching camera row ``r`` is
+weighted per channel by the share of that colour within the row's exposure window (global or
+rolling shutter, ``camera.shutter``); a motion-blurred capture weights each sub-exposure by its
+own slice of the window. The object's motion during a rolling shutter's readout is not modelled
+(every row sees the object at the capture's instants).
 """
 
 from __future__ import annotations
@@ -29,6 +37,7 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.ndimage import map_coordinates
 
+from .colour_sequence import ColourSequence, Shutter, row_weights, start_phase
 from .geometry import Grid, cast_shadow_mask, lambert_from_parts, lambert_parts, projector_ray_x0
 from .lens import Lens
 from .radiometry import Pattern, Rig, camera_response, emitted_rgb, lens_blur
@@ -104,6 +113,23 @@ class Bench:
         self._rest_coarse: SceneSample | None = None
         self._rest_surface: dict[str, Surface] = {}
         self._plate_cache: dict[str, Any] = {}
+        seq = cfg["projector"].get("colour_sequence")
+        self.sequence = None if seq is None else ColourSequence.from_config(seq)
+        self.shutter = Shutter.from_config(cfg["camera"].get("shutter"))
+
+    # ---------------------------------------------------------------- colour sequence
+    def colour_phase(self, name: str) -> float | None:
+        """The colour-cycle start phase of the image ``name`` (None without a colour sequence)."""
+        if self.sequence is None:
+            return None
+        return start_phase(self.shutter, int(self.cfg["session"]["seed"]), name)
+
+    def channel_weights(self, phase: float, subframes: int = 1) -> NDArray[np.float32]:
+        """Per-row channel weights ``(subframes, rows, 3)`` of an image starting at ``phase``
+        (:func:`.colour_sequence.row_weights`)."""
+        assert self.sequence is not None
+        exp_s = float(self.cfg["camera"]["exposure_ms"]) * 1e-3
+        return row_weights(self.sequence, self.shutter, exp_s, self.grid.height, phase, subframes).astype(np.float32)
 
     # ---------------------------------------------------------------- timing and motion
     def frame_time(self, n: int) -> float:
@@ -223,13 +249,23 @@ class Bench:
             shadow = np.zeros(surf.height.shape, dtype=bool)
         return Lighting(x0, irr, shadow | (irr <= 0.0))
 
-    def radiance(self, surf: Surface, light: Lighting, pattern: Pattern) -> NDArray[np.float32]:
-        """Eq. 7 on the fine grid, box-averaged to camera pixels: ``r_k (E g_k + a_k)``."""
+    def radiance(self, surf: Surface, light: Lighting, pattern: Pattern,
+                 weights: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+        """Eq. 7 on the fine grid, box-averaged to camera pixels: ``r_k (E g_k + a_k)``.
+
+        ``weights`` (rows, 3): the projector's light ``r_k E g_k`` reaching each camera row is
+        multiplied by them (a colour-sequential projector); the ambient term is not.
+        """
         y0 = None
         if pattern.source is not None and not pattern.source.row_constant:  # an image whose rows differ
             rig = self.rig
             y0 = projector_ray_x0(self._yf, surf.height, rig.projector_y_mm, rig.projector_height_mm)
         em = light.irradiance[..., None] * emitted_rgb(pattern, light.x0, self.rig, y0)
+        if weights is not None:
+            em *= surf.reflectance
+            out = self.to_camera(em, surf) * weights[:, None, :]
+            out += self.to_camera(surf.reflectance * self.rig.ambient.astype(np.float32), surf)
+            return out
         em += self.rig.ambient.astype(np.float32)
         em *= surf.reflectance
         return self.to_camera(em, surf)
@@ -321,6 +357,7 @@ class Bench:
         t: float | None = None,
         plane_z: float | None = None,
         rng: np.random.Generator | None = None,
+        colour_phase: float | None = None,
     ) -> NDArray[np.uint8] | NDArray[np.uint16]:
         """One camera image.
 
@@ -334,26 +371,34 @@ class Bench:
             Capture the bare plate lifted to this height instead of the object.
         rng : numpy.random.Generator, optional
             Noise source (``None``: noiseless).
+        colour_phase : float, optional
+            Colour-cycle start phase of a colour-sequential projector (:meth:`colour_phase`);
+            ignored without one (default 0).
         """
+        seq = self.sequence is not None
+        phase = float(colour_phase or 0.0)
         if plane_z is not None:
             surf = self.plate_surface(plane_z)
-            rad = self.radiance(surf, self.lighting(surf), pattern)
+            w = self.channel_weights(phase)[0] if seq else None
+            rad = self.radiance(surf, self.lighting(surf), pattern, w)
         else:
             times = [None] if t is None else self.exposure_times(t)
+            ws = self.channel_weights(phase, len(times)) if seq else None
             rad = np.zeros((self.grid.height, self.grid.width, 3), np.float32)
-            for ti in times:
+            for j, ti in enumerate(times):
                 surf = self.object_surface(ti)
-                rad += self.radiance(surf, self.lighting(surf), pattern)
+                rad += self.radiance(surf, self.lighting(surf), pattern, None if ws is None else ws[j])
             rad /= np.float32(len(times))
         return camera_response(rad, self.rig, rng)
 
     def uniform_capturer(
         self, plane_z: float | None = None
-    ) -> Callable[[Pattern, np.random.Generator | None], NDArray[np.uint8] | NDArray[np.uint16]]:
+    ) -> Callable[..., NDArray[np.uint8] | NDArray[np.uint16]]:
         """A fast capture function for uniform patterns (white, hue bands) of a static surface.
 
         For a uniform projected colour ``c`` the radiance ``r (E c + a)`` is affine in ``c``, and
-        so is the lens blur; both parts are computed once.
+        so is the lens blur; both parts are computed once. The returned function takes
+        ``(pattern, rng, colour_phase=None)`` (:meth:`capture`).
         """
         surf = self.plate_surface(plane_z) if plane_z is not None else self.object_surface(None)
         light = self.lighting(surf)
@@ -362,10 +407,14 @@ class Bench:
         amb = lens_blur(self.to_camera(surf.reflectance * self.rig.ambient, surf), sig)
         rig = self.rig
 
-        def capture(pattern: Pattern, rng: np.random.Generator | None) -> NDArray[np.uint8] | NDArray[np.uint16]:
+        def capture(pattern: Pattern, rng: np.random.Generator | None,
+                    colour_phase: float | None = None) -> NDArray[np.uint8] | NDArray[np.uint16]:
             if pattern.kind != "uniform":
                 raise ValueError("uniform_capturer only handles uniform patterns")
             c = emitted_rgb(pattern, None, rig)
+            if self.sequence is not None:  # per-row weights of the projector's light
+                w = self.channel_weights(float(colour_phase or 0.0))[0]
+                return camera_response(lit * (c * w)[:, None, :] + amb, rig, rng, blurred=True)
             return camera_response(lit * c + amb, rig, rng, blurred=True)
 
         return capture

@@ -293,11 +293,14 @@ def plate_predistortion(cfg: dict[str, Any], bench: Bench) -> tuple[NDArray[np.f
     n = int(cfg["session"]["hue_bands"])
     cap = bench.uniform_capturer(plane_z=0.0)
     scale = float((1 << int(cfg["session"]["bit_depth"])) - 1)
-    white = cap(Pattern.white(), None).astype(np.float32) / np.float32(scale)
+    # a colour-sequential projector: one start phase for all of them (a pre-distortion from bands of
+    # different colour balances need not be invertible; the session's own bands carry the effect)
+    phase = bench.colour_phase("predistortion")
+    white = cap(Pattern.white(), None, phase).astype(np.float32) / np.float32(scale)
     code = 2.0 * np.pi * np.arange(n) / n
     dist = np.empty(n)
     for i in range(n):
-        rgb = cap(Pattern.hue_band(i, n), None).astype(np.float32) / np.float32(scale)
+        rgb = cap(Pattern.hue_band(i, n), None, phase).astype(np.float32) / np.float32(scale)
         h = colour.hue(colour.white_balance(rgb, white), "hexcone")
         dist[i] = np.nanmedian(colour.wrap_pi(h - code[i]))
     c, p, history = predistortion(code, np.unwrap(dist), threshold_rad=float(comp["threshold_rad"]),
@@ -316,9 +319,10 @@ def _jobs(cfg: dict[str, Any], bench: Bench, root: Path) -> list[Job]:
     n_bands, repeats, frames = int(s["hue_bands"]), int(s["repeats"]), int(s["frames"])
     jobs: list[Job] = []
 
-    def add_image(rel: str, make: Callable[[np.random.Generator], NDArray[Any]]) -> None:
+    def add_image(rel: str, make: Callable[[np.random.Generator, float | None], NDArray[Any]]) -> None:
+        # make(noise generator, colour-cycle start phase: None without a colour-sequential projector)
         def run() -> None:
-            write_img(root / rel, make(noise_rng(seed, rel)))
+            write_img(root / rel, make(noise_rng(seed, rel), bench.colour_phase(rel)))
 
         jobs.append((rel, run))
 
@@ -337,8 +341,8 @@ def _jobs(cfg: dict[str, Any], bench: Bench, root: Path) -> list[Job]:
     for where in ("reference", "object"):
         capturer = bench.uniform_capturer(plane_z=0.0 if where == "reference" else None)
 
-        def uniform(pattern: Pattern, cap: Any = capturer) -> Callable[[np.random.Generator], NDArray[Any]]:
-            return lambda rng: cap(pattern, rng)
+        def uniform(pattern: Pattern, cap: Any = capturer) -> Callable[[np.random.Generator, float | None], NDArray[Any]]:
+            return lambda rng, ph: cap(pattern, rng, ph)
 
         add_image(f"{where}/white{ext}", uniform(Pattern.white()))
         for r in range(repeats):
@@ -348,20 +352,20 @@ def _jobs(cfg: dict[str, Any], bench: Bench, root: Path) -> list[Job]:
             for z in s["planes_mm"]:
                 add_image(
                     f"reference/planes/z_{float(z):.3f}{ext}",
-                    lambda rng, z=float(z): bench.capture(trapezoid, plane_z=z, rng=rng),
+                    lambda rng, ph, z=float(z): bench.capture(trapezoid, plane_z=z, rng=rng, colour_phase=ph),
                 )
     for n in range(frames):
         add_image(
             f"object/frames/frame_{n:04d}{ext}",
-            lambda rng, n=n: bench.capture(trapezoid, t=bench.frame_time(n), rng=rng),
+            lambda rng, ph, n=n: bench.capture(trapezoid, t=bench.frame_time(n), rng=rng, colour_phase=ph),
         )
     if cfg["phase_shift"]["enabled"]:
         for n in range(frames):
             for sidx in range(3):
                 add_image(
                     f"object/phase_shift/frame_{n:04d}_s{sidx}{ext}",
-                    lambda rng, n=n, sidx=sidx: bench.capture(
-                        Pattern.phase_shift(sidx), t=bench.phase_shift_time(n, sidx), rng=rng
+                    lambda rng, ph, n=n, sidx=sidx: bench.capture(
+                        Pattern.phase_shift(sidx), t=bench.phase_shift_time(n, sidx), rng=rng, colour_phase=ph
                     ),
                 )
     if s["ground_truth"]:

@@ -291,6 +291,19 @@ def _conditions(report: Mapping[str, Any]) -> list[dict[str, Any]]:
     if cal.get("unambiguous_range_mm"):
         lo, hi = cal["unambiguous_range_mm"]
         add("Unambiguous depth", f"{_num(lo, '.2f')} to {_num(hi, '.2f')} mm")
+    banding = cal.get("row_banding") or {}
+    if banding.get("suspected"):
+        mm = banding.get("amplitude_mm")
+        add("Row banding", "", strong=f"{_num(float(banding['amplitude_rad']), '.3f')} rad RMS"
+            + ("" if mm is None else f" (about {_num(1000 * float(mm), '.1f')} µm)"),
+            note="(the calibration planes' phase repeats along the rows: a colour-sequential projector and an "
+                 "exposure that is not a whole number of its colour cycles? Not in u; see the capture guide)")
+    flicker = cal.get("colour_flicker") or {}
+    if flicker.get("suspected"):
+        add("Colour flicker", "", strong=f"{_num(float(flicker['amplitude_rad']), '.4f')} rad between repeats",
+            note="(a uniform hue band's hue changes from image to image: a colour-sequential projector and an "
+                 "exposure that is not a whole number of its colour cycles, flickering light or auto white balance? "
+                 "Not in u; see the capture guide)")
     fq = report.get("frame_qa") or {}
     if "phase_ambiguity_suspected" in fq:
         bad = fq["phase_ambiguity_suspected"]

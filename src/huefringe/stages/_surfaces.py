@@ -142,6 +142,21 @@ def metrology(session: str, heights: Sequence[str], qa: Sequence[str], baseline:
             "object_table_valid_fraction": table_stats.get("valid_fraction"),
         },
     }
+    banding = plane_stats.get("row_banding")
+    if banding is not None:  # the planes' row banding (huefringe.row_banding), without the per-plane records
+        extras["calibration"]["row_banding"] = {k: v for k, v in banding.items() if k != "planes"}
+        if banding.get("suspected"):
+            log.warning("%s: the calibration planes' phase bands along the rows (%.3f rad RMS, about %s mm): the "
+                        "heights carry a row-periodic error that their u does not hold (docs/capture.md, "
+                        "'Colour-sequential projectors')", s.id, banding["amplitude_rad"],
+                        "?" if banding.get("amplitude_mm") is None else f"{banding['amplitude_mm']:.4f}")
+    flicker = plane_stats.get("colour_flicker")
+    if flicker is not None:  # the reference bands' hue between repeats (huefringe.row_banding)
+        extras["calibration"]["colour_flicker"] = dict(flicker)
+        if flicker.get("suspected"):
+            log.warning("%s: the repeats of a uniform hue band differ in hue by %.4f rad: each image has its own "
+                        "colour balance, an error the heights' u does not hold (docs/capture.md, "
+                        "'Colour-sequential projectors')", s.id, flicker["amplitude_rad"])
     if accuracy:
         extras["accuracy"] = jsonlib.loads(Path(accuracy[0]).read_text())
     frame_qa = [jsonlib.loads(Path(p).read_text()) for p in qa]
