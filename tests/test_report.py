@@ -513,3 +513,24 @@ def test_run_summary_says_each_sessions_decision_and_where_the_report_is(u_repor
     assert lines[0].startswith("  gauge-blocks-p60: UNDECIDED (ISO 14253-1) - blue: |error| ")
     assert lines[1] == f"      report: {d / 'report.html'}"
     assert lines[2] == "  flat-board: no step-height report (the session has no specimen)"
+
+
+def test_errors_the_u_does_not_hold_stop_a_conforming_decision(method_result):
+    res = evaluate_session(frames(4, 0.002, 5), SPECIMEN, PITCH, range_mm=4.0)
+    res = with_uncertainty(res, {"green": 0.004, "blue": 0.004, "red": 0.004})
+    assert build_report_json("s5", SPECIMEN, res)["conformity"]["decision"] == "conforms"
+    banded = {"calibration": {"row_banding": {"suspected": True, "amplitude_rad": 0.144},
+                              "colour_flicker": {"suspected": False, "amplitude_rad": 0.0}}}
+    r = build_report_json("s5", SPECIMEN, res, extras=banded)
+    assert r["conformity"]["decision"] == "undecided" and "row banding" in r["conformity"]["reason"]
+    assert "0.144 rad" in r["conformity"]["reason"] and "colour flicker" not in r["conformity"]["reason"]
+    assert list(r).index("conformity") == list(r).index("verdict") + 1   # its place in the file
+    validate_report(r)                                                    # the contract check agrees
+    forged = copy.deepcopy(r)
+    forged["conformity"]["decision"] = "conforms"
+    with pytest.raises(ReportError, match="conformity decision"):
+        validate_report(forged)
+    # a proven non-conformance stands
+    bad = with_uncertainty(evaluate_session(frames(4, 0.002, 5, bias={"red": 0.2}), SPECIMEN, PITCH, range_mm=4.0),
+                           {"green": 0.004, "blue": 0.004, "red": 0.004})
+    assert build_report_json("s5", SPECIMEN, bad, extras=banded)["conformity"]["decision"] == "does not conform"

@@ -143,13 +143,15 @@ def build_report_json(
         if key in method_result:
             report[key] = _plain(method_result[key])
     report["verdict"] = "PASS" if all(s["pass"] for s in report["steps"]) else "FAIL"
-    report["conformity"] = conformity([*report["steps"], *figures], tol, "figure" if figures else "step")
+    report["conformity"] = None  # its place in the file; decided below, with the extras' QA
     if "base" in method_result:
         report["base"] = _plain(method_result["base"])
     for key, value in (extras or {}).items():
         if key in report:
             raise ReportError(f"extras may not replace the report key {key!r}")
         report[str(key)] = _plain(value)
+    report["conformity"] = conformity([*report["steps"], *figures], tol, "figure" if figures else "step",
+                                      unmodelled_errors(report))
     validate_report(report)
     return report
 
@@ -157,7 +159,22 @@ def build_report_json(
 CONFORMITY_DECISIONS: tuple[str, ...] = ("conforms", "does not conform", "undecided")
 
 
-def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float, noun: str = "step") -> dict[str, Any]:
+def unmodelled_errors(report: Mapping[str, Any]) -> list[str]:
+    """Errors the capture QA found that no U holds: the calibration planes' row banding and the
+    reference bands' colour flicker (``report["calibration"]``, :mod:`huefringe.row_banding`), in words."""
+    cal = report.get("calibration") or {}
+    out = []
+    banding = cal.get("row_banding") or {}
+    if banding.get("suspected"):
+        out.append(f"row banding of the calibration planes, {float(banding['amplitude_rad']):.3f} rad RMS")
+    flicker = cal.get("colour_flicker") or {}
+    if flicker.get("suspected"):
+        out.append(f"colour flicker between the reference bands' repeats, {float(flicker['amplitude_rad']):.4f} rad")
+    return out
+
+
+def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float, noun: str = "step",
+               unmodelled: Sequence[str] = ()) -> dict[str, Any]:
     """The report's headline: the ISO 14253-1 decision for the whole specimen, with its reason.
 
     Parameters
@@ -170,6 +187,10 @@ def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float, noun: st
         T, the tolerance on each step's mean height (for every entry without its own).
     noun : str
         What the entries are called in the reason (``step``; ``figure`` for a report with form figures).
+    unmodelled : sequence of str
+        Errors the capture QA found that the U does not hold (:func:`unmodelled_errors`): with
+        any, conformance is not proven (``"conforms"`` becomes ``"undecided"``, and the reason
+        names them); a proven non-conformance stands.
 
     Returns
     -------
@@ -214,6 +235,10 @@ def conformity(steps: Sequence[Mapping[str, Any]], tolerance_mm: float, noun: st
         reason = ("; ".join(says(st, "undecided") for st in zone["undecided"])
                   + ": the uncertainty U does not allow a decision"
                   + (f" ({len(zone['pass'])} of {n} {noun}s conform)" if zone["pass"] else ""))
+    elif unmodelled:
+        decision = "undecided"
+        reason = (f"every {noun}'s |error| <= T - U, but the captures show errors that U does not hold ("
+                  + "; ".join(unmodelled) + "): conformance not proven; see the capture guide")
     else:
         decision = "conforms"
         reason = f"every {noun}'s |error| <= T - U: conformance proven for all {n} {noun}s"
@@ -289,7 +314,7 @@ def validate_report(report: Mapping[str, Any]) -> None:
             problems.append(f"verdict {report['verdict']} but the steps say {want}")
     if "conformity" in report and tol_f is not None:
         figures = [e for v in (report.get("forms") or {}).values() for e in v]
-        want_c = conformity([*report["steps"], *figures], tol_f)["decision"]
+        want_c = conformity([*report["steps"], *figures], tol_f, unmodelled=unmodelled_errors(report))["decision"]
         if report["conformity"].get("decision") != want_c:
             problems.append(f"conformity decision {report['conformity'].get('decision')!r} but the steps say {want_c!r}")
     if "baseline" in report:
