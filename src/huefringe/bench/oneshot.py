@@ -33,7 +33,7 @@ from huefringe.codecs import DecodeOptions, decode_sequence, generate, generate_
 from huefringe.codecs.sequence import FlatBlock, HueBandsBlock, SequenceSpec, TrapezoidBlock
 from huefringe.rig import Board, PoseObservation, RigCalibration, calibrate_rig, projector_corners
 
-__all__ = ["CROSSTALK", "GAUGE_BLOCKS", "OneShotCapture", "calibrated_rig", "face_mask", "gauge_scene", "pixel_scores",
+__all__ = ["CROSSTALK", "GAUGE_BLOCKS", "OneShotCapture", "calibrated_rig", "face_mask", "flatness_scores", "gauge_scene", "pixel_scores",
            "reference_scene", "step_scores",
            "reference_spec", "render_session"]
 
@@ -230,3 +230,21 @@ def step_scores(cap: OneShotCapture, res: Any, jackknife: tuple[tuple[str, RigCa
                                          "relative_error": err / h0, "u_points_mm": s["u_mm"], "u_calibration_mm": u_cal,
                                          "U_mm": U, "inside_U": bool(abs(err) <= U), "n_top": s["n_top"]}
     return out
+
+
+def flatness_scores(cap: OneShotCapture, res: Any, jackknife: tuple[tuple[str, RigCalibration], ...],
+                    label: int = 0, margin_px: int = 6) -> dict[str, Any]:
+    """A face's flatness (:func:`huefringe.metrology.flatness_u`: FLTq noise-corrected, raw RMS)
+    with ``U = 2 sqrt(u_form^2 + u_calibration^2)``, the calibration's term the jackknife of FLTq over
+    the leave-one-pose-out calibrations (t-scaled; zero without them)."""
+    from huefringe.metrology import flatness_u, jackknife_u
+
+    m = face_mask(cap, label, margin_px) & res.valid
+    f = flatness_u(res.xyz[m], res.sigma[m])
+    u_cal = 0.0
+    if jackknife:
+        u_cal = jackknife_u([flatness_u(_retriangulated(res, c, m), res.sigma[m], draws=2)["rms_form_mm"]
+                             for _, c in jackknife], t_scaled=True)
+    return {"n": f["n"], "rms_form_mm": f["rms_form_mm"], "rms_mm": f["rms_mm"], "rms_noise_mm": f["rms_noise_mm"],
+            "u_form_mm": f["u_rms_form_mm"], "u_calibration_mm": u_cal,
+            "U_mm": 2.0 * float(np.hypot(f["u_rms_form_mm"], u_cal))}
