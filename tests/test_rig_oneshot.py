@@ -187,3 +187,38 @@ def test_beyond_the_range_flagged_not_measured_wrong(rig) -> None:
         else:
             assert height > front and measured.sum() == 0
             assert np.all(res.coordinate.reasons[top] & Reason.ORDER)
+
+
+# ------------------------------------------------------------------------------ captures in a folder
+
+
+def test_oneshot_captures_read_in_colour_and_coded_blocks_decode_as_before(tmp_path) -> None:
+    import cv2
+
+    from huefringe.codecs import DecodeOptions
+    from huefringe.rig.oneshot import oneshot_captures
+
+    spec = sequence_from_mapping({"projector": {"width": 128, "height": 8}, "blocks": [
+        {"phase": {"axis": "x", "period_px": 16, "steps": 4}}, {"gray": {"axis": "x", "cells": 8, "cell_px": 16}},
+        "white", "black", {"hue_bands": {"n": 12}}, {"trapezoid": {"axis": "x", "period_px": 36, "frames": 2}}]},
+        "s.yaml", ".")
+    rgb = generate_rgb(spec)
+    paths = []
+    for k, im in enumerate(rgb):
+        paths.append(tmp_path / f"{k:04d}.png")
+        cv2.imwrite(str(paths[-1]), cv2.cvtColor(im, cv2.COLOR_RGB2BGR))
+    caps = oneshot_captures(paths, spec)
+    assert caps.white.shape == (8, 128, 3) and caps.bands.shape == (12, 8, 128, 3) and caps.frames.shape == (2, 8, 128, 3)
+    assert caps.block == TrapezoidBlock("x", 36.0, 0.0, 2) and caps.bit_depth == 8
+    assert np.allclose(caps.frames[1], rgb[-1] / 255.0) and np.allclose(caps.bands[1, 0, 0], [1.0, 0.5, 0.0], atol=0.01)
+    # the coded blocks of a sequence with one-shot blocks decode as without them
+    coded = SequenceSpec(spec.blocks[:4], 128, 8)
+    grey = generate(spec).astype(np.float64) * 0.8 + 10.0
+    d = decode_sequence(list(grey), spec, DecodeOptions.from_config())["x"]
+    d0 = decode_sequence(list(grey[: coded.n_frames]), coded, DecodeOptions.from_config())["x"]
+    assert d.absolute and np.array_equal(d.valid, d0.valid) and np.array_equal(d.coord, d0.coord, equal_nan=True)
+    assert d.valid.mean() > 0.5 and np.max(np.abs(d.coord[d.valid] - np.tile(np.arange(128.0), (8, 1))[d.valid])) < 0.05
+    cv2.imwrite(str(paths[-1]), cv2.cvtColor(rgb[-1], cv2.COLOR_RGB2GRAY))
+    cv2.imwrite(str(paths[5]), np.zeros((8, 128, 3), np.uint8))          # a frame of the coded blocks: not read
+    with pytest.raises(SequenceError, match=r"0025.png: a grey capture"):
+        oneshot_captures(paths, spec)

@@ -45,14 +45,17 @@ with the range.
 from __future__ import annotations
 
 import math
+import os
 from collections.abc import Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe.codecs.sequence import Decoded, HueBandsBlock, Reason, TrapezoidBlock
+from huefringe.codecs.sequence import Decoded, FlatBlock, HueBandsBlock, Reason, SequenceError, SequenceSpec, TrapezoidBlock
 from huefringe.colour import hue as hue_of
 from huefringe.colour import white_balance
 from huefringe.huetable import HueTable, band_smoothing_matrix, build_table
@@ -60,12 +63,93 @@ from huefringe.perframe import clipped_mask, phase_sigma
 from huefringe.rig.model import RigCalibration
 from huefringe.rig.triangulation import triangulate
 
-__all__ = ["OneShotCoordinate", "OneShotPhase", "OneShotReference", "OneShotResult", "absolute_from_reference",
-           "hue_table_from_frames", "measure_oneshot", "oneshot_reference", "table_phase_sigma",
-           "trapezoid_coordinate"]
+__all__ = ["OneShotCaptures", "OneShotCoordinate", "OneShotPhase", "OneShotReference", "OneShotResult",
+           "absolute_from_reference", "hue_table_from_frames", "measure_oneshot", "oneshot_captures", "oneshot_reference",
+           "table_phase_sigma", "trapezoid_coordinate"]
 
 F64 = NDArray[np.float64]
 TWO_PI = 2.0 * np.pi
+
+
+@dataclass(frozen=True, eq=False)
+class OneShotCaptures:
+    """A sequence's one-shot captures in colour (R, G, B, float in [0, 1]).
+
+    Attributes
+    ----------
+    white : ndarray, shape (H, W, 3)
+    bands : ndarray, shape (n * repeats, H, W, 3)
+        The ``hue_bands`` block's captures in capture order.
+    frames : ndarray, shape (K, H, W, 3)
+        Every ``trapezoid`` block's captures in capture order.
+    bands_block : HueBandsBlock
+    block : TrapezoidBlock
+        The trapezoid blocks' pattern (axis, period, origin; ``frames`` their total).
+    bit_depth : int
+    """
+
+    white: NDArray[np.float32]
+    bands: NDArray[np.float32]
+    frames: NDArray[np.float32]
+    bands_block: HueBandsBlock
+    block: TrapezoidBlock
+    bit_depth: int
+
+
+def oneshot_captures(paths: Sequence[str | os.PathLike[str]], spec: SequenceSpec) -> OneShotCaptures:
+    """Read the white frame, the hue bands and the trapezoid frames of ``spec`` from its captures.
+
+    Parameters
+    ----------
+    paths : sequence of paths
+        Every capture of the sequence in capture order (e.g. a structured-light session's
+        ``captures``); only the one-shot blocks' and the white frame are read, in colour.
+    spec : SequenceSpec
+        With a ``white`` frame, one ``hue_bands`` block and ``trapezoid`` blocks.
+
+    Raises
+    ------
+    SequenceError
+        Every problem at once, each naming its file: the wrong number of paths, no one-shot blocks,
+        a grey or unreadable capture, mixed sizes or bit depths.
+    """
+    if len(paths) != spec.n_frames:
+        raise SequenceError(f"{len(paths)} captures, the sequence has {spec.n_frames} frames")
+    traps = [(b, sl) for b, sl in spec.slices() if isinstance(b, TrapezoidBlock)]
+    bands = [(b, sl) for b, sl in spec.slices() if isinstance(b, HueBandsBlock)]
+    white = [sl for b, sl in spec.slices() if isinstance(b, FlatBlock) and b.level == "white"]
+    if not traps or not bands or not white:
+        raise SequenceError("the sequence has no one-shot frames (a trapezoid block, a hue_bands block and a white frame)")
+    want = [white[0].start, *range(bands[0][1].start, bands[0][1].stop),
+            *[i for _, sl in traps for i in range(sl.start, sl.stop)]]
+    problems: list[str] = []
+    images: list[NDArray[np.float32]] = []
+    ref: tuple[Path, tuple[int, ...], Any] | None = None
+    for i in want:
+        f = Path(paths[i])
+        im = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        if im is None:
+            problems.append(f"{f}: not an image OpenCV can read")
+            continue
+        if im.ndim != 3 or im.shape[2] < 3:
+            problems.append(f"{f}: a grey capture; one-shot frames and hue bands need colour (R, G, B)")
+            continue
+        if im.dtype not in (np.uint8, np.uint16):
+            problems.append(f"{f}: {im.dtype} pixels (8- or 16-bit integers expected)")
+            continue
+        if ref is None:
+            ref = (f, im.shape[:2], im.dtype)
+        elif (im.shape[:2], im.dtype) != ref[1:]:
+            problems.append(f"{f}: {im.shape[:2]} {im.dtype}, {ref[0].name} is {ref[1]} {ref[2]}")
+            continue
+        images.append(cv2.cvtColor(im[..., :3], cv2.COLOR_BGR2RGB).astype(np.float32) / np.float32(np.iinfo(im.dtype).max))
+    if problems:
+        raise SequenceError("; ".join(problems))
+    b0 = traps[0][0]
+    nb = bands[0][0].n_frames
+    return OneShotCaptures(images[0], np.stack(images[1 : 1 + nb]), np.stack(images[1 + nb :]), bands[0][0],
+                           TrapezoidBlock(b0.axis, b0.period_px, b0.origin_px, sum(b.frames for b, _ in traps)),
+                           8 if ref is not None and ref[2] == np.uint8 else 16)
 
 
 def hue_table_from_frames(white: NDArray[np.floating], bands: Sequence[NDArray[np.floating]] | NDArray[np.floating],
