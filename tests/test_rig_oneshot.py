@@ -31,7 +31,7 @@ def test_oneshot_blocks_load_write_and_count_frames() -> None:
     assert spec.blocks[-2:] == (HueBandsBlock(48, 2), TrapezoidBlock("x", 36.0, 0.0, 5))
     assert spec.n_frames == 8 + 12 + 2 + 96 + 5
     assert sequence_from_mapping(sequence_to_mapping(spec), "again.yaml", ".") == spec
-    assert spec.axes() == ["x"]            # the phase and Gray blocks decode as before
+    assert spec.axes() == ["x"]            # the coded axes: the phase and Gray blocks only
     assert sequence_to_mapping(spec)["blocks"][-1] == {"trapezoid": {"axis": "x", "period_px": 36.0, "origin_px": 0.0,
                                                                      "frames": 5}}
 
@@ -192,7 +192,7 @@ def test_beyond_the_range_flagged_not_measured_wrong(rig) -> None:
 # ------------------------------------------------------------------------------ captures in a folder
 
 
-def test_oneshot_captures_read_in_colour_and_coded_blocks_decode_as_before(tmp_path) -> None:
+def test_oneshot_captures_read_in_colour_and_coded_blocks_decode_alike(tmp_path) -> None:
     import cv2
 
     from huefringe.codecs import DecodeOptions

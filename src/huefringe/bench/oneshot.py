@@ -189,8 +189,8 @@ def _with_calibration_term(res: Any, jackknife: tuple[tuple[str, RigCalibration]
 
 
 def pixel_scores(cap: OneShotCapture, res: Any, jackknife: tuple[tuple[str, RigCalibration], ...]) -> dict[str, Any]:
-    """Per-pixel errors along the camera ray against the truth: median |e|, median u, the share
-    of valid pixels with ``|e| <= 2 u`` (u: the one-shot noise and the calibration's term)."""
+    """Per-pixel errors along the camera ray against the truth: the median ``|e|``, the median ``u``,
+    the share of valid pixels with ``|e| <= 2 u`` (``u``: the one-shot noise and the calibration's term)."""
     _, u_ray = _with_calibration_term(res, jackknife)
     ok = res.valid & np.isfinite(cap.truth_xyz).all(axis=-1)
     t = cap.truth_xyz[ok]
