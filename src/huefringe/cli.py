@@ -10,7 +10,7 @@ from pathlib import Path
 
 
 def _cmd_check_sl(args: argparse.Namespace) -> int:
-    from huefringe.codecs import FlatBlock, SkipBlock
+    from huefringe.codecs import FlatBlock, HueBandsBlock, SkipBlock
     from huefringe.session import SessionError
     from huefringe.session import load_sl_session
 
@@ -22,6 +22,7 @@ def _cmd_check_sl(args: argparse.Namespace) -> int:
             print(f"  - {p}")
         return 1
     blocks = ", ".join(b.level if isinstance(b, FlatBlock) else f"skip {b.frames}" if isinstance(b, SkipBlock)
+                       else f"hue_bands {b.n} x {b.repeats}" if isinstance(b, HueBandsBlock)
                        else f"{type(b).__name__.removesuffix('Block').lower()} {b.axis}" for b in s.spec.blocks)
     extras = []
     if s.calibration is not None:

@@ -21,6 +21,9 @@ Modules
     Decoded coordinates to triangulation inputs: relative axes refused, invalid pixels dropped.
 ``triangulation``
     Ray-plane and ray-ray triangulation with first-order uncertainty propagation.
+``oneshot``
+    The paper's one-shot trapezoid frames on a calibrated rig: hue table, fringe order from a
+    reference's absolute coordinate, triangulated X, Y, Z (imported as ``huefringe.rig.oneshot``).
 """
 
 from __future__ import annotations

@@ -44,9 +44,15 @@ YAML form (:func:`load_sequence`), blocks in capture order::
       - gray: {axis: x, bits: 5, cell_px: 100, inverse: true}   # or cells: 20; inverse defaults to true
       - phase: {axis: y, period_px: 60, steps: 12, origin_px: 30}
       - gray: {axis: y, bits: 4, cell_px: 60, inverse: false, complementary: true}   # 5 patterns
+      - hue_bands: {n: 64, repeats: 3}   # the paper's hue bands, for the per-pixel hue table
+      - trapezoid: {axis: x, period_px: 36, origin_px: 0, frames: 10}   # one-shot colour frames
       - skip: 1                 # a frame captured but not used
       - white
       - black
+
+``trapezoid`` and ``hue_bands`` (one-shot colour frames and the hue bands of their per-pixel
+table, white-balanced against the ``white`` frame) are not decoded here: :mod:`huefringe.rig.oneshot`
+decodes them, with the order taken from a reference's absolute coordinate.
 
 or ``kamino410: {config: path/to/config.xml, program: phase_shifting | gamma_correction}``
 for the layouts of github.com/kamino410/phase-shifting (:func:`kamino410_sequence`).
@@ -59,6 +65,8 @@ from ._spec import (  # noqa: F401
     SequenceError,
     Reason,
     SkipBlock,
+    TrapezoidBlock,
+    HueBandsBlock,
     axis_is_absolute,
     periods_cover,
     PhaseBlock,
@@ -84,6 +92,7 @@ from ._decode import (  # noqa: F401
     capture_files,
     read_captures,
     generate,
+    generate_rgb,
     _as_stack,
     _gray_reference,
     _gray_threshold,
@@ -98,14 +107,17 @@ __all__ = [
     "DecodeOptions",
     "FlatBlock",
     "GrayBlock",
+    "HueBandsBlock",
     "PhaseBlock",
     "Reason",
     "SequenceError",
     "SequenceSpec",
     "SkipBlock",
+    "TrapezoidBlock",
     "axis_is_absolute",
     "decode_sequence",
     "generate",
+    "generate_rgb",
     "kamino410_sequence",
     "load_sequence",
     "opencv_gray_blocks",
@@ -117,6 +129,6 @@ __all__ = [
 
 # the classes are re-exported by huefringe.codecs too: named after this module, as they are
 # imported, they have one canonical name in the API reference
-for _cls in (SequenceError, Reason, PhaseBlock, GrayBlock, FlatBlock, SkipBlock, SequenceSpec, DecodeOptions, Decoded):
+for _cls in (SequenceError, Reason, PhaseBlock, GrayBlock, FlatBlock, SkipBlock, TrapezoidBlock, HueBandsBlock, SequenceSpec, DecodeOptions, Decoded):
     _cls.__module__ = __name__
 del _cls

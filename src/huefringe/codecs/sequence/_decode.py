@@ -23,6 +23,8 @@ from ._spec import (
     SequenceError,
     SequenceSpec,
     SkipBlock,
+    HueBandsBlock,
+    TrapezoidBlock,
     _check_spec,
     periods_cover,
 )
@@ -122,6 +124,9 @@ def generate(spec: SequenceSpec, dtype: type[np.integer] = np.uint8) -> NDArray[
             out[sl] = full if b.level == "white" else 0
         elif isinstance(b, SkipBlock):
             out[sl] = 0
+        elif isinstance(b, TrapezoidBlock | HueBandsBlock):  # a monochrome display's view: the channels' mean
+            for i, img in zip(range(sl.start, sl.stop), _colour_frames(b, spec), strict=True):
+                out[i] = np.round(img.mean(axis=-1) * full)
         elif isinstance(b, PhaseBlock):
             u = coords[b.axis]
             for i, d in zip(range(sl.start, sl.stop), b.shifts_rad, strict=True):
@@ -137,6 +142,42 @@ def generate(spec: SequenceSpec, dtype: type[np.integer] = np.uint8) -> NDArray[
                 if b.inverse:
                     out[i] = np.where(bit, 0, full)
                     i += 1
+    return out
+
+
+def _colour_frames(b: TrapezoidBlock | HueBandsBlock, spec: SequenceSpec) -> NDArray[np.float64]:
+    """The colour images (n_frames, height, width, 3) in [0, 1] of a one-shot block."""
+    from huefringe.patterns import band_rgb, trapezoid_rgb
+
+    h, w = spec.projector_height, spec.projector_width
+    if isinstance(b, HueBandsBlock):
+        cols = np.repeat(np.array([band_rgb(i, b.n) for i in range(b.n)]), b.repeats, axis=0)
+        return np.broadcast_to(cols[:, None, None, :], (b.n_frames, h, w, 3))
+    u = np.arange(w, dtype=np.float64)[None, :] if b.axis == "x" else np.arange(h, dtype=np.float64)[:, None]
+    img = np.broadcast_to(trapezoid_rgb(TWO_PI * (u - b.origin_px) / b.period_px), (h, w, 3))
+    return np.broadcast_to(img[None], (b.n_frames, h, w, 3))
+
+
+def generate_rgb(spec: SequenceSpec, dtype: type[np.integer] = np.uint8) -> NDArray[np.integer]:
+    """The projector images of ``spec`` in colour, shape (n_frames, height, width, 3) (R, G, B).
+
+    Trapezoid frames show :func:`huefringe.patterns.trapezoid_rgb`, hue bands
+    :func:`huefringe.patterns.band_rgb`; every other block is :func:`generate`'s image on all
+    three channels.
+
+    Examples
+    --------
+    >>> spec = SequenceSpec((TrapezoidBlock("x", 12.0), HueBandsBlock(12), FlatBlock("white")), 24, 4)
+    >>> rgb = generate_rgb(spec)
+    >>> rgb.shape, rgb[0, 0, 2].tolist(), rgb[1, 0, 0].tolist()
+    ((14, 4, 24, 3), [255, 255, 0], [255, 0, 0])
+    """
+    full = float(np.iinfo(dtype).max)
+    out = np.repeat(generate(spec, dtype)[..., None], 3, axis=-1)
+    for b, sl in spec.slices():
+        if isinstance(b, TrapezoidBlock | HueBandsBlock):
+            for i, img in zip(range(sl.start, sl.stop), _colour_frames(b, spec), strict=True):
+                out[i] = np.round(img * full)
     return out
 
 

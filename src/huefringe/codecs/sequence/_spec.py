@@ -142,7 +142,43 @@ class FlatBlock:
         return 1
 
 
-Block = PhaseBlock | GrayBlock | FlatBlock | SkipBlock
+@dataclass(frozen=True)
+class TrapezoidBlock:
+    """One-shot colour frames: the paper's trapezoidal RGB fringe (eq. 3) of one period along one axis.
+
+    Each of the ``frames`` captures (one per instant of a moving object) shows
+    :func:`huefringe.patterns.trapezoid_rgb` at code phase ``2 pi (u - origin_px) / period_px``,
+    ``u`` the projector column (axis ``x``) or row (axis ``y``). Decoded through the per-pixel hue
+    table of the sequence's :class:`HueBandsBlock` and white frame
+    (:mod:`huefringe.rig.oneshot`), never by :func:`decode_sequence`.
+    """
+
+    axis: Axis
+    period_px: float
+    origin_px: float = 0.0
+    frames: int = 1
+
+    @property
+    def n_frames(self) -> int:
+        return self.frames
+
+
+@dataclass(frozen=True)
+class HueBandsBlock:
+    """The paper's hue bands (sect. 2.3): ``n`` uniform colours, band ``i`` the trapezoid of eq. 3 at
+    code phase ``2 pi i / n``, each captured ``repeats`` times in a row (band-major: band ``i``,
+    repeat ``r`` is frame ``i * repeats + r`` of the block). With the sequence's white frame they
+    build the per-pixel hue table (:func:`huefringe.huetable.build_table`)."""
+
+    n: int
+    repeats: int = 1
+
+    @property
+    def n_frames(self) -> int:
+        return self.n * self.repeats
+
+
+Block = PhaseBlock | GrayBlock | FlatBlock | SkipBlock | TrapezoidBlock | HueBandsBlock
 
 
 @dataclass(frozen=True)
@@ -416,6 +452,51 @@ def _gray_block(d: Any, where: str, problems: list[str]) -> GrayBlock | None:
     return GrayBlock(axis, bits, cell, inverse, comp)
 
 
+def _trapezoid_block(d: Any, where: str, problems: list[str]) -> TrapezoidBlock | None:
+    if not isinstance(d, dict):
+        problems.append(f"{where}: expected a mapping with axis, period_px (origin_px, frames)")
+        return None
+    unknown = set(d) - {"axis", "period_px", "origin_px", "frames"}
+    if unknown:
+        problems.append(f"{where}: unknown keys {sorted(unknown)} (axis, period_px, origin_px, frames)")
+    axis = d.get("axis")
+    if axis not in ("x", "y"):
+        problems.append(f"{where}: axis must be x (projector columns) or y (rows), got {axis!r}")
+    period = _float(d.get("period_px"), f"{where}.period_px", problems)
+    if period is not None and not (np.isfinite(period) and period >= 6):
+        problems.append(f"{where}.period_px must be a finite number >= 6 (six sextants of eq. 3), got {period}")
+        period = None
+    origin = _float(d.get("origin_px", 0.0), f"{where}.origin_px", problems)
+    if origin is not None and not np.isfinite(origin):
+        problems.append(f"{where}.origin_px must be finite, got {origin}")
+        origin = None
+    n = d.get("frames", 1)
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        problems.append(f"{where}.frames: the number of one-shot frames, an integer >= 1, got {n!r}")
+        n = None
+    if axis not in ("x", "y") or period is None or origin is None or n is None:
+        return None
+    return TrapezoidBlock(axis, period, origin, n)
+
+
+def _hue_bands_block(d: Any, where: str, problems: list[str]) -> HueBandsBlock | None:
+    if not isinstance(d, dict):
+        problems.append(f"{where}: expected a mapping with n (and repeats)")
+        return None
+    unknown = set(d) - {"n", "repeats"}
+    if unknown:
+        problems.append(f"{where}: unknown keys {sorted(unknown)} (n, repeats)")
+    n, r = d.get("n"), d.get("repeats", 1)
+    ok = True
+    if not isinstance(n, int) or isinstance(n, bool) or n < 12:
+        problems.append(f"{where}.n: the number of hue bands, an integer >= 12 (two per sextant), got {n!r}")
+        ok = False
+    if not isinstance(r, int) or isinstance(r, bool) or r < 1:
+        problems.append(f"{where}.repeats: captures of each band, an integer >= 1, got {r!r}")
+        ok = False
+    return HueBandsBlock(n, r) if ok else None
+
+
 def load_sequence(path: str | Path, captures: str | Path | None = None) -> SequenceSpec:
     """Read a sequence YAML (module docstring); every problem in one :class:`SequenceError`.
 
@@ -485,7 +566,7 @@ def sequence_from_mapping(doc: Any, path: str | Path, base: str | Path) -> Seque
     raw = doc.get("blocks")
     blocks: list[Block] = []
     if not isinstance(raw, list) or not raw:
-        problems.append("blocks: expected a non-empty list of phase, gray, skip, white, black")
+        problems.append("blocks: expected a non-empty list of phase, gray, trapezoid, hue_bands, skip, white, black")
         raw = []
     for i, item in enumerate(raw):
         where = f"blocks[{i}]"
@@ -497,6 +578,12 @@ def sequence_from_mapping(doc: Any, path: str | Path, base: str | Path) -> Seque
         elif isinstance(item, dict) and len(item) == 1 and "gray" in item:
             b = _gray_block(item["gray"], f"{where}.gray", problems)
             blocks.append(b) if b else None
+        elif isinstance(item, dict) and len(item) == 1 and "trapezoid" in item:
+            b = _trapezoid_block(item["trapezoid"], f"{where}.trapezoid", problems)
+            blocks.append(b) if b else None
+        elif isinstance(item, dict) and len(item) == 1 and "hue_bands" in item:
+            b = _hue_bands_block(item["hue_bands"], f"{where}.hue_bands", problems)
+            blocks.append(b) if b else None
         elif isinstance(item, dict) and len(item) == 1 and "skip" in item:
             n = item["skip"]
             if not isinstance(n, int) or isinstance(n, bool) or n < 1:
@@ -504,9 +591,10 @@ def sequence_from_mapping(doc: Any, path: str | Path, base: str | Path) -> Seque
             else:
                 blocks.append(SkipBlock(n))
         else:
-            problems.append(f"{where}: expected phase: {{...}}, gray: {{...}}, skip: N, white or black, got {item!r}")
-    if not problems and not any(isinstance(b, PhaseBlock | GrayBlock) for b in blocks):
-        problems.append("blocks: no phase or gray block: nothing to decode")
+            problems.append(f"{where}: expected phase: {{...}}, gray: {{...}}, trapezoid: {{...}}, hue_bands: {{...}}, "
+                            f"skip: N, white or black, got {item!r}")
+    if not problems and not any(isinstance(b, PhaseBlock | GrayBlock | TrapezoidBlock) for b in blocks):
+        problems.append("blocks: no phase, gray or trapezoid block: nothing to decode")
     frames = _frames(frames, None if problems else sum(b.n_frames for b in blocks), problems)
     if problems:
         raise SequenceError(f"{path}: " + "; ".join(problems))
@@ -556,8 +644,29 @@ def _check_spec(spec: SequenceSpec) -> None:
                 problems.append(f"axis {axis}: a complementary Gray code needs a phase block of period_px equal to "
                                 f"its cell_px {g.cell_px:g} on the same axis (the edge quarters of each period choose "
                                 f"its extra bit); phase periods on axis {axis}: {have}")
+    problems += _oneshot_problems(spec)
     if problems:
         raise SequenceError("; ".join(problems))
+
+
+def _oneshot_problems(spec: SequenceSpec) -> list[str]:
+    """What the one-shot blocks need: a trapezoid frame is decoded through the hue table of one
+    ``hue_bands`` block and the white frame (the white balance of the bands and of every frame)."""
+    traps = [b for b in spec.blocks if isinstance(b, TrapezoidBlock)]
+    bands = [b for b in spec.blocks if isinstance(b, HueBandsBlock)]
+    white = any(isinstance(b, FlatBlock) and b.level == "white" for b in spec.blocks)
+    out = []
+    if len(bands) > 1:
+        out.append("more than one hue_bands block (one per-pixel hue table per sequence)")
+    if (traps or bands) and not white:
+        out.append("hue_bands and trapezoid frames are white-balanced against the sequence's white frame; "
+                   "the sequence has none")
+    if traps and not bands:
+        out.append("a trapezoid block is decoded through the per-pixel hue table of a hue_bands block; "
+                   "the sequence has none")
+    if len({(b.axis, b.period_px, b.origin_px) for b in traps}) > 1:
+        out.append("trapezoid blocks of different axes, periods or origins (one hue table decodes one pattern)")
+    return out
 
 
 def axis_is_absolute(spec: SequenceSpec, axis: Axis) -> bool:
@@ -624,6 +733,11 @@ def sequence_to_mapping(spec: SequenceSpec) -> dict[str, Any]:
             blocks.append(b.level)
         elif isinstance(b, SkipBlock):
             blocks.append({"skip": int(b.frames)})
+        elif isinstance(b, TrapezoidBlock):
+            blocks.append({"trapezoid": {"axis": b.axis, "period_px": float(b.period_px),
+                                         "origin_px": float(b.origin_px), "frames": int(b.frames)}})
+        elif isinstance(b, HueBandsBlock):
+            blocks.append({"hue_bands": {"n": int(b.n), "repeats": int(b.repeats)}})
         elif isinstance(b, PhaseBlock):
             blocks.append({"phase": {"axis": b.axis, "period_px": float(b.period_px),
                                      "shifts_deg": [float(f"{np.degrees(d):.12g}") for d in b.shifts_rad],

@@ -1,0 +1,461 @@
+"""One-shot colour frames on a calibrated rig: the paper's trapezoid to absolute X, Y, Z.
+
+Chen, Nguyen & Shu's method measures from one trapezoidal RGB fringe per instant: the captured,
+white-balanced hue of a pixel goes through the pixel's own hue table (built from ``N`` uniform
+hue bands, :mod:`huefringe.huetable`) back to the projected code phase, so the projector gamma,
+the camera's crosstalk and the surface colour drop out pixel by pixel. The code phase gives the
+projector coordinate within one period only. On a calibrated projector-camera rig
+(:class:`~huefringe.rig.RigCalibration`) this module
+
+1. decodes a trapezoid frame to the projector coordinate modulo the period with its standard
+   uncertainty, with the capture-session route's own functions (white balance, hue, the table's
+   inverse lookup and slope, :func:`huefringe.perframe.phase_sigma`): :func:`trapezoid_coordinate`;
+2. fixes the fringe order from a reference captured once with an absolute coded sequence (Gray
+   code + phase shifting on a plane, the board or the background, at calibration time):
+   :func:`absolute_from_reference`, :func:`oneshot_reference`;
+3. triangulates the absolute coordinate with the rig calibration to X, Y, Z in mm with its
+   per-pixel uncertainty: :func:`measure_oneshot`.
+
+Order from the reference (the reference-phase temporal method)
+--------------------------------------------------------------
+Each camera pixel's absolute projector coordinate on the reference, ``u_ref``, is decoded once
+(Gray code + phase: :func:`~huefringe.codecs.decode_sequence`). A one-shot frame gives
+``w = u mod P``; the order ``k`` is the one that puts ``u = w + k P`` nearest ``u_ref``. This is
+the reference-plane (reference-phase) unwrapping of fringe projection profilometry: the object's
+phase is unwrapped against a known absolute phase map of a reference captured beforehand, which
+is exact while the object's phase stays within half a period (``pi``) of the reference's at every
+pixel (Zuo et al., "Temporal phase unwrapping algorithms for fringe projection profilometry: a
+comparative review", Opt. Lasers Eng. 85, 2016, sect. 2: the phase of a reference captured once
+as the unwrapping guide; Takeda & Mutoh, Appl. Opt. 22, 1983, and Srinivasan, Liu & Halioua,
+Appl. Opt. 23, 1984, measure against a reference plane's phase the same way; the plane-based
+route of this project does it with ``phase.unwrap(mode="reference")``). The range is geometric:
+along each camera ray, the depth change that moves the projector coordinate by ``P / 2`` either
+way (:class:`OneShotReference` ``range_front_mm`` / ``range_back_mm``, from the calibration).
+
+A decision is refused (:class:`~huefringe.codecs.Reason` ``ORDER``, never triangulated) where
+``|u - u_ref|`` comes within ``order_sigmas`` standard uncertainties (of ``w`` and ``u_ref``
+together) of ``P / 2``, and, with ``stands_on_reference`` (objects stand on or in front of the
+reference, as on the plane route), where the point would lie more than ``behind_mm`` behind the
+reference: a surface between half a period and a whole period in front of the reference wraps
+to there, so it is flagged instead of measured at a wrong depth. A surface more than a whole
+period (less ``behind_mm``) in front aliases undetectably: that is the method's limit, stated
+with the range.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from huefringe.codecs.sequence import Decoded, FlatBlock, HueBandsBlock, Reason, SequenceError, SequenceSpec, TrapezoidBlock
+from huefringe.colour import hue as hue_of
+from huefringe.colour import white_balance
+from huefringe.huetable import HueTable, band_smoothing_matrix, build_table
+from huefringe.perframe import clipped_mask, phase_sigma
+from huefringe.rig.model import RigCalibration
+from huefringe.rig.triangulation import triangulate
+
+__all__ = ["OneShotCaptures", "OneShotCoordinate", "OneShotPhase", "OneShotReference", "OneShotResult",
+           "absolute_from_reference", "hue_table_from_frames", "measure_oneshot", "oneshot_captures", "oneshot_reference",
+           "table_phase_sigma", "trapezoid_coordinate"]
+
+F64 = NDArray[np.float64]
+TWO_PI = 2.0 * np.pi
+
+
+@dataclass(frozen=True, eq=False)
+class OneShotCaptures:
+    """A sequence's one-shot captures in colour (R, G, B, float in [0, 1]).
+
+    Attributes
+    ----------
+    white : ndarray, shape (H, W, 3)
+    bands : ndarray, shape (n * repeats, H, W, 3)
+        The ``hue_bands`` block's captures in capture order.
+    frames : ndarray, shape (K, H, W, 3)
+        Every ``trapezoid`` block's captures in capture order.
+    bands_block : HueBandsBlock
+    block : TrapezoidBlock
+        The trapezoid blocks' pattern (axis, period, origin; ``frames`` their total).
+    bit_depth : int
+    """
+
+    white: NDArray[np.float32]
+    bands: NDArray[np.float32]
+    frames: NDArray[np.float32]
+    bands_block: HueBandsBlock
+    block: TrapezoidBlock
+    bit_depth: int
+
+
+def oneshot_captures(paths: Sequence[str | os.PathLike[str]], spec: SequenceSpec) -> OneShotCaptures:
+    """Read the white frame, the hue bands and the trapezoid frames of ``spec`` from its captures.
+
+    Parameters
+    ----------
+    paths : sequence of paths
+        Every capture of the sequence in capture order (e.g. a structured-light session's
+        ``captures``); only the one-shot blocks' and the white frame are read, in colour.
+    spec : SequenceSpec
+        With a ``white`` frame, one ``hue_bands`` block and ``trapezoid`` blocks.
+
+    Raises
+    ------
+    SequenceError
+        Every problem at once, each naming its file: the wrong number of paths, no one-shot blocks,
+        a grey or unreadable capture, mixed sizes or bit depths.
+    """
+    if len(paths) != spec.n_frames:
+        raise SequenceError(f"{len(paths)} captures, the sequence has {spec.n_frames} frames")
+    traps = [(b, sl) for b, sl in spec.slices() if isinstance(b, TrapezoidBlock)]
+    bands = [(b, sl) for b, sl in spec.slices() if isinstance(b, HueBandsBlock)]
+    white = [sl for b, sl in spec.slices() if isinstance(b, FlatBlock) and b.level == "white"]
+    if not traps or not bands or not white:
+        raise SequenceError("the sequence has no one-shot frames (a trapezoid block, a hue_bands block and a white frame)")
+    want = [white[0].start, *range(bands[0][1].start, bands[0][1].stop),
+            *[i for _, sl in traps for i in range(sl.start, sl.stop)]]
+    problems: list[str] = []
+    images: list[NDArray[np.float32]] = []
+    ref: tuple[Path, tuple[int, ...], Any] | None = None
+    for i in want:
+        f = Path(paths[i])
+        im = cv2.imread(str(f), cv2.IMREAD_UNCHANGED)
+        if im is None:
+            problems.append(f"{f}: not an image OpenCV can read")
+            continue
+        if im.ndim != 3 or im.shape[2] < 3:
+            problems.append(f"{f}: a grey capture; one-shot frames and hue bands need colour (R, G, B)")
+            continue
+        if im.dtype not in (np.uint8, np.uint16):
+            problems.append(f"{f}: {im.dtype} pixels (8- or 16-bit integers expected)")
+            continue
+        if ref is None:
+            ref = (f, im.shape[:2], im.dtype)
+        elif (im.shape[:2], im.dtype) != ref[1:]:
+            problems.append(f"{f}: {im.shape[:2]} {im.dtype}, {ref[0].name} is {ref[1]} {ref[2]}")
+            continue
+        images.append(cv2.cvtColor(im[..., :3], cv2.COLOR_BGR2RGB).astype(np.float32) / np.float32(np.iinfo(im.dtype).max))
+    if problems:
+        raise SequenceError("; ".join(problems))
+    b0 = traps[0][0]
+    nb = bands[0][0].n_frames
+    return OneShotCaptures(images[0], np.stack(images[1 : 1 + nb]), np.stack(images[1 + nb :]), bands[0][0],
+                           TrapezoidBlock(b0.axis, b0.period_px, b0.origin_px, sum(b.frames for b, _ in traps)),
+                           8 if ref is not None and ref[2] == np.uint8 else 16)
+
+
+def hue_table_from_frames(white: NDArray[np.floating], bands: Sequence[NDArray[np.floating]] | NDArray[np.floating],
+                          block: HueBandsBlock, **build_kw: Any) -> HueTable:
+    """The per-pixel hue table of a ``hue_bands`` block's captures (:func:`huefringe.huetable.build_table`).
+
+    Parameters
+    ----------
+    white : ndarray, shape (H, W, 3)
+        The sequence's white frame, float in [0, 1].
+    bands : sequence of ndarray, shape (n * repeats, H, W, 3)
+        The block's captures in capture order (band-major: band ``i``, repeat ``r`` at
+        ``i * repeats + r``), float in [0, 1].
+    block : HueBandsBlock
+    **build_kw
+        Passed to :func:`~huefringe.huetable.build_table` (``model``, ``min_saturation``, ...).
+    """
+    if len(bands) != block.n_frames:
+        raise ValueError(f"{len(bands)} hue-band captures, the block has {block.n} bands x {block.repeats} repeats")
+    paths = [[bands[i * block.repeats + r] for r in range(block.repeats)] for i in range(block.n)]
+    return build_table(paths, np.asarray(white, np.float32), read=lambda a: np.asarray(a, np.float32), **build_kw)
+
+
+def table_phase_sigma(table: HueTable, slope: NDArray[np.floating], floor_slope: float = 0.05) -> F64:
+    """Per-pixel standard uncertainty (rad) of the code phase the table itself contributes.
+
+    The table's entries are band means (standard error ``noise_rad``) smoothed along the bands
+    (:func:`~huefringe.huetable.band_smoothing_matrix`, RMS row gain), read at the pixel's slope:
+    ``gain noise_rad / max(slope, floor_slope)``. A fixed error of the pixel (the same in every
+    frame), added in quadrature to the capture's own noise (:func:`huefringe.perframe.phase_sigma`).
+    """
+    p = (table.stats or {}).get("params", {})
+    window, order = int(p.get("smooth_window", 15)), int(p.get("smooth_order", 2))
+    gain = 1.0
+    if window > 1:
+        m = band_smoothing_matrix(table.n_bands, window, order)
+        gain = float(np.sqrt(np.mean(np.sum(m**2, axis=1))))
+    noise = np.where(np.isfinite(table.noise_rad), table.noise_rad, np.nan).astype(np.float64)
+    return gain * noise / np.maximum(np.where(np.isfinite(slope), slope, 1.0), floor_slope)
+
+
+@dataclass(frozen=True, eq=False)
+class OneShotPhase:
+    """A trapezoid frame decoded to the projector coordinate within one period.
+
+    Attributes
+    ----------
+    wrapped : ndarray of float64
+        ``(u - origin_px) mod period_px`` in ``[0, period_px)`` (projector px); NaN where not valid.
+    sigma : ndarray of float64
+        Its standard uncertainty (projector px): the capture's hue noise and the table's own,
+        through the table's slope. NaN where not valid.
+    valid : ndarray of bool
+    reasons : ndarray of uint8
+        :class:`~huefringe.codecs.Reason` bits: ``LOW_SIGNAL`` (table pixel masked, or the hue
+        undefined), ``SATURATED`` (a clipped channel).
+    code_phase : ndarray of float32
+        The table's code phase (rad), NaN where not valid.
+    """
+
+    wrapped: F64
+    sigma: F64
+    valid: NDArray[np.bool_]
+    reasons: NDArray[np.uint8]
+    code_phase: NDArray[np.float32]
+
+
+def trapezoid_coordinate(rgb: NDArray[np.floating], white: NDArray[np.floating], table: HueTable,
+                         block: TrapezoidBlock, *, bit_depth: int = 8, min_saturation: float | None = None,
+                         floor_slope: float = 0.05) -> OneShotPhase:
+    """Decode one trapezoid frame: white balance, hue, the table's inverse and slope, sigma.
+
+    The capture-session route's chain (:func:`huefringe.perframe.measure_frame`'s first steps):
+    :func:`~huefringe.colour.white_balance` against the white frame,
+    :func:`~huefringe.colour.hue` with the table's model,
+    :meth:`~huefringe.huetable.HueTable.to_phase_and_slope`, and the phase noise
+    :func:`~huefringe.perframe.phase_sigma` (capture) with :func:`table_phase_sigma` (table).
+
+    Parameters
+    ----------
+    rgb, white : ndarray, shape (H, W, 3)
+        The frame and the white frame, float in [0, 1].
+    table : HueTable
+        Built from the sequence's hue bands on the same scene (:func:`hue_table_from_frames`).
+    block : TrapezoidBlock
+    bit_depth : int
+        The captures' bit depth (a channel at its top code is clipped).
+    min_saturation : float, optional
+        Hue undefined at or below this white-balanced saturation; default the table's.
+    floor_slope : float
+        Smallest table slope the noise is divided by.
+    """
+    p = (table.stats or {}).get("params", {})
+    ms = float(p.get("min_saturation", 0.0)) if min_saturation is None else float(min_saturation)
+    bal = white_balance(rgb, white, floor=p.get("floor", 1.0 / 255.0))
+    h = hue_of(bal, table.model, min_saturation=ms)  # type: ignore[arg-type]
+    phase, slope = table.to_phase_and_slope(h)
+    s_cap = phase_sigma(table, slope, floor_slope)
+    s_tab = table_phase_sigma(table, slope, floor_slope)
+    s_rad = np.sqrt(s_cap**2 + np.where(np.isfinite(s_tab), s_tab, 0.0) ** 2)
+    reasons = np.zeros(phase.shape, np.uint8)
+    reasons[~np.isfinite(phase)] |= np.uint8(Reason.LOW_SIGNAL)
+    reasons[clipped_mask(rgb, bit_depth)] |= np.uint8(Reason.SATURATED)
+    valid = reasons == 0
+    scale = block.period_px / TWO_PI
+    wrapped = np.where(valid, np.mod(phase.astype(np.float64) * scale, block.period_px), np.nan)
+    return OneShotPhase(wrapped, np.where(valid, s_rad * scale, np.nan), valid, reasons,
+                        np.where(valid, phase, np.nan).astype(np.float32))
+
+
+@dataclass(frozen=True, eq=False)
+class OneShotReference:
+    """The reference's absolute coordinate per camera pixel and the unambiguous range about it.
+
+    Attributes
+    ----------
+    coord, sigma : ndarray of float64
+        ``u_ref`` (projector px along the trapezoid's axis) and its standard uncertainty; NaN
+        where the reference was not decoded.
+    valid : ndarray of bool
+    reasons : ndarray of uint8
+        The reference decode's :class:`~huefringe.codecs.Reason` bits.
+    period_px : float
+    range_front_mm, range_back_mm : ndarray of float64
+        Along each camera ray, how far in front of (towards the camera) and behind the reference
+        a surface may stand before its coordinate moves by half a period: the unambiguous range.
+    front_sign : ndarray of float64
+        +1 where the coordinate grows towards the camera, -1 where it falls (NaN invalid).
+    px_per_mm : ndarray of float64
+        ``|du / d(depth)|`` at the reference (projector px per mm along the ray), from the same
+        two triangulations.
+    """
+
+    coord: F64
+    sigma: F64
+    valid: NDArray[np.bool_]
+    reasons: NDArray[np.uint8]
+    period_px: float
+    range_front_mm: F64
+    range_back_mm: F64
+    front_sign: F64
+    px_per_mm: F64
+
+    def summary(self) -> dict[str, float]:
+        """Median, 5th and 95th percentile of the range in front and behind over valid pixels (mm)."""
+        out: dict[str, float] = {}
+        for name, a in (("front", self.range_front_mm), ("back", self.range_back_mm)):
+            v = a[np.isfinite(a)]
+            if v.size:
+                out |= {f"{name}_median_mm": float(np.median(v)), f"{name}_p05_mm": float(np.percentile(v, 5)),
+                        f"{name}_p95_mm": float(np.percentile(v, 95))}
+        return out
+
+
+def oneshot_reference(decoded: Decoded, calib: RigCalibration, block: TrapezoidBlock) -> OneShotReference:
+    """The order reference from an absolute decode of the reference scene (Gray code + phase).
+
+    The range: the reference point (``u_ref`` triangulated) against the points at
+    ``u_ref +- P / 2`` on the same camera ray; their distances along the ray are
+    ``range_front_mm`` and ``range_back_mm`` (the one nearer the camera is the front).
+
+    Raises
+    ------
+    ValueError
+        The decoded axis is not the trapezoid's, or is relative (no absolute order to carry).
+    """
+    if decoded.axis != block.axis:
+        raise ValueError(f"the reference is decoded along {decoded.axis}, the trapezoid runs along {block.axis}")
+    if not decoded.absolute:
+        raise ValueError(f"the reference's axis {decoded.axis} is decoded within one period only (no Gray code or "
+                         "second period): it cannot give the one-shot frames their order")
+    valid = decoded.valid & np.isfinite(decoded.coord) & np.isfinite(decoded.sigma)
+    coord = np.where(valid, decoded.coord, np.nan)
+    mode = "u" if block.axis == "x" else "v"
+    half = 0.5 * block.period_px
+
+    def tri(c: F64) -> F64:
+        t = triangulate(calib, **{mode: c}, valid=valid & np.isfinite(c), mode=mode)  # type: ignore[arg-type]
+        return np.linalg.norm(t.xyz, axis=-1)          # distance from the camera along the ray
+
+    r0, rp, rm = tri(coord), tri(coord + half), tri(coord - half)
+    plus_front = (rp < r0)                              # +P/2 brings the point nearer the camera
+    front = np.where(plus_front, r0 - rp, r0 - rm)
+    back = np.where(plus_front, rm - r0, rp - r0)
+    ok = valid & np.isfinite(front) & np.isfinite(back) & (front > 0) & (back > 0)
+    sign = np.where(ok, np.where(plus_front, 1.0, -1.0), np.nan)
+    px_per_mm = np.where(ok, 2.0 * half / (front + back), np.nan)
+    reasons = decoded.reasons.copy() if decoded.reasons.size else np.zeros(coord.shape, np.uint8)
+    reasons[valid & ~ok] |= np.uint8(Reason.ORDER)
+    return OneShotReference(np.where(ok, coord, np.nan), np.where(ok, decoded.sigma, np.nan), ok, reasons,
+                            float(block.period_px), np.where(ok, front, np.nan), np.where(ok, back, np.nan), sign,
+                            px_per_mm)
+
+
+@dataclass(frozen=True, eq=False)
+class OneShotCoordinate:
+    """A one-shot frame's absolute projector coordinate.
+
+    Attributes
+    ----------
+    coord, sigma : ndarray of float64
+        ``u = origin + w + k P`` and its standard uncertainty (that of ``w``: the order is an
+        integer decision); NaN where not valid.
+    valid : ndarray of bool
+    reasons : ndarray of uint8
+        :class:`~huefringe.codecs.Reason` bits: the frame's, the reference's, ``ORDER`` (the
+        decision within ``order_sigmas`` of half a period, or an alias behind the reference),
+        ``OUTSIDE`` (off the projector).
+    offset : ndarray of float64
+        ``u - u_ref`` (projector px) wherever both are decoded, flagged or not.
+    """
+
+    coord: F64
+    sigma: F64
+    valid: NDArray[np.bool_]
+    reasons: NDArray[np.uint8]
+    offset: F64
+
+
+def absolute_from_reference(phase: OneShotPhase, reference: OneShotReference, block: TrapezoidBlock, *,
+                            order_sigmas: float = 3.0, stands_on_reference: bool = True, behind_mm: float = 0.25,
+                            extent: int | None = None) -> OneShotCoordinate:
+    """The order of every pixel from the reference: ``u = origin + w + k P`` nearest ``u_ref``.
+
+    Parameters
+    ----------
+    phase : OneShotPhase
+        :func:`trapezoid_coordinate`'s result.
+    reference : OneShotReference
+        :func:`oneshot_reference`'s result (same camera, same projector axis).
+    block : TrapezoidBlock
+    order_sigmas : float
+        ``ORDER`` where ``|u - u_ref| > P / 2 - order_sigmas * sqrt(sigma_w^2 + sigma_ref^2)``:
+        the decision could go either way.
+    stands_on_reference : bool
+        ``ORDER`` also where the point lies more than ``behind_mm`` behind the reference (the
+        alias of a surface between half and one period in front of it).
+    behind_mm : float
+        How far behind the reference a surface may be and still count as on it.
+    extent : int, optional
+        Projector pixels along the axis: ``OUTSIDE`` beyond ``[-0.5, extent - 0.5]``.
+    """
+    P = float(block.period_px)
+    if not math.isclose(P, reference.period_px):
+        raise ValueError(f"the reference was prepared for period {reference.period_px:g} px, the frame has {P:g}")
+    reasons = phase.reasons | reference.reasons
+    both = phase.valid & reference.valid
+    w = np.where(both, phase.wrapped + block.origin_px, np.nan)
+    k = np.rint((reference.coord - w) / P)
+    u = w + k * P
+    d = u - reference.coord
+    margin = order_sigmas * np.sqrt(phase.sigma**2 + reference.sigma**2)
+    with np.errstate(invalid="ignore"):
+        ambiguous = both & ~(np.abs(d) <= 0.5 * P - margin)
+        if stands_on_reference:
+            ambiguous |= both & (d * reference.front_sign < -behind_mm * reference.px_per_mm)
+        reasons = reasons | np.where(ambiguous, np.uint8(Reason.ORDER), np.uint8(0))
+        if extent is not None:
+            outside = both & ~((u >= -0.5) & (u <= extent - 0.5))
+            reasons = reasons | np.where(outside, np.uint8(Reason.OUTSIDE), np.uint8(0))
+    reasons = reasons | np.where(~both & (reasons == 0), np.uint8(Reason.ORDER), np.uint8(0))  # no order without both
+    reasons = reasons.astype(np.uint8)
+    valid = (reasons == 0) & both
+    return OneShotCoordinate(np.where(valid, u, np.nan), np.where(valid, phase.sigma, np.nan), valid, reasons,
+                             np.where(both, d, np.nan))
+
+
+@dataclass(frozen=True, eq=False)
+class OneShotResult:
+    """One one-shot frame triangulated.
+
+    Attributes
+    ----------
+    xyz, sigma : ndarray, shape (H, W, 3)
+        X, Y, Z (mm, camera frame) and their standard uncertainties from the one-shot
+        coordinate's noise (capture and hue table); NaN where not valid.
+    sigma_ray : ndarray, shape (H, W)
+        The same along the camera ray.
+    valid : ndarray of bool
+    coordinate : OneShotCoordinate
+    phase : OneShotPhase
+    """
+
+    xyz: F64
+    sigma: F64
+    sigma_ray: F64
+    valid: NDArray[np.bool_]
+    coordinate: OneShotCoordinate
+    phase: OneShotPhase
+
+    def reason_counts(self) -> dict[str, int]:
+        """Pixels per :class:`~huefringe.codecs.Reason` bit (a pixel counts under every bit it has)."""
+        r = self.coordinate.reasons
+        return {m.name.lower(): int(np.count_nonzero(r & m.value)) for m in Reason}  # type: ignore[union-attr]
+
+
+def measure_oneshot(rgb: NDArray[np.floating], white: NDArray[np.floating], table: HueTable, block: TrapezoidBlock,
+                    calib: RigCalibration, reference: OneShotReference, *, bit_depth: int = 8,
+                    order_sigmas: float = 3.0, stands_on_reference: bool = True, behind_mm: float = 0.25) -> OneShotResult:
+    """One trapezoid frame to X, Y, Z: :func:`trapezoid_coordinate`, :func:`absolute_from_reference`,
+    :func:`~huefringe.rig.triangulate` (ray against the projector plane of the coordinate, ``sigma_u``
+    the coordinate's). Pixels flagged by either step are never triangulated."""
+    ph = trapezoid_coordinate(rgb, white, table, block, bit_depth=bit_depth)
+    extent = calib.projector_size[0 if block.axis == "x" else 1] or None
+    co = absolute_from_reference(ph, reference, block, order_sigmas=order_sigmas,
+                                 stands_on_reference=stands_on_reference, behind_mm=behind_mm, extent=extent)
+    mode = "u" if block.axis == "x" else "v"
+    t = triangulate(calib, **{mode: co.coord, f"sigma_{mode}": co.sigma}, valid=co.valid, mode=mode)  # type: ignore[arg-type]
+    return OneShotResult(t.xyz, t.sigma, t.sigma_ray, t.valid, co, ph)
