@@ -48,8 +48,9 @@ import yaml
 from scipy import ndimage
 
 from huefringe import bench, metrology, pipeline, stages
+from huefringe.perframe import shadow_mask
 from huefringe.camera import CameraModel
-from huefringe.session import SessionError, read_rgb
+from huefringe.session import SessionError, load_session, read_rgb
 from huefringe.settings import load_config
 from huefringe.height import accuracy
 
@@ -384,7 +385,7 @@ def noise_cases(args: argparse.Namespace) -> None:
                 shape = tifffile.imread(paths["heights"][0]).shape
                 region = photo_region(case["cfg"], shape)
                 with np.load(next(tables.glob("*/table_object.maps.npz"))) as z:
-                    lit = z["valid"] & ~stages.shadow_mask(read_rgb(paths["session"].object_white),
+                    lit = z["valid"] & ~shadow_mask(read_rgb(paths["session"].object_white),
                                                            _config(VARIANTS[vname])["measurement"]["shadow_fraction"])
                 for field, reg in (("whole", None), ("photo region", region)):
                     if field != "whole" and (reg is None or reg.all()):
@@ -433,7 +434,7 @@ def measure(session: Path, tables: Path, out: Path, config: dict) -> dict:
     """``stages.measure_session`` with the hue tables of ``tables`` (built once per case: the variants
     change only the plane calibration and the per-frame chain)."""
     out.mkdir(parents=True, exist_ok=True)
-    s = stages.load_session(session)
+    s = load_session(session)
     model, cal = config["hue_model"], config["calibration"]
     cam = str(out / "camera.json")
     stages.camera_calibration(str(session), config["camera"], cal, record=cam)

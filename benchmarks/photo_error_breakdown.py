@@ -22,15 +22,14 @@ import numpy as np
 import tifffile
 from scipy import ndimage
 
-from huefringe import stages
-from huefringe.session import read_rgb
+from huefringe.session import load_session, read_rgb
 
 import accuracy_matrix as am
 
 
 def _frames(keep: Path, case: str, variant: str) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     slug = am._slug(case)
-    s = stages.load_session(keep / slug / "session")
+    s = load_session(keep / slug / "session")
     out = keep / slug / "".join(c if c.isalnum() else "-" for c in variant)
     e = np.stack([tifffile.imread(out / f"frame_{n:04d}.tiff").astype(np.float64)
                   - tifffile.imread(s.ground_truth[n]).astype(np.float64) for n in s.frame_ids])

@@ -1,0 +1,388 @@
+"""2u coverage per kind of pixel: |e| <= 2u binned by white level, local texture contrast and
+distance to a texture edge or a step edge, on the demo and on photo-textured scenes with
+realistic sensors.
+
+Usage: ./run python benchmarks/coverage_bins.py [--scenes NAME ...] [--frames-demo 3] [--keep DIR] [--markdown FILE]
+
+Scenes (``SCENES``): the capture-session demo (bench preset ``demo``, the session
+``gauge-blocks-demo`` of config.yaml, 400 x 300, its first ``--frames-demo`` frames), and the
+noise cases of ``benchmarks/accuracy_matrix.py --noise`` with one hue-band repeat (photographs
+printed on a relief over the whole field, 320 x 240, 2 frames, machine-vision sensors of 2-30 e-
+read noise and 5,000-30,000 e- full well): the astronaut is a tuning case, coffee, chelsea and
+rocket are hold-outs (fixed before any setting was tuned; they only score). Each scene is
+measured by the workflow's stages at config.yaml's defaults; e = measured height - bench truth,
+u the uncertainty map the measurement writes; valid pixels of every frame count.
+
+Bins (each pixel of the field once; a bin is reported when it holds more than 1 % of the valid
+pixels, target 0.95 +- 0.03):
+
+- **white level**: the object white image's channel mean in DN, as a fraction of its 99th
+  percentile (the DN range of each bin is printed);
+- **texture contrast**: the local standard deviation over the mean of the bench's true
+  reflectance (channel mean) in a 5 x 5 window;
+- **distance to a texture edge**: Euclidean distance (px, ``scipy.ndimage.distance_transform_edt``)
+  to the nearest pixel whose true reflectance changes by more than 1.5 x to a 4-neighbour;
+- **distance to a step edge**: the same to the nearest pixel where the true height's second
+  difference along a row or column exceeds 0.1 mm (a discontinuity, not a steep smooth flank), or
+  the truth's border (NaN).
+
+``--keep DIR`` keeps the sessions and results (a second run reuses them and only scores).
+
+``--filter-check`` adds what the misses come from (docs/uncertainty.md): the phase filter at the
+defaults (radius 2, sigma-adaptive to 0.002 rad, up to radius 6, neighbours rejected beyond
+``k = 3`` combined sigma) on synthetic phase maps (120 x 100 px, 40 noise draws), flat or on a
+ramp of 0.007 rad/px (a relief's slope at the sensor cases' periods), with one sigma (0.05 rad)
+or a textured one (lognormal, 0.05 rad x e^N(0, 0.5)): the filtered phase's spread over the
+draws against its predicted ``1 / sqrt(sum w)``, median over the pixels, at ``k`` = 3, 5 and
+100 (no rejection), and on the textured ramp at ``k`` = 3 with the window's growth capped at
+``max_radius`` 2 (the fixed 5 x 5 window), 3, 4 and 6 (the grown rings test their neighbours
+against the pixel's first-pass estimate); last, the default filter's spread on the textured
+ramp against ``1 / sqrt(sum w)`` with the rings' decision terms of :func:`ring_decision_terms`
+added (a prototype, not in the library).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import tifffile
+from scipy import ndimage
+from scipy.special import ndtr
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import accuracy_matrix as am  # noqa: E402
+
+from huefringe import bench  # noqa: E402
+from huefringe.session import load_session, read_rgb  # noqa: E402
+
+
+def _demo(frames: int) -> dict:
+    cfg = copy.deepcopy(bench.load_bench_config(bench.preset_path("demo")))
+    cfg["session"]["frames"] = frames
+    cfg["phase_shift"]["enabled"] = False
+    return {"cfg": bench.validate_bench_config(cfg), "holdout": False}
+
+
+#: name -> (role, case); the roles are said in the table
+SCENES = {
+    "demo": "tune",
+    "sensor astronaut 25e 10ke p56 72x1": "tune",
+    "sensor coffee 8e 5ke p48 72x1": "hold-out",
+    "sensor chelsea 30e 30ke p64 96x1": "hold-out",
+    "sensor rocket 2e 20ke p56 72x1": "hold-out",
+    "tex rocket p56 72x1": "hold-out, quiet",
+}
+
+WHITE_BINS = (0.0, 0.1, 0.2, 0.35, 0.5, 0.7, 0.85, np.inf)
+CONTRAST_BINS = (0.0, 0.02, 0.05, 0.1, 0.2, 0.4, np.inf)
+DIST_BINS = (0.0, 1.0, 2.0, 3.0, 5.0, 10.0, np.inf)
+#: a bin is reported when it holds more than this fraction of the valid pixels
+MIN_SHARE = 0.01
+TEXTURE_EDGE_RATIO = 1.5
+STEP_EDGE_MM = 0.1
+
+
+def true_maps(cfg: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The bench's true reflectance (channel mean) and height at rest, at the pixel centres."""
+    b = bench.Bench(cfg)
+    surf = b.object_surface(None, fine=False)
+    return np.asarray(surf.reflectance, np.float64).mean(axis=-1), np.asarray(surf.height, np.float64)
+
+
+def pixel_kinds(white: np.ndarray, refl: np.ndarray, truth: np.ndarray) -> dict[str, np.ndarray]:
+    """Per-pixel classifiers: white level (fraction of the 99th percentile), texture contrast,
+    distance (px) to a texture edge and to a step edge."""
+    level = white / max(float(np.percentile(white, 99)), 1e-12)
+    m = ndimage.uniform_filter(refl, 5, mode="nearest")
+    m2 = ndimage.uniform_filter(refl * refl, 5, mode="nearest")
+    contrast = np.sqrt(np.maximum(m2 - m * m, 0.0)) / np.maximum(m, 1e-9)
+    lr = np.log(np.maximum(refl, 1e-6))
+    tex = np.zeros(refl.shape, bool)
+    for ax in (0, 1):
+        d = np.abs(np.diff(lr, axis=ax)) > np.log(TEXTURE_EDGE_RATIO)
+        sl_a = [slice(None)] * 2
+        sl_b = [slice(None)] * 2
+        sl_a[ax] = slice(1, None)
+        sl_b[ax] = slice(None, -1)
+        tex[tuple(sl_a)] |= d
+        tex[tuple(sl_b)] |= d
+    t = np.where(np.isfinite(truth), truth, np.nan)
+    step = ~np.isfinite(t)
+    for ax in (0, 1):
+        d2 = np.abs(np.diff(t, n=2, axis=ax))
+        big = ~(d2 <= STEP_EDGE_MM)  # NaN (border of the truth) counts as an edge
+        sl = [slice(None)] * 2
+        sl[ax] = slice(1, -1)
+        step[tuple(sl)] |= big
+    inf = np.full(refl.shape, np.inf)
+    return {
+        "white level": level,
+        "texture contrast": contrast,
+        "distance to texture edge": ndimage.distance_transform_edt(~tex) if tex.any() else inf,
+        "distance to step edge": ndimage.distance_transform_edt(~step) if step.any() else inf,
+    }
+
+
+BINS = {"white level": WHITE_BINS, "texture contrast": CONTRAST_BINS,
+        "distance to texture edge": DIST_BINS, "distance to step edge": DIST_BINS}
+
+
+def measure_scene(name: str, root: Path, frames_demo: int) -> dict:
+    case = _demo(frames_demo) if name == "demo" else {**am.CASES, **am.NOISE_CASES}[name]
+    where = root / am._slug(name if name != "demo" else f"demo-{frames_demo}")
+    session, tables = am._case_dirs(where, case["cfg"])
+    out = where / "all-on"
+    heights = sorted(out.glob("frame_*[0-9].tiff"))
+    if heights and all(Path(str(h).replace(".tiff", ".u.tiff")).exists() for h in heights):
+        s = load_session(session)
+        paths = {"session": s, "heights": [str(out / f"frame_{n:04d}.tiff") for n in s.frame_ids]}
+        paths["uncertainties"] = [h.replace(".tiff", ".u.tiff") for h in paths["heights"]]
+    else:
+        paths = am.measure(session, tables, out, am._config({}))
+    s = paths["session"]
+    hs = np.stack([tifffile.imread(h).astype(np.float64) for h in paths["heights"]])
+    us = np.stack([tifffile.imread(u).astype(np.float64) for u in paths["uncertainties"]])
+    truths = np.stack([tifffile.imread(s.ground_truth[n]).astype(np.float64) for n in s.frame_ids])
+    bit_depth = int(case["cfg"]["session"]["bit_depth"])
+    white = np.asarray(read_rgb(s.object_white), np.float64) * float(2**bit_depth - 1)  # DN
+    white = white.mean(axis=-1) if white.ndim == 3 else white
+    refl, rest = true_maps(case["cfg"])
+    return {"e": hs - truths, "u": us, "white": white, "dn": float(2**bit_depth - 1),
+            "kinds": pixel_kinds(white, refl, np.where(np.isfinite(truths[0]), rest, np.nan)),
+            "shape": case["cfg"]["session"], "frames": len(s.frame_ids)}
+
+
+def bin_table(r: dict) -> dict[str, list[dict]]:
+    """Per classifier, per bin: pixels (valid, over all frames), their share, the 2u coverage, the
+    rms of e / u and the median u."""
+    e, u = r["e"], r["u"]
+    ok = np.isfinite(e) & np.isfinite(u)
+    n_all = int(ok.sum())
+    out: dict[str, list[dict]] = {"all": [{"label": "all", "n": n_all, "share": 1.0,
+                                           "cov": float(np.mean(np.abs(e[ok]) <= 2 * u[ok])),
+                                           "z": float(np.sqrt(np.mean((e[ok] / u[ok]) ** 2))),
+                                           "u": float(np.median(u[ok]))}]}
+    for kind, edges in BINS.items():
+        x = r["kinds"][kind]
+        rows = []
+        for lo, hi in zip(edges[:-1], edges[1:], strict=True):
+            inside = (x >= lo) & ((x < hi) | (~np.isfinite(hi) & np.isinf(x)))
+            sel = ok & inside[None]
+            n = int(sel.sum())
+            if kind == "white level":
+                label = f"{lo:.2f}-{hi:.2f}" if np.isfinite(hi) else f">= {lo:.2f}"
+                if inside.any():
+                    label += f" ({r['white'][inside].min():.0f}-{r['white'][inside].max():.0f} DN)"
+            elif kind == "texture contrast":
+                label = f"{lo:.2f}-{hi:.2f}" if np.isfinite(hi) else f">= {lo:.2f}"
+            else:
+                label = f"{lo:.0f}-{hi:.0f} px" if np.isfinite(hi) else f">= {lo:.0f} px"
+            row = {"label": label, "n": n, "share": n / max(n_all, 1)}
+            if n:
+                row["cov"] = float(np.mean(np.abs(e[sel]) <= 2 * u[sel]))
+                row["z"] = float(np.sqrt(np.mean((e[sel] / u[sel]) ** 2)))
+                row["u"] = float(np.median(u[sel]))
+            rows.append(row)
+        out[kind] = rows
+    return out
+
+
+def error_parts(r: dict) -> dict[str, float]:
+    """On the pixels valid in every frame: rms of e, of the frames' mean of e (the part they share
+    plus noise / sqrt(F)), of the frame-to-frame part (sample sd over the frames: noise), and of u."""
+    e, u = r["e"], r["u"]
+    ok = np.all(np.isfinite(e) & np.isfinite(u), axis=0)
+    ee = e[:, ok]
+    return {"rms_e": float(np.sqrt(np.mean(ee**2))), "rms_mean": float(np.sqrt(np.mean(ee.mean(axis=0) ** 2))),
+            "rms_noise": float(np.sqrt(np.mean(ee.var(axis=0, ddof=1)))) if e.shape[0] > 1 else float("nan"),
+            "rms_u": float(np.sqrt(np.mean(u[:, ok] ** 2)))}
+
+
+def _cell(row: dict) -> str:
+    if row["share"] <= MIN_SHARE:
+        return f"({row['cov']:.3f}, {100 * row['share']:.1f} %)" if row["n"] else "-"
+    flag = "" if abs(row["cov"] - 0.95) <= 0.03 else " **"
+    return f"{row['cov']:.3f} ({100 * row['share']:.0f} %){flag}"
+
+
+def markdown(results: dict[str, dict], tables: dict[str, dict]) -> list[str]:
+    names = list(results)
+    head = "| bin | " + " | ".join(f"{n} ({SCENES[n]})" for n in names) + " |"
+    sep = "| --- | " + " | ".join("---:" for _ in names) + " |"
+    lines = ["2u coverage (share of the scene's valid pixels); `**` a bin with more than 1 % of the "
+             "pixels outside 0.95 +- 0.03; in parentheses with its share, a bin of 1 % or less.", ""]
+    lines += [head, sep, "| all | " + " | ".join(f"{tables[n]['all'][0]['cov']:.3f} ({tables[n]['all'][0]['n']} px)"
+                                            for n in names) + " |"]
+    for kind, edges in BINS.items():
+        lines.append(f"| **{kind}** |" + " |" * len(names))
+        for i in range(len(edges) - 1):
+            lab = tables[names[0]][kind][i]["label"]
+            if kind == "white level":
+                lab = lab.split(" (")[0]
+            lines.append(f"| {lab} | " + " | ".join(_cell(tables[n][kind][i]) for n in names) + " |")
+    lines += ["", "| scene | set | rms e mm | rms frame mean of e | rms frame-to-frame (noise) | rms u mm |",
+              "| --- | --- | ---: | ---: | ---: | ---: |"]
+    for n in names:
+        p = error_parts(results[n])
+        lines.append(f"| {n} | {SCENES[n]} | {p['rms_e']:.4f} | {p['rms_mean']:.4f} | {p['rms_noise']:.4f} | {p['rms_u']:.4f} |")
+    return lines
+
+
+def filter_check(draws: int = 40, seed: int = 1) -> list[str]:
+    """Filtered phase spread over noise draws against ``1 / sqrt(sum w)`` (``--filter-check``)."""
+    from huefringe.phase import denoise_phase
+
+    rng = np.random.default_rng(seed)
+    h, w = 100, 120
+    valid = np.ones((h, w), bool)
+    ramp = (np.add.outer(np.arange(h), np.arange(w)) * 0.007).astype(np.float32)
+    sigmas = {"one sigma": np.full((h, w), 0.05, np.float32),
+              "textured sigma": np.exp(rng.normal(np.log(0.05), 0.5, (h, w))).astype(np.float32)}
+    lines = ["| phase | sigma | k = 3 | k = 5 | k = 100 |", "| --- | --- | ---: | ---: | ---: |"]
+    for bname, base in (("flat", np.zeros((h, w), np.float32)), ("ramp 0.007 rad/px", ramp)):
+        for sname, sig in sigmas.items():
+            cells = []
+            for k in (3.0, 5.0, 100.0):
+                outs, sums = [], []
+                for _ in range(draws):
+                    ws = np.zeros((h, w), np.float32)
+                    d = base + rng.normal(0.0, 1.0, (h, w)).astype(np.float32) * sig
+                    outs.append(denoise_phase(d, sig, valid, radius=2, k=k, max_radius=6, target_sigma=0.002,
+                                              reject_sigma=0.03, weight_sum=ws) - base)
+                    sums.append(ws)
+                o, ws = np.array(outs)[:, 8:-8, 8:-8], np.array(sums)[:, 8:-8, 8:-8]
+                cells.append(float(np.nanmedian(np.nanstd(o, axis=0) / np.sqrt(np.nanmean(1.0 / ws, axis=0)))))
+            lines.append(f"| {bname} | {sname} | " + " | ".join(f"{c:.2f}" for c in cells) + " |")
+    # the same on the textured ramp at k = 3 with the window's growth capped (max_radius 2 = fixed)
+    sig, cells = sigmas["textured sigma"], []
+    for max_r in (2, 3, 4, 6):
+        outs, sums = [], []
+        for _ in range(draws):
+            ws = np.zeros((h, w), np.float32)
+            d = ramp + rng.normal(0.0, 1.0, (h, w)).astype(np.float32) * sig
+            outs.append(denoise_phase(d, sig, valid, radius=2, k=3.0, max_radius=max_r, target_sigma=0.002,
+                                      reject_sigma=0.03, weight_sum=ws) - ramp)
+            sums.append(ws)
+        o, ws = np.array(outs)[:, 8:-8, 8:-8], np.array(sums)[:, 8:-8, 8:-8]
+        cells.append(float(np.nanmedian(np.nanstd(o, axis=0) / np.sqrt(np.nanmean(1.0 / ws, axis=0)))))
+    lines += ["", "| textured ramp, k = 3 | max_radius 2 (fixed 5 x 5) | 3 | 4 | 6 (default) |",
+              "| --- | ---: | ---: | ---: | ---: |",
+              "| spread / predicted | " + " | ".join(f"{c:.2f}" for c in cells) + " |"]
+    # a decision term for the grown rings (the default, max_radius 6), from the known ramp
+    rng_d = np.random.default_rng(seed + 1)
+    outs, sums = [], []
+    for _ in range(draws):
+        ws = np.zeros((h, w), np.float32)
+        d = ramp + rng_d.normal(0.0, 1.0, (h, w)).astype(np.float32) * sig
+        outs.append(denoise_phase(d, sig, valid, radius=2, k=3.0, max_radius=6, target_sigma=0.002,
+                                  reject_sigma=0.03, weight_sum=ws) - ramp)
+        sums.append(ws)
+    inner = (slice(8, -8), slice(8, -8))
+    spread = np.nanstd(np.array(outs), axis=0)[inner]
+    base_u = np.sqrt(np.nanmean(1.0 / np.array(sums), axis=0))
+    sens2, flip = ring_decision_terms(ramp.astype(np.float64), sig.astype(np.float64), k=3.0, radius=2, max_radius=6)
+    cells = [float(np.nanmedian(spread / x[inner])) for x in
+             (base_u, np.sqrt(base_u**2 + sens2), np.sqrt(base_u**2 + flip), np.sqrt(base_u**2 + sens2 + flip))]
+    lines += ["", "| textured ramp, default filter: spread / | 1 / sqrt(sum w) | + sensitivity | + flips | + both |",
+              "| --- | ---: | ---: | ---: | ---: |",
+              "| median over the pixels | " + " | ".join(f"{c:.2f}" for c in cells) + " |"]
+    return lines
+
+
+def ring_decision_terms(mu: np.ndarray, sigma: np.ndarray, *, k: float, radius: int,
+                        max_radius: int) -> tuple[np.ndarray, np.ndarray]:
+    """Two variance terms (rad^2) of the grown rings' accept decisions, from the noise-free phase
+    ``mu`` and the pixels' sigma (a prototype, not in the library).
+
+    A ring neighbour ``j`` enters when ``|d_j - f1|^2 <= k^2 (s_j^2 + 1 / W1)`` (``f1`` the
+    first-pass estimate, ``W1`` its weight sum, taken as the whole first window's). With
+    ``D_j = mu_j - mu_0`` it enters with probability ``p_j(delta) = Phi((T - D_j + delta) / s_j)
+    - Phi((-T - D_j + delta) / s_j)``, ``delta`` the first-pass error. The expected grown mean
+    ``m = sum p w D / sum p w`` (first window at ``p = 1``) moves with ``delta`` by
+    ``S = dm / d delta``: **sensitivity** ``S^2 / W1``; each neighbour's accept test is also a
+    Bernoulli draw: **flips** ``sum p (1 - p) (w (D - m))^2 / (sum p w)^2``.
+    """
+    h, w_ = mu.shape
+    wgt = 1.0 / sigma**2
+    pad = max_radius
+    wp = np.pad(wgt, pad)
+    sp = np.pad(sigma, pad, constant_values=1.0)
+    mp = np.pad(mu, pad, mode="edge")
+
+    def shifted(a: np.ndarray, dv: int, du: int) -> np.ndarray:
+        return a[pad + dv:pad + dv + h, pad + du:pad + du + w_]
+
+    w1 = sum(shifted(wp, dv, du) for dv in range(-radius, radius + 1) for du in range(-radius, radius + 1))
+    s1 = 1.0 / w1
+    den, num, dden, dnum = w1.copy(), np.zeros((h, w_)), np.zeros((h, w_)), np.zeros((h, w_))
+    ring = [(dv, du) for dv in range(-max_radius, max_radius + 1) for du in range(-max_radius, max_radius + 1)
+            if max(abs(dv), abs(du)) > radius]
+    cache = []
+    for dv, du in ring:
+        wj, sj, dj = shifted(wp, dv, du), shifted(sp, dv, du), shifted(mp, dv, du) - mu
+        t = k * np.sqrt(sj**2 + s1)
+        a, b = (t - dj) / sj, (-t - dj) / sj
+        p = ndtr(a) - ndtr(b)
+        dp = (np.exp(-0.5 * a * a) - np.exp(-0.5 * b * b)) / (np.sqrt(2.0 * np.pi) * sj)
+        den += p * wj
+        num += p * wj * dj
+        dden += dp * wj
+        dnum += dp * wj * dj
+        cache.append((wj, dj, p))
+    m = num / den
+    sens2 = ((dnum - m * dden) / den) ** 2 * s1
+    flip = sum(p * (1.0 - p) * (wj * (dj - m)) ** 2 for wj, dj, p in cache) / den**2
+    return sens2, flip
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", nargs="*", default=list(SCENES))
+    ap.add_argument("--frames-demo", type=int, default=3)
+    ap.add_argument("--keep", type=Path, default=None, help="keep sessions and results here; reuse them")
+    ap.add_argument("--markdown", type=Path, default=None, help="also write the Markdown table to this file")
+    ap.add_argument("--filter-check", action="store_true", help="also the filter's spread against 1 / sqrt(sum w)")
+    args = ap.parse_args()
+    t0 = time.perf_counter()
+    results, tables = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        root = args.keep or Path(tmp)
+        for name in args.scenes:
+            r = measure_scene(name, root, args.frames_demo)
+            results[name], tables[name] = r, bin_table(r)
+            sh = r["shape"]
+            print(f"\n## {name} ({SCENES[name]}; {sh['width']} x {sh['height']}, {r['frames']} frames, "
+                  f"{time.perf_counter() - t0:.0f} s so far)")
+            p = error_parts(r)
+            print(f"rms e {p['rms_e']:.4f} mm: frames' mean {p['rms_mean']:.4f}, frame-to-frame {p['rms_noise']:.4f}; "
+                  f"rms u {p['rms_u']:.4f}")
+            print(f"{'bin':28} {'pixels':>8} {'share':>6} {'2u cov':>7} {'rms e/u':>8} {'median u':>9}")
+            for kind, rows in tables[name].items():
+                print(f"-- {kind}")
+                for row in rows:
+                    if not row["n"]:
+                        continue
+                    mark = "" if row["share"] <= MIN_SHARE or abs(row["cov"] - 0.95) <= 0.03 else "  MISS"
+                    print(f"{row['label']:28} {row['n']:8d} {row['share']:6.3f} {row['cov']:7.3f} {row['z']:8.2f} "
+                          f"{row['u']:9.4f}{mark}", flush=True)
+    md = markdown(results, tables)
+    print("\n" + "\n".join(md))
+    if args.markdown:
+        args.markdown.write_text("\n".join(md) + "\n")
+    if args.filter_check:
+        fc = filter_check()
+        print("\nfiltered phase spread / predicted 1 / sqrt(sum w), median over pixels:\n" + "\n".join(fc))
+        if args.markdown:
+            with args.markdown.open("a") as fh:
+                fh.write("\n" + "\n".join(fc) + "\n")
+    print(f"\n{time.perf_counter() - t0:.0f} s")
+
+
+if __name__ == "__main__":
+    main()
