@@ -240,7 +240,8 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     cal.stats["texture_blur"] = info
     if lut is not None:  # its residual on the planes (reported; not added to u: docs/uncertainty.md)
         cal.stats.setdefault("uncertainty", {})["phase_error_residual_u_rad"] = phase_error_residual_rad(lut.stats)
-    cal.stats["row_banding"] = plane_row_banding(s, decoded, valid, cal)
+    cal.stats["row_banding"] = plane_row_banding(s, decoded, valid, cal,
+                                                 threshold_rad=float(calibration["row_banding_max_rad"]))
     cal.stats["colour_flicker"] = reference_colour_flicker(s, hue_model, calibration, reader)
     return cal
 
@@ -261,14 +262,15 @@ def reference_colour_flicker(s: Session, hue_model: str, calibration: Mapping[st
     a suspected flicker is also logged as a warning.
     """
     if s.repeats < 2:
-        return row_banding.ColourFlicker(None, None, 0, s.repeats, False, row_banding.FLICKER_THRESHOLD_RAD).to_dict()
+        return row_banding.ColourFlicker(None, None, 0, s.repeats, False,
+                                         float(calibration["colour_flicker_max_rad"])).to_dict()
     read = (reader or CaptureReader()).rgb
     white = read(s.reference_white)
     n = len(s.reference_bands)
     picks = sorted({int(round(i * n / min(n, FLICKER_BANDS))) % n for i in range(min(n, FLICKER_BANDS))})
     hues = [[hue_of(white_balance(read(p), white), hue_model, min_saturation=calibration["min_saturation"])
              for p in s.reference_bands[i]] for i in picks]
-    fl = row_banding.repeat_hue_flicker(hues)
+    fl = row_banding.repeat_hue_flicker(hues, threshold_rad=float(calibration["colour_flicker_max_rad"]))
     if fl.suspected:
         _log.warning("%s: the repeats of a uniform hue band differ in hue by %.4f rad (standard deviation over %d "
                      "bands): the colour balance changes from image to image (a colour-sequential projector filmed "
@@ -282,7 +284,8 @@ _log = logging.getLogger("huefringe")
 
 
 def plane_row_banding(s: Session, phases: Mapping[float, NDArray[np.floating]],
-                      valid: Mapping[float, NDArray[np.bool_]], cal: PlaneCalibration) -> dict[str, Any]:
+                      valid: Mapping[float, NDArray[np.bool_]], cal: PlaneCalibration,
+                      threshold_rad: float = row_banding.THRESHOLD_RAD) -> dict[str, Any]:
     """The calibration planes' row banding (:func:`huefringe.row_banding.row_banding`): a
     colour-sequential projector filmed with an exposure that is not a whole number of its colour
     cycles (docs/capture.md). QA only: nothing measured depends on it. ``phases``: as decoded,
@@ -300,14 +303,14 @@ def plane_row_banding(s: Session, phases: Mapping[float, NDArray[np.floating]],
     worst: row_banding.RowBanding | None = None
     for z in sorted(phases):
         try:
-            rb = row_banding.row_banding(phases[z], valid[z], period_px=s.period_px)
+            rb = row_banding.row_banding(phases[z], valid[z], period_px=s.period_px, threshold_rad=threshold_rad)
         except PlaneCalibrationError as exc:
             planes[f"{z:.3f}"] = {"error": str(exc)}
             continue
         planes[f"{z:.3f}"] = rb.to_dict()
         if worst is None or rb.amplitude_rad > worst.amplitude_rad:
             worst = rb
-    out: dict[str, Any] = {"planes": planes, "threshold_rad": row_banding.THRESHOLD_RAD}
+    out: dict[str, Any] = {"planes": planes, "threshold_rad": threshold_rad}
     if worst is None:
         out.update(amplitude_rad=None, amplitude_px=None, amplitude_mm=None, period_rows=None, suspected=False)
         return out
