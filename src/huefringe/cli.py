@@ -490,7 +490,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("sl-session", help="assemble a checked structured-light session (N-step, Gray code, multi-period "
                                           "captures) from a folder of captures and a sequence YAML; exit 2 if refused")
-    p.add_argument("captures", help="folder of the captures (the sequence's frames glob, sorted by the number in their names)")
+    p.add_argument("captures", help="folder of the captures (the sequence's frames: a glob, sorted by the number in "
+                                      "their names, or a list of file names in capture order)")
     p.add_argument("sequence", help="sequence YAML: projector, frames, blocks (phase, gray, white, black) or kamino410; "
                                     "optional id, calibration, poses, provenance")
     p.add_argument("out", help="the session folder to write (new or empty)")
@@ -509,8 +510,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("decode", help="decode N-step / Gray-code / multi-period captures into projector coordinates; "
                                       "exit 2 if refused, 1 if an axis has fewer valid pixels than codecs.min_valid_fraction")
-    p.add_argument("captures", help="folder of the captures (the sequence's frames glob, sorted by the number in their names)")
-    p.add_argument("sequence", help="sequence YAML: projector, frames, blocks (phase, gray, white, black) or kamino410")
+    p.add_argument("captures", help="folder of the captures (the sequence's frames: a glob, sorted by the number in "
+                                      "their names, or a list of file names in capture order)")
+    p.add_argument("sequence", help="sequence YAML: projector, frames, blocks (phase, gray, skip, white, black, hue_bands, "
+                                      "trapezoid) or kamino410")
     p.add_argument("out", help="new (or empty) folder for coord/sigma/modulation TIFFs, valid and reasons PNGs, quality.png, decode.json")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--projector-gamma", type=float, help="the projector's gamma (overrides the sequence's)")
