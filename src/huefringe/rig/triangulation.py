@@ -100,6 +100,21 @@ def project(xyz: ArrayLike, K: F64, dist: F64, R: F64 | None = None, T: F64 | No
     return cv2.projectPoints(p, rvec, tvec, K, dist)[0].reshape(-1, 2)
 
 
+def _pixels(shape: tuple[int, ...], pixels: ArrayLike | None) -> F64:
+    """The camera pixels ``(x, y)`` (N, 2) of coordinate maps of ``shape``: ``pixels`` when given
+    (one per coordinate), else every pixel of a 2-D map in row-major order."""
+    n = int(np.prod(shape))
+    if pixels is None:
+        if len(shape) != 2:
+            raise ValueError("coordinate vectors need their camera pixels (pixels=)")
+        yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]]
+        return np.column_stack([xx.ravel(), yy.ravel()]).astype(np.float64)
+    pix = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
+    if pix.shape[0] != n:
+        raise ValueError(f"{pix.shape[0]} pixels for {n} coordinates")
+    return pix
+
+
 def camera_rays(calib: RigCalibration, pixels: ArrayLike) -> F64:
     """Unnormalised ray directions ``(x, y, 1)`` (N, 3) of camera ``pixels`` (N, 2)."""
     xy = undistort(pixels, calib.camera_matrix, calib.camera_distortion)
@@ -158,15 +173,7 @@ def epipolar_residual(
     shape = uu.shape
     uu = uu.reshape(-1)
     vv = np.asarray(v, dtype=np.float64).reshape(-1)
-    if pixels is None:
-        if len(shape) != 2:
-            raise ValueError("coordinate vectors need their camera pixels (pixels=)")
-        yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]]
-        pix = np.column_stack([xx.ravel(), yy.ravel()]).astype(np.float64)
-    else:
-        pix = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-        if pix.shape[0] != uu.size:
-            raise ValueError(f"{pix.shape[0]} pixels for {uu.size} coordinates")
+    pix = _pixels(shape, pixels)
     su, sv = (np.zeros(uu.size) if s is None else np.broadcast_to(np.asarray(s, dtype=np.float64), shape).reshape(-1)
               for s in (sigma_u, sigma_v))
     idx = np.flatnonzero(np.isfinite(uu) & np.isfinite(vv))
@@ -268,15 +275,7 @@ def triangulate(
             raise ValueError(f"mode {mode!r} needs the decoded {k}")
     ref = np.asarray(given[need[0]], dtype=np.float64)
     shape = ref.shape
-    if pixels is None:
-        if ref.ndim != 2:
-            raise ValueError("coordinate vectors need their camera pixels (pixels=)")
-        yy, xx = np.mgrid[0 : shape[0], 0 : shape[1]]
-        pix = np.column_stack([xx.ravel(), yy.ravel()]).astype(np.float64)
-    else:
-        pix = np.asarray(pixels, dtype=np.float64).reshape(-1, 2)
-        if pix.shape[0] != ref.size:
-            raise ValueError(f"{pix.shape[0]} pixels for {ref.size} coordinates")
+    pix = _pixels(shape, pixels)
     coords = {k: np.asarray(given[k], dtype=np.float64).reshape(-1) for k in need}
     sig = {k: (np.zeros(ref.size) if s is None else np.broadcast_to(np.asarray(s, dtype=np.float64), shape).reshape(-1))
            for k, s in (("u", sigma_u), ("v", sigma_v)) if k in need}
