@@ -98,3 +98,23 @@ def test_every_frame_measured_with_its_geometry_and_u(run: Path) -> None:
     assert acc["valid_without_truth"] == 0 and acc["coverage_of_truth"] > 0.95
     # the one-shot decoding's own error (same calibration, true projector coordinates) against its sigma
     assert 0.92 <= acc["decoding"]["within_2sigma"] <= 0.98, acc["decoding"]
+
+
+def test_rig_measure_cli_measures_every_frame_as_the_workflow(run: Path, tmp_path: Path, capsys) -> None:
+    from huefringe.cli import main
+
+    out = tmp_path / "out"
+    assert main(["rig-measure", str(run / "sessions/rig-oneshot"), str(out), "--calibration",
+                 str(run / "results/rig-oneshot/calib/rig.yml"), "--configfile", str(run / "config.yaml")]) == 0
+    assert "report:" in capsys.readouterr().out
+    for k in range(3):
+        a = tifffile.imread(out / f"xyz/frame_{k:04d}.tiff")
+        b = tifffile.imread(run / f"results/rig-oneshot/xyz/frame_{k:04d}.tiff")
+        np.testing.assert_array_equal(a, b)
+        assert json.loads((out / f"qa/frames/frame_{k:04d}.json").read_text())["geometry"] == ONESHOT_GEOMETRY
+    assert json.loads((out / "metrology/report.json").read_text())["method"] == ONESHOT_METHOD
+    from huefringe.rig.measure import RigError
+    from huefringe.stages import rig_measure
+
+    with pytest.raises(RigError, match="a one-shot session"):   # never measured as one coded frame
+        rig_measure(str(run / "sessions/rig-oneshot"), CONFIG, "", *(str(tmp_path / f"x{i}") for i in range(10)))

@@ -83,6 +83,9 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
     base plane (features' ``base``, else every point) resampled on the plane's grid, its X3P, and
     the QA record and figure."""
     s = load_sl_session(session)
+    if is_oneshot(s.spec):
+        raise RigError(f"{s.root / 'sequence.yaml'}: a one-shot session (trapezoid blocks): measured by rig_oneshot, "
+                       "every one-shot frame, not as one coded frame")
     cfg = dict(config)
     calib_file = _calibration_file(s, calibration)
     calib = read_calibration(calib_file)
