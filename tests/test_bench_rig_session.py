@@ -166,3 +166,25 @@ def test_stage_and_cli_dispatch_on_the_yaml(tmp_path: Path) -> None:
     cfg["scene"]["unknown"] = 1
     with pytest.raises(bench.BenchConfigError, match="unknown|Additional"):
         bench.validate_sl_bench_config(cfg)
+
+
+def test_oneshot_preset_writes_colour_captures_with_coated_blocks(tmp_path: Path) -> None:
+    cfg = load_sl_bench_config("rig-oneshot")
+    plan = sl_session_plan(cfg)
+    assert plan["oneshot_frames"] == 3 and plan["frames"] == 4 + 14 + 2 + 96 + 3
+    s = load_sl_session(write_sl_session(cfg, tmp_path / "rig-oneshot"), deep=True)
+    assert s.meta["camera"]["channels"] == 3 and sorted(s.ground_truth) == ["x", "xyz"]   # the coded axis only
+    truth = scene_truth(cfg)
+    white = cv2.imread(str(s.captures[18]), cv2.IMREAD_UNCHANGED)[..., ::-1].astype(float)  # R, G, B
+    lit = truth["lit"]
+    for label, dominant in ((1, 1), (2, 2), (3, 0)):                  # green, blue, red coatings
+        m = (truth["label"] == label) & lit
+        rgb = white[m].mean(axis=0)
+        assert np.argmax(rgb) == dominant and rgb[dominant] > 1.8 * np.sort(rgb)[1], (label, rgb)
+    base = white[(truth["label"] == 0) & lit].mean(axis=0)
+    assert np.ptp(base) < 0.15 * base.mean()                            # the base stays grey
+    assert sl_session_plan(load_sl_bench_config("rig-gauge"))["oneshot_frames"] == 0
+    bad = yaml.safe_load(bench.preset_path("rig-oneshot").read_text())
+    bad["scene"]["colours"] = ["green"]
+    with pytest.raises(bench.BenchConfigError, match="1 coatings for 3 blocks"):
+        bench.validate_sl_bench_config(bad)

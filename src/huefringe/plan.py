@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from huefringe import bench
+from huefringe.codecs.sequence import TrapezoidBlock
 from huefringe.rig.decoded import relative_axes_problems
 from huefringe.session import SL_FORMAT, SessionError, load_session, load_sl_session, session_format
 
@@ -69,6 +70,9 @@ class SessionPlan:
     """False for a calibration session that only the sessions naming it brought into the run."""
     sequence: Any = field(default=None, repr=False)
     """Structured light, read from the folder: its ``huefringe.codecs.SequenceSpec``."""
+    oneshot_frames: int = 0
+    """Structured light: the sequence's one-shot (``trapezoid``) frames, measured by rule
+    ``rig_oneshot_<sid>`` into ``frame_0000 ..``; 0 for a coded session (rule ``rig_measure``)."""
 
     def frame_selection(self, sel: Any) -> list[int]:
         if sel == "first":
@@ -96,6 +100,7 @@ def _from_sl_session(path: Path) -> SessionPlan:
         calibration_file=cal.get("file"),
         calibration_session=s.calibration_session,
         sequence=s.spec,
+        oneshot_frames=sum(b.frames for b in s.spec.blocks if isinstance(b, TrapezoidBlock)),
     )
 
 
@@ -250,7 +255,8 @@ def _from_sl_bench(path: Path, cfg_path: Path) -> SessionPlan:
     cal = info["calibration_session"]
     return SessionPlan(path=path, id=str(info["id"]), frames=[0], phase_shift=[], ground_truth=bool(info["ground_truth"]),
                        specimen=bool(info["features"]), bench=str(cfg_path), kind="structured-light",
-                       calibrate=bool(info["poses"]), calibration_session=None if cal is None else path / cal)
+                       calibrate=bool(info["poses"]), calibration_session=None if cal is None else path / cal,
+                       oneshot_frames=int(info["oneshot_frames"]))
 
 
 def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[str, Any],

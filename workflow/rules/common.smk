@@ -23,6 +23,11 @@ CAPTURE_IDS = [sid for sid, p in PLANS.items() if p.kind == "capture"]
 RIG_IDS = [sid for sid, p in PLANS.items() if p.kind == "structured-light"]
 ANY_SID = "|".join(re.escape(s) for s in PLANS) or "^$"
 RIG_SID = "|".join(re.escape(s) for s in RIG_IDS) or "^$"
+#: structured-light sessions of coded blocks only (rule rig_measure) and with one-shot frames (rig_oneshot_<sid>)
+ONESHOT_IDS = [
+    sid for sid in RIG_IDS if PLANS[sid].oneshot_frames and PLANS[sid].measure
+]
+CODED_SID = "|".join(re.escape(s) for s in RIG_IDS if s not in ONESHOT_IDS) or "^$"
 
 
 wildcard_constraints:
@@ -120,17 +125,17 @@ def rig_calibration(w):
     """The calibration a structured-light session is measured with: its own file, or
     results/<sid>/calib/rig.yml (calibrated from its poses, or copied from the session that
     calibrates it)."""
-    plan = PLANS[w.sid]
+    sid = w if isinstance(w, str) else w.sid
+    plan = PLANS[sid]
     if plan.calibration_file:
-        return str(Path(session_dir(w)) / plan.calibration_file)
-    return R(w.sid, "calib", "rig.yml")
+        return str(Path(session_dir(sid)) / plan.calibration_file)
+    return R(sid, "calib", "rig.yml")
 
 
 def rig_jackknife(w):
+    sid = w if isinstance(w, str) else w.sid
     return (
-        []
-        if PLANS[w.sid].calibration_file
-        else [R(w.sid, "calib", "rig.jackknife.json")]
+        [] if PLANS[sid].calibration_file else [R(sid, "calib", "rig.jackknife.json")]
     )
 
 
@@ -162,6 +167,29 @@ BORROW_SID = (
 )
 
 
+RIG_FRAME_FILES = {
+    "xyz": ("xyz", "{}.tiff"),
+    "xyz_sigma": ("xyz", "{}_sigma.tiff"),
+    "xyz_u": ("xyz", "{}_u.tiff"),
+    "decoded": ("decode", "{}.tiff"),
+    "cloud": ("cloud", "{}.ply"),
+    "height": ("height", "{}.tiff"),
+    "uncertainty": ("uncertainty", "{}.tiff"),
+    "x3p": ("x3p", "{}.x3p"),
+    "qa": ("qa/frames", "{}.json"),
+    "quality": ("qa", "{}_decode.png"),
+}
+
+
+def oneshot_outputs(sid):
+    """The files rig_oneshot_<sid> writes: those of rig_measure for each one-shot frame."""
+    n = PLANS[sid].oneshot_frames
+    return {
+        k: [R(sid, d, f.format(fname(i))) for i in range(n)]
+        for k, (d, f) in RIG_FRAME_FILES.items()
+    }
+
+
 def rig_targets(sid):
     """Every result of structured-light session ``sid`` (rig.smk)."""
     plan = PLANS[sid]
@@ -175,6 +203,15 @@ def rig_targets(sid):
         R(sid, "mesh", "frame_0000.ply"),
         R(sid, "renders", "frame_0000_top.png"),
     ]
+    if (
+        sid in ONESHOT_IDS
+    ):  # every one-shot frame's X, Y, Z, cloud and X3P (rig_oneshot_<sid>)
+        out += [
+            p
+            for k, ps in oneshot_outputs(sid).items()
+            if k in ("xyz", "cloud", "x3p")
+            for p in ps[1:]
+        ]
     if plan.ground_truth:
         out.append(R(sid, "accuracy.json"))
     if plan.specimen:

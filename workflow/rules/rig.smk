@@ -66,7 +66,7 @@ rule rig_measure:
     log:
         "logs/{sid}/rig_measure.log",
     wildcard_constraints:
-        sid=RIG_SID,
+        sid=CODED_SID,
     conda:
         "../envs/huefringe.yaml"
     threads: 1
@@ -77,6 +77,36 @@ rule rig_measure:
         config=config,
     script:
         "../../scripts/rig_measure.py"
+
+
+# A session with one-shot frames (trapezoid blocks): one job measures them frame after frame (the
+# coded blocks decoded once as the order reference, the hue table from the bands) into the files
+# rig_measure writes, one set per frame; a rule per session, as the frame count names its outputs.
+for _sid in ONESHOT_IDS:
+
+    rule:
+        name:
+            f"rig_oneshot_{_sid.replace('-', '_')}"
+        input:
+            session=str(Path(session_dir(_sid)) / "session.yaml"),
+            calibration=rig_calibration(_sid),
+            jackknife=rig_jackknife(_sid),
+        output:
+            **oneshot_outputs(_sid),
+        log:
+            f"logs/{_sid}/rig_oneshot.log",
+        conda:
+            "../envs/huefringe.yaml"
+        threads: 1
+        resources:
+            **rule_resources(
+                "rig_oneshot", mem_mb=4000, runtime=max(30, PLANS[_sid].oneshot_frames)
+            ),
+        params:
+            session=session_dir(_sid),
+            config=config,
+        script:
+            "../../scripts/rig_oneshot.py"
 
 
 rule rig_surfaces:

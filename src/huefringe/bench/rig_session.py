@@ -1,12 +1,14 @@
 """Structured-light sessions written by the bench rig: calibration poses, object scenes, ground truth.
 
 One YAML file (format ``huefringe-sl-bench/1``, schema ``sl_bench.schema.json`` beside this
-module; presets ``rig-poses``, ``rig-gauge``, ``rig-board``) describes a
+module; presets ``rig-poses``, ``rig-gauge``, ``rig-board``, ``rig-oneshot``) describes a
 ``structured-light-session/1`` folder (``docs/spec/structured-light-session.md``):
 
 * ``captures/0000.png ..``: the sequence on the scene (a flat board, or a tilted base plane with
   blocks and a ball: :class:`~huefringe.bench.rig.CompositeScene`), where the projector lights a
-  point directly; a point in a projector shadow gets ambient light and noise only;
+  point directly; a point in a projector shadow gets ambient light and noise only; a sequence
+  with one-shot blocks (``hue_bands``, ``trapezoid``) is captured in colour, every frame, the
+  blocks coated as ``scene.colours`` lists (:meth:`~huefringe.bench.rig.BenchRig.capture_rgb`);
 * with ``poses``: ``poses/pose_NN/0000.png ..``, a printed board in each pose, and ``board:`` in
   session.yaml (a calibration session);
 * with ``calibration_session``: ``calibration: {session: <relative path>}`` in session.yaml;
@@ -160,6 +162,9 @@ def validate_sl_bench_config(raw: Any, source: str | os.PathLike[str] = "<dict>"
     for i, s in enumerate(cfg["scene"].get("spheres", [])):
         if not s[2] > 0:
             raise BenchConfigError(source, f"scene.spheres.{i}: a positive radius expected")
+    colours = cfg["scene"].get("colours")
+    if colours is not None and len(colours) != len(cfg["scene"]["blocks"]):
+        raise BenchConfigError(source, f"scene.colours: {len(colours)} coatings for {len(cfg['scene']['blocks'])} blocks")
     return cfg
 
 
@@ -186,7 +191,37 @@ def sl_session_plan(cfg: dict[str, Any]) -> dict[str, Any]:
         "features": _writes_features(cfg),
         "ground_truth": bool(cfg["ground_truth"]),
         "frames": _spec(cfg).n_frames,
+        "oneshot_frames": _oneshot_frames(_spec(cfg)),
     }
+
+
+def _oneshot_frames(spec: Any) -> int:
+    """The sequence's one-shot (trapezoid) frames: captured in colour when there are any."""
+    from huefringe.codecs.sequence import TrapezoidBlock
+
+    return sum(b.frames for b in spec.blocks if isinstance(b, TrapezoidBlock))
+
+
+def _colour_patterns(spec: Any) -> list[NDArray[np.uint8]]:
+    """The projector images of ``spec`` in colour (R, G, B), in capture order; a repeated hue band or
+    trapezoid frame is the same array (one render each)."""
+    from dataclasses import replace
+
+    from huefringe.codecs import generate_rgb
+    from huefringe.codecs.sequence import FlatBlock, HueBandsBlock, SequenceSpec, TrapezoidBlock
+
+    w, h = spec.projector_width, spec.projector_height
+    out: list[NDArray[np.uint8]] = []
+    for b, _ in spec.slices():
+        if isinstance(b, HueBandsBlock):
+            distinct = generate_rgb(SequenceSpec((FlatBlock("white"), HueBandsBlock(b.n)), w, h))[1:]
+            out += [distinct[i] for i in range(b.n) for _ in range(b.repeats)]
+        elif isinstance(b, TrapezoidBlock):
+            one = generate_rgb(SequenceSpec((FlatBlock("white"), HueBandsBlock(2), replace(b, frames=1)), w, h))[-1]
+            out += [one] * b.frames
+        else:
+            out += list(generate_rgb(SequenceSpec((b,), w, h)))
+    return out
 
 
 def _writes_features(cfg: dict[str, Any]) -> bool:
@@ -324,6 +359,28 @@ def features_from_truth(truth: dict[str, Any], *, margin_px: int = 6, tolerance_
     return out
 
 
+def _write_colour_captures(cfg: dict[str, Any], spec: Any, truth: dict[str, Any], folder: Path,
+                           rng: np.random.Generator) -> None:
+    """Every capture of ``spec`` in colour (8-bit RGB PNG): the base and balls grey at the camera's
+    albedo, the blocks in ``scene.colours``, through the bench camera's channel mixing."""
+    from .oneshot import CROSSTALK
+    from .scenes import BLOCK_COLOURS
+
+    cam = cfg["camera"]
+    label = truth["label"]
+    alb = np.empty((*label.shape, 3))
+    alb[:] = cam["albedo"]
+    for k, c in enumerate(cfg["scene"].get("colours") or [], start=1):
+        alb[np.abs(label) == k] = BLOCK_COLOURS[c]
+    folder.mkdir(parents=True, exist_ok=True)
+    pats = _colour_patterns(spec)
+    for k0 in range(0, len(pats), 16):  # a few frames at a time: a session holds a hundred colour frames
+        frames = truth["rig"].capture_rgb(pats[k0:k0 + 16], truth["u"], truth["v"], truth["lit"], rng, albedo=alb,
+                                          ambient=cam["ambient"], noise_dn=cam["noise_dn"], crosstalk=CROSSTALK)
+        for k, f in enumerate(frames, start=k0):
+            cv2.imwrite(str(folder / f"{k:04d}.png"), cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+
+
 def _write_tiff(path: Path, a: NDArray[np.floating]) -> None:
     import tifffile
 
@@ -374,13 +431,17 @@ def write_sl_session(cfg: dict[str, Any], out_dir: str | os.PathLike[str]) -> Pa
         rig = truth["rig"]
         cam = cfg["camera"]
         rng = np.random.default_rng([cfg["seed"], 1])
-        write_captures(rig, spec, tmp / "captures", truth["u"], truth["v"], truth["lit"], rng,
-                       noise_dn=cam["noise_dn"], albedo=cam["albedo"], ambient=cam["ambient"], name="{:04d}.png")
+        colour = _oneshot_frames(spec) > 0
+        if colour:
+            _write_colour_captures(cfg, spec, truth, tmp / "captures", rng)
+        else:
+            write_captures(rig, spec, tmp / "captures", truth["u"], truth["v"], truth["lit"], rng,
+                           noise_dn=cam["noise_dn"], albedo=cam["albedo"], ambient=cam["ambient"], name="{:04d}.png")
         w, h = rig.camera_size
         meta: dict[str, Any] = {
             "format": "structured-light-session/1",
             "id": cfg["id"],
-            "camera": {"width": w, "height": h, "bit_depth": 8, "channels": 1},
+            "camera": {"width": w, "height": h, "bit_depth": 8, "channels": 3 if colour else 1},
             "projector": {"width": spec.projector_width, "height": spec.projector_height},
             "sequence": {"file": "sequence.yaml", "frames": spec.n_frames},
         }
@@ -401,8 +462,9 @@ def write_sl_session(cfg: dict[str, Any], out_dir: str | os.PathLike[str]) -> Pa
                               "simulated": True, "notes": notes}
         if cfg["ground_truth"]:
             (tmp / "ground_truth").mkdir()
-            _write_tiff(tmp / "ground_truth" / "x.tiff", truth["u"])
-            _write_tiff(tmp / "ground_truth" / "y.tiff", truth["v"])
+            for axis, key in (("x", "u"), ("y", "v")):
+                if axis in spec.axes():    # the true coordinate of each coded axis
+                    _write_tiff(tmp / "ground_truth" / f"{axis}.tiff", truth[key])
             _write_tiff(tmp / "ground_truth" / "xyz.tiff", truth["xyz"])
         if _writes_features(cfg):
             f = cfg["features"]

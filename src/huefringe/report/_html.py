@@ -111,6 +111,12 @@ METHOD_WORDS: dict[str, dict[str, str]] = {
         "long": "the paper's trapezoidal HSI phase shifting (Chen, Nguyen & Shu): one colour frame whose "
                 "hue encodes the projected code phase, calibrated per pixel with multi-band hue tables",
     },
+    "oneshot-trapezoid-triangulation": {
+        "short": "one-shot trapezoid on a calibrated rig",
+        "long": "oneshot-trapezoid via rig calibration: the paper's one-shot trapezoidal colour frame, its hue through "
+                "the per-pixel hue table to the projector coordinate, the fringe order from the session's coded blocks, "
+                "triangulated with the projector-camera rig calibration",
+    },
     BASELINE_METHOD: {
         "short": "three-step phase shifting",
         "long": "traditional three-step phase shifting of grey sinusoidal fringes (three frames per height map)",

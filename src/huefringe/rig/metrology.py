@@ -28,13 +28,16 @@ from huefringe.metrology import combine_u, fit_plane_u, fit_sphere_u, flatness_u
 from huefringe.report import build_report_json, collect_provenance, write_report_html
 from huefringe.rig.measure import RigError, RigFrame, read_jackknife
 from huefringe.rig.model import RigCalibration
+from huefringe.rig.oneshot import ONESHOT_GEOMETRY
 from huefringe.rig.triangulation import triangulate
 from huefringe.uncertainty import conformance
 
-__all__ = ["METHOD", "base_plane", "feature_values", "noise_scale", "rig_report", "xyz_accuracy"]
+__all__ = ["METHOD", "ONESHOT_METHOD", "base_plane", "feature_values", "noise_scale", "rig_report", "xyz_accuracy"]
 
 F64 = NDArray[np.float64]
 METHOD = "coded-light-triangulation"
+ONESHOT_METHOD = "oneshot-trapezoid-triangulation"
+"""The report's ``method`` of a one-shot frame triangulated with the rig calibration."""
 NOISE_MODEL_REL_U = 0.02
 """Least relative standard uncertainty of the noise removed from a form figure (FLTq, a sphere's
 form): on the bench rigs the residuals' variance on flat faces exceeds the neighbour-difference
@@ -169,7 +172,7 @@ def _entry(name: str, value: float, nominal: float, tol: float, u_points: float,
 def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os.PathLike[str], xyz: F64, sigma: F64,
                decoded: F64, jackknife: str | os.PathLike[str] = "", calibration_report: str | os.PathLike[str] = "",
                json_path: str | os.PathLike[str], html_path: str | os.PathLike[str],
-               figures: Mapping[str, str | os.PathLike[str]] | None = None) -> dict[str, Any]:
+               figures: Mapping[str, str | os.PathLike[str]] | None = None, oneshot: bool = False) -> dict[str, Any]:
     """Measure a structured-light session's features and write ``report.json`` and ``report.html``.
 
     Parameters
@@ -191,6 +194,10 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
         Where the report goes.
     figures : mapping of str to path, optional
         PNG figures for the page.
+    oneshot : bool
+        The frame is a one-shot trapezoid frame (:func:`huefringe.rig.oneshot.measure_oneshot_session`):
+        ``method`` :data:`ONESHOT_METHOD`, and the geometry
+        (:data:`huefringe.rig.oneshot.ONESHOT_GEOMETRY`) in ``geometry`` and ``provenance``.
 
     Returns
     -------
@@ -257,14 +264,19 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
                 "form_rms_mm": v.get("rms_form_mm"), "form_pv_mm": v.get("pv_form_mm"), "points": v["n"]}))
     forms = {k: v for k, v in forms.items() if v}
     specimen = {"tolerance_mm": feats.tolerance_mm, "steps": [{"name": s["name"], "nominal_mm": s["nominal_mm"]} for s in steps]}
-    method_result = {"method": METHOD, "frames": 1, "steps": steps}
+    method_result = {"method": ONESHOT_METHOD if oneshot else METHOD, "frames": 1, "steps": steps}
     inputs = [p for p in session.input_files()] + [Path(calibration)]
+    route = (f"{ONESHOT_GEOMETRY}: the first one-shot trapezoid frame's hue through the per-pixel hue table to the "
+             "projector coordinate, its fringe order from the session's coded blocks on the same scene, triangulated "
+             "with the rig calibration" if oneshot else
+             "structured light: decoded projector coordinates triangulated with the rig calibration")
     extras: dict[str, Any] = {
-        "geometry": {"route": "structured light: decoded projector coordinates triangulated with the rig calibration",
-                     "triangulation": mode, "calibration": str(calibration)},
+        "geometry": {"route": route, "triangulation": mode, "calibration": str(calibration),
+                     **({"name": ONESHOT_GEOMETRY} if oneshot else {})},
         "forms": forms,
         "provenance": {**collect_provenance(session.id, dict(config), inputs),
-                       "capture": session.meta.get("provenance") or {}},
+                       "capture": session.meta.get("provenance") or {},
+                       **({"geometry": ONESHOT_GEOMETRY} if oneshot else {})},
     }
     if cal_doc:
         extras["rig_calibration"] = cal_doc

@@ -63,9 +63,15 @@ from huefringe.perframe import clipped_mask, phase_sigma
 from huefringe.rig.model import RigCalibration
 from huefringe.rig.triangulation import triangulate
 
-__all__ = ["OneShotCaptures", "OneShotCoordinate", "OneShotPhase", "OneShotReference", "OneShotResult",
-           "absolute_from_reference", "hue_table_from_frames", "measure_oneshot", "oneshot_captures", "oneshot_reference",
+__all__ = ["CODED_GEOMETRY", "ONESHOT_GEOMETRY", "OneShotCaptures", "OneShotCoordinate", "OneShotPhase",
+           "OneShotReference", "OneShotResult", "OneShotSession", "absolute_from_reference", "hue_table_from_frames",
+           "is_oneshot", "measure_oneshot", "measure_oneshot_session", "oneshot_captures", "oneshot_reference",
            "table_phase_sigma", "trapezoid_coordinate"]
+
+ONESHOT_GEOMETRY = "oneshot-trapezoid via rig calibration"
+"""The geometry that measured a session whose sequence holds ``trapezoid`` blocks (its provenance)."""
+CODED_GEOMETRY = "coded light"
+"""The geometry that measured a session of coded blocks only."""
 
 F64 = NDArray[np.float64]
 TWO_PI = 2.0 * np.pi
@@ -459,3 +465,106 @@ def measure_oneshot(rgb: NDArray[np.floating], white: NDArray[np.floating], tabl
     mode = "u" if block.axis == "x" else "v"
     t = triangulate(calib, **{mode: co.coord, f"sigma_{mode}": co.sigma}, valid=co.valid, mode=mode)  # type: ignore[arg-type]
     return OneShotResult(t.xyz, t.sigma, t.sigma_ray, t.valid, co, ph)
+
+
+def is_oneshot(spec: SequenceSpec) -> bool:
+    """Whether a structured-light sequence holds one-shot frames (a ``trapezoid`` block)."""
+    return any(isinstance(b, TrapezoidBlock) for b in spec.blocks)
+
+
+@dataclass(frozen=True, eq=False)
+class OneShotSession:
+    """A structured-light session's one-shot frames measured (:func:`measure_oneshot_session`).
+
+    Attributes
+    ----------
+    frames : list of RigFrame
+        One per trapezoid frame in capture order: X, Y, Z, sigma, validity and the decoded maps
+        (``u`` or ``v`` the absolute one-shot coordinate, ``decoded`` its
+        :class:`~huefringe.codecs.Decoded` with the :class:`~huefringe.codecs.Reason` bits, ``mean``
+        the frame's grey level), triangulated ``u`` (``v`` for a trapezoid along y).
+    results : list of OneShotResult
+    reference : OneShotReference
+        The order reference: the session's own coded blocks decoded on its scene.
+    table : HueTable
+        The per-pixel hue table of the session's ``hue_bands`` block.
+    block : TrapezoidBlock
+    """
+
+    frames: list[Any]
+    results: list[OneShotResult]
+    reference: OneShotReference
+    table: HueTable
+    block: TrapezoidBlock
+
+    def order_summary(self) -> dict[str, Any]:
+        """The order reference and its unambiguous range, for the QA record."""
+        return {"reference": "the session's coded blocks decoded on its own scene (absolute coordinate along "
+                             f"{self.block.axis}): each one-shot frame's order is the one nearest it",
+                "period_px": self.block.period_px, "reference_valid_fraction": float(self.reference.valid.mean()),
+                "unambiguous_range_mm": self.reference.summary(),
+                "what": "how far each pixel's surface may move along its camera ray towards the camera (front) or away "
+                        "(back) from where the coded blocks saw it and keep its order; beyond, pixels are flagged order"}
+
+
+def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, Any], *,
+                            order_sigmas: float = 3.0) -> OneShotSession:
+    """Every one-shot frame of a structured-light session triangulated with the rig calibration.
+
+    The session's sequence holds coded blocks (Gray code + phase along the trapezoid's axis), a
+    white frame, one ``hue_bands`` block and ``trapezoid`` blocks, all captured on the same scene.
+    The coded blocks are decoded once (:func:`huefringe.rig.measure.decode_frame`) as the order
+    reference (:func:`oneshot_reference`); the hue table is built from the bands
+    (:func:`hue_table_from_frames`, model ``cfg['hue_model']``); then each trapezoid frame in turn
+    goes through :func:`measure_oneshot` with the order nearest the reference on either side
+    (``stands_on_reference=False``: the reference is the scene itself, so a surface may move
+    towards or away from the camera), flagged ``ORDER`` within ``order_sigmas`` of half a period.
+
+    Raises
+    ------
+    RigError
+        No coded blocks along the trapezoid's axis, or relative ones; unreadable or grey one-shot
+        captures; captures not of the calibration's camera size; fewer than 3 points in a frame.
+    """
+    from huefringe.codecs import Decoded
+    from huefringe.rig.measure import RigError, RigFrame, decode_frame
+
+    spec = session.spec
+    where = session.root / "sequence.yaml"
+    block = next(b for b in spec.blocks if isinstance(b, TrapezoidBlock))
+    if block.axis not in spec.axes():
+        raise RigError(f"{where}: the trapezoid frames run along {block.axis}, the sequence has no coded blocks along "
+                       f"{block.axis} to give them their order (Gray code + phase on the same scene)")
+    try:
+        d = decode_frame(session.read_captures(), spec, cfg)
+        caps = oneshot_captures(session.captures, spec)
+    except SequenceError as exc:
+        raise RigError(str(exc)) from None
+    h, w = d["mean"].shape
+    if calib.camera_size != (0, 0) and calib.camera_size != (w, h):
+        raise RigError(f"{session.root / 'captures'}: {w} x {h} captures, the calibration's camera is "
+                       f"{calib.camera_size[0]} x {calib.camera_size[1]}")
+    try:
+        ref = oneshot_reference(d["decoded"][block.axis], calib, block)
+    except ValueError as exc:
+        raise RigError(f"{where}: {exc}") from None
+    table = hue_table_from_frames(caps.white, caps.bands, caps.bands_block, model=cfg.get("hue_model", "hexcone"))
+    key, other = ("u", "v") if block.axis == "x" else ("v", "u")
+    frames, results = [], []
+    for k in range(caps.frames.shape[0]):
+        res = measure_oneshot(caps.frames[k], caps.white, table, caps.block, calib, ref, bit_depth=caps.bit_depth,
+                              order_sigmas=order_sigmas, stands_on_reference=False)
+        if int(res.valid.sum()) < 3:
+            raise RigError(f"{session.root / 'captures'}: one-shot frame {k}: {int(res.valid.sum())} pixels decoded and "
+                           "triangulated; nothing to measure")
+        co = res.coordinate
+        top = 255.0 if caps.bit_depth == 8 else 65535.0
+        dec = Decoded(block.axis, co.coord, co.sigma, (caps.frames[k].mean(axis=-1) * top).astype(np.float32), co.valid,
+                      np.where(co.valid, 0.5 * block.period_px - np.abs(co.offset), np.nan).astype(np.float32), True,
+                      co.reasons)
+        maps = {key: co.coord, other: None, f"sigma_{key}": co.sigma, f"sigma_{other}": None, f"valid_{key}": co.valid,
+                f"valid_{other}": None, "mean": caps.frames[k].mean(axis=-1).astype(np.float64) * top,
+                "decoded": {block.axis: dec}}
+        frames.append(RigFrame(res.xyz, res.sigma, res.valid, maps, key, res.sigma_ray))
+        results.append(res)
+    return OneShotSession(frames, results, ref, table, caps.block)

@@ -40,6 +40,7 @@ from ._rig import (  # noqa: F401
     rig_calibration_from,
     rig_measure,
     rig_metrology,
+    rig_oneshot,
     rig_surfaces,
 )
 from ._archive import (  # noqa: F401
@@ -63,6 +64,7 @@ __all__ = [
     "rig_calibration_from",
     "rig_measure",
     "rig_metrology",
+    "rig_oneshot",
     "rig_surfaces",
     "accuracy_report",
     "add_step_uncertainty",

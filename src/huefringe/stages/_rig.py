@@ -32,6 +32,7 @@ from huefringe.rig.measure import (
 )
 from huefringe.rig.calibrate import Board
 from huefringe.rig.metrology import base_plane, rig_report, xyz_accuracy
+from huefringe.rig.oneshot import ONESHOT_GEOMETRY, is_oneshot, measure_oneshot_session
 from huefringe.session import SLSession, load_sl_session
 from huefringe.x3p import write_height_x3p
 
@@ -82,11 +83,61 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
     base plane (features' ``base``, else every point) resampled on the plane's grid, its X3P, and
     the QA record and figure."""
     s = load_sl_session(session)
+    if is_oneshot(s.spec):
+        raise RigError(f"{s.root / 'sequence.yaml'}: a one-shot session (trapezoid blocks): measured by rig_oneshot, "
+                       "every one-shot frame, not as one coded frame")
     cfg = dict(config)
     calib_file = _calibration_file(s, calibration)
     calib = read_calibration(calib_file)
     f = measure_sl_frame(s, calib, cfg)
     loo = read_jackknife(_one(jackknife)) if _one(jackknife) else []
+    _write_frame(s, f, cfg, calib_file, loo, xyz=xyz, xyz_sigma=xyz_sigma, xyz_u=xyz_u, decoded=decoded, cloud=cloud,
+                 height=height, uncertainty=uncertainty, x3p=x3p, qa=qa, quality=quality)
+
+
+def rig_oneshot(session: str, config: Mapping[str, Any], calibration: str, xyz: Any, xyz_sigma: Any, xyz_u: Any,
+                decoded: Any, cloud: Any, height: Any, uncertainty: Any, x3p: Any, qa: Any, quality: Any,
+                jackknife: Any = "") -> None:
+    """A one-shot structured-light session (``trapezoid`` frames) measured frame after frame: the
+    coded blocks decoded once as the order reference, the hue table from the bands, then each
+    trapezoid frame to X, Y, Z with its uncertainties and the same files as :func:`rig_measure`
+    writes (``frame_NNNN`` the one-shot frame's index), each saying the geometry that measured it
+    (:data:`huefringe.rig.oneshot.ONESHOT_GEOMETRY`)."""
+    import time
+
+    s = load_sl_session(session)
+    cfg = dict(config)
+    calib_file = _calibration_file(s, calibration)
+    calib = read_calibration(calib_file)
+    t0 = time.perf_counter()
+    run = measure_oneshot_session(s, calib, cfg)
+    paths = {"xyz": xyz, "xyz_sigma": xyz_sigma, "xyz_u": xyz_u, "decoded": decoded, "cloud": cloud, "height": height,
+             "uncertainty": uncertainty, "x3p": x3p, "qa": qa, "quality": quality}
+    paths = {k: [v] if isinstance(v, str) else list(v) for k, v in paths.items()}
+    if any(len(v) != len(run.frames) for v in paths.values()):
+        raise RigError(f"{s.root}: {len(run.frames)} one-shot frames, the workflow expects "
+                       f"{len(paths['xyz'])} (is the session's sequence.yaml newer than the run's plan?)")
+    loo = read_jackknife(_one(jackknife)) if _one(jackknife) else []
+    order = run.order_summary()
+    prov = dict(s.meta.get("provenance") or {})
+    prov["notes"] = "; ".join(x for x in (prov.get("notes"), f"geometry: {ONESHOT_GEOMETRY}") if x)
+    for k, f in enumerate(run.frames):
+        counts = run.results[k].reason_counts()
+        _write_frame(s, f, cfg, calib_file, loo, **{key: v[k] for key, v in paths.items()}, frame=k, provenance=prov,
+                     title=f"{s.id}: one-shot frame {k}, projector coordinates",
+                     extra_qa={"geometry": ONESHOT_GEOMETRY, "frame": k, "order": order,
+                               "hue_table": {"bands": run.table.n_bands, "model": run.table.model},
+                               "dropped_by_reason": {n: c for n, c in counts.items() if c}})
+    log.info("%s: %d one-shot frames measured (%s) in %.1f s", s.id, len(run.frames), ONESHOT_GEOMETRY,
+             time.perf_counter() - t0)
+
+
+def _write_frame(s: SLSession, f: RigFrame, cfg: dict[str, Any], calib_file: str, loo: list[Any], *, xyz: str,
+                 xyz_sigma: str, xyz_u: str, decoded: str, cloud: str, height: str, uncertainty: str, x3p: str, qa: str,
+                 quality: str, frame: int = 0, provenance: Mapping[str, Any] | None = None,
+                 title: str | None = None, extra_qa: Mapping[str, Any] | None = None) -> None:
+    """One triangulated frame's files: X, Y, Z with sigma and u, decoded coordinates, cloud, height
+    over the base plane and its uncertainty, X3P, QA record and figure."""
     u_cal, u_cal_ray = calibration_spread(f, loo)
     u_all = np.concatenate([np.hypot(f.sigma, u_cal), np.hypot(f.sigma_ray, u_cal_ray)[..., None]], axis=-1)
     write_tiff(xyz, f.xyz.astype(np.float32))
@@ -102,8 +153,8 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
     grid = plane_grid(f, h_cam, u_cam, plane.centroid, plane.normal)
     write_tiff(height, grid["height"], pixel_pitch_mm=grid["pitch_mm"])
     write_tiff(uncertainty, grid["uncertainty"], pixel_pitch_mm=grid["pitch_mm"])
-    write_height_x3p(x3p, grid["height"], grid["pitch_mm"], session_id=s.id, frame=0,
-                     provenance=s.meta.get("provenance"))
+    write_height_x3p(x3p, grid["height"], grid["pitch_mm"], session_id=s.id, frame=frame,
+                     provenance=s.meta.get("provenance") if provenance is None else provenance)
     write_json(qa, {
         "session": s.id, "triangulation": f.mode, "valid_fraction": float(f.valid.mean()),
         "points": int(f.valid.sum()), "median_sigma_xyz_mm": np.nanmedian(f.sigma[f.valid], axis=0).tolist(),
@@ -116,8 +167,9 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
                              "median_u_ray_mm": float(np.nanmedian(u_cal_ray)) if loo else None,
                              "note": "jackknife over the calibration's board poses" if loo else
                                      "not available: the calibration file comes without its board poses"},
+        **(extra_qa or {}),
     })
-    fig = quality_figure(d["decoded"], f"{s.id}: decoded projector coordinates", reasons=True)
+    fig = quality_figure(d["decoded"], title or f"{s.id}: decoded projector coordinates", reasons=True)
     write_figure_png(fig, quality, dpi=90)
     log.info("%s: %d points (%.1f %% of the camera), triangulation %s, base plane RMS %.4f mm",
              s.id, int(f.valid.sum()), 100 * f.valid.mean(), f.mode, plane.rms_mm)
@@ -191,7 +243,8 @@ def rig_metrology(session: str, config: Mapping[str, Any], calibration: str, xyz
     rig_report(s, dict(config), calibration=_calibration_file(s, calibration), xyz=read_tiff(xyz),
                sigma=read_tiff(xyz_sigma)[..., :3], decoded=read_tiff(decoded), jackknife=_one(jackknife),
                calibration_report=_one(calibration_report), json_path=json, html_path=html,
-               figures={"render": render, "height": height_map, "decode_quality": quality})
+               figures={"render": render, "height": height_map, "decode_quality": quality},
+               oneshot=is_oneshot(s.spec))
 
 
 def rig_accuracy(session: str, calibration: str, xyz: str, xyz_sigma: str, xyz_u: str, accuracy: str) -> None:
@@ -208,4 +261,5 @@ def rig_accuracy(session: str, calibration: str, xyz: str, xyz_sigma: str, xyz_u
                                       sigma=read_tiff(xyz_sigma), calibration=calib, true_uv=true_uv))
 
 
-__all__ = ["rig_accuracy", "rig_calibrate", "rig_calibration_from", "rig_measure", "rig_metrology", "rig_surfaces"]
+__all__ = ["rig_accuracy", "rig_calibrate", "rig_calibration_from", "rig_measure", "rig_metrology", "rig_oneshot",
+           "rig_surfaces"]

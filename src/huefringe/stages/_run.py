@@ -21,7 +21,9 @@ from huefringe.session import SessionError, load_session, load_sl_session
 from huefringe.x3p import X3PError
 from ._calibration import camera_calibration, hue_table, plane_calibration
 from ._measurement import baseline_frames, cloud_frames, measure_frames
-from ._rig import rig_accuracy, rig_calibrate, rig_measure, rig_metrology, rig_surfaces
+from huefringe.codecs.sequence import TrapezoidBlock
+from huefringe.rig.oneshot import is_oneshot
+from ._rig import rig_accuracy, rig_calibrate, rig_measure, rig_metrology, rig_oneshot, rig_surfaces
 
 
 log = logging.getLogger("huefringe")
@@ -103,7 +105,8 @@ def calibrate_rig_session(session: str | Path, out: str | Path, config: Mapping[
 
 def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[str, Any], *,
                         calibration: str | Path | None = None, surfaces: bool = True) -> dict[str, Path]:
-    """A structured-light session measured without Snakemake: the workflow's ``rig_measure``,
+    """A structured-light session measured without Snakemake: the workflow's ``rig_measure`` (or
+    ``rig_oneshot`` for a session with one-shot frames, every frame's files),
     ``rig_surfaces``, ``rig_metrology`` (with ``features.yaml``) and ``rig_accuracy`` (with
     ``ground_truth/xyz.tiff``) in that order, into ``out`` in the results layout
     (:data:`RIG_OUTPUTS`).
@@ -132,8 +135,15 @@ def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[st
             *(("accuracy",) if "xyz" in s.ground_truth else ())]
     for k in keep:
         p[k].parent.mkdir(parents=True, exist_ok=True)
-    rig_measure(str(s.root), config, str(calibration), **{k: str(p[k]) for k in RIG_MEASURE},
-                jackknife=beside["jackknife"])
+    if is_oneshot(s.spec):   # every one-shot frame, frame_0000 .. (the report and surfaces of the first)
+        n = sum(b.frames for b in s.spec.blocks if isinstance(b, TrapezoidBlock))
+        frames = {k: [str(p[k]).replace("frame_0000", f"frame_{i:04d}") for i in range(n)] for k in RIG_MEASURE}
+        for k in RIG_MEASURE:
+            p[k].parent.mkdir(parents=True, exist_ok=True)
+        rig_oneshot(str(s.root), config, str(calibration), **frames, jackknife=beside["jackknife"])
+    else:
+        rig_measure(str(s.root), config, str(calibration), **{k: str(p[k]) for k in RIG_MEASURE},
+                    jackknife=beside["jackknife"])
     if surfaces:
         rig_surfaces(str(s.root), str(p["height"]), str(p["uncertainty"]), config["mesh"], config["render"],
                      **{k: str(p[k]) for k in RIG_SURFACES})

@@ -1,0 +1,120 @@
+"""A one-shot structured-light session through the workflow: the paper's Fig. 9 gauge blocks
+(3.0 green, 1.0 blue, 4.0 red mm on a tilted base) captured with coded blocks, hue bands and three
+trapezoid frames on the bench rig calibrated by its printed-board poses, from captures to
+report.html; every frame's X, Y, Z, the steps against the bench's truth within U, the geometry in
+every output's provenance."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+import tifffile
+import yaml
+from bench_helpers import CONFIG
+from test_rig_workflow import snakemake
+
+from huefringe.report import validate_report
+from huefringe.rig.metrology import ONESHOT_METHOD
+from huefringe.rig.oneshot import ONESHOT_GEOMETRY
+
+TRUTH = {"block-3": 3.0, "block-1": 1.0, "block-4": 4.0}
+
+
+def oneshot_workdir(path: Path) -> Path:
+    """A run folder whose config lists the one-shot session only (its calibration session joins by itself)."""
+    path.mkdir(parents=True, exist_ok=True)
+    cfg = json.loads(json.dumps(CONFIG))
+    cfg["sessions"] = ["sessions/rig-oneshot"]
+    cfg["bench_sessions"] = {"sessions/rig-oneshot": "rig-oneshot", "sessions/rig-poses": "rig-poses"}
+    cfg["render"].update(width=320, height=240)
+    cfg["codecs"]["noise"] = {"read_dn": 1.0, "full_well_e": None}
+    cfg.pop("table1", None)
+    (path / "config.yaml").write_text(yaml.safe_dump(cfg))
+    return path
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    work = oneshot_workdir(tmp_path_factory.mktemp("oneshotwf"))
+    (work / "run.stderr").write_text(snakemake(work, "--cores", "2").stderr)
+    return work
+
+
+def test_steps_against_the_truth_within_U_and_the_decision(run: Path) -> None:
+    doc = json.loads((run / "results/rig-oneshot/metrology/report.json").read_text())
+    validate_report(doc)
+    assert doc["method"] == ONESHOT_METHOD and doc["frames"] == 1
+    assert doc["geometry"]["name"] == ONESHOT_GEOMETRY and doc["provenance"]["geometry"] == ONESHOT_GEOMETRY
+    steps = {s["name"]: s for s in doc["steps"]}
+    assert sorted(steps) == sorted(TRUTH)
+    for name, h in TRUTH.items():
+        s = steps[name]
+        assert s["nominal_mm"] == h
+        assert abs(s["mean_mm"] - h) <= s["U_mm"], s            # the bench's truth inside U
+        assert abs(s["error_mm"]) <= 0.01 * h, s               # measured: +0.43 / +0.62 / -0.11 % (docs/rig.md)
+        assert s["uncertainty_budget"]["calibration_mm"] >= 0 and s["uncertainty_budget"]["points_mm"] > 0
+    for flat in doc["forms"]["flatness"]:
+        assert flat["mean_mm"] <= flat["U_mm"], flat              # flat tops: FLTq within its U of 0
+    assert doc["conformity"]["decision"] in ("conforms", "does not conform", "undecided")
+    tail = (run / "run.stderr").read_text().split("huefringe: results")[-1]
+    assert f"rig-oneshot: {doc['conformity']['decision'].upper()} (ISO 14253-1)" in tail
+    html = (run / "results/rig-oneshot/metrology/report.html").read_text()
+    assert ONESHOT_GEOMETRY in html and "block-4" in html
+
+
+def test_every_frame_measured_with_its_geometry_and_u(run: Path) -> None:
+    res = run / "results/rig-oneshot"
+    truth = tifffile.imread(run / "sessions/rig-oneshot/ground_truth/xyz.tiff")
+    lit = np.isfinite(truth).all(axis=-1)
+    zs = []
+    for k in range(3):
+        xyz = tifffile.imread(res / f"xyz/frame_{k:04d}.tiff")
+        u = tifffile.imread(res / f"xyz/frame_{k:04d}_u.tiff")
+        sigma = tifffile.imread(res / f"xyz/frame_{k:04d}_sigma.tiff")
+        valid = np.isfinite(xyz).all(axis=-1)
+        assert xyz.shape == (480, 640, 3) and u.shape == sigma.shape == (480, 640, 4)
+        assert (np.isfinite(u).all(axis=-1) == valid).all() and (u[valid] >= sigma[valid] - 1e-7).all()
+        assert not (valid & ~lit).any()                      # nothing the projector does not light directly
+        assert valid[lit].mean() > 0.95
+        qa = json.loads((res / f"qa/frames/frame_{k:04d}.json").read_text())
+        assert qa["geometry"] == ONESHOT_GEOMETRY and qa["frame"] == k and qa["triangulation"] == "u"
+        rng = qa["order"]["unambiguous_range_mm"]
+        assert 5.0 < rng["front_p05_mm"] and 5.0 < rng["back_p05_mm"]   # half a 36 px period: about 11 mm here
+        for rel in (f"cloud/frame_{k:04d}.ply", f"x3p/frame_{k:04d}.x3p", f"height/frame_{k:04d}.tiff",
+                    f"qa/frame_{k:04d}_decode.png"):
+            assert (res / rel).stat().st_size > 1000, rel
+        with zipfile.ZipFile(res / f"x3p/frame_{k:04d}.x3p") as z:
+            assert ONESHOT_GEOMETRY in z.read("main.xml").decode()
+        zs.append(xyz[..., 2])
+    # three captures of a still scene: independent noise, the same surface within it
+    d = (zs[1] - zs[0])[np.isfinite(zs[0]) & np.isfinite(zs[1])]
+    s = tifffile.imread(res / "xyz/frame_0000_sigma.tiff")[..., 2]
+    assert 0 < np.std(d) < 3 * np.sqrt(2) * np.nanmedian(s)
+    acc = json.loads((res / "accuracy.json").read_text())
+    assert acc["valid_without_truth"] == 0 and acc["coverage_of_truth"] > 0.95
+    # the one-shot decoding's own error (same calibration, true projector coordinates) against its sigma
+    assert 0.92 <= acc["decoding"]["within_2sigma"] <= 0.98, acc["decoding"]
+
+
+def test_rig_measure_cli_measures_every_frame_as_the_workflow(run: Path, tmp_path: Path, capsys) -> None:
+    from huefringe.cli import main
+
+    out = tmp_path / "out"
+    assert main(["rig-measure", str(run / "sessions/rig-oneshot"), str(out), "--calibration",
+                 str(run / "results/rig-oneshot/calib/rig.yml"), "--configfile", str(run / "config.yaml")]) == 0
+    assert "report:" in capsys.readouterr().out
+    for k in range(3):
+        a = tifffile.imread(out / f"xyz/frame_{k:04d}.tiff")
+        b = tifffile.imread(run / f"results/rig-oneshot/xyz/frame_{k:04d}.tiff")
+        np.testing.assert_array_equal(a, b)
+        assert json.loads((out / f"qa/frames/frame_{k:04d}.json").read_text())["geometry"] == ONESHOT_GEOMETRY
+    assert json.loads((out / "metrology/report.json").read_text())["method"] == ONESHOT_METHOD
+    from huefringe.rig.measure import RigError
+    from huefringe.stages import rig_measure
+
+    with pytest.raises(RigError, match="a one-shot session"):   # never measured as one coded frame
+        rig_measure(str(run / "sessions/rig-oneshot"), CONFIG, "", *(str(tmp_path / f"x{i}") for i in range(10)))
