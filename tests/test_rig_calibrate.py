@@ -144,3 +144,38 @@ def test_fronto_parallel_refinement_refuses_a_wrong_board():
     cal = rig.calibration
     assert refine_corners_fronto_parallel(np.full_like(p["image"], 128), c, BOARD, cal.camera_matrix,
                                           cal.camera_distortion) is None
+
+
+@pytest.mark.slow
+def test_refined_corners_remove_the_shared_depth_bias_of_a_printed_board_session(tmp_path):
+    # the demo's calibration session (holdout-wide rig, pose seed 4): the detector's corners put
+    # every point ~0.2 mm too far along its ray (camera focal length +0.6 px, every pose agreeing);
+    # refined in fronto-parallel views the calibration lands on the truth
+    from huefringe.bench import load_sl_bench_config, write_sl_session
+    from huefringe.rig.measure import calibrate_sl_session
+    from huefringe.rig.triangulation import camera_rays, triangulate
+    from huefringe.session import load_sl_session
+    from huefringe.settings import load_config
+
+    cfg = load_sl_bench_config("rig-poses")
+    write_sl_session(cfg, tmp_path / "rig-poses")
+    s = load_sl_session(tmp_path / "rig-poses")
+    rig = RIGS[cfg["rig"]]
+    yy, xx = np.mgrid[20:460:20, 20:620:20]
+    pix = np.column_stack([xx.ravel(), yy.ravel()]).astype(float)
+    d = camera_rays(rig.calibration, pix)
+    X = d * (430.0 / d[:, 2:3])
+    uv = rig.to_projector(X)
+    ray = X / np.linalg.norm(X, axis=1, keepdims=True)
+    bias = {}
+    for rounds in (0, 1):
+        conf = load_config({"codecs": {"noise": {"read_dn": 1.0, "full_well_e": None}},
+                            "rig": {"corner_refinement_rounds": rounds}})
+        run = calibrate_sl_session(s, conf)
+        t = triangulate(run.calibration, uv[:, 0], uv[:, 1], pixels=pix, mode="both")
+        bias[rounds] = float(np.nanmean(np.einsum("ij,ij->i", t.xyz - X, ray)))
+        if rounds:
+            assert run.report.corner_refinement["not_refined"] == []
+            assert abs(run.calibration.camera_matrix[0, 0] - rig.camera_f) < 0.2
+    assert bias[0] > 0.15
+    assert abs(bias[1]) < 0.04
