@@ -9,6 +9,7 @@ from scipy.spatial import cKDTree
 
 from huefringe.bench.rig import RIGS, pose_set
 from huefringe.rig import calibrate_rig, detect_corners, projector_corners
+from huefringe.rig.calibrate import refine_corners_fronto_parallel
 
 CASES = [("tune", 8, 1), ("holdout-wide", 6, 7), ("holdout-wide", 10, 3), ("holdout-narrow", 8, 11), ("holdout-narrow", 6, 5)]
 
@@ -109,3 +110,72 @@ def test_weighted_local_homography_beats_unweighted_when_half_the_window_is_nois
     # equal sigmas weigh alike: the same fit as no sigma
     p1, _ = projector_corners(c, Un, Vn, valid, 10, 50, sigma_u=np.full(U.shape, 0.1), sigma_v=np.full(U.shape, 0.1))
     assert np.abs(p1 - pu).max() < 1e-9
+
+
+def test_fronto_parallel_refinement_removes_the_detector_bias_on_tilted_boards():
+    # the detector's corners on tilted boards carry a bias shared by each pose's corners (a shift
+    # and a scale of the grid); found again in the board's fronto-parallel view, with the rig's
+    # model, they lie on the true corners
+    rig = RIGS["holdout-wide"]
+    rng = np.random.default_rng(5)
+    cal = rig.calibration
+    before, after = [], []
+    for R, t in pose_set(rig, BOARD, 8, seed=4):
+        p = rig.board_pose(BOARD, R, t, rng, corner_sigma_px=0.0, coord_sigma_px=0.05, image=True)
+        img = np.clip(p["image"] + rng.normal(0, 1, p["image"].shape), 0, 255).astype(np.uint8)
+        c = detect_corners(img, BOARD)
+        truth = p["camera_true"][cKDTree(p["camera_true"]).query(c)[1]]
+        r = refine_corners_fronto_parallel(img, c, BOARD, cal.camera_matrix, cal.camera_distortion)
+        assert r is not None and r.shape == c.shape
+        before.append((c - truth).mean(axis=0))
+        after.append((r - truth).mean(axis=0))
+        assert np.sqrt(np.mean(np.sum((r - truth) ** 2, axis=1))) < 0.03
+    # each pose's own shift of its grid (about the poses' common one, which a board pose absorbs)
+    spread = [np.sqrt(np.mean(np.sum((np.array(m) - np.mean(m, axis=0)) ** 2, axis=1))) for m in (before, after)]
+    print(spread)
+    assert spread[1] < 0.5 * spread[0]
+
+
+def test_fronto_parallel_refinement_refuses_a_wrong_board():
+    rig = RIGS["tune"]
+    R, t = pose_set(rig, BOARD, 1, seed=9)[0]
+    p = rig.board_pose(BOARD, R, t, np.random.default_rng(1), corner_sigma_px=0.0, coord_sigma_px=0.05, image=True)
+    c = detect_corners(p["image"], BOARD)
+    cal = rig.calibration
+    assert refine_corners_fronto_parallel(np.full_like(p["image"], 128), c, BOARD, cal.camera_matrix,
+                                          cal.camera_distortion) is None
+
+
+@pytest.mark.slow
+def test_refined_corners_remove_the_shared_depth_bias_of_a_printed_board_session(tmp_path):
+    # the demo's calibration session (holdout-wide rig, pose seed 4): the detector's corners put
+    # every point ~0.2 mm too far along its ray (camera focal length +0.6 px, every pose agreeing);
+    # refined in fronto-parallel views the calibration lands on the truth
+    from huefringe.bench import load_sl_bench_config, write_sl_session
+    from huefringe.rig.measure import calibrate_sl_session
+    from huefringe.rig.triangulation import camera_rays, triangulate
+    from huefringe.session import load_sl_session
+    from huefringe.settings import load_config
+
+    cfg = load_sl_bench_config("rig-poses")
+    write_sl_session(cfg, tmp_path / "rig-poses")
+    s = load_sl_session(tmp_path / "rig-poses")
+    rig = RIGS[cfg["rig"]]
+    yy, xx = np.mgrid[20:460:20, 20:620:20]
+    pix = np.column_stack([xx.ravel(), yy.ravel()]).astype(float)
+    d = camera_rays(rig.calibration, pix)
+    X = d * (430.0 / d[:, 2:3])
+    uv = rig.to_projector(X)
+    ray = X / np.linalg.norm(X, axis=1, keepdims=True)
+    bias = {}
+    for rounds in (0, 1):
+        conf = load_config({"codecs": {"noise": {"read_dn": 1.0, "full_well_e": None}},
+                            "rig": {"corner_refinement_rounds": rounds}})
+        run = calibrate_sl_session(s, conf)
+        t = triangulate(run.calibration, uv[:, 0], uv[:, 1], pixels=pix, mode="both")
+        bias[rounds] = float(np.nanmean(np.einsum("ij,ij->i", t.xyz - X, ray)))
+        if rounds:
+            assert run.report.corner_refinement["not_refined"] == []
+            assert abs(run.calibration.camera_matrix[0, 0] - rig.camera_f) < 0.2
+    assert bias[0] > 0.15
+    assert abs(bias[1]) < 0.04

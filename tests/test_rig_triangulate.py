@@ -83,3 +83,32 @@ def test_step_heights(rig_name, n_poses, seed):
         top = (label == k) & (local[..., 0] > x0 + 3) & (local[..., 0] < x1 - 3)
         step = step_height_u(t.xyz[t.valid & band], t.sigma[t.valid & band], t.xyz[t.valid & top], t.sigma[t.valid & top])
         assert abs(step["height_mm"] / h - 1) < 0.003, k
+
+
+def test_calibration_term_on_pixels_away_from_every_sample():
+    from dataclasses import replace
+
+    from huefringe.rig.measure import RigFrame, calibration_spread
+
+    rig = RIGS["tune"]
+    cal = rig.calibration
+    w, h = rig.camera_size
+    xyz = rig.rays * (430.0 / rig.rays[..., 2:3])
+    uv = rig.to_projector(xyz.reshape(-1, 3)).reshape(h, w, 2)
+    valid = np.zeros((h, w), dtype=bool)
+    valid[40:120, 40:200] = True                  # a region with samples every 4 pixels
+    valid[101:103, 301:303] = True                # an island between the samples (rows and columns 100, 104, 300, 304)
+    valid[237, 413] = True                        # a lone pixel
+    t = triangulate(cal, uv[..., 0], uv[..., 1], valid=valid)
+    frame = RigFrame(t.xyz, t.sigma, t.valid, {"u": uv[..., 0], "v": uv[..., 1]}, "both", t.sigma_ray)
+    jack = [(f"j{k}", replace(cal, T=cal.T + np.array([0.05 * k, -0.03 * k, 0.2 * (k % 3)]))) for k in range(6)]
+    u_axes, u_ray = calibration_spread(frame, jack)
+    assert np.isfinite(u_ray[t.valid]).all() and np.isfinite(u_axes[t.valid]).all()
+    assert np.isnan(u_ray[~t.valid]).all()
+    # the island's term is its own jackknife spread
+    pts = np.stack([triangulate(c, uv[..., 0], uv[..., 1], valid=valid).xyz[101, 301] for _, c in jack])
+    dev = pts - pts.mean(axis=0)
+    n = len(jack)
+    expect = np.sqrt((n - 1) / n * (n - 1) / (n - 3) * np.sum(dev**2, axis=0))
+    assert np.allclose(u_axes[101, 301], expect, rtol=1e-9)
+    assert u_ray[237, 413] > 0

@@ -35,6 +35,7 @@ from huefringe.rig.calibrate import (
     calibrate_rig,
     detect_corners,
     projector_corners,
+    refine_corners_fronto_parallel,
 )
 from huefringe.rig.decoded import RelativeCoordinateError, TriangulationInputs, relative_axes_problems, triangulation_inputs
 from huefringe.rig.filestorage import KEY_MAPS, CalibrationFileError, read_calibration, write_calibration
@@ -55,6 +56,7 @@ __all__ = [
     "detect_corners",
     "projector_corners",
     "read_calibration",
+    "refine_corners_fronto_parallel",
     "relative_axes_problems",
     "triangulate",
     "triangulation_inputs",

@@ -22,7 +22,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from huefringe.rig.model import RigCalibration
 
-__all__ = ["Board", "CalibrationReport", "PoseObservation", "calibrate_rig", "detect_corners", "projector_corners"]
+__all__ = ["Board", "CalibrationReport", "PoseObservation", "calibrate_rig", "detect_corners", "projector_corners",
+           "refine_corners_fronto_parallel"]
 
 F64 = NDArray[np.float64]
 
@@ -85,10 +86,14 @@ class CalibrationReport:
     rms_px: dict[str, float] = field(default_factory=dict)
     form_floor: dict[str, Any] | None = None
     """The calibration boards' flatness with the final calibration (:mod:`huefringe.rig.measure`), when measured."""
+    corner_refinement: dict[str, Any] | None = None
+    """How the camera corners were refined in fronto-parallel views (:func:`refine_corners_fronto_parallel`), when they were."""
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready form."""
-        out = {"rms_px": self.rms_px, "rejected": self.rejected, "poses": self.poses}
+        out: dict[str, Any] = {"rms_px": self.rms_px, "rejected": self.rejected, "poses": self.poses}
+        if self.corner_refinement is not None:
+            out["corner_refinement"] = self.corner_refinement
         return out if self.form_floor is None else {**out, "form_floor": self.form_floor}
 
 
@@ -107,6 +112,73 @@ def detect_corners(image: ArrayLike, board: Board) -> F64 | None:
         flag = cv2.CALIB_CB_SYMMETRIC_GRID if board.kind == "circles" else cv2.CALIB_CB_ASYMMETRIC_GRID
         ok, c = cv2.findCirclesGrid(img, size, flags=flag)
     return c.reshape(-1, 2).astype(np.float64) if ok else None
+
+
+def refine_corners_fronto_parallel(image: ArrayLike, corners: ArrayLike, board: Board, camera_matrix: ArrayLike,
+                                   camera_distortion: ArrayLike, *, max_shift_px: float = 1.0) -> F64 | None:
+    """Camera corners found again in a fronto-parallel view of the board (Datta, Kim & Kanade 2009).
+
+    A corner detector's sub-pixel estimate is biased on a tilted board: perspective makes the
+    squares around a corner unequal and the edges meet at other angles than 90 degrees. The board's
+    pose is estimated from ``corners`` with the camera's model (``cv2.solvePnP``), the image is
+    resampled on the board's own plane (as many samples per mm as the camera has pixels per mm
+    there, 1.5 squares of margin, wider when the detector misses the board), the corners are detected there (:func:`detect_corners`: the
+    squares are square again) and carried back into the camera image through the same model. The
+    model's own errors enter the resampling and the way back alike, so they cancel to first order.
+
+    Parameters
+    ----------
+    image : array_like, shape (H, W)
+        The image ``corners`` were found in.
+    corners : array_like, shape (N, 2)
+        The board's corners in OpenCV's order (:func:`detect_corners`), camera pixels.
+    board : Board
+    camera_matrix, camera_distortion : array_like
+        The camera's model (a first calibration from ``corners``).
+    max_shift_px : float
+        A refined corner farther than this from its first estimate is not the same corner.
+
+    Returns
+    -------
+    ndarray, shape (N, 2), or None
+        The refined corners in the order of ``corners``; ``None`` when the board is not found in
+        the fronto-parallel view or a corner moves more than ``max_shift_px``.
+    """
+    img = np.asarray(image, dtype=np.float32)
+    if img.ndim == 3:
+        img = img.mean(axis=2)
+    c = np.asarray(corners, dtype=np.float64).reshape(-1, 2)
+    K, dist = np.asarray(camera_matrix, dtype=np.float64), np.asarray(camera_distortion, dtype=np.float64)
+    obj = board.object_points().astype(np.float64)
+    ok, rv, tv = cv2.solvePnP(obj, c, K, dist, flags=cv2.SOLVEPNP_ITERATIVE)
+    if not ok:
+        return None
+    # camera pixels per mm on the board: neighbours along each row of the grid
+    dc = np.linalg.norm(np.diff(c.reshape(board.rows, board.cols, 2), axis=1), axis=2)
+    do = np.linalg.norm(np.diff(obj[:, :2].reshape(board.rows, board.cols, 2), axis=1), axis=2)
+    ppm = float(np.median(dc / do))
+    span = obj[:, :2].max(axis=0)
+    found = None
+    for margin in (1.5 * board.pitch_mm, 2.0 * board.pitch_mm, 2.5 * board.pitch_mm):   # the detector's search is
+        xs = np.arange(-margin, span[0] + margin, 1.0 / ppm)                          # fickle: a wider margin
+        ys = np.arange(-margin, span[1] + margin, 1.0 / ppm)                          # when it misses the board
+        X, Y = np.meshgrid(xs, ys)
+        grid = np.column_stack([X.ravel(), Y.ravel(), np.zeros(X.size)])
+        q = cv2.projectPoints(grid, rv, tv, K, dist)[0].reshape(*X.shape, 2).astype(np.float32)
+        rect = cv2.remap(img, q[..., 0], q[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+        found = detect_corners(rect, board)
+        if found is not None and len(found) == len(c):
+            break
+    if found is None or len(found) != len(c):
+        return None
+    on_board = np.column_stack([xs[0] + found[:, 0] / ppm, ys[0] + found[:, 1] / ppm, np.zeros(len(found))])
+    back = cv2.projectPoints(on_board, rv, tv, K, dist)[0].reshape(-1, 2)
+    # the view's detection may number the corners from another end: match each corner to its nearest
+    d2 = ((c[:, None, :] - back[None, :, :]) ** 2).sum(axis=2)
+    j = np.argmin(d2, axis=1)
+    if len(np.unique(j)) != len(c) or np.sqrt(d2[np.arange(len(c)), j]).max() > max_shift_px:
+        return None
+    return back[j]
 
 
 def projector_corners(

@@ -27,7 +27,15 @@ from scipy.spatial import cKDTree
 from huefringe.codecs import DecodeOptions, Reason, SequenceError, decode_sequence, load_sequence, read_captures
 from huefringe.io import atomic_path
 from huefringe.metrology import flatness_u, sigma_along
-from huefringe.rig.calibrate import Board, CalibrationReport, PoseObservation, calibrate_rig, detect_corners, projector_corners
+from huefringe.rig.calibrate import (
+    Board,
+    CalibrationReport,
+    PoseObservation,
+    calibrate_rig,
+    detect_corners,
+    projector_corners,
+    refine_corners_fronto_parallel,
+)
 from huefringe.rig.decoded import RelativeCoordinateError, TriangulationInputs, relative_axes_problems, triangulation_inputs
 from huefringe.rig.filestorage import write_calibration
 from huefringe.rig.model import RigCalibration
@@ -107,8 +115,8 @@ def decode_frame(images: list[NDArray[np.number]], spec: Any, cfg: dict[str, Any
 
 
 def _observe(name: str, where: Path, d: dict[str, Any], image: Any, board: Board, rc: dict[str, Any],
-             problems: list[str]) -> PoseObservation | None:
-    corners = detect_corners(image, board)
+             problems: list[str], corners: F64 | None = None) -> PoseObservation | None:
+    corners = detect_corners(image, board) if corners is None else corners
     if corners is None:
         problems.append(f"{where}: the {board.cols} x {board.rows} {board.kind} was not found")
         return None
@@ -119,6 +127,12 @@ def _observe(name: str, where: Path, d: dict[str, Any], image: Any, board: Board
         problems.append(f"{where}: {int((~ok).sum())} of {len(ok)} corners without {rc['min_window_pixels']} decoded pixels around them")
         return None
     return PoseObservation(name, corners, pc)
+
+
+CORNER_REFINEMENT_ROUNDS = 1
+"""Rounds of finding the camera corners again in each board's fronto-parallel view, each followed by
+the projector corners and the calibration again, when the configuration's ``rig`` block does not
+set ``corner_refinement_rounds`` (chosen on the bench's tune rig: a second round does not improve)."""
 
 
 PoseLoader = Callable[[], tuple[dict[str, Any], Any]]
@@ -155,6 +169,7 @@ def _calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board
         raise RigError(f"{where}: calibration needs both projector axes (x and y) in the sequence; it codes "
                        f"{', '.join(spec.axes()) or 'none'}")
     obs = []
+    images: dict[str, Any] = {}
     size = None
     for name, folder, load in poses:
         try:
@@ -171,6 +186,7 @@ def _calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board
         if o is not None:
             obs.append(o)
             decoded[name] = d
+            images[name] = image
             size = (d["mean"].shape[1], d["mean"].shape[0])
     if len(obs) < rc["min_poses"]:
         problems.append(f"{where}: {len(obs)} usable poses; a calibration needs at least {rc['min_poses']}")
@@ -180,6 +196,29 @@ def _calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board
     kw = {"fix_k3": rc["fix_k3"], "min_poses": rc["min_poses"]}
     proj = (spec.projector_width, spec.projector_height)
     calib, report = calibrate_rig(obs, board, size, proj, outlier_factor=rc["outlier_factor"], **kw)
+    rounds = int(rc.get("corner_refinement_rounds", CORNER_REFINEMENT_ROUNDS))
+    if rounds > 0:
+        refinement: dict[str, Any] = {
+            "method": "fronto-parallel views (Datta, Kim & Kanade 2009): corners found again on the board's plane "
+                      "resampled with the calibration, carried back; projector corners and calibration again",
+            "rounds": rounds, "not_refined": [], "mean_shift_px": []}
+        for _ in range(rounds):
+            again, shifts, kept = [], [], []
+            for o in obs:
+                c = refine_corners_fronto_parallel(images[o.name], o.camera, board, calib.camera_matrix,
+                                                   calib.camera_distortion)
+                r = None if c is None else _observe(o.name, where, decoded[o.name], None, board, rc, [], corners=c)
+                if r is None:
+                    kept.append(o.name)
+                    again.append(o)
+                    continue
+                shifts.append(float(np.linalg.norm(r.camera - o.camera, axis=1).mean()))
+                again.append(r)
+            obs = again
+            refinement["not_refined"] = kept
+            refinement["mean_shift_px"].append(round(float(np.mean(shifts)), 4) if shifts else None)
+            calib, report = calibrate_rig(obs, board, size, proj, outlier_factor=rc["outlier_factor"], **kw)
+        report.corner_refinement = refinement
     used = [o for o in obs if o.name not in report.rejected]
     jack = []
     if len(used) > rc["min_poses"]:
@@ -462,6 +501,10 @@ def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibratio
         leave-one-out calibrations.
     u_ray : ndarray, shape (H, W)
         The same along the point's camera ray (where a triangulated point's error lies).
+
+    Every valid pixel gets a term: one without a valid sample within ``stride`` pixels gets its own,
+    and one that a leave-one-out calibration cannot triangulate (behind a device) gets an
+    infinite term (the calibrations do not agree that the point exists).
     """
     u_axes = np.where(frame.valid[..., None], np.zeros(3), np.nan)
     u_ray = np.where(frame.valid, 0.0, np.nan)
@@ -474,22 +517,10 @@ def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibratio
     sample = np.zeros_like(frame.valid)
     sample[::stride, ::stride] = True
     sample &= frame.valid
-    d = frame.decoded
-    use = {"u": frame.mode in ("u", "both"), "v": frame.mode in ("v", "both")}
-    pts = []
-    for _, c in jackknife:
-        t = triangulate(c, d["u"] if use["u"] else None, d["v"] if use["v"] else None,
-                        valid=sample, mode=frame.mode)  # type: ignore[arg-type]
-        pts.append(t.xyz[sample])
-    p = np.stack(pts)
-    dev = p - p.mean(axis=0)
-    ray = frame.xyz[sample] / np.linalg.norm(frame.xyz[sample], axis=-1, keepdims=True)
     scale = (n - 1) / n * (n - 1) / (n - 3)
+    vals, got = _jackknife_at(frame, jackknife, sample, scale)
     coarse = np.zeros(((h + stride - 1) // stride, (w + stride - 1) // stride, 5), dtype=np.float32)
-    got = np.isfinite(dev).all(axis=(0, 2))
     rows, cols = np.nonzero(sample)
-    vals = np.column_stack([np.sqrt(scale * np.sum(dev**2, axis=0)),
-                            np.sqrt(scale * np.sum(np.einsum("jik,ik->ji", dev, ray) ** 2, axis=0)), np.ones(len(ray))])
     coarse[rows[got] // stride, cols[got] // stride] = vals[got]
     # bilinear between the samples (pixel i*stride of the full grid is sample i), weights normalised
     yy = np.arange(h) / stride
@@ -500,7 +531,34 @@ def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibratio
         est = fine[..., :4] / fine[..., 4:5]
     u_axes[frame.valid] = est[frame.valid][:, :3]
     u_ray[frame.valid] = est[frame.valid][:, 3]
+    # a valid pixel with no sample around it (a small island, the edge of a region): its own term
+    alone = frame.valid & ~np.isfinite(u_ray)
+    if alone.any():
+        vals, got = _jackknife_at(frame, jackknife, alone, scale)
+        a_axes, a_ray = np.full((int(alone.sum()), 3), np.inf), np.full(int(alone.sum()), np.inf)
+        a_axes[got], a_ray[got] = vals[got, :3], vals[got, 3]
+        u_axes[alone], u_ray[alone] = a_axes, a_ray
     return u_axes, u_ray
+
+
+def _jackknife_at(frame: RigFrame, jackknife: list[tuple[str, RigCalibration]], where: NDArray[np.bool_],
+                  scale: float) -> tuple[F64, NDArray[np.bool_]]:
+    """The jackknife spread (per axis, along the ray, and a weight of one) of the points at ``where``
+    and whether every leave-one-out calibration triangulated them."""
+    d = frame.decoded
+    use = {"u": frame.mode in ("u", "both"), "v": frame.mode in ("v", "both")}
+    pts = []
+    for _, c in jackknife:
+        t = triangulate(c, d["u"] if use["u"] else None, d["v"] if use["v"] else None,
+                        valid=where, mode=frame.mode)  # type: ignore[arg-type]
+        pts.append(t.xyz[where])
+    p = np.stack(pts)
+    dev = p - p.mean(axis=0)
+    ray = frame.xyz[where] / np.linalg.norm(frame.xyz[where], axis=-1, keepdims=True)
+    got = np.isfinite(dev).all(axis=(0, 2))
+    vals = np.column_stack([np.sqrt(scale * np.sum(dev**2, axis=0)),
+                            np.sqrt(scale * np.sum(np.einsum("jik,ik->ji", dev, ray) ** 2, axis=0)), np.ones(len(ray))])
+    return vals, got
 
 
 def height_over_plane(frame: RigFrame, centroid: F64, normal: F64) -> tuple[F64, F64]:
