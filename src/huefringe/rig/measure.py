@@ -129,12 +129,6 @@ def _observe(name: str, where: Path, d: dict[str, Any], image: Any, board: Board
     return PoseObservation(name, corners, pc)
 
 
-CORNER_REFINEMENT_ROUNDS = 1
-"""Rounds of finding the camera corners again in each board's fronto-parallel view, each followed by
-the projector corners and the calibration again, when the configuration's ``rig`` block does not
-set ``corner_refinement_rounds`` (chosen on the bench's tune rig: a second round does not improve)."""
-
-
 PoseLoader = Callable[[], tuple[dict[str, Any], Any]]
 """Decodes one pose: :func:`decode_frame`'s maps and the image its corners are found in."""
 
@@ -196,7 +190,7 @@ def _calibrate_poses(poses: list[tuple[str, Path, PoseLoader]], spec: Any, board
     kw = {"fix_k3": rc["fix_k3"], "min_poses": rc["min_poses"]}
     proj = (spec.projector_width, spec.projector_height)
     calib, report = calibrate_rig(obs, board, size, proj, outlier_factor=rc["outlier_factor"], **kw)
-    rounds = int(rc.get("corner_refinement_rounds", CORNER_REFINEMENT_ROUNDS))
+    rounds = int(rc["corner_refinement_rounds"])
     if rounds > 0:
         refinement: dict[str, Any] = {
             "method": "fronto-parallel views (Datta, Kim & Kanade 2009): corners found again on the board's plane "
