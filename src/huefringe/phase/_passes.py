@@ -279,6 +279,39 @@ def _box(t, v0, v1, u0, u1):  # pragma: no cover - compiled
     return t[v1, u1] - t[v0, u1] - t[v1, u0] + t[v0, u0]
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _plane_slope(first, wfirst, a, b, c, base):  # pragma: no cover - compiled
+    """The local phase slope (rad/px) through a pixel along one axis, and its variance, from the
+    first-pass estimates ``first`` at flat indices ``a`` (``-base`` px), ``b`` (the pixel) and ``c``
+    (``+base`` px), their variances ``1 / wfirst``: the central difference where the two one-sided
+    differences agree within ``3`` standard deviations of their difference, else the one of smaller
+    magnitude when both have the same sign (a step on one side), else 0 (a peak, a valley, or a
+    neighbour not valid). Differences wrapped to [-pi, pi)."""
+    two_pi = np.float32(2.0 * np.pi)
+    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
+    pi = np.float32(np.pi)
+    zero = np.float32(0.0)
+    fl = first.ravel()
+    wl = wfirst.ravel()
+    if a < 0 or c < 0 or wl[a] <= 0 or wl[c] <= 0:
+        return zero, zero
+    va = np.float32(1.0) / wl[a]
+    vb = np.float32(1.0) / wl[b]
+    vc = np.float32(1.0) / wl[c]
+    fwd = fl[c] - fl[b]
+    fwd = (fwd - two_pi * np.floor((fwd + pi) * inv_two_pi)) / base
+    bwd = fl[b] - fl[a]
+    bwd = (bwd - two_pi * np.floor((bwd + pi) * inv_two_pi)) / base
+    dd = fwd - bwd
+    if dd * dd * base * base <= np.float32(9.0) * (va + np.float32(4.0) * vb + vc):
+        return np.float32(0.5) * (fwd + bwd), (va + vc) / (np.float32(4.0) * base * base)
+    if fwd * bwd <= 0:
+        return zero, zero
+    if abs(fwd) < abs(bwd):
+        return fwd, (vb + vc) / (base * base)
+    return bwd, (va + vb) / (base * base)
+
+
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
                    rad, full, sw, sc, ss, sn, chi_z, carry, c, cfirst, cout, scar):
@@ -325,6 +358,10 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
         pu = np.empty(w, np.int64)  # the row's pixels that need the pass, and their running state
         pm = np.empty(w, np.float32)
         psf = np.empty(w, np.float32)
+        pgu = np.empty(w, np.float32)  # the local plane: phase slope along u and v (rad/px), variances
+        pgv = np.empty(w, np.float32)
+        pvu = np.empty(w, np.float32)
+        pvv = np.empty(w, np.float32)
         pdc = np.empty(w, np.float32)
         pacc = np.empty(w, np.float32)
         pw = np.empty(w, np.float32)
@@ -397,6 +434,11 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
             u = pu[q]
             pm[q] = first[v, u]
             psf[q] = np.float32(1.0) / wfirst[v, u]
+            bu = radius + 1  # first-pass windows that do not overlap the pixel's
+            pgu[q], pvu[q] = _plane_slope(first, wfirst, v * w + u - bu if u >= bu else -1, v * w + u,
+                                          v * w + u + bu if u + bu < w else -1, np.float32(bu))
+            pgv[q], pvv[q] = _plane_slope(first, wfirst, (v - bu) * w + u if v >= bu else -1, v * w + u,
+                                          (v + bu) * w + u if v + bu < h else -1, np.float32(bu))
             pdc[q] = d[v, u]
             pacc[q] = 0.0
             pw[q] = 0.0
@@ -415,6 +457,10 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                     # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to sums
                     # that start at +0 and so are never -0: bit for bit as skipping it. The
                     # carried map in loops of its own (the same operations on the rest)
+                    fdu = np.float32(du)
+                    fdv = np.float32(dv)
+                    du2 = fdu * fdu
+                    dv2 = fdv * fdv
                     if carry:
                         for q in range(n):
                             uu = pu[q] + du
@@ -427,9 +473,9 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         for q in range(n):
                             x = xg[q]
                             iv = ig[q]
-                            dm = x - pm[q]
+                            dm = x - pm[q] - (pgu[q] * fdu + pgv[q] * fdv)
                             dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q] + pvu[q] * du2 + pvv[q] * dv2))
                             diff = x - pdc[q]
                             diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
                             pacc[q] += iv * diff if keep else zero
@@ -446,9 +492,9 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         for q in range(n):
                             x = xg[q]
                             iv = ig[q]
-                            dm = x - pm[q]
+                            dm = x - pm[q] - (pgu[q] * fdu + pgv[q] * fdv)
                             dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q] + pvu[q] * du2 + pvv[q] * dv2))
                             diff = x - pdc[q]
                             diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
                             pacc[q] += iv * diff if keep else zero
@@ -479,6 +525,10 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                     pu[keep_n] = pu[q]
                     pm[keep_n] = pm[q]
                     psf[keep_n] = psf[q]
+                    pvv[keep_n] = pvv[q]
+                    pvu[keep_n] = pvu[q]
+                    pgv[keep_n] = pgv[q]
+                    pgu[keep_n] = pgu[q]
                     pdc[keep_n] = pdc[q]
                     pacc[keep_n] = pacc[q]
                     pw[keep_n] = pw[q]
