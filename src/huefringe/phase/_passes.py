@@ -318,9 +318,14 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
-    accepted when they agree with the pixel's first-pass estimate within ``k`` combined sigma
-    (``diff^2 <= k2 (s_j^2 + 1 / wfirst)``): a noisy pixel is judged by its better estimate, so
-    a step stays a step. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
+    accepted when they agree within ``k`` combined sigma with the local plane through the pixel's
+    first-pass estimate: ``(d_j - m - g . o_j)^2 <= k2 (s_j^2 + 1 / wfirst + var(g . o_j))``,
+    ``o_j`` the neighbour's offset and ``g`` the local phase slope from the first-pass map
+    (:func:`_plane_slope`, ``radius + 1`` px either side). A noisy pixel is judged by its better
+    estimate, so a step stays a step; and on a phase ramp the test's expected difference is 0 at
+    every offset, so which neighbours enter does not follow the first-pass estimate's noise (tested
+    against the level ``m`` alone, the far neighbours of a ramp sit near the bound and the accepted
+    set moves with that noise, a variance ``1 / sum w`` does not hold). Pixels whose weights stay below ``reject_w`` become NaN (no filter can
     save them). ``wout`` receives each pixel's final sum of accepted weights (0 where not
     valid). Float32, fixed visiting order: the result depends only on the inputs. With ``full``,
     ``rad`` receives each pixel's final window half side (``radius`` where the first pass stands),
