@@ -82,38 +82,37 @@ def test_uncertain_pixels_follow_their_neighbours_and_invalid_ones_are_ignored()
     assert denoise_phase(np.full((5, 5), 0.7, np.float32), np.full((5, 5), 0.1), lone)[2, 2] == np.float32(0.7)
 
 
-def _plane_by_pixel(first, wfirst, v, u, radius):
+def _plane_by_pixel(first, wfirst, v, u, base):
     """The local plane the grown rings test against at pixel ``(v, u)``: its slopes along ``u``
-    and ``v`` (rad/px) and their variances, each from the first-pass estimates ``radius + 1`` px
-    either side (float32): the central difference where the one-sided ones agree within 3 sigma
-    of their difference, else the smaller one-sided slope when both have one sign (a step on one
-    side), else 0 (0 also when a side is outside the image or not valid)."""
+    and ``v`` (rad/px) and their variances, each the central difference of the first-pass
+    estimates ``base`` px either side (float32), where the two one-sided differences agree within
+    3 sigma of their difference and the slope exceeds 2 of its sigma; else 0 (a step, an edge, a
+    slope lost in the noise, a side outside the image or not valid)."""
     f32 = np.float32
     two_pi, inv_two_pi, pi = f32(2 * np.pi), f32(1 / (2 * np.pi)), f32(np.pi)
 
     def wrapped(x):
         return f32(x - two_pi * np.floor(f32((x + pi) * inv_two_pi)))
 
-    def slope(a, c, e, base):
+    def slope(a, c, e):
         if a is None or e is None or wfirst[a] <= 0 or wfirst[e] <= 0:
             return f32(0), f32(0)
         va, vb, vc = f32(1) / wfirst[a], f32(1) / wfirst[c], f32(1) / wfirst[e]
-        base = f32(base)
-        fwd = f32(wrapped(f32(first[e] - first[c])) / base)
-        bwd = f32(wrapped(f32(first[c] - first[a])) / base)
+        b = f32(base)
+        fwd = f32(wrapped(f32(first[e] - first[c])) / b)
+        bwd = f32(wrapped(f32(first[c] - first[a])) / b)
         dd = f32(fwd - bwd)
-        if f32(f32(dd * dd) * base * base) <= f32(f32(9) * f32(f32(va + f32(4) * vb) + vc)):
-            return f32(f32(0.5) * f32(fwd + bwd)), f32(f32(va + vc) / f32(f32(4) * base * base))
-        if fwd * bwd <= 0:
+        if f32(f32(dd * dd) * b * b) > f32(f32(9) * f32(f32(va + f32(4) * vb) + vc)):
             return f32(0), f32(0)
-        if abs(fwd) < abs(bwd):
-            return fwd, f32(f32(vb + vc) / f32(base * base))
-        return bwd, f32(f32(va + vb) / f32(base * base))
+        g = f32(f32(0.5) * f32(fwd + bwd))
+        vg = f32(f32(va + vc) / f32(f32(4) * b * b))
+        if f32(g * g) <= f32(f32(4) * vg):
+            return f32(0), f32(0)
+        return g, vg
 
     h, w = first.shape
-    b = radius + 1
-    gu, vu = slope((v, u - b) if u >= b else None, (v, u), (v, u + b) if u + b < w else None, b)
-    gv, vv = slope((v - b, u) if v >= b else None, (v, u), (v + b, u) if v + b < h else None, b)
+    gu, vu = slope((v, u - base) if u >= base else None, (v, u), (v, u + base) if u + base < w else None)
+    gv, vv = slope((v - base, u) if v >= base else None, (v, u), (v + base, u) if v + base < h else None)
     return gu, vu, gv, vv
 
 
@@ -140,7 +139,7 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
                 out[v, u] = first[v, u] if ws >= reject_w else np.nan
                 continue
             m, sf2 = first[v, u], f32(1) / ws
-            gu, vu, gv, vv_ = _plane_by_pixel(first, wfirst, v, u, radius)
+            gu, vu, gv, vv_ = _plane_by_pixel(first, wfirst, v, u, max_radius)
             acc = wsum = f32(0)
             rr = radius
             for r in range(max_radius + 1):
@@ -154,10 +153,11 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
                             fu, fv = f32(du), f32(dv)
                             plane = f32(f32(gu * fu) + f32(gv * fv))
                             dm = wrapped(f32(f32(d[vv, uu] - m) - plane))
-                            bound = f32(f32(f32(s2[vv, uu] + sf2) + f32(vu * f32(fu * fu))) + f32(vv_ * f32(fv * fv)))
-                            if f32(dm * dm) <= f32(k2 * bound):
+                            lim = f32(k2 * f32(s2[vv, uu] + sf2))
+                            extra = f32(k2 * f32(f32(vu * f32(fu * fu)) + f32(vv_ * f32(fv * fv))))
+                            if f32(plane * plane) <= lim and f32(dm * dm) <= f32(lim + extra):
                                 diff = wrapped(f32(d[vv, uu] - d[v, u]))
-                                acc = f32(acc + f32(inv[vv, uu] * diff))
+                                acc = f32(acc + f32(inv[vv, uu] * f32(diff - plane)))
                                 wsum = f32(wsum + inv[vv, uu])
                 rr = r
                 if r >= radius and wsum >= target_w:
@@ -329,7 +329,7 @@ def _carried_by_pixel(d, s2, inv, c, first, wfirst, out, radius, max_radius, k2,
             if inv[v, u] <= 0:
                 continue
             sums = []
-            plane = _plane_by_pixel(first, wfirst, v, u, radius)
+            plane = _plane_by_pixel(first, wfirst, v, u, max_radius)
             for r_max, ref, s_ref, (gu, vu, gv, vg) in ((radius, d[v, u], s2[v, u], (f32(0),) * 4),
                                                         (max_radius, first[v, u], f32(1) / wfirst[v, u], plane)):
                 sw = sc = 0.0
@@ -341,9 +341,11 @@ def _carried_by_pixel(d, s2, inv, c, first, wfirst, out, radius, max_radius, k2,
                             vv, uu = v + dv, u + du
                             if 0 <= vv < h and 0 <= uu < w and inv[vv, uu] > 0:
                                 fu, fv = f32(du), f32(dv)
-                                dm = wrapped(f32(f32(d[vv, uu] - ref) - f32(f32(gu * fu) + f32(gv * fv))))
-                                bound = f32(f32(f32(s2[vv, uu] + s_ref) + f32(vu * f32(fu * fu))) + f32(vg * f32(fv * fv)))
-                                if f32(dm * dm) <= f32(k2 * bound):
+                                pl = f32(f32(gu * fu) + f32(gv * fv))
+                                dm = wrapped(f32(f32(d[vv, uu] - ref) - pl))
+                                lim = f32(k2 * f32(s2[vv, uu] + s_ref))
+                                extra = f32(k2 * f32(f32(vu * f32(fu * fu)) + f32(vg * f32(fv * fv))))
+                                if f32(pl * pl) <= lim and f32(dm * dm) <= f32(lim + extra):
                                     sw += float(inv[vv, uu])
                                     sc += float(inv[vv, uu]) * float(c[vv, uu])
                                     wf = f32(wf + inv[vv, uu])

@@ -283,10 +283,11 @@ def _box(t, v0, v1, u0, u1):  # pragma: no cover - compiled
 def _plane_slope(first, wfirst, a, b, c, base):  # pragma: no cover - compiled
     """The local phase slope (rad/px) through a pixel along one axis, and its variance, from the
     first-pass estimates ``first`` at flat indices ``a`` (``-base`` px), ``b`` (the pixel) and ``c``
-    (``+base`` px), their variances ``1 / wfirst``: the central difference where the two one-sided
-    differences agree within ``3`` standard deviations of their difference, else the one of smaller
-    magnitude when both have the same sign (a step on one side), else 0 (a peak, a valley, or a
-    neighbour not valid). Differences wrapped to [-pi, pi)."""
+    (``+base`` px), their variances ``1 / wfirst``: the central difference ``(first_c - first_a) /
+    (2 base)``, variance ``(1 / wfirst_a + 1 / wfirst_c) / (4 base^2)``, where the two one-sided
+    differences agree within 3 standard deviations of their difference and the slope exceeds 2 of
+    its own; else 0 (a step, an edge or a kink between the sides, a slope lost in the noise, a side
+    outside the image or not valid: the pixel's level). Differences wrapped to [-pi, pi)."""
     two_pi = np.float32(2.0 * np.pi)
     inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
     pi = np.float32(np.pi)
@@ -303,13 +304,13 @@ def _plane_slope(first, wfirst, a, b, c, base):  # pragma: no cover - compiled
     bwd = fl[b] - fl[a]
     bwd = (bwd - two_pi * np.floor((bwd + pi) * inv_two_pi)) / base
     dd = fwd - bwd
-    if dd * dd * base * base <= np.float32(9.0) * (va + np.float32(4.0) * vb + vc):
-        return np.float32(0.5) * (fwd + bwd), (va + vc) / (np.float32(4.0) * base * base)
-    if fwd * bwd <= 0:
-        return zero, zero
-    if abs(fwd) < abs(bwd):
-        return fwd, (vb + vc) / (base * base)
-    return bwd, (va + vb) / (base * base)
+    if dd * dd * base * base > np.float32(9.0) * (va + np.float32(4.0) * vb + vc):
+        return zero, zero  # the sides disagree (a step, an edge, a kink): no plane
+    g = np.float32(0.5) * (fwd + bwd)
+    vg = (va + vc) / (np.float32(4.0) * base * base)
+    if g * g <= np.float32(4.0) * vg:
+        return zero, zero  # not significant: the level
+    return g, vg
 
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
@@ -318,14 +319,20 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
-    accepted when they agree within ``k`` combined sigma with the local plane through the pixel's
-    first-pass estimate: ``(d_j - m - g . o_j)^2 <= k2 (s_j^2 + 1 / wfirst + var(g . o_j))``,
-    ``o_j`` the neighbour's offset and ``g`` the local phase slope from the first-pass map
-    (:func:`_plane_slope`, ``radius + 1`` px either side). A noisy pixel is judged by its better
-    estimate, so a step stays a step; and on a phase ramp the test's expected difference is 0 at
-    every offset, so which neighbours enter does not follow the first-pass estimate's noise (tested
-    against the level ``m`` alone, the far neighbours of a ramp sit near the bound and the accepted
-    set moves with that noise, a variance ``1 / sum w`` does not hold). Pixels whose weights stay below ``reject_w`` become NaN (no filter can
+    tested against the local plane through the pixel's first-pass estimate ``m``: ``o_j`` the
+    neighbour's offset, ``g`` the local phase slope from the first-pass map (:func:`_plane_slope`,
+    estimates ``max_radius`` px either side; 0 where it is not significant or the sides disagree)
+    and ``p_j = g . o_j`` the plane's rise to the neighbour, it is accepted when
+    ``p_j^2 <= k2 (s_j^2 + 1 / wfirst)`` (the ring follows the ramp's iso-phase band as far as the
+    level test would reach on average, but decided by the smooth plane, not by the noisy values)
+    and ``(d_j - m - p_j)^2 <= k2 (s_j^2 + 1 / wfirst + var(p_j))`` (a step, an outlier); its
+    phase enters the mean as ``d_j - p_j``, the value the plane carries back to the pixel. A noisy
+    pixel is judged by its better estimate, so a step stays a step. On a ramp whose pixels carry
+    different sigma (a textured surface) a test against the level alone lets the accepted set move
+    with the first-pass estimate's noise, and a mean of the raw values follows the texture's
+    weights along the slope (a variance ``1 / sum w`` does not hold, and an error shared by the
+    frames); the plane removes both to first order. Where ``g = 0`` the test and the mean are the level's, bit for bit.
+    Pixels whose weights stay below ``reject_w`` become NaN (no filter can
     save them). ``wout`` receives each pixel's final sum of accepted weights (0 where not
     valid). Float32, fixed visiting order: the result depends only on the inputs. With ``full``,
     ``rad`` receives each pixel's final window half side (``radius`` where the first pass stands),
@@ -439,7 +446,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
             u = pu[q]
             pm[q] = first[v, u]
             psf[q] = np.float32(1.0) / wfirst[v, u]
-            bu = radius + 1  # first-pass windows that do not overlap the pixel's
+            bu = max_radius  # the plane from first-pass estimates as far out as the largest ring
             pgu[q], pvu[q] = _plane_slope(first, wfirst, v * w + u - bu if u >= bu else -1, v * w + u,
                                           v * w + u + bu if u + bu < w else -1, np.float32(bu))
             pgv[q], pvv[q] = _plane_slope(first, wfirst, (v - bu) * w + u if v >= bu else -1, v * w + u,
@@ -478,12 +485,14 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         for q in range(n):
                             x = xg[q]
                             iv = ig[q]
-                            dm = x - pm[q] - (pgu[q] * fdu + pgv[q] * fdv)
+                            pl = pgu[q] * fdu + pgv[q] * fdv
+                            dm = x - pm[q] - pl
                             dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q] + pvu[q] * du2 + pvv[q] * dv2))
+                            lim = k2 * (sg[q] + psf[q])
+                            keep = (iv > 0) & (pl * pl <= lim) & (dm * dm <= lim + k2 * (pvu[q] * du2 + pvv[q] * dv2))
                             diff = x - pdc[q]
                             diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                            pacc[q] += iv * diff if keep else zero
+                            pacc[q] += iv * (diff - pl) if keep else zero
                             pw[q] += iv if keep else zero
                             pcc[q] += iv * cg[q] if keep else zero
                     else:
@@ -497,12 +506,14 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         for q in range(n):
                             x = xg[q]
                             iv = ig[q]
-                            dm = x - pm[q] - (pgu[q] * fdu + pgv[q] * fdv)
+                            pl = pgu[q] * fdu + pgv[q] * fdv
+                            dm = x - pm[q] - pl
                             dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q] + pvu[q] * du2 + pvv[q] * dv2))
+                            lim = k2 * (sg[q] + psf[q])
+                            keep = (iv > 0) & (pl * pl <= lim) & (dm * dm <= lim + k2 * (pvu[q] * du2 + pvv[q] * dv2))
                             diff = x - pdc[q]
                             diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                            pacc[q] += iv * diff if keep else zero
+                            pacc[q] += iv * (diff - pl) if keep else zero
                             pw[q] += iv if keep else zero
                     du += step if step > 0 else 1
             if r >= radius or r == max_radius:
