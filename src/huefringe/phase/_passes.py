@@ -331,8 +331,8 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     different sigma (a textured surface) a test against the level alone lets the accepted set move
     with the first-pass estimate's noise, and a mean of the raw values follows the texture's
     weights along the slope (a variance ``1 / sum w`` does not hold, and an error shared by the
-    frames); the plane removes both to first order. Where ``g = 0`` the test and the mean are the level's, bit for bit.
-    Pixels whose weights stay below ``reject_w`` become NaN (no filter can
+    frames); the plane removes both to first order. Where ``g = 0`` the test and the mean are the
+    level's, bit for bit. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
     save them). ``wout`` receives each pixel's final sum of accepted weights (0 where not
     valid). Float32, fixed visiting order: the result depends only on the inputs. With ``full``,
     ``rad`` receives each pixel's final window half side (``radius`` where the first pass stands),
