@@ -36,9 +36,7 @@ or a textured one (lognormal, 0.05 rad x e^N(0, 0.5)): the filtered phase's spre
 draws against its predicted ``1 / sqrt(sum w)``, median over the pixels, at ``k`` = 3, 5 and
 100 (no rejection), and on the textured ramp at ``k`` = 3 with the window's growth capped at
 ``max_radius`` 2 (the fixed 5 x 5 window), 3, 4 and 6 (the grown rings test their neighbours
-against the pixel's first-pass estimate); last, the default filter's spread on the textured
-ramp against ``1 / sqrt(sum w)`` with the rings' decision terms of :func:`ring_decision_terms`
-added (a prototype, not in the library).
+against the local plane through the pixel's first-pass estimate, ``phase._adaptive_pass``).
 """
 
 from __future__ import annotations
@@ -53,7 +51,6 @@ from pathlib import Path
 import numpy as np
 import tifffile
 from scipy import ndimage
-from scipy.special import ndtr
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import accuracy_matrix as am  # noqa: E402
@@ -274,71 +271,7 @@ def filter_check(draws: int = 40, seed: int = 1) -> list[str]:
     lines += ["", "| textured ramp, k = 3 | max_radius 2 (fixed 5 x 5) | 3 | 4 | 6 (default) |",
               "| --- | ---: | ---: | ---: | ---: |",
               "| spread / predicted | " + " | ".join(f"{c:.2f}" for c in cells) + " |"]
-    # a decision term for the grown rings (the default, max_radius 6), from the known ramp
-    rng_d = np.random.default_rng(seed + 1)
-    outs, sums = [], []
-    for _ in range(draws):
-        ws = np.zeros((h, w), np.float32)
-        d = ramp + rng_d.normal(0.0, 1.0, (h, w)).astype(np.float32) * sig
-        outs.append(denoise_phase(d, sig, valid, radius=2, k=3.0, max_radius=6, target_sigma=0.002,
-                                  reject_sigma=0.03, weight_sum=ws) - ramp)
-        sums.append(ws)
-    inner = (slice(8, -8), slice(8, -8))
-    spread = np.nanstd(np.array(outs), axis=0)[inner]
-    base_u = np.sqrt(np.nanmean(1.0 / np.array(sums), axis=0))
-    sens2, flip = ring_decision_terms(ramp.astype(np.float64), sig.astype(np.float64), k=3.0, radius=2, max_radius=6)
-    cells = [float(np.nanmedian(spread / x[inner])) for x in
-             (base_u, np.sqrt(base_u**2 + sens2), np.sqrt(base_u**2 + flip), np.sqrt(base_u**2 + sens2 + flip))]
-    lines += ["", "| textured ramp, default filter: spread / | 1 / sqrt(sum w) | + sensitivity | + flips | + both |",
-              "| --- | ---: | ---: | ---: | ---: |",
-              "| median over the pixels | " + " | ".join(f"{c:.2f}" for c in cells) + " |"]
     return lines
-
-
-def ring_decision_terms(mu: np.ndarray, sigma: np.ndarray, *, k: float, radius: int,
-                        max_radius: int) -> tuple[np.ndarray, np.ndarray]:
-    """Two variance terms (rad^2) of the grown rings' accept decisions, from the noise-free phase
-    ``mu`` and the pixels' sigma (a prototype, not in the library).
-
-    A ring neighbour ``j`` enters when ``|d_j - f1|^2 <= k^2 (s_j^2 + 1 / W1)`` (``f1`` the
-    first-pass estimate, ``W1`` its weight sum, taken as the whole first window's). With
-    ``D_j = mu_j - mu_0`` it enters with probability ``p_j(delta) = Phi((T - D_j + delta) / s_j)
-    - Phi((-T - D_j + delta) / s_j)``, ``delta`` the first-pass error. The expected grown mean
-    ``m = sum p w D / sum p w`` (first window at ``p = 1``) moves with ``delta`` by
-    ``S = dm / d delta``: **sensitivity** ``S^2 / W1``; each neighbour's accept test is also a
-    Bernoulli draw: **flips** ``sum p (1 - p) (w (D - m))^2 / (sum p w)^2``.
-    """
-    h, w_ = mu.shape
-    wgt = 1.0 / sigma**2
-    pad = max_radius
-    wp = np.pad(wgt, pad)
-    sp = np.pad(sigma, pad, constant_values=1.0)
-    mp = np.pad(mu, pad, mode="edge")
-
-    def shifted(a: np.ndarray, dv: int, du: int) -> np.ndarray:
-        return a[pad + dv:pad + dv + h, pad + du:pad + du + w_]
-
-    w1 = sum(shifted(wp, dv, du) for dv in range(-radius, radius + 1) for du in range(-radius, radius + 1))
-    s1 = 1.0 / w1
-    den, num, dden, dnum = w1.copy(), np.zeros((h, w_)), np.zeros((h, w_)), np.zeros((h, w_))
-    ring = [(dv, du) for dv in range(-max_radius, max_radius + 1) for du in range(-max_radius, max_radius + 1)
-            if max(abs(dv), abs(du)) > radius]
-    cache = []
-    for dv, du in ring:
-        wj, sj, dj = shifted(wp, dv, du), shifted(sp, dv, du), shifted(mp, dv, du) - mu
-        t = k * np.sqrt(sj**2 + s1)
-        a, b = (t - dj) / sj, (-t - dj) / sj
-        p = ndtr(a) - ndtr(b)
-        dp = (np.exp(-0.5 * a * a) - np.exp(-0.5 * b * b)) / (np.sqrt(2.0 * np.pi) * sj)
-        den += p * wj
-        num += p * wj * dj
-        dden += dp * wj
-        dnum += dp * wj * dj
-        cache.append((wj, dj, p))
-    m = num / den
-    sens2 = ((dnum - m * dden) / den) ** 2 * s1
-    flip = sum(p * (1.0 - p) * (wj * (dj - m)) ** 2 for wj, dj, p in cache) / den**2
-    return sens2, flip
 
 
 def main() -> None:

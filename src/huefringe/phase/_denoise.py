@@ -38,8 +38,11 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     max_radius, target_sigma : int, float
         Sigma-adaptive support: a pixel whose filtered sigma (``1 / sqrt`` of its accepted
         inverse variances) is above ``target_sigma`` gets a window grown ring by ring up to
-        ``max_radius``, its neighbours tested against its first-pass estimate (so a step is
-        never crossed); 0 = fixed window.
+        ``max_radius``, its neighbours tested against the local plane through its first-pass
+        estimate (that estimate plus the local phase slope times the neighbour's offset) and
+        averaged as the values the plane carries back to the pixel: a step is never crossed, and
+        on a ramp neither the accepted set nor the mean follows the noise or the texture's
+        weights (:func:`_adaptive_pass`); 0 = fixed window.
     reject_sigma : float
         Pixels whose filtered sigma stays above this become NaN (invalid); 0 = never.
     box_chi_z : float

@@ -279,15 +279,60 @@ def _box(t, v0, v1, u0, u1):  # pragma: no cover - compiled
     return t[v1, u1] - t[v0, u1] - t[v1, u0] + t[v0, u0]
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _plane_slope(first, wfirst, a, b, c, base):  # pragma: no cover - compiled
+    """The local phase slope (rad/px) through a pixel along one axis, and its variance, from the
+    first-pass estimates ``first`` at flat indices ``a`` (``-base`` px), ``b`` (the pixel) and ``c``
+    (``+base`` px), their variances ``1 / wfirst``: the central difference ``(first_c - first_a) /
+    (2 base)``, variance ``(1 / wfirst_a + 1 / wfirst_c) / (4 base^2)``, where the two one-sided
+    differences agree within 3 standard deviations of their difference and the slope exceeds 2 of
+    its own; else 0 (a step, an edge or a kink between the sides, a slope lost in the noise, a side
+    outside the image or not valid: the pixel's level). Differences wrapped to [-pi, pi)."""
+    two_pi = np.float32(2.0 * np.pi)
+    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
+    pi = np.float32(np.pi)
+    zero = np.float32(0.0)
+    fl = first.ravel()
+    wl = wfirst.ravel()
+    if a < 0 or c < 0 or wl[a] <= 0 or wl[c] <= 0:
+        return zero, zero
+    va = np.float32(1.0) / wl[a]
+    vb = np.float32(1.0) / wl[b]
+    vc = np.float32(1.0) / wl[c]
+    fwd = fl[c] - fl[b]
+    fwd = (fwd - two_pi * np.floor((fwd + pi) * inv_two_pi)) / base
+    bwd = fl[b] - fl[a]
+    bwd = (bwd - two_pi * np.floor((bwd + pi) * inv_two_pi)) / base
+    dd = fwd - bwd
+    if dd * dd * base * base > np.float32(9.0) * (va + np.float32(4.0) * vb + vc):
+        return zero, zero  # the sides disagree (a step, an edge, a kink): no plane
+    g = np.float32(0.5) * (fwd + bwd)
+    vg = (va + vc) / (np.float32(4.0) * base * base)
+    if g * g <= np.float32(4.0) * vg:
+        return zero, zero  # not significant: the level
+    return g, vg
+
+
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
                    rad, full, sw, sc, ss, sn, chi_z, carry, c, cfirst, cout, scar):
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
-    accepted when they agree with the pixel's first-pass estimate within ``k`` combined sigma
-    (``diff^2 <= k2 (s_j^2 + 1 / wfirst)``): a noisy pixel is judged by its better estimate, so
-    a step stays a step. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
+    tested against the local plane through the pixel's first-pass estimate ``m``: ``o_j`` the
+    neighbour's offset, ``g`` the local phase slope from the first-pass map (:func:`_plane_slope`,
+    estimates ``max_radius`` px either side; 0 where it is not significant or the sides disagree)
+    and ``p_j = g . o_j`` the plane's rise to the neighbour, it is accepted when
+    ``p_j^2 <= k2 (s_j^2 + 1 / wfirst)`` (the ring follows the ramp's iso-phase band as far as the
+    level test would reach on average, but decided by the smooth plane, not by the noisy values)
+    and ``(d_j - m - p_j)^2 <= k2 (s_j^2 + 1 / wfirst + var(p_j))`` (a step, an outlier); its
+    phase enters the mean as ``d_j - p_j``, the value the plane carries back to the pixel. A noisy
+    pixel is judged by its better estimate, so a step stays a step. On a ramp whose pixels carry
+    different sigma (a textured surface) a test against the level alone lets the accepted set move
+    with the first-pass estimate's noise, and a mean of the raw values follows the texture's
+    weights along the slope (a variance ``1 / sum w`` does not hold, and an error shared by the
+    frames); the plane removes both to first order. Where ``g = 0`` the test and the mean are the
+    level's, bit for bit. Pixels whose weights stay below ``reject_w`` become NaN (no filter can
     save them). ``wout`` receives each pixel's final sum of accepted weights (0 where not
     valid). Float32, fixed visiting order: the result depends only on the inputs. With ``full``,
     ``rad`` receives each pixel's final window half side (``radius`` where the first pass stands),
@@ -325,6 +370,10 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
         pu = np.empty(w, np.int64)  # the row's pixels that need the pass, and their running state
         pm = np.empty(w, np.float32)
         psf = np.empty(w, np.float32)
+        pgu = np.empty(w, np.float32)  # the local plane: phase slope along u and v (rad/px), variances
+        pgv = np.empty(w, np.float32)
+        pvu = np.empty(w, np.float32)
+        pvv = np.empty(w, np.float32)
         pdc = np.empty(w, np.float32)
         pacc = np.empty(w, np.float32)
         pw = np.empty(w, np.float32)
@@ -397,6 +446,11 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
             u = pu[q]
             pm[q] = first[v, u]
             psf[q] = np.float32(1.0) / wfirst[v, u]
+            bu = max_radius  # the plane from first-pass estimates as far out as the largest ring
+            pgu[q], pvu[q] = _plane_slope(first, wfirst, v * w + u - bu if u >= bu else -1, v * w + u,
+                                          v * w + u + bu if u + bu < w else -1, np.float32(bu))
+            pgv[q], pvv[q] = _plane_slope(first, wfirst, (v - bu) * w + u if v >= bu else -1, v * w + u,
+                                          (v + bu) * w + u if v + bu < h else -1, np.float32(bu))
             pdc[q] = d[v, u]
             pacc[q] = 0.0
             pw[q] = 0.0
@@ -415,6 +469,10 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                     # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to sums
                     # that start at +0 and so are never -0: bit for bit as skipping it. The
                     # carried map in loops of its own (the same operations on the rest)
+                    fdu = np.float32(du)
+                    fdv = np.float32(dv)
+                    du2 = fdu * fdu
+                    dv2 = fdv * fdv
                     if carry:
                         for q in range(n):
                             uu = pu[q] + du
@@ -427,12 +485,14 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         for q in range(n):
                             x = xg[q]
                             iv = ig[q]
-                            dm = x - pm[q]
+                            pl = pgu[q] * fdu + pgv[q] * fdv
+                            dm = x - pm[q] - pl
                             dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            lim = k2 * (sg[q] + psf[q])
+                            keep = (iv > 0) & (pl * pl <= lim) & (dm * dm <= lim + k2 * (pvu[q] * du2 + pvv[q] * dv2))
                             diff = x - pdc[q]
                             diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                            pacc[q] += iv * diff if keep else zero
+                            pacc[q] += iv * (diff - pl) if keep else zero
                             pw[q] += iv if keep else zero
                             pcc[q] += iv * cg[q] if keep else zero
                     else:
@@ -446,12 +506,14 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                         for q in range(n):
                             x = xg[q]
                             iv = ig[q]
-                            dm = x - pm[q]
+                            pl = pgu[q] * fdu + pgv[q] * fdv
+                            dm = x - pm[q] - pl
                             dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            keep = (iv > 0) & (dm * dm <= k2 * (sg[q] + psf[q]))
+                            lim = k2 * (sg[q] + psf[q])
+                            keep = (iv > 0) & (pl * pl <= lim) & (dm * dm <= lim + k2 * (pvu[q] * du2 + pvv[q] * dv2))
                             diff = x - pdc[q]
                             diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                            pacc[q] += iv * diff if keep else zero
+                            pacc[q] += iv * (diff - pl) if keep else zero
                             pw[q] += iv if keep else zero
                     du += step if step > 0 else 1
             if r >= radius or r == max_radius:
@@ -479,6 +541,10 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
                     pu[keep_n] = pu[q]
                     pm[keep_n] = pm[q]
                     psf[keep_n] = psf[q]
+                    pvv[keep_n] = pvv[q]
+                    pvu[keep_n] = pvu[q]
+                    pgv[keep_n] = pgv[q]
+                    pgu[keep_n] = pgu[q]
                     pdc[keep_n] = pdc[q]
                     pacc[keep_n] = pacc[q]
                     pw[keep_n] = pw[q]
