@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import Any
 
 from huefringe import bench
-from huefringe.codecs.sequence import TrapezoidBlock
 from huefringe.rig.decoded import relative_axes_problems
 from huefringe.session import SL_FORMAT, SessionError, load_session, load_sl_session, session_format
 
@@ -100,7 +99,7 @@ def _from_sl_session(path: Path) -> SessionPlan:
         calibration_file=cal.get("file"),
         calibration_session=s.calibration_session,
         sequence=s.spec,
-        oneshot_frames=sum(b.frames for b in s.spec.blocks if isinstance(b, TrapezoidBlock)),
+        oneshot_frames=s.spec.oneshot_frames,
     )
 
 

@@ -197,9 +197,7 @@ def sl_session_plan(cfg: dict[str, Any]) -> dict[str, Any]:
 
 def _oneshot_frames(spec: Any) -> int:
     """The sequence's one-shot (trapezoid) frames: captured in colour when there are any."""
-    from huefringe.codecs.sequence import TrapezoidBlock
-
-    return sum(b.frames for b in spec.blocks if isinstance(b, TrapezoidBlock))
+    return int(spec.oneshot_frames)
 
 
 def _colour_patterns(spec: Any) -> list[NDArray[np.uint8]]:

@@ -402,7 +402,7 @@ def ray_test(d: dict[str, Any], ti: TriangulationInputs, calib: RigCalibration, 
     if ti.mode != "both" or ti.u is None or ti.v is None:
         return d, ti, None
     c = cfg["codecs"]
-    k, floor = float(c.get("max_ray_sigma", np.inf)), float(c.get("ray_floor_px", 0.0))
+    k, floor = float(c["max_ray_sigma"]), float(c["ray_floor_px"])
     r, s = epipolar_residual(calib, ti.u, ti.v, sigma_u=ti.sigma_u, sigma_v=ti.sigma_v)
     with np.errstate(invalid="ignore"):
         bad = ti.valid & (np.abs(r) > np.maximum(k * s, floor))

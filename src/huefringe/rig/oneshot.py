@@ -154,7 +154,7 @@ def oneshot_captures(paths: Sequence[str | os.PathLike[str]], spec: SequenceSpec
     b0 = traps[0][0]
     nb = bands[0][0].n_frames
     return OneShotCaptures(images[0], np.stack(images[1 : 1 + nb]), np.stack(images[1 + nb :]), bands[0][0],
-                           TrapezoidBlock(b0.axis, b0.period_px, b0.origin_px, sum(b.frames for b, _ in traps)),
+                           TrapezoidBlock(b0.axis, b0.period_px, b0.origin_px, spec.oneshot_frames),
                            8 if ref is not None and ref[2] == np.uint8 else 16)
 
 
@@ -469,7 +469,7 @@ def measure_oneshot(rgb: NDArray[np.floating], white: NDArray[np.floating], tabl
 
 def is_oneshot(spec: SequenceSpec) -> bool:
     """Whether a structured-light sequence holds one-shot frames (a ``trapezoid`` block)."""
-    return any(isinstance(b, TrapezoidBlock) for b in spec.blocks)
+    return spec.oneshot_frames > 0
 
 
 @dataclass(frozen=True, eq=False)

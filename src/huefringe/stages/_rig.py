@@ -184,7 +184,7 @@ def _validity(f: RigFrame, cfg: Mapping[str, Any]) -> dict[str, Any]:
     if f.ray_residual is not None:
         r = np.abs(f.ray_residual[np.isfinite(f.ray_residual)])
         out["ray_test"] = {
-            "max_ray_sigma": float(cfg["codecs"].get("max_ray_sigma", np.inf)), "ray_floor_px": float(cfg["codecs"].get("ray_floor_px", 0.0)),
+            "max_ray_sigma": float(cfg["codecs"]["max_ray_sigma"]), "ray_floor_px": float(cfg["codecs"]["ray_floor_px"]),
             "tested": int(r.size), "dropped": int(((dec["x"].reasons & Reason.RAY) != 0).sum()),
             "median_miss_px": float(np.median(r)) if r.size else None,
             "p99_miss_px": float(np.percentile(r, 99)) if r.size else None,

@@ -21,7 +21,6 @@ from huefringe.session import SessionError, load_session, load_sl_session
 from huefringe.x3p import X3PError
 from ._calibration import camera_calibration, hue_table, plane_calibration
 from ._measurement import baseline_frames, cloud_frames, measure_frames
-from huefringe.codecs.sequence import TrapezoidBlock
 from huefringe.rig.oneshot import is_oneshot
 from ._rig import rig_accuracy, rig_calibrate, rig_measure, rig_metrology, rig_oneshot, rig_surfaces
 
@@ -136,7 +135,7 @@ def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[st
     for k in keep:
         p[k].parent.mkdir(parents=True, exist_ok=True)
     if is_oneshot(s.spec):   # every one-shot frame, frame_0000 .. (the report and surfaces of the first)
-        n = sum(b.frames for b in s.spec.blocks if isinstance(b, TrapezoidBlock))
+        n = s.spec.oneshot_frames
         frames = {k: [str(p[k]).replace("frame_0000", f"frame_{i:04d}") for i in range(n)] for k in RIG_MEASURE}
         for k in RIG_MEASURE:
             p[k].parent.mkdir(parents=True, exist_ok=True)

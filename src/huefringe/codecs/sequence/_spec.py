@@ -218,6 +218,11 @@ class SequenceSpec:
             i += b.n_frames
         return out
 
+    @property
+    def oneshot_frames(self) -> int:
+        """One-shot colour frames of the sequence: the ``trapezoid`` blocks' frames (0: a coded sequence)."""
+        return sum(b.frames for b in self.blocks if isinstance(b, TrapezoidBlock))
+
     def axes(self) -> list[Axis]:
         """The projector axes the sequence encodes (``x`` before ``y``)."""
         have = {b.axis for b in self.blocks if isinstance(b, PhaseBlock | GrayBlock)}
