@@ -36,6 +36,8 @@ __all__ = ["Calibrated", "FramePipeline", "FrameResult", "bayer_noise_correlatio
            "noise_aware_adaptive", "prepare_frames", "prepare_session", "session_camera_record",
            "session_corrections", "session_hue_table", "session_plane_calibration", "session_texture_blur"]
 
+_log = logging.getLogger("huefringe")
+
 
 @dataclass
 class FrameResult:
@@ -279,8 +281,6 @@ def reference_colour_flicker(s: Session, hue_model: str, calibration: Mapping[st
                      s.root / "reference" / "hue", fl.amplitude_rad, fl.bands)
     return fl.to_dict()
 
-
-_log = logging.getLogger("huefringe")
 
 
 def plane_row_banding(s: Session, phases: Mapping[float, NDArray[np.floating]],
