@@ -92,3 +92,50 @@ def test_every_scripted_rule_has_one_script_and_one_stage_of_its_name() -> None:
         assert re.search(rf"run_from_snakemake\(snakemake, {name}\)", text), f"scripts/{script} does not call stages.{name}"
         assert len(re.findall(rf"^def {name}\(", stage_src, flags=re.M)) == 1, f"stages.{name} is not defined once"
     assert sorted(p.stem for p in (REPO / "scripts").glob("*.py")) == sorted(scripted)
+
+
+def test_a_measurement_job_loads_no_mesh_render_or_figure_library() -> None:
+    """The measurement script's imports (scripts/measure_frames.py) in a fresh process: its stage's
+    libraries only, not Open3D, trimesh, PyVista or Matplotlib, which other stages use."""
+    import subprocess
+    import sys
+
+    code = ("import sys; from huefringe.stages import measure_frames, run_from_snakemake; "
+            "print(' '.join(m for m in ('open3d', 'trimesh', 'pyvista', 'vtk', 'matplotlib', 'dash') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == []
+    from huefringe.stages import _measurement
+
+    assert stages.measure_frames is _measurement.measure_frames
+    with pytest.raises(AttributeError, match="no attribute 'not_a_stage'"):
+        stages.not_a_stage  # noqa: B018
+
+
+def _refused(session: str, summary: str) -> None:
+    from huefringe.session import SessionError
+
+    raise SessionError.at(Path(session) / "session.yaml", "missing")
+
+
+def _broken(session: str, summary: str) -> None:
+    raise ValueError("a bug, not an input problem")
+
+
+def test_run_from_snakemake_ends_an_input_problem_with_its_message_and_the_job_threads(tmp_path: Path, capsys) -> None:
+    import cv2
+    import numba
+
+    job = _job(params=_Named(session="/data/s1"), output=_Named(summary=str(tmp_path / "o.json")),
+               log=_Named(str(tmp_path / "job.log")))
+    job.threads = 1
+    with pytest.raises(SystemExit) as exc:
+        stages.run_from_snakemake(job, _refused)
+    assert exc.value.code == 1
+    err = capsys.readouterr().err
+    assert "huefringe: " in err and "/data/s1/session.yaml" in err and "missing" in err and "Traceback" not in err
+    assert cv2.getNumThreads() == 1 and numba.get_num_threads() == 1  # the rule's threads, OpenCV's too
+    text = (tmp_path / "job.log").read_text()
+    age = float(re.search(r"_refused: job started ([0-9.]+) s ago", text).group(1))
+    assert 0.0 < age < 3600.0
+    with pytest.raises(ValueError, match="a bug"):  # anything else keeps its traceback
+        stages.run_from_snakemake(job, _broken)

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import json
 import logging
+import time
 from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -584,7 +585,10 @@ def frame_results(s: Session, t: HueTable, cal: PlaneCalibration, frames: Sequen
     arrays are reused from frame to frame: copy what you keep.
     """
     maps = set(frames) if map_frames is None else set(map_frames)
+    t0 = time.perf_counter()
     fp = prepare_frames(s, t, cal, hue_model, measurement, want_uncertainty=want_uncertainty, reader=reader)
+    _log.info("frames of %s ready to measure in %.2f s (white image, shadow mask, %s)", s.id, time.perf_counter() - t0,
+              "the kernel's per-pixel tables" if fp.prep is not None else "the reference chain")
     del t  # with the kernel, its pixel-major copy replaces the band-major table
     for n in frames:
         yield measure_one(fp, n, want_maps=n in maps)

@@ -6,57 +6,44 @@ one or two rule files (``_calibration``: ``bench``, ``calibration``; ``_measurem
 ``surfaces``, ``metrology``; ``_archive``), ``_run`` the runners. Every stage reads its inputs, calls the library, and writes its outputs atomically;
 the measuring ones call :mod:`huefringe.pipeline`, which :func:`huefringe.measure` calls too.
 Nothing here is Snakemake-specific except :func:`run_from_snakemake`, the adapter the scripts use.
+Each name is imported from its private module on first use, so a job's script loads only what
+its stage needs.
 """
 
 from __future__ import annotations
 
-from ._calibration import (  # noqa: F401
-    bench_session,
-    camera_calibration,
-    check_session,
-    hue_table,
-    plane_calibration,
-    compensation,
-)
-from ._measurement import (  # noqa: F401
-    measure_frames,
-    cloud_frames,
-    x3p_frames,
-    baseline_frames,
-    accuracy_report,
-    xy_block,
-)
-from ._surfaces import (  # noqa: F401
-    _height_limits,
-    mesh,
-    render,
-    metrology,
-    _TiffMaps,
-    table1,
-)
-from ._rig import (  # noqa: F401
-    rig_accuracy,
-    rig_calibrate,
-    rig_calibration_from,
-    rig_measure,
-    rig_metrology,
-    rig_oneshot,
-    rig_surfaces,
-)
-from ._archive import (  # noqa: F401
-    add_step_uncertainty,
-    archive_session,
-    archive,
-)
-from ._run import (  # noqa: F401
-    log,
-    measure_session,
-    RIG_OUTPUTS,
-    calibrate_rig_session,
-    measure_rig_session,
-    stage_kwargs,
-    run_from_snakemake,
-)
+import importlib
+from typing import Any
+
+#: Each public name and the private module that defines it, imported on first use, so that a
+#: job's script loads only its own stage's libraries (a measurement job neither Open3D nor trimesh).
+_WHERE: dict[str, str] = {
+    **dict.fromkeys(("bench_session", "camera_calibration", "check_session", "hue_table", "plane_calibration",
+                     "compensation"), "_calibration"),
+    **dict.fromkeys(("measure_frames", "cloud_frames", "x3p_frames", "baseline_frames", "accuracy_report",
+                     "xy_block"), "_measurement"),
+    **dict.fromkeys(("_height_limits", "mesh", "render", "metrology", "_TiffMaps", "table1"), "_surfaces"),
+    **dict.fromkeys(("rig_accuracy", "rig_calibrate", "rig_calibration_from", "rig_measure", "rig_metrology",
+                     "rig_oneshot", "rig_surfaces"), "_rig"),
+    **dict.fromkeys(("add_step_uncertainty", "archive_session", "archive"), "_archive"),
+    **dict.fromkeys(("log", "measure_session", "RIG_OUTPUTS", "calibrate_rig_session", "measure_rig_session",
+                     "stage_kwargs", "run_from_snakemake"), "_run"),
+}
+
+
+def __getattr__(name: str) -> Any:
+    """Import the module defining ``name`` on first use (PEP 562) and keep the name here."""
+    module = _WHERE.get(name)
+    if module is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    value = getattr(importlib.import_module(f"{__name__}.{module}"), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_WHERE})
+
 
 __all__ = [
     "rig_accuracy",

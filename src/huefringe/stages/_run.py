@@ -4,26 +4,15 @@ from __future__ import annotations
 
 import inspect
 import logging
+import os
 import sys
 import time
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from huefringe.archive import ArchiveError
-from huefringe.height import PlaneCalibrationError
-from huefringe.huetable import HueTableError
 from huefringe.io import remove_stale_parts
-from huefringe.metrology import MetrologyError
-from huefringe.perframe import FrameError
-from huefringe.rig.measure import RigError
-from huefringe.session import SessionError, load_session, load_sl_session
-from huefringe.x3p import X3PError
-from ._calibration import camera_calibration, hue_table, plane_calibration
-from ._measurement import baseline_frames, cloud_frames, measure_frames
-from huefringe.rig.oneshot import is_oneshot
-from ._rig import rig_accuracy, rig_calibrate, rig_measure, rig_metrology, rig_oneshot, rig_surfaces
-
+from huefringe.session import load_session, load_sl_session
 
 log = logging.getLogger("huefringe")
 
@@ -41,6 +30,9 @@ def measure_session(session: str | Path, out: str | Path, config: Mapping[str, A
     ``baseline``), the camera record ``camera`` (``camera.json``: X, Y model and channel
     registration, :func:`camera_calibration`) and the loaded ``session``.
     """
+    from ._calibration import camera_calibration, hue_table, plane_calibration
+    from ._measurement import baseline_frames, cloud_frames, measure_frames
+
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     s = load_session(session)
@@ -96,6 +88,8 @@ by the stage that writes them (``rig_measure``, ``rig_surfaces``, ``rig_metrolog
 def calibrate_rig_session(session: str | Path, out: str | Path, config: Mapping[str, Any], board: Any = None) -> dict[str, Path]:
     """The workflow's ``rig_calibrate`` without Snakemake: ``out`` (FileStorage), its report and the
     leave-one-pose-out calibrations beside it; ``board`` overrides the session's."""
+    from ._rig import rig_calibrate
+
     out = Path(out)
     files = {"calibration": out, "report": out.with_suffix(".report.json"), "jackknife": out.with_suffix(".jackknife.json")}
     rig_calibrate(str(session), config, str(out), str(files["report"]), str(files["jackknife"]), board)
@@ -115,6 +109,11 @@ def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[st
     calibration that :func:`calibrate_rig_session` wrote: its report and leave-one-pose-out
     calibrations beside it are then used as the workflow uses them. Returns the paths written.
     """
+    from huefringe.rig.measure import RigError
+    from huefringe.rig.oneshot import is_oneshot
+
+    from ._rig import rig_accuracy, rig_measure, rig_metrology, rig_oneshot, rig_surfaces
+
     s = load_sl_session(session)
     out = Path(out)
     if calibration is None and s.calibration is not None:
@@ -187,10 +186,40 @@ def stage_kwargs(func: Callable[..., None], smk: Any, **extra: Any) -> dict[str,
     return kwargs
 
 
+def process_age() -> float | None:
+    """Seconds since this process started (Linux ``/proc``), or None where that cannot be read."""
+    try:
+        start_ticks = float(Path("/proc/self/stat").read_text().rsplit(")", 1)[1].split()[19])
+        uptime = float(Path("/proc/uptime").read_text().split()[0])
+        return uptime - start_ticks / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def input_errors() -> tuple[type[Exception], ...]:
+    """The exceptions that name a bad input file and its cause (a one-paragraph message, no
+    traceback, in a job's log); imported when asked, so a job loads only its own stage's modules."""
+    from huefringe.archive import ArchiveError
+    from huefringe.height import PlaneCalibrationError
+    from huefringe.huetable import HueTableError
+    from huefringe.metrology import MetrologyError
+    from huefringe.perframe import FrameError
+    from huefringe.rig.measure import RigError
+    from huefringe.session import SessionError
+    from huefringe.x3p import X3PError
+
+    return (SessionError, FrameError, HueTableError, PlaneCalibrationError, MetrologyError, ArchiveError, X3PError,
+            RigError)
+
+
 def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> None:
     """Call ``func`` with the job's named inputs, outputs and params as keyword arguments.
 
-    Logging goes to the job's log file; numba's parallel passes use the job's ``threads``. Known
+    Logging goes to the job's log file, which starts with the job's start-up (the seconds from
+    the process's start to the stage's call: Python, Snakemake's script preamble, the imports).
+    numba's parallel passes and OpenCV's threaded filters use the job's ``threads``, no more
+    (left to itself OpenCV starts a thread per core in every job: jobs that each hold one core
+    would contend for each other's). Known
     input problems end the job with a one-paragraph
     message naming the file (no traceback); outputs are written atomically by the stages, so a
     failed job leaves none behind.
@@ -209,12 +238,21 @@ def run_from_snakemake(smk: Any, func: Callable[..., None], **extra: Any) -> Non
 
     from huefringe import _threads  # noqa: F401  (the threading layer, before set_num_threads starts it)
 
-    numba.set_num_threads(max(1, min(int(getattr(smk, "threads", 1) or 1), numba.config.NUMBA_NUM_THREADS)))
+    import cv2
+
+    threads = max(1, min(int(getattr(smk, "threads", 1) or 1), numba.config.NUMBA_NUM_THREADS))
+    numba.set_num_threads(threads)
+    cv2.setNumThreads(threads)
+    age = process_age()
+    if age is not None:
+        log.info("%s: job started %.2f s ago (Python, the script's preamble, imports), %d thread(s)", func.__name__, age,
+                 threads)
     t0 = time.perf_counter()
     try:
         func(**kwargs)
-    except (SessionError, FrameError, HueTableError, PlaneCalibrationError, MetrologyError, ArchiveError,
-            X3PError, RigError) as exc:
+    except Exception as exc:
+        if not isinstance(exc, input_errors()):
+            raise
         log.error("%s", exc)
         sys.stderr.write(f"\nhuefringe: {exc}\n")
         sys.exit(1)
