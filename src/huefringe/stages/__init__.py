@@ -13,7 +13,20 @@ its stage needs.
 from __future__ import annotations
 
 import importlib
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:  # the names as type checkers and editors see them; at run time __getattr__ imports them
+    from ._archive import add_step_uncertainty, archive, archive_session  # noqa: F401
+    from ._calibration import (  # noqa: F401
+        bench_session, camera_calibration, check_session, compensation, hue_table, plane_calibration)
+    from ._measurement import (  # noqa: F401
+        accuracy_report, baseline_frames, cloud_frames, measure_frames, x3p_frames, xy_block)
+    from ._rig import (  # noqa: F401
+        rig_accuracy, rig_calibrate, rig_calibration_from, rig_measure, rig_metrology, rig_oneshot, rig_surfaces)
+    from ._run import (  # noqa: F401
+        RIG_OUTPUTS, calibrate_rig_session, log, measure_rig_session, measure_session, run_from_snakemake,
+        stage_kwargs)
+    from ._surfaces import _height_limits, _TiffMaps, metrology, mesh, render, table1  # noqa: F401
 
 #: Each public name and the private module that defines it, imported on first use, so that a
 #: job's script loads only its own stage's libraries (a measurement job neither Open3D nor trimesh).
