@@ -22,7 +22,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from scipy import optimize
 
 from huefringe.codecs.graycode import decode_gray
 from huefringe.codecs.nstep import TWO_PI, profile_lut, shift_matrix
@@ -98,6 +97,8 @@ def estimate_projector_gamma(
     max_pixels : int
         Evenly spread subsample of ``mask`` used (the estimate is one number).
     """
+    from scipy import optimize  # here, not at import: every process reading a session imports this module
+
     stack = np.stack(images) if isinstance(images, list) else np.asarray(images)
     idx = np.flatnonzero(np.asarray(mask, bool))
     if idx.size > max_pixels:
