@@ -482,6 +482,8 @@ def main(argv: list[str] | None = None) -> int:
             m = {"heights_fps": (n2 - n1) / dh if dh > 0 else float("inf"),
                  "default_fps": (n2 - n1) / da if da > 0 else float("inf"), "floor_fps": floor}
             m["heights_vs_floor"], m["default_vs_floor"] = m["heights_fps"] / floor, m["default_fps"] / floor
+            if a.heights_only:  # the rest of the default set was not run
+                m["default_fps"] = m["default_vs_floor"] = None
             kres[f"marginal_{n1}_{n2}"] = m
             rest = ("" if a.heights_only else f"; default targets {m['default_fps']:.1f} frames/s = "
                     f"{m['default_vs_floor']:.3f} (target >= {TARGET_DEFAULT_VS_FLOOR})")
