@@ -4,12 +4,14 @@ rig-gauge, rig-board; projector shadows, features.yaml and ground truth against 
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
 import pytest
 import tifffile
 import yaml
+from numpy.typing import NDArray
 
 from huefringe import bench
 from huefringe.bench.rig import RIGS, CompositeScene, SphereScene, StepsScene, segment_hits_box, segment_hits_sphere
@@ -188,3 +190,58 @@ def test_oneshot_preset_writes_colour_captures_with_coated_blocks(tmp_path: Path
     bad["scene"]["colours"] = ["green"]
     with pytest.raises(bench.BenchConfigError, match="1 coatings for 3 blocks"):
         bench.validate_sl_bench_config(bad)
+
+
+def test_vibration_moves_the_scene_between_the_oneshot_frames_only(tmp_path: Path) -> None:
+    from huefringe.bench.rig_session import _albedo_map, _colour_patterns, _spec, displaced_config, vibration_displacements
+    from huefringe.bench.oneshot import CROSSTALK
+
+    cfg = load_sl_bench_config("rig-oneshot-vibrating")
+    v = cfg["vibration"]
+    d = vibration_displacements(cfg)
+    assert d.shape == (5, 3) and sl_session_plan(cfg)["oneshot_frames"] == 5
+    t = np.arange(5)[:, None] / 60.0 + np.array([-1, 0, 1])[None, :] * 3.5e-3 / 3
+    np.testing.assert_allclose(d, 0.03 * np.sin(2 * np.pi * 29.0 * t + 0.4), atol=1e-15)   # the demo's membrane
+    assert (v["amplitude_mm"], v["frequency_hz"], v["frame_rate_hz"]) == (0.03, 29.0, 60.0)
+    # the still scene's truth moved along the base's normal: every point by d along it, the steps unchanged
+    r0, r1 = scene_truth(cfg), scene_truth(displaced_config(cfg, 0.5))
+    R, o = CompositeScene(tilt_deg=tuple(cfg["scene"]["tilt_deg"]), origin=tuple(cfg["scene"]["origin"])).frame()
+    n = R[:, 2]
+    both = (np.isfinite(r0["xyz"]).all(-1) & np.isfinite(r1["xyz"]).all(-1) & (r0["label"] == r1["label"])
+            & (r0["label"] >= 0))                                     # the base and the tops, not the walls
+    h0, h1 = (r0["xyz"][both] - o) @ n, (r1["xyz"][both] - o) @ n
+    np.testing.assert_allclose(h1 - h0, 0.5, atol=1e-9)
+    assert both.sum() > 0.95 * np.isfinite(r0["xyz"]).all(-1).sum()
+    # a small session with a large motion: the one-shot frames are each the exposure's mean of the moving
+    # scene (noise 1 DN), the other frames the still scene's
+    small = {**cfg, "vibration": {**v, "amplitude_mm": 2.0, "frequency_hz": 7.0, "phase_rad": 1.0},
+             "sequence": {**cfg["sequence"], "blocks": [*cfg["sequence"]["blocks"][:4], {"hue_bands": {"n": 12, "repeats": 1}},
+                                                        {"trapezoid": {"axis": "x", "period_px": 36, "frames": 2}}]}}
+    small = bench.validate_sl_bench_config(small)
+    s = load_sl_session(write_sl_session(small, tmp_path / "vib"), deep=True)
+    spec, pats = _spec(small), _colour_patterns(_spec(small))
+    first = spec.n_frames - 2
+    d = vibration_displacements(small)
+    assert np.abs(d).min() > 1.0                                      # every instant well off the still scene
+    gt = tifffile.imread(s.root / "ground_truth/xyz.tiff")            # where the first one-shot frame sees the scene
+    want = scene_truth(displaced_config(small, float(d[0].mean())))["xyz"]
+    np.testing.assert_array_equal(np.isfinite(gt), np.isfinite(want))
+    np.testing.assert_allclose(gt[np.isfinite(gt)], want[np.isfinite(want)], atol=1e-4)
+
+    def expected(k: int, ds: Any) -> NDArray[np.float64]:
+        out = 0.0
+        for x in ds:
+            tr = scene_truth(displaced_config(small, float(x)))
+            out = out + tr["rig"].capture_rgb([pats[k]], tr["u"], tr["v"], tr["lit"], None, albedo=_albedo_map(small, tr["label"]),
+                                              ambient=small["camera"]["ambient"], crosstalk=CROSSTALK, signal_only=True)[0]
+        return out / len(ds)
+
+    for k, ds in ((first, d[0]), (first + 1, d[1]), (18, [0.0])):   # the two one-shot frames, the white frame
+        img = cv2.imread(str(s.captures[k]), cv2.IMREAD_UNCHANGED)[..., ::-1].astype(float)
+        moved, still = img - expected(k, ds), img - expected(k, [0.0])
+        inside = (expected(k, ds) > 5) & (expected(k, ds) < 250)
+        assert 0.9 < np.std(moved[inside]) < 1.2, k                   # read noise and rounding only
+        if k >= first:
+            assert np.std(still[inside]) > 3.0, k                     # not the still scene
+    with pytest.raises(bench.BenchConfigError, match="vibration"):
+        bench.validate_sl_bench_config({**load_sl_bench_config("rig-gauge"), "vibration": {"amplitude_mm": 0.03, "frequency_hz": 29.0}})

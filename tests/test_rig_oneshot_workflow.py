@@ -47,7 +47,7 @@ def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_steps_against_the_truth_within_U_and_the_decision(run: Path) -> None:
     doc = json.loads((run / "results/rig-oneshot/metrology/report.json").read_text())
     validate_report(doc)
-    assert doc["method"] == ONESHOT_METHOD and doc["frames"] == 1
+    assert doc["method"] == ONESHOT_METHOD and doc["frames"] == 3     # every one-shot frame
     assert doc["geometry"]["name"] == ONESHOT_GEOMETRY and doc["provenance"]["geometry"] == ONESHOT_GEOMETRY
     steps = {s["name"]: s for s in doc["steps"]}
     assert sorted(steps) == sorted(TRUTH)
@@ -57,7 +57,14 @@ def test_steps_against_the_truth_within_U_and_the_decision(run: Path) -> None:
         # the bench's truth within 3u (k = 2 holds 95 % of figures, one of three may lie outside:
         # -13.6 um against U 12.8 um on the 3.0 mm block, docs/rig.md)
         assert abs(s["mean_mm"] - h) <= 1.5 * s["U_mm"], s
-        assert abs(s["error_mm"]) <= 0.006 * h, s              # measured: -0.45 / -0.19 / +0.20 % (docs/rig.md)
+        assert abs(s["error_mm"]) <= 0.006 * h, s              # measured: -0.40 / -0.10 / +0.22 % (docs/rig.md)
+        # the per-frame series (three frames of a still scene): each frame near the truth, the mean and
+        # the sample standard deviation theirs, the spread of the order of the points' noise
+        pf = np.asarray(s["per_frame_mm"])
+        assert pf.size == 3 and np.all(np.abs(pf - h) <= 0.006 * h), s
+        assert s["mean_mm"] == pytest.approx(pf.mean(), abs=1e-12) and s["std_mm"] == pytest.approx(np.std(pf, ddof=1))
+        assert s["repeatability_3sigma_mm"] == pytest.approx(3 * s["std_mm"])
+        assert 0 < s["std_mm"] < 3 * s["uncertainty_budget"]["points_mm"], s   # measured 0.8-2.5 um against 1.5-1.7 um
         assert s["uncertainty_budget"]["calibration_mm"] >= 0 and s["uncertainty_budget"]["points_mm"] > 0
     assert sum(abs(steps[n]["error_mm"]) <= steps[n]["U_mm"] for n in TRUTH) >= 2
     for flat in doc["forms"]["flatness"]:
@@ -66,7 +73,7 @@ def test_steps_against_the_truth_within_U_and_the_decision(run: Path) -> None:
     tail = (run / "run.stderr").read_text().split("huefringe: results")[-1]
     assert f"rig-oneshot: {doc['conformity']['decision'].upper()} (ISO 14253-1)" in tail
     html = (run / "results/rig-oneshot/metrology/report.html").read_text()
-    assert ONESHOT_GEOMETRY in html and "block-4" in html
+    assert ONESHOT_GEOMETRY in html and "block-4" in html and "Per-frame step heights" in html
 
 
 def test_every_frame_measured_with_its_geometry_and_u(run: Path) -> None:

@@ -190,6 +190,19 @@ def oneshot_outputs(sid):
     }
 
 
+def rig_report_frames(kind):
+    """The rig_metrology input ``kind`` (a RIG_FRAME_FILES key): frame_0000's file, or every one-shot
+    frame's for a one-shot session (its report carries each figure's per-frame series)."""
+
+    def files(w):
+        if w.sid in ONESHOT_IDS:
+            return oneshot_outputs(w.sid)[kind]
+        d, f = RIG_FRAME_FILES[kind]
+        return R(w.sid, d, f.format(fname(0)))
+
+    return files
+
+
 def rig_targets(sid):
     """Every result of structured-light session ``sid`` (rig.smk)."""
     plan = PLANS[sid]

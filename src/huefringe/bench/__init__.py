@@ -17,7 +17,8 @@ capture_patterns(config, patterns_dir, out_dir) -> Path
     file per row (``IMG_0001.png`` ...), for ``huefringe session``.
 preset_path(name) -> Path
     A packaged preset: ``demo``, ``flat``, ``dental``, ``table1``, ... and the structured-light
-    rig sessions ``rig-poses``, ``rig-gauge``, ``rig-board``, ``rig-oneshot`` (one-shot colour frames).
+    rig sessions ``rig-poses``, ``rig-gauge``, ``rig-board``, ``rig-oneshot`` (one-shot colour frames),
+    ``rig-oneshot-vibrating`` (the same scene vibrating while its one-shot frames are captured).
 bench_kind(ref) -> str
     The session format a bench YAML or preset writes: ``capture-session/1``, or
     ``structured-light-session/1`` for ``format: huefringe-sl-bench/1`` (:mod:`.rig_session`).

@@ -155,7 +155,7 @@ class BenchRig:
     def capture_rgb(self, patterns: NDArray[np.number] | list[NDArray[np.number]], u: F64, v: F64, valid: NDArray[np.bool_],
                     rng: np.random.Generator, *, albedo: float | F64 = 0.8, ambient: float = 0.05,
                     noise_dn: float = 1.0, gamma: tuple[float, float, float] = (1.0, 1.0, 1.0),
-                    crosstalk: F64 | None = None) -> NDArray[np.uint8]:
+                    crosstalk: F64 | None = None, signal_only: bool = False) -> NDArray[Any]:
         """Colour camera frames (F, H, W, 3), R, G, B, of colour projector ``patterns`` (F, Hp, Wp, 3)
         (an array, or a list of (Hp, Wp, 3) images: a repeated image may be the same object).
 
@@ -165,6 +165,8 @@ class BenchRig:
         (H, W, 3) colour), ``ambient`` light, the camera's channel mixing ``crosstalk`` (3 x 3,
         rows: camera channel, columns: projector primary; identity when None), Gaussian read
         noise in DN, 8-bit. A pixel outside ``valid`` gets ambient light and noise only.
+        ``signal_only``: the noiseless signal in DN (float64, not rounded), ``rng`` untouched (to be
+        averaged over the instants of an exposure, then given noise and rounded).
         """
         pats = patterns
         dtype = np.asarray(pats[0]).dtype
@@ -174,12 +176,15 @@ class BenchRig:
         M = np.eye(3) if crosstalk is None else np.asarray(crosstalk, dtype=np.float64)
         mapx = np.where(valid, u, -10).astype(np.float32)
         mapy = np.where(valid, v, -10).astype(np.float32)
-        frames = np.empty((len(pats), *u.shape, 3), dtype=np.uint8)
+        frames = np.empty((len(pats), *u.shape, 3), dtype=np.float64 if signal_only else np.uint8)
         g = np.asarray(gamma, dtype=np.float64)
         for k, p in enumerate(pats):
             s = cv2.remap(np.ascontiguousarray(p, dtype=np.float32) / scale, mapx, mapy, cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_CONSTANT, borderValue=0)
             light = np.clip(s, 0.0, 1.0) ** g
+            if signal_only:
+                frames[k] = 255.0 * (ambient + (alb * light) @ M.T)
+                continue
             img = 255.0 * (ambient + (alb * light) @ M.T) + rng.normal(0.0, noise_dn, (*u.shape, 3))
             frames[k] = np.clip(np.rint(img), 0, 255).astype(np.uint8)
         return frames

@@ -1,7 +1,7 @@
 """Structured-light sessions written by the bench rig: calibration poses, object scenes, ground truth.
 
 One YAML file (format ``huefringe-sl-bench/1``, schema ``sl_bench.schema.json`` beside this
-module; presets ``rig-poses``, ``rig-gauge``, ``rig-board``, ``rig-oneshot``) describes a
+module; presets ``rig-poses``, ``rig-gauge``, ``rig-board``, ``rig-oneshot``, ``rig-oneshot-vibrating``) describes a
 ``structured-light-session/1`` folder (``docs/spec/structured-light-session.md``):
 
 * ``captures/0000.png ..``: the sequence on the scene (a flat board, or a tilted base plane with
@@ -15,7 +15,12 @@ module; presets ``rig-poses``, ``rig-gauge``, ``rig-board``, ``rig-oneshot``) de
 * ``features.yaml``: camera-pixel boxes well inside each face of the scene's truth (eroded by
   ``features.margin_px``, clear of shadows), nominal values from the scene;
 * ``ground_truth/x.tiff``, ``y.tiff`` (true projector coordinates) and ``xyz.tiff`` (true
-  camera-frame points, mm), NaN where the projector does not light the pixel's point directly.
+  camera-frame points, mm), NaN where the projector does not light the pixel's point directly;
+  of the scene where the first one-shot frame sees it (the still scene without ``vibration``);
+* with ``vibration``: the scene moves along its base plane's normal while the one-shot frames are
+  captured (each frame averaged over instants across its exposure); every other frame sees it
+  still. Each one-shot frame's displacement: :func:`vibration_displacements`, its truth:
+  :func:`scene_truth` of :func:`displaced_config`.
 
 Public API
 ----------
@@ -32,6 +37,10 @@ scene_truth(cfg) -> dict
     The scene's truth on the camera pixels (float64): points, projector coordinates, face labels, lit mask.
 features_from_truth(truth, names, ...) -> dict
     ``features.yaml``'s content from the truth.
+vibration_displacements(cfg) -> ndarray
+    Each one-shot frame's displacements (mm, towards the camera) at the instants of its exposure.
+displaced_config(cfg, d_mm) -> dict
+    The configuration with its scene moved ``d_mm`` along the base plane's normal.
 write_sl_session(cfg, out_dir) -> Path
     Write the session (atomically) and validate it with :func:`huefringe.session.load_sl_session`.
 """
@@ -58,6 +67,7 @@ from .config import BenchConfigError, _fill_defaults, preset_path
 __all__ = [
     "SL_BENCH_FORMAT",
     "bench_kind",
+    "displaced_config",
     "features_from_truth",
     "largest_box",
     "load_sl_bench_config",
@@ -65,6 +75,7 @@ __all__ = [
     "sl_bench_schema",
     "sl_session_plan",
     "validate_sl_bench_config",
+    "vibration_displacements",
     "write_sl_session",
 ]
 
@@ -152,6 +163,8 @@ def validate_sl_bench_config(raw: Any, source: str | os.PathLike[str] = "<dict>"
     _fill_defaults(cfg["scene"], schema["$defs"][f"scene_{kind}"], schema)
     if "poses" in cfg:
         _fill_defaults(cfg["poses"], schema["properties"]["poses"], schema)
+    if "vibration" in cfg:
+        _fill_defaults(cfg["vibration"], schema["properties"]["vibration"], schema)
     try:
         _spec(cfg)
     except Exception as exc:  # noqa: BLE001 - any sequence problem is the configuration's
@@ -162,6 +175,9 @@ def validate_sl_bench_config(raw: Any, source: str | os.PathLike[str] = "<dict>"
     for i, s in enumerate(cfg["scene"].get("spheres", [])):
         if not s[2] > 0:
             raise BenchConfigError(source, f"scene.spheres.{i}: a positive radius expected")
+    if "vibration" in cfg and (kind != "composite" or _spec(cfg).oneshot_frames == 0):
+        raise BenchConfigError(source, "vibration: moves a composite scene while its one-shot (trapezoid) frames are "
+                                       f"captured; this one is a {kind} scene with {_spec(cfg).oneshot_frames} one-shot frames")
     colours = cfg["scene"].get("colours")
     if colours is not None and len(colours) != len(cfg["scene"]["blocks"]):
         raise BenchConfigError(source, f"scene.colours: {len(colours)} coatings for {len(cfg['scene']['blocks'])} blocks")
@@ -357,26 +373,79 @@ def features_from_truth(truth: dict[str, Any], *, margin_px: int = 6, tolerance_
     return out
 
 
+def vibration_displacements(cfg: dict[str, Any]) -> F64:
+    """Displacement (mm, along the base plane's normal, towards the camera) of the scene at each
+    instant of each one-shot frame's exposure, shape (one-shot frames, ``vibration.subframes``);
+    zeros without ``vibration``.
+
+    One-shot frame ``k`` is taken at ``t_k = k / frame_rate_hz``, its ``S`` instants spread evenly
+    over the exposure centred on ``t_k`` (one instant: ``t_k``); the displacement is
+    ``amplitude_mm sin(2 pi frequency_hz t + phase_rad)``.
+    """
+    cfg = validate_sl_bench_config(cfg)
+    n = _spec(cfg).oneshot_frames
+    v = cfg.get("vibration")
+    if not v:
+        return np.zeros((n, 1))
+    s = int(v["subframes"])
+    within = (np.arange(s) + 0.5) / s - 0.5 if s > 1 else np.zeros(1)
+    t = np.arange(n)[:, None] / float(v["frame_rate_hz"]) + within[None, :] * float(v["exposure_ms"]) * 1e-3
+    return float(v["amplitude_mm"]) * np.sin(2 * np.pi * float(v["frequency_hz"]) * t + float(v["phase_rad"]))
+
+
+def displaced_config(cfg: dict[str, Any], d_mm: float) -> dict[str, Any]:
+    """``cfg`` with its composite scene moved ``d_mm`` along the base plane's normal (towards the
+    camera), blocks and spheres with it: the truth of a vibrating scene at one instant
+    (:func:`scene_truth`)."""
+    out = copy.deepcopy(cfg)
+    R, o = _scene(cfg).frame()
+    out["scene"]["origin"] = [float(x) for x in o + float(d_mm) * R[:, 2]]
+    return out
+
+
+def _albedo_map(cfg: dict[str, Any], label: NDArray[np.int64]) -> F64:
+    """The camera's albedo on the base and balls, the blocks in ``scene.colours``, per pixel (R, G, B)."""
+    from .scenes import BLOCK_COLOURS
+
+    alb = np.empty((*label.shape, 3))
+    alb[:] = cfg["camera"]["albedo"]
+    for k, c in enumerate(cfg["scene"].get("colours") or [], start=1):
+        alb[np.abs(label) == k] = BLOCK_COLOURS[c]
+    return alb
+
+
 def _write_colour_captures(cfg: dict[str, Any], spec: Any, truth: dict[str, Any], folder: Path,
                            rng: np.random.Generator) -> None:
     """Every capture of ``spec`` in colour (8-bit RGB PNG): the base and balls grey at the camera's
-    albedo, the blocks in ``scene.colours``, through the bench camera's channel mixing."""
+    albedo, the blocks in ``scene.colours``, through the bench camera's channel mixing; with
+    ``vibration``, each one-shot frame of the moving scene averaged over its exposure's instants."""
+    from huefringe.codecs.sequence import TrapezoidBlock
+
     from .oneshot import CROSSTALK
-    from .scenes import BLOCK_COLOURS
 
     cam = cfg["camera"]
-    label = truth["label"]
-    alb = np.empty((*label.shape, 3))
-    alb[:] = cam["albedo"]
-    for k, c in enumerate(cfg["scene"].get("colours") or [], start=1):
-        alb[np.abs(label) == k] = BLOCK_COLOURS[c]
+    alb = _albedo_map(cfg, truth["label"])
     folder.mkdir(parents=True, exist_ok=True)
     pats = _colour_patterns(spec)
-    for k0 in range(0, len(pats), 16):  # a few frames at a time: a session holds a hundred colour frames
-        frames = truth["rig"].capture_rgb(pats[k0:k0 + 16], truth["u"], truth["v"], truth["lit"], rng, albedo=alb,
+    moving: list[int] = []
+    if cfg.get("vibration"):
+        moving = [i for b, sl in spec.slices() if isinstance(b, TrapezoidBlock) for i in range(sl.start, sl.stop)]
+    still = sorted(set(range(len(pats))) - set(moving))
+    for j0 in range(0, len(still), 16):  # a few frames at a time: a session holds a hundred colour frames
+        idx = still[j0:j0 + 16]
+        frames = truth["rig"].capture_rgb([pats[i] for i in idx], truth["u"], truth["v"], truth["lit"], rng, albedo=alb,
                                           ambient=cam["ambient"], noise_dn=cam["noise_dn"], crosstalk=CROSSTALK)
-        for k, f in enumerate(frames, start=k0):
+        for k, f in zip(idx, frames, strict=True):
             cv2.imwrite(str(folder / f"{k:04d}.png"), cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    for k, ds in zip(moving, vibration_displacements(cfg) if moving else [], strict=True):
+        signal = np.zeros((*truth["label"].shape, 3))
+        for d in ds:   # the exposure's instants, each the scene where it then is
+            t = scene_truth(displaced_config(cfg, float(d)))
+            signal += t["rig"].capture_rgb([pats[k]], t["u"], t["v"], t["lit"], rng, albedo=_albedo_map(cfg, t["label"]),
+                                           ambient=cam["ambient"], crosstalk=CROSSTALK, signal_only=True)[0]
+        img = signal / len(ds) + rng.normal(0.0, cam["noise_dn"], signal.shape)
+        f = np.clip(np.rint(img), 0, 255).astype(np.uint8)
+        cv2.imwrite(str(folder / f"{k:04d}.png"), cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
 
 
 def _write_tiff(path: Path, a: NDArray[np.floating]) -> None:
@@ -455,15 +524,23 @@ def write_sl_session(cfg: dict[str, Any], out_dir: str | os.PathLike[str]) -> Pa
             meta["calibration"] = {"session": cfg["calibration_session"]}
         notes = cfg.get("notes") or (f"huefringe bench rig {cfg['rig']}, scene {cfg['scene']['kind']}, "
                                      f"noise {cam['noise_dn']:g} DN, ambient {cam['ambient']:g}")
+        if cfg.get("vibration") and not cfg.get("notes"):
+            v = cfg["vibration"]
+            notes += (f"; the scene vibrates {v['amplitude_mm']:g} mm at {v['frequency_hz']:g} Hz along its base's normal "
+                      f"while the one-shot frames are captured ({v['frame_rate_hz']:g} frames/s, {v['exposure_ms']:g} ms "
+                      "exposure); the other frames see it still; the ground truth is where the first one-shot frame "
+                      "sees it")
         meta["provenance"] = {"instrument": f"huefringe virtual bench rig {cfg['rig']} "
                                             f"(camera {w} x {h}, projector {spec.projector_width} x {spec.projector_height})",
                               "simulated": True, "notes": notes}
         if cfg["ground_truth"]:
             (tmp / "ground_truth").mkdir()
+            gt = truth if not cfg.get("vibration") else scene_truth(
+                displaced_config(cfg, float(vibration_displacements(cfg)[0].mean())))   # where frame_0000 saw it
             for axis, key in (("x", "u"), ("y", "v")):
                 if axis in spec.axes():    # the true coordinate of each coded axis
-                    _write_tiff(tmp / "ground_truth" / f"{axis}.tiff", truth[key])
-            _write_tiff(tmp / "ground_truth" / "xyz.tiff", truth["xyz"])
+                    _write_tiff(tmp / "ground_truth" / f"{axis}.tiff", gt[key])
+            _write_tiff(tmp / "ground_truth" / "xyz.tiff", gt["xyz"])
         if _writes_features(cfg):
             f = cfg["features"]
             feats = features_from_truth(truth, margin_px=f["margin_px"], tolerance_mm=f["tolerance_mm"],

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import json
 import os
-from collections.abc import Mapping
+import tempfile
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from huefringe.metrology import combine_u, fit_plane_u, fit_sphere_u, flatness_u, jackknife_u, plane_pair_u, sigma_along, step_height_u
-from huefringe.report import build_report_json, collect_provenance, write_report_html
+from huefringe.report import build_report_json, collect_provenance, per_frame_figure, write_report_html
 from huefringe.rig.measure import RigError, RigFrame, read_jackknife
 from huefringe.rig.model import RigCalibration
 from huefringe.rig.oneshot import ONESHOT_GEOMETRY
@@ -153,13 +154,30 @@ def _retriangulate(calib: RigCalibration, decoded: F64, mode: str, mask: NDArray
     return xyz, sig
 
 
-def _entry(name: str, value: float, nominal: float, tol: float, u_points: float, u_cal: float | None,
+def _series(values: Sequence[float]) -> tuple[float, float | None, list[float]]:
+    """A figure over the frames: its mean, the sample standard deviation (``ddof = 1``; None for
+    one frame) and the per-frame values, as the capture route's steps carry them
+    (:func:`huefringe.metrology.evaluate_session`)."""
+    x = [float(v) for v in values]
+    if len(x) == 1:
+        return x[0], None, x
+    return float(np.mean(x)), float(np.std(x, ddof=1)), x
+
+
+def _rms(values: Sequence[float]) -> float:
+    """The frames' standard uncertainties in quadrature mean (the value itself for one frame)."""
+    return float(values[0]) if len(values) == 1 else float(np.sqrt(np.mean(np.square(values))))
+
+
+def _entry(name: str, values: Sequence[float], nominal: float, tol: float, u_points: float, u_cal: float | None,
            extra: Mapping[str, Any], u_floor: float | None = None) -> dict[str, Any]:
+    value, std, per_frame = _series(values)
     u = combine_u(u_points, u_cal or 0.0, u_floor or 0.0)
     err = value - nominal
+    rep = {} if std is None else {"repeatability_3sigma_mm": 3.0 * std}
     return {
-        "name": name, "nominal_mm": nominal, "mean_mm": value, "std_mm": None, "error_mm": err,
-        "error_pct": 100.0 * err / nominal if nominal else None, "pass": abs(err) <= tol, "per_frame_mm": [value],
+        "name": name, "nominal_mm": nominal, "mean_mm": value, "std_mm": std, **rep, "error_mm": err,
+        "error_pct": 100.0 * err / nominal if nominal else None, "pass": abs(err) <= tol, "per_frame_mm": per_frame,
         "u_mm": u, "U_mm": 2.0 * u, "tolerance_mm": tol, "conformance": conformance(err, tol, 2.0 * u),
         "uncertainty_budget": {"points_mm": u_points,
                                "calibration_mm": u_cal if u_cal is not None else "not available: the calibration file "
@@ -169,11 +187,36 @@ def _entry(name: str, value: float, nominal: float, tol: float, u_points: float,
     }
 
 
-def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os.PathLike[str], xyz: F64, sigma: F64,
-               decoded: F64, jackknife: str | os.PathLike[str] = "", calibration_report: str | os.PathLike[str] = "",
+def _frames(maps: F64 | Sequence[F64], what: str) -> list[F64]:
+    """One frame's map (H, W, C) or a sequence of them, as a list of frames."""
+    if isinstance(maps, np.ndarray) and maps.ndim == 3:
+        return [maps]
+    out = [np.asarray(m) for m in maps]
+    if not out:
+        raise RigError(f"no {what} map given: nothing to report")
+    return out
+
+
+def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os.PathLike[str],
+               xyz: F64 | Sequence[F64], sigma: F64 | Sequence[F64], decoded: F64 | Sequence[F64],
+               jackknife: str | os.PathLike[str] = "", calibration_report: str | os.PathLike[str] = "",
                json_path: str | os.PathLike[str], html_path: str | os.PathLike[str],
                figures: Mapping[str, str | os.PathLike[str]] | None = None, oneshot: bool = False) -> dict[str, Any]:
     """Measure a structured-light session's features and write ``report.json`` and ``report.html``.
+
+    Every figure is measured on each frame given; the report carries, as the capture route's
+    (:func:`huefringe.metrology.evaluate_session`), its per-frame values (``per_frame_mm``), their
+    mean (``mean_mm``, the figure the error and the decision are of) and sample standard deviation
+    (``std_mm``, ``repeatability_3sigma_mm``; None and absent for one frame). The mean's standard
+    uncertainty combines, as for one frame:
+
+    - **points**: the quadrature mean of the frames' own points terms, not divided by the number of
+      frames (each pixel's ``sigma`` holds the hue table's noise, the same in every frame, beside
+      the capture's, and the files do not separate them), so an upper figure for several frames;
+    - **calibration**: the jackknife over the leave-one-pose-out calibrations of the figure on the
+      first frame, re-triangulated with each: a calibration's error moves every frame of the scene
+      alike, so it is neither reduced by the frames nor recomputed for each (which would cost the
+      leave-one-out triangulations once per frame).
 
     Parameters
     ----------
@@ -182,20 +225,21 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
     config : mapping
         The run's configuration (``rig.triangulation``; recorded in the provenance).
     calibration : path
-        The calibration the frame was triangulated with.
-    xyz, sigma : ndarray, shape (H, W, 3)
-        The triangulated frame and its per-point standard uncertainties (NaN where not valid).
-    decoded : ndarray, shape (H, W, 4)
-        Decoded ``u, v, sigma_u, sigma_v`` (NaN where not decoded): re-triangulated with each
-        leave-one-pose-out calibration of ``jackknife`` for the calibration term.
+        The calibration the frames were triangulated with.
+    xyz, sigma : ndarray, shape (H, W, 3), or a sequence of them (one per frame)
+        The triangulated frames and their per-point standard uncertainties (NaN where not valid).
+    decoded : ndarray, shape (H, W, 4), or a sequence of them
+        Decoded ``u, v, sigma_u, sigma_v`` of each frame (NaN where not decoded): re-triangulated
+        with each leave-one-pose-out calibration of ``jackknife`` for the calibration term.
     jackknife, calibration_report : path, optional
         :func:`huefringe.rig.measure.write_rig_calibration`'s files, when the workflow calibrated the rig.
     json_path, html_path : path
         Where the report goes.
     figures : mapping of str to path, optional
-        PNG figures for the page.
+        PNG figures for the page; with several frames the per-frame figure
+        (:func:`huefringe.report.per_frame_figure`) is added as ``per_frame``.
     oneshot : bool
-        The frame is a one-shot trapezoid frame (:func:`huefringe.rig.oneshot.measure_oneshot_session`):
+        The frames are one-shot trapezoid frames (:func:`huefringe.rig.oneshot.measure_oneshot_session`):
         ``method`` :data:`ONESHOT_METHOD`, and the geometry
         (:data:`huefringe.rig.oneshot.ONESHOT_GEOMETRY`) in ``geometry`` and ``provenance``.
 
@@ -207,18 +251,23 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
     feats = session.features
     if feats is None:
         raise RigError(f"{session.root}: no features.yaml: nothing to report")
-    valid = np.isfinite(xyz).all(axis=-1)
-    values = feature_values(xyz, sigma, feats)
+    xyzs, sigmas, decs = _frames(xyz, "xyz"), _frames(sigma, "sigma"), _frames(decoded, "decoded")
+    if not len(xyzs) == len(sigmas) == len(decs):
+        raise RigError(f"{session.root}: {len(xyzs)} xyz, {len(sigmas)} sigma and {len(decs)} decoded maps: one of "
+                       "each per frame expected")
+    nf = len(xyzs)
+    per_frame = [feature_values(x, sg, feats) for x, sg in zip(xyzs, sigmas, strict=True)]
     loo = read_jackknife(jackknife) if jackknife else []
-    mode = _mode(decoded, config)
+    mode = _mode(decs[0], config)
     jack: dict[tuple[str, str], list[float]] = {}
-    if loo:
+    if loo:  # on the first frame: a calibration's error is the same in every frame of the scene
+        valid = np.isfinite(xyzs[0]).all(axis=-1)
         need = np.zeros(valid.shape, dtype=bool)
         for r in feats.regions().values():
             need |= r.mask(valid.shape)
         need &= valid
         for _, c in loo:
-            xj, sj = _retriangulate(c, decoded, mode, need)
+            xj, sj = _retriangulate(c, decs[0], mode, need)
             for n, v in feature_values(xj, sj, feats).items():
                 for key in _JACKKNIFED:
                     if key in v:
@@ -232,43 +281,59 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
     def u_cal(name: str, key: str) -> float | None:
         return jackknife_u(jack[(name, key)], t_scaled=True) if loo else None
 
+    def each(name: str, key: str) -> list[float]:
+        return [float(v[name][key]) for v in per_frame]
+
+    def first(name: str, key: str) -> Any:
+        return per_frame[0][name][key]
+
     steps, forms = [], {"flatness": [], "distances": [], "parallelism": [], "spheres": []}
     for f in feats.features:
-        v = values[f.name]
+        n = f.name
         if f.kind == "step":
-            steps.append(_entry(f.name, v["height_mm"], f.nominal_mm, f.tolerance_mm, v["u_mm"], u_cal(f.name, "height_mm"),
-                                {"points": {"base": v["n_base"], "top": v["n_top"]}}))
+            steps.append(_entry(n, each(n, "height_mm"), f.nominal_mm, f.tolerance_mm, _rms(each(n, "u_mm")),
+                                u_cal(n, "height_mm"), {"points": {"base": first(n, "n_base"), "top": first(n, "n_top")}}))
         elif f.kind == "plane":
-            forms["flatness"].append(_entry(f.name, v["rms_form_mm"], f.nominal_mm, f.tolerance_mm, v["u_rms_form_mm"],
-                                            u_cal(f.name, "rms_form_mm"), u_floor=floor, extra={
+            v = per_frame[0][n] if nf == 1 else {k: float(np.mean(each(n, k))) for k in (
+                "pv_form_mm", "u_pv_form_mm", "rms_mm", "pv_mm", "rms_noise_mm", "pv_noise_mm", "noise_scale")}
+            forms["flatness"].append(_entry(n, each(n, "rms_form_mm"), f.nominal_mm, f.tolerance_mm,
+                                            _rms(each(n, "u_rms_form_mm")), u_cal(n, "rms_form_mm"), u_floor=floor, extra={
                 "figure": "flatness FLTq (RMS of the least-squares residuals, noise removed)",
                 "pv_form_mm": v["pv_form_mm"], "u_pv_form_mm": v["u_pv_form_mm"], "rms_mm": v["rms_mm"],
-                "pv_mm": v["pv_mm"], "rms_noise_mm": v["rms_noise_mm"], "pv_noise_mm": v["pv_noise_mm"], "points": v["n"],
-                "noise_scale": v["noise_scale"]}))
+                "pv_mm": v["pv_mm"], "rms_noise_mm": v["rms_noise_mm"], "pv_noise_mm": v["pv_noise_mm"],
+                "points": first(n, "n"), "noise_scale": v["noise_scale"]}))
         elif f.kind == "distance":
             a, b = f.planes or ("", "")
-            forms["distances"].append(_entry(f.name, v["distance_mm"], f.nominal_mm, f.tolerance_mm, v["u_distance_mm"],
-                                             u_cal(f.name, "distance_mm"), {
+            angle = (first(n, "angle_rad"), first(n, "u_angle_rad")) if nf == 1 else (
+                float(np.mean(each(n, "angle_rad"))), _rms(each(n, "u_angle_rad")))
+            forms["distances"].append(_entry(n, each(n, "distance_mm"), f.nominal_mm, f.tolerance_mm,
+                                             _rms(each(n, "u_distance_mm")), u_cal(n, "distance_mm"), {
                 "figure": f"distance of {a} from {b}",
-                "angle_deg": float(np.degrees(v["angle_rad"])), "u_angle_deg": float(np.degrees(v["u_angle_rad"]))}))
+                "angle_deg": float(np.degrees(angle[0])), "u_angle_deg": float(np.degrees(angle[1]))}))
             # the calibration's term of a zone width: the spread of the signed tilt vector (not of its
             # magnitude, which folds every leave-one-out tilt onto one side)
-            u_tilt = combine_u(*(u_cal(f.name, f"tilt{i}") or 0.0 for i in range(3))) if loo else None
-            forms["parallelism"].append(_entry(f"{f.name}-parallelism", v["parallelism_mm"], 0.0, f.tolerance_mm,
-                                               v["u_parallelism_mm"], None if u_tilt is None else u_tilt * v["zone_per_tilt_mm"], {
+            zone = first(n, "zone_per_tilt_mm") if nf == 1 else float(np.mean(each(n, "zone_per_tilt_mm")))
+            u_tilt = combine_u(*(u_cal(n, f"tilt{i}") or 0.0 for i in range(3))) if loo else None
+            forms["parallelism"].append(_entry(f"{n}-parallelism", each(n, "parallelism_mm"), 0.0, f.tolerance_mm,
+                                               _rms(each(n, "u_parallelism_mm")), None if u_tilt is None else u_tilt * zone, {
                 "figure": f"parallelism of {a} to {b} (zone width over its extent)"}))
         elif f.kind == "sphere":
-            forms["spheres"].append(_entry(f.name, v["radius_mm"], f.nominal_mm, f.tolerance_mm, v["u_radius_mm"],
-                                           u_cal(f.name, "radius_mm"), {
-                "figure": "radius of the least-squares sphere", "centre_mm": v["centre_mm"],
-                "form_rms_mm": v.get("rms_form_mm"), "form_pv_mm": v.get("pv_form_mm"), "points": v["n"]}))
+            v = per_frame[0][n]
+            centre = v["centre_mm"] if nf == 1 else np.mean([p[n]["centre_mm"] for p in per_frame], axis=0).tolist()
+            form = (v.get("rms_form_mm"), v.get("pv_form_mm")) if nf == 1 else tuple(
+                None if v.get(k) is None else float(np.mean(each(n, k))) for k in ("rms_form_mm", "pv_form_mm"))
+            forms["spheres"].append(_entry(n, each(n, "radius_mm"), f.nominal_mm, f.tolerance_mm, _rms(each(n, "u_radius_mm")),
+                                           u_cal(n, "radius_mm"), {
+                "figure": "radius of the least-squares sphere", "centre_mm": centre,
+                "form_rms_mm": form[0], "form_pv_mm": form[1], "points": v["n"]}))
     forms = {k: v for k, v in forms.items() if v}
     specimen = {"tolerance_mm": feats.tolerance_mm, "steps": [{"name": s["name"], "nominal_mm": s["nominal_mm"]} for s in steps]}
-    method_result = {"method": ONESHOT_METHOD if oneshot else METHOD, "frames": 1, "steps": steps}
+    method_result = {"method": ONESHOT_METHOD if oneshot else METHOD, "frames": nf, "steps": steps}
     inputs = [p for p in session.input_files()] + [Path(calibration)]
-    route = (f"{ONESHOT_GEOMETRY}: the first one-shot trapezoid frame's hue through the per-pixel hue table to the "
+    which = "the first one-shot trapezoid frame's" if nf == 1 else f"each of the {nf} one-shot trapezoid frames'"
+    route = (f"{ONESHOT_GEOMETRY}: {which} hue through the per-pixel hue table to the "
              "projector coordinate, its fringe order from the session's coded blocks on the same scene, triangulated "
-             "with the rig calibration" if oneshot else
+             "with the rig calibration" + ("" if nf == 1 else "; every figure the mean over the frames") if oneshot else
              "structured light: decoded projector coordinates triangulated with the rig calibration")
     extras: dict[str, Any] = {
         "geometry": {"route": route, "triangulation": mode, "calibration": str(calibration),
@@ -278,6 +343,12 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
                        "capture": session.meta.get("provenance") or {},
                        **({"geometry": ONESHOT_GEOMETRY} if oneshot else {})},
     }
+    if nf > 1:
+        extras["uncertainty_over_frames"] = (
+            "each figure is the mean over the frames; its points term the quadrature mean of the frames' (not divided by "
+            "the number of frames: each pixel's sigma holds the hue table's noise, the same in every frame), its "
+            "calibration term the jackknife over the leave-one-pose-out calibrations on the first frame (a calibration's "
+            "error moves every frame alike)")
     if cal_doc:
         extras["rig_calibration"] = cal_doc
     report = build_report_json(session.id, specimen, method_result, extras=extras,
@@ -288,8 +359,11 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
     from huefringe.io import write_json
 
     write_json(json_path, report)
-    write_report_html(html_path, report, {k: v for k, v in (figures or {}).items() if v and Path(v).is_file()},
-                      report["provenance"])
+    figs = {k: v for k, v in (figures or {}).items() if v and Path(v).is_file()}
+    with tempfile.TemporaryDirectory() as tmp:
+        if nf > 1:  # the capture route's per-frame figure, embedded in the page
+            figs["per_frame"] = per_frame_figure(report, Path(tmp) / "per_frame.png")
+        write_report_html(html_path, report, figs, report["provenance"])
     return report
 
 

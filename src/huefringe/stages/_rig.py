@@ -233,15 +233,21 @@ def rig_surfaces(session: str, height: str, uncertainty: str, mesh: Mapping[str,
     uncertainty_map_figure(u, pitch, uncertainty_map, title=f"{s.id}: height uncertainty u")
 
 
-def rig_metrology(session: str, config: Mapping[str, Any], calibration: str, xyz: str, xyz_sigma: str, decoded: str,
-                  qa: str, render: str, height_map: str, quality: str, json: str, html: str,
+def rig_metrology(session: str, config: Mapping[str, Any], calibration: str, xyz: Any, xyz_sigma: Any, decoded: Any,
+                  qa: Any, render: str, height_map: str, quality: str, json: str, html: str,
                   jackknife: Any = "", calibration_report: Any = "") -> None:
     """``metrology/report.json`` and ``report.html`` of a structured-light session: its features'
     steps, flatness, plane distances and parallelism, spheres, each with U (k = 2) and the ISO
-    14253-1 decision, and the calibration's summary (:func:`huefringe.rig.metrology.rig_report`)."""
+    14253-1 decision, and the calibration's summary (:func:`huefringe.rig.metrology.rig_report`).
+
+    ``xyz``, ``xyz_sigma``, ``decoded`` (and ``qa``) are one frame's files or, for a one-shot
+    session, every one-shot frame's in capture order: each figure is then measured on every frame
+    and reported as its per-frame series, mean and standard deviation."""
     s = load_sl_session(session)
-    rig_report(s, dict(config), calibration=_calibration_file(s, calibration), xyz=read_tiff(xyz),
-               sigma=read_tiff(xyz_sigma)[..., :3], decoded=read_tiff(decoded), jackknife=_one(jackknife),
+    xyz, xyz_sigma, decoded = ([p] if isinstance(p, str) else list(p) for p in (xyz, xyz_sigma, decoded))
+    rig_report(s, dict(config), calibration=_calibration_file(s, calibration), xyz=[read_tiff(p) for p in xyz],
+               sigma=[read_tiff(p)[..., :3] for p in xyz_sigma], decoded=[read_tiff(p) for p in decoded],
+               jackknife=_one(jackknife),
                calibration_report=_one(calibration_report), json_path=json, html_path=html,
                figures={"render": render, "height": height_map, "decode_quality": quality},
                oneshot=is_oneshot(s.spec))

@@ -133,7 +133,8 @@ def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[st
             *(("accuracy",) if "xyz" in s.ground_truth else ())]
     for k in keep:
         p[k].parent.mkdir(parents=True, exist_ok=True)
-    if is_oneshot(s.spec):   # every one-shot frame, frame_0000 .. (the report and surfaces of the first)
+    frames: dict[str, list[str]] = {}
+    if is_oneshot(s.spec):   # every one-shot frame, frame_0000 .. (the surfaces of the first, the report of all)
         n = s.spec.oneshot_frames
         frames = {k: [str(p[k]).replace("frame_0000", f"frame_{i:04d}") for i in range(n)] for k in RIG_MEASURE}
         for k in RIG_MEASURE:
@@ -145,9 +146,10 @@ def measure_rig_session(session: str | Path, out: str | Path, config: Mapping[st
     if surfaces:
         rig_surfaces(str(s.root), str(p["height"]), str(p["uncertainty"]), config["mesh"], config["render"],
                      **{k: str(p[k]) for k in RIG_SURFACES})
-    if s.features is not None:
-        rig_metrology(str(s.root), config, str(calibration), str(p["xyz"]), str(p["xyz_sigma"]), str(p["decoded"]),
-                      str(p["qa"]), str(p["top"]) if surfaces else "", str(p["height_map"]) if surfaces else "",
+    if s.features is not None:   # a one-shot session's report: of every one-shot frame
+        each = {k: frames.get(k) or str(p[k]) for k in ("xyz", "xyz_sigma", "decoded", "qa")}
+        rig_metrology(str(s.root), config, str(calibration), each["xyz"], each["xyz_sigma"], each["decoded"],
+                      each["qa"], str(p["top"]) if surfaces else "", str(p["height_map"]) if surfaces else "",
                       str(p["quality"]), str(p["json"]), str(p["html"]), jackknife=beside["jackknife"],
                       calibration_report=beside["report"])
     if "xyz" in s.ground_truth:
