@@ -351,9 +351,11 @@ def filter_centroid(weight: NDArray[np.floating], radius: int) -> tuple[NDArray[
     def box(kx: NDArray[np.float32], ky: NDArray[np.float32]) -> NDArray[np.float32]:
         return cv2.sepFilter2D(w, cv2.CV_32F, kx, ky, borderType=cv2.BORDER_CONSTANT)
     sw = box(ones, ones)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        inv = np.where(sw > 0, np.float32(1.0) / np.maximum(sw, np.float32(1e-30)), np.float32(0.0))
-    return box(ramp, ones) * inv, box(ones, ramp) * inv
+    inv = np.divide(np.float32(1.0), sw, out=np.zeros_like(sw), where=sw > 0)
+    ox, oy = box(ramp, ones), box(ones, ramp)
+    ox *= inv
+    oy *= inv
+    return ox, oy
 
 
 def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = None, *,
@@ -407,10 +409,14 @@ def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = 
     lat2 = np.float32(lateral_px) ** 2 * slope2
     if weight is not None and filter_radius > 0:  # the filter's centroid on the (noise-free part of the) slope
         ox, oy = filter_centroid(weight, int(filter_radius))
-        raw2 = gx**2 + gy**2
-        with np.errstate(invalid="ignore", divide="ignore"):
-            shrink = np.where(raw2 > 0, np.sqrt(slope2 / np.maximum(raw2, np.float32(1e-30))), np.float32(0.0))
-        lat2 = lat2 + (shrink * (gx * ox + gy * oy)) ** 2
+        shift = gx * ox
+        shift += gy * oy
+        shift *= shift
+        raw2 = gx * gx
+        raw2 += gy * gy
+        np.divide(slope2, raw2, out=raw2, where=raw2 > 0)  # the share of the slope that is not its noise
+        shift *= raw2
+        lat2 = lat2 + shift
     if step_px > 0:
         cx, cy, _ = _smoothed_slope(h, ok, coarse_px)
         bend2 = np.minimum((gx - cx) ** 2 + (gy - cy) ** 2, slope2)
