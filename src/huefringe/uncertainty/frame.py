@@ -16,8 +16,8 @@ from numpy.typing import NDArray
 from huefringe import _threads  # noqa: F401  (numba's threading layer, before any parallel launch)
 from huefringe.uncertainty.calibration import PixelBudget, TERMS, _INTERP_LUT, _encode_interp
 
-__all__ = ["add_lateral", "edge_floor", "filter_centroid", "height_uncertainty", "lateral_term", "split_terms", "texture_delta",
-           "texture_term", "texture_term_phase"]
+__all__ = ["add_lateral", "edge_floor", "filter_centroid", "height_uncertainty", "lateral_term", "split_terms",
+           "texture_delta", "texture_term", "texture_term_phase"]
 
 
 def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.float64]:
