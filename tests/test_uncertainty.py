@@ -591,6 +591,36 @@ def test_lateral_term_is_dx_times_slope() -> None:
     assert np.median(uncertainty.lateral_term(flat)) < 0.01
 
 
+def test_filter_on_a_textured_ramp_errs_by_slope_times_weight_centroid() -> None:
+    """The phase filter's inverse-variance mean of a noise-free ramp ``a x + b y`` with textured
+    weights (lognormal sigma, a dark column band of 4 x the sigma) is the ramp at the weights'
+    centroid: its error is ``a c_x + b c_y`` with ``c`` from :func:`filter_centroid` (float32
+    rounding); the lateral term's centroid part on the heights of that ramp is ``|g . c|``."""
+    rng = np.random.default_rng(17)
+    vv, uu = np.mgrid[:70, :90].astype(np.float64)
+    a, b = 0.007, -0.004  # rad/px: a relief's slope at the sensor cases' periods
+    ramp = (a * uu + b * vv).astype(np.float32)
+    sigma = np.exp(rng.normal(np.log(0.05), 0.5, ramp.shape)).astype(np.float32)
+    sigma[:, 40:44] *= 4.0
+    valid = np.ones(ramp.shape, bool)
+    out = denoise_phase(ramp, sigma, valid, radius=2, k=100.0)
+    w = (1.0 / sigma.astype(np.float32) ** 2).astype(np.float32)
+    cx, cy = uncertainty.filter_centroid(w, 2)
+    inner = (slice(2, -2), slice(2, -2))
+    assert np.sqrt(np.mean(cx[inner] ** 2 + cy[inner] ** 2)) > 0.3  # the weights do move the centroid
+    np.testing.assert_allclose((out - ramp)[inner], (a * cx + b * cy)[inner], atol=2e-6)
+    # the uncertainty's term: heights of that slope (mm/px), the centroid part alone
+    h = (0.02 * uu - 0.01 * vv).astype(np.float32)
+    term = uncertainty.lateral_term(h, lateral_px=0.0, weight=w, filter_radius=2)
+    far = (slice(8, -8), slice(8, -8))
+    np.testing.assert_allclose(term[far], np.abs(0.02 * cx - 0.01 * cy)[far], rtol=1e-4, atol=1e-7)
+    assert np.allclose(uncertainty.lateral_term(h, lateral_px=0.0, weight=w, filter_radius=0)[far], 0.0)
+    # uniform weights: a symmetric window, no centroid shift away from the border
+    cx1, cy1 = uncertainty.filter_centroid(np.ones(h.shape, np.float32), 2)
+    assert np.abs(cx1[inner]).max() < 1e-6 and np.abs(cy1[inner]).max() < 1e-6
+    assert cx1[10, 0] == pytest.approx(1.0 * (1 + 2) / 3)  # at the left border the window holds x = 0, 1, 2
+
+
 @pytest.mark.parametrize("frames", [1, 5])
 def test_coating_term_recovers_a_fixed_pattern(frames: int) -> None:
     """A top carrying a pattern fixed to the fringe (rms 8 um, period 60 px) under frame noise of

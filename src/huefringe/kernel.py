@@ -976,6 +976,10 @@ class FrameMaps:
     noise: NDArray[np.float32] | None = None
     """Standard deviation (mm) of each height from the capture noise alone, NaN where the height is
     NaN (``want_uncertainty``; ``perframe.height_noise``, as ``perframe.FrameResult.noise``)."""
+    weight: NDArray[np.float32] | None = None
+    """Each pixel's own filter weight ``1 / sigma^2`` before the filter (0 where no phase was
+    decoded; ``want_uncertainty``; as ``perframe.FrameResult.weight``): where the filter's window
+    has its centroid (:func:`huefringe.uncertainty.lateral_term`'s ``weight``)."""
 
 
 def _check_frame(prep: Prepared, rgb: NDArray[Any]) -> tuple[NDArray[Any], float]:
@@ -1091,7 +1095,8 @@ def frame_maps(
     tex_u = None
     if delta is not None:
         tex_u = texture_term_phase(smooth if denoise else dphi, carried, height, prep.a, prep.b)
-    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map, support, tex_u, noise_h)
+    return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map, support, tex_u, noise_h,
+                     weights[2] if want_uncertainty and weights is not None else None)
 
 
 def frame_to_height(

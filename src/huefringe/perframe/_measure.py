@@ -51,6 +51,9 @@ class FrameResult:
     noise: NDArray[np.float32] | None = None
     """Standard deviation (mm) of each height from the capture noise alone (:func:`height_noise`),
     NaN where the height is NaN: what the step-edge tests hold a jump against."""
+    weight: NDArray[np.float32] | None = None
+    """Each pixel's own filter weight ``1 / sigma^2`` before the filter (0 where no phase was
+    decoded): where the filter's window has its centroid (:func:`huefringe.uncertainty.lateral_term`)."""
 
 
 def measure_frame(
@@ -143,12 +146,13 @@ def measure_frame(
     raw_dphi = np.asarray(un.dphi, np.float32)
     delta = texture_delta(moved_dphi, raw_dphi) if moved_dphi is not None else None
     carried = np.empty(valid.shape, np.float32) if delta is not None and denoise_radius > 0 else delta
+    weight = denoise_weight_sums(un.dphi, sigma, valid)  # each pixel's own 1 / sigma^2, before the filter
     if denoise_radius > 0:
         un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius, weight_sum=sumw, ratio=ratio,
                                 ratio_sum=rsum if ratio is not None else None, support=support,
                                 carry=delta, carry_mean=carried, **adaptive_kwargs(denoise_adaptive))
     else:  # one pixel's weight 1 / sigma^2, in the filter's float32 arithmetic
-        sumw = denoise_weight_sums(un.dphi, sigma, valid)
+        sumw = weight
         rsum = sumw * ratio if ratio is not None else rsum
         support = (sumw > 0).astype(np.float32)
     height = cal.height(un.dphi)
@@ -171,4 +175,4 @@ def measure_frame(
         hue_model=hue_model, unwrap_mode=unwrap_mode, below_reference_mm=below_reference_mm,
     )
     return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats,
-                       u_map, support, raw_dphi, tex_u, noise_h)
+                       u_map, support, raw_dphi, tex_u, noise_h, weight)

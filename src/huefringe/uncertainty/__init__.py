@@ -50,7 +50,8 @@ from huefringe.uncertainty.calibration import (
 )
 from huefringe.uncertainty.frame import (
     EDGE_SIGNIFICANCE, LATERAL_COARSE_PX, LATERAL_PX, LATERAL_SMOOTH_PX, LATERAL_STEP_PX, add_lateral,
-    edge_floor, height_uncertainty, lateral_term, split_terms, texture_delta, texture_term, texture_term_phase,
+    edge_floor, filter_centroid, height_uncertainty, lateral_term, split_terms, texture_delta, texture_term,
+    texture_term_phase,
 )
 from huefringe.uncertainty.steps import coating_term, conformance, step_budget
 from huefringe.uncertainty.validation import reliability

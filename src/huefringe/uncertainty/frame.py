@@ -6,6 +6,7 @@ the lateral and texture terms, and the split into terms.
 from __future__ import annotations
 
 import math
+from typing import Any
 
 import cv2
 import numba
@@ -15,8 +16,8 @@ from numpy.typing import NDArray
 from huefringe import _threads  # noqa: F401  (numba's threading layer, before any parallel launch)
 from huefringe.uncertainty.calibration import PixelBudget, TERMS, _INTERP_LUT, _encode_interp
 
-__all__ = ["add_lateral", "edge_floor", "height_uncertainty", "lateral_term", "split_terms", "texture_delta",
-           "texture_term", "texture_term_phase"]
+__all__ = ["add_lateral", "edge_floor", "filter_centroid", "height_uncertainty", "lateral_term", "split_terms",
+           "texture_delta", "texture_term", "texture_term_phase"]
 
 
 def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.float64]:
@@ -336,12 +337,42 @@ def _smoothed_slope(h: NDArray[np.float32], ok: NDArray[np.bool_], smooth_px: fl
     return np.nan_to_num(gx), np.nan_to_num(gy), den
 
 
+def filter_centroid(weight: NDArray[np.floating], radius: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """The offset (px; x along a row, y down a column) of the weighted centroid of each pixel's
+    ``(2 radius + 1)^2`` window from the pixel: ``sum w_j (x_j - x_i) / sum w_j`` over the pixels
+    of positive weight (the phase filter's inverse-variance weights ``1 / sigma^2``; outside the
+    image none). 0 where the window holds no weight. Three separable box sums (OpenCV)."""
+    w = np.where(np.isfinite(weight) & (weight > 0), np.asarray(weight, np.float32), np.float32(0.0))
+    if radius <= 0:
+        z = np.zeros(w.shape, np.float32)
+        return z, z
+    ones = np.ones(2 * radius + 1, np.float32)
+    ramp = np.arange(-radius, radius + 1, dtype=np.float32)
+    def box(kx: NDArray[np.float32], ky: NDArray[np.float32]) -> NDArray[np.float32]:
+        return cv2.sepFilter2D(w, cv2.CV_32F, kx, ky, borderType=cv2.BORDER_CONSTANT)
+    sw = box(ones, ones)
+    inv = np.divide(np.float32(1.0), sw, out=np.zeros_like(sw), where=sw > 0)
+    ox, oy = box(ramp, ones), box(ones, ramp)
+    ox *= inv
+    oy *= inv
+    return ox, oy
+
+
 def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = None, *,
                  lateral_px: float = LATERAL_PX, smooth_px: float = LATERAL_SMOOTH_PX,
-                 step_px: float = 0.0, coarse_px: float = LATERAL_COARSE_PX) -> NDArray[np.float32]:
+                 step_px: float = 0.0, coarse_px: float = LATERAL_COARSE_PX,
+                 weight: NDArray[np.floating] | None = None, filter_radius: int = 0) -> NDArray[np.float32]:
     """The height error of a lateral position uncertainty (mm), per pixel::
 
-        u_lat^2 = (lateral_px |g|)^2 + (step_px min(|g - g_coarse|, |g|))^2
+        u_lat^2 = (lateral_px |g|)^2 + (step_px min(|g - g_coarse|, |g|))^2 + (g . c)^2
+
+    ``c`` (with ``weight`` and ``filter_radius`` > 0) is the offset of the phase filter's weighted
+    centroid from the pixel (:func:`filter_centroid`): the filter's inverse-variance mean over its
+    window is the heights' value at that centroid, so on a slope ``g`` it is off by ``g . c``.
+    The weights follow the texture (a dark pixel is noisier) and the table's slope along the fringe,
+    so ``c`` is fixed from frame to frame and the error is shared by the frames; its sign is known
+    but the slope is the measured one, so it is carried here, not corrected (docs/uncertainty.md,
+    "The filter's centroid").
 
     A pixel's height is a weighted mean over a footprint (camera blur, the phase filter's window,
     the mixed pixels beside a step or a reflectance edge that the first-order texture correction
@@ -376,6 +407,16 @@ def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = 
             var = var / np.maximum(den, np.float32(1e-3)) ** 2
         slope2 = np.maximum(slope2 - var, np.float32(0.0))
     lat2 = np.float32(lateral_px) ** 2 * slope2
+    if weight is not None and filter_radius > 0:  # the filter's centroid on the (noise-free part of the) slope
+        ox, oy = filter_centroid(weight, int(filter_radius))
+        shift = gx * ox
+        shift += gy * oy
+        shift *= shift
+        raw2 = gx * gx
+        raw2 += gy * gy
+        np.divide(slope2, raw2, out=raw2, where=raw2 > 0)  # the share of the slope that is not its noise
+        shift *= raw2
+        lat2 = lat2 + shift
     if step_px > 0:
         cx, cy, _ = _smoothed_slope(h, ok, coarse_px)
         bend2 = np.minimum((gx - cx) ** 2 + (gy - cy) ** 2, slope2)
@@ -383,7 +424,7 @@ def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = 
     return np.where(ok, np.sqrt(lat2), np.nan).astype(np.float32)
 
 
-def add_lateral(height: NDArray[np.floating], u: NDArray[np.floating], **kwargs: float) -> NDArray[np.float32]:
+def add_lateral(height: NDArray[np.floating], u: NDArray[np.floating], **kwargs: Any) -> NDArray[np.float32]:
     """``sqrt(u^2 + lateral_term(height, u, **kwargs)^2)`` (a new float32 map; NaN where either is NaN)."""
     lat = lateral_term(height, u, **kwargs).astype(np.float64)
     return np.sqrt(np.asarray(u, np.float64) ** 2 + lat**2).astype(np.float32)
