@@ -159,6 +159,11 @@ def test_working_volume_orders_one_candidate_and_flags_an_ambiguous_volume() -> 
     assert np.allclose(ends[..., 0], x - 1e5 / zf, atol=0.02) and np.all(ends[..., 1] > u_ref)
     co = absolute_from_reference(phase, ref, volume)
     assert co.valid[239:241, cols].all() and np.allclose(co.coord[239:241, cols], u_obj)
+    # the decision's margin: u_obj - 20 and u_obj + 20 lie 2.2-2.5 px outside the 15.4 px interval
+    lo, hi = ends.min(axis=-1), ends.max(axis=-1)
+    want = np.minimum.reduce([u_obj - lo, hi - u_obj, lo - (u_obj - 20.0), u_obj + 20.0 - hi])
+    assert np.allclose(co.margin[239:241, cols], want) and 1.5 < want.min() and want.max() < 3.0
+    assert np.allclose(nearest.margin[239:241, cols], 10.0 - np.abs(u_obj + 20.0 - u_ref))
     assert ref.travel_summary()["wider_than_period_fraction"] == 0.0
     # a volume two periods deep (60 mm in front, 30 behind: 440-530 mm): the alias 18.8 mm behind
     # lies in it too, every pixel flagged

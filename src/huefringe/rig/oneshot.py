@@ -408,6 +408,10 @@ class OneShotCoordinate:
         ``OUTSIDE`` (off the projector).
     offset : ndarray of float64
         ``u - u_ref`` (projector px) wherever both are decoded, flagged or not.
+    margin : ndarray of float64
+        How far (projector px) the order decision is from going another way, wherever both are
+        decoded: ``P / 2 - |u - u_ref|``; with a working volume the smallest distance of ``u``
+        inside, or of ``u +- P`` outside, the volume's coordinate interval (negative: flagged).
     """
 
     coord: F64
@@ -415,6 +419,7 @@ class OneShotCoordinate:
     valid: NDArray[np.bool_]
     reasons: NDArray[np.uint8]
     offset: F64
+    margin: F64 | None = None
 
 
 def absolute_from_reference(phase: OneShotPhase, reference: OneShotReference, block: TrapezoidBlock, *,
@@ -470,6 +475,11 @@ def absolute_from_reference(phase: OneShotPhase, reference: OneShotReference, bl
         k = np.rint((reference.coord - w) / P)
     u = w + k * P
     d = u - reference.coord
+    if reference.travel_coord is not None:
+        lo0, hi0 = lo + margin, hi - margin
+        decision = np.minimum(np.minimum(u - lo0, hi0 - u), np.minimum(lo0 - (u - P), (u + P) - hi0))
+    else:
+        decision = 0.5 * P - np.abs(d)
     with np.errstate(invalid="ignore"):
         if reference.travel_coord is None:
             ambiguous = both & ~(np.abs(d) <= 0.5 * P - margin)
@@ -483,7 +493,7 @@ def absolute_from_reference(phase: OneShotPhase, reference: OneShotReference, bl
     reasons = reasons.astype(np.uint8)
     valid = (reasons == 0) & both
     return OneShotCoordinate(np.where(valid, u, np.nan), np.where(valid, phase.sigma, np.nan), valid, reasons,
-                             np.where(both, d, np.nan))
+                             np.where(both, d, np.nan), np.where(both, decision, np.nan))
 
 
 @dataclass(frozen=True, eq=False)
@@ -627,7 +637,7 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
         co = res.coordinate
         top = 255.0 if caps.bit_depth == 8 else 65535.0
         dec = Decoded(block.axis, co.coord, co.sigma, (caps.frames[k].mean(axis=-1) * top).astype(np.float32), co.valid,
-                      np.where(co.valid, 0.5 * block.period_px - np.abs(co.offset), np.nan).astype(np.float32), True,
+                      np.where(co.valid, co.margin, np.nan).astype(np.float32), True,
                       co.reasons)
         maps = {key: co.coord, other: None, f"sigma_{key}": co.sigma, f"sigma_{other}": None, f"valid_{key}": co.valid,
                 f"valid_{other}": None, "mean": caps.frames[k].mean(axis=-1).astype(np.float64) * top,
