@@ -379,6 +379,24 @@ def test_prefetching_reader_gives_the_same_table():
     assert a.stats == b.stats
 
 
+def test_on_image_sees_every_image_as_read_once_in_order_with_prefetch():
+    rig = make_rig("gamma2.2")
+    white = rig.white()
+    bands = {(i, r): rig.band(i, 24) for i in range(24) for r in range(2)}
+    paths = [[(i, r) for r in range(2)] for i in range(24)]
+    seen = []
+
+    def on_image(i, r, img):
+        assert img is bands[(i, r)]                     # the array read, not a copy or a reduction
+        seen.append((i, r))
+
+    a = cal.build_table(paths, white, read=bands.__getitem__)
+    b = cal.build_table(paths, white, read=bands.__getitem__, prefetch=2, on_image=on_image)
+    assert seen == [(i, r) for i in range(24) for r in range(2)]
+    np.testing.assert_array_equal(np.asarray(a.table), np.asarray(b.table))
+    assert a.stats == b.stats
+
+
 def test_build_from_png_files_and_preallocated_memmap(tmp_path):
     n, reps, h, w = 32, 2, 6, 20
     rig = ToyRig(surface_rows(h, w, [(3, WHITE), (3, RED)]), gamma=(2.2, 2.2, 2.2), bits=16, noise=0.001)

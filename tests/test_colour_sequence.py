@@ -226,3 +226,32 @@ def test_qa_fires_on_a_rolling_shutter_and_stays_quiet_on_3ccd_and_whole_cycles(
         d = np.angle(np.exp(1j * (phase["dlp"][0][z] - phase["plain"][0][z])))  # small: no unwrapping
         injected = row_periodic_rms(d - fit_poly2d(d, ok, 3), ok)[0]
         assert rb["planes"][key]["amplitude_rad"] == pytest.approx(injected, rel=0.15), z
+
+
+def test_flicker_qa_takes_the_reference_tables_means_and_gives_the_numbers_of_reading_again(tmp_path):
+    from huefringe.huetable import HueTable
+
+    cfg = _cfg(sequence=2.25)
+    cfg["session"]["repeats"] = 3
+    s = load_session(bench.write_session(cfg, tmp_path / cfg["session"]["id"]))
+    cal = CONFIG["calibration"]
+    t = session_hue_table(s, "reference", CONFIG["hue_model"], cal)
+    t.save(tmp_path / "ref.npz")
+    loaded = HueTable.load(tmp_path / "ref.npz")
+    rec = loaded.stats["colour_flicker_means"]
+    assert rec["bands"] == [0, 2, 3, 4, 6, 8, 9, 10, 12, 14, 15, 16, 18, 20, 21, 22]     # 16 of 24, evenly spread
+    assert all(len(m) == 3 and all(isinstance(v, float) for v in m) for m in rec["mean_hue_rad"])
+
+    class NoReading:
+        def rgb(self, path):
+            raise AssertionError(f"{path} read again")
+
+    from_table = reference_colour_flicker(s, CONFIG["hue_model"], cal, NoReading(), table=loaded)
+    read_again = reference_colour_flicker(s, CONFIG["hue_model"], cal)
+    assert from_table == read_again                                   # every QA number bit for bit
+    assert from_table["suspected"] and from_table["amplitude_rad"] > 5 * FLICKER_THRESHOLD_RAD
+    assert from_table["bands"] == 16 and from_table["repeats"] == 3
+    # another hue model or minimum saturation than the table's: the images are read again
+    other = {**cal, "min_saturation": float(cal["min_saturation"]) + 0.01}
+    with pytest.raises(AssertionError, match="read again"):
+        reference_colour_flicker(s, CONFIG["hue_model"], other, NoReading(), table=loaded)

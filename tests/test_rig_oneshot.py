@@ -108,6 +108,77 @@ def test_relative_reference_refused() -> None:
         oneshot_reference(dec, RIGS["holdout-wide"].calibration, TrapezoidBlock("x", 36.0))
 
 
+def test_travel_mm_loads_writes_and_is_refused_with_its_problems() -> None:
+    blocks = [*ONESHOT[:-1], {"trapezoid": {"axis": "x", "period_px": 36, "frames": 2, "travel_mm": {"front": 30, "back": 0.5}}}]
+    spec = sequence_from_mapping({"projector": PROJ, "blocks": blocks}, "sequence.yaml", ".")
+    assert spec.blocks[-1] == TrapezoidBlock("x", 36.0, 0.0, 2, (30.0, 0.5))
+    assert sequence_to_mapping(spec)["blocks"][-1]["trapezoid"]["travel_mm"] == {"front": 30.0, "back": 0.5}
+    assert sequence_from_mapping(sequence_to_mapping(spec), "again.yaml", ".") == spec
+    with pytest.raises(SequenceError) as e:
+        sequence_from_mapping({"projector": PROJ, "blocks": [
+            *ONESHOT[:-1], {"trapezoid": {"axis": "x", "period_px": 36, "travel_mm": {"front": -1, "back": 2}}},
+            {"trapezoid": {"axis": "x", "period_px": 36, "travel_mm": [3, 4]}}]}, "seq.yaml", ".")
+    msg = str(e.value)
+    assert "travel_mm: front and back must be finite, >= 0" in msg and "travel_mm: expected {front: mm, back: mm}" in msg
+
+
+def _rectified():
+    """A rectified rig: projector 100 mm beside the camera, f = 1000 px, no distortion. A surface at
+    depth Z shows camera column x the projector column ``x - 1e5 / Z``."""
+    from huefringe.rig import RigCalibration
+
+    K = np.array([[1000.0, 0, 320], [0, 1000.0, 240], [0, 0, 1]])
+    return RigCalibration(K, np.zeros(5), K, np.zeros(5), np.eye(3), np.array([-100.0, 0, 0]), (640, 480), (800, 600))
+
+
+def test_working_volume_orders_one_candidate_and_flags_an_ambiguous_volume() -> None:
+    cal = _rectified()
+    x = np.arange(300.0, 340.0)[None, :].repeat(2, axis=0)                   # rows 239, 240 of a 40-column strip
+    z_ref, z_obj = 500.0, 470.0                                              # the object 30 mm in front
+    u_ref = x - 1e5 / z_ref
+    u_obj = x - 1e5 / z_obj                                                  # 12.77 px from the reference: P / 2 = 10
+    full = np.full((480, 640), np.nan)
+    cols = slice(300, 340)
+    ref_coord = full.copy()
+    ref_coord[239:241, cols] = u_ref
+    z = np.zeros((480, 640))
+    dec = Decoded("x", ref_coord, np.where(np.isfinite(ref_coord), 0.02, np.nan), z.astype(np.float32),
+                  np.isfinite(ref_coord), z.astype(np.float32), True, z.astype(np.uint8))
+    obj = full.copy()
+    obj[239:241, cols] = u_obj
+    phase = OneShotPhase(np.mod(obj, 20.0), np.where(np.isfinite(obj), 0.05, np.nan), np.isfinite(obj),
+                         z.astype(np.uint8), z.astype(np.float32))
+    plain = TrapezoidBlock("x", 20.0)
+    nearest = absolute_from_reference(phase, oneshot_reference(dec, cal, plain), plain, stands_on_reference=False)
+    assert np.allclose(nearest.coord[239:241, cols], u_obj + 20.0)           # the alias: 18.8 mm behind, not flagged
+    # a working volume 35 mm in front, 1 mm behind: 15.4 px of coordinate, one candidate per pixel
+    volume = TrapezoidBlock("x", 20.0, travel_mm=(35.0, 1.0))
+    ref = oneshot_reference(dec, cal, volume)
+    ends = ref.travel_coord[239:241, cols]
+    zf = 500.0 - 35.0 * 500.0 / np.sqrt(500.0**2 + ((x - 320.0) * 0.5) ** 2 + 0.25)   # depth of the front end (approx.)
+    assert np.allclose(ends[..., 0], x - 1e5 / zf, atol=0.02) and np.all(ends[..., 1] > u_ref)
+    co = absolute_from_reference(phase, ref, volume)
+    assert co.valid[239:241, cols].all() and np.allclose(co.coord[239:241, cols], u_obj)
+    # the decision's margin: u_obj - 20 and u_obj + 20 lie 2.2-2.5 px outside the 15.4 px interval
+    lo, hi = ends.min(axis=-1), ends.max(axis=-1)
+    want = np.minimum.reduce([u_obj - lo, hi - u_obj, lo - (u_obj - 20.0), u_obj + 20.0 - hi])
+    assert np.allclose(co.margin[239:241, cols], want) and 1.5 < want.min() and want.max() < 3.0
+    assert np.allclose(nearest.margin[239:241, cols], 10.0 - np.abs(u_obj + 20.0 - u_ref))
+    assert ref.travel_summary()["wider_than_period_fraction"] == 0.0
+    # a volume two periods deep (60 mm in front, 30 behind: 440-530 mm): the alias 18.8 mm behind
+    # lies in it too, every pixel flagged
+    deep = TrapezoidBlock("x", 20.0, travel_mm=(60.0, 30.0))
+    dref = oneshot_reference(dec, cal, deep)
+    dco = absolute_from_reference(phase, dref, deep)
+    assert not dco.valid.any() and ((dco.reasons[239:241, cols] & Reason.ORDER) > 0).all()
+    assert dref.travel_summary()["wider_than_period_fraction"] == 1.0
+    # the object outside a volume whose candidates all miss it: flagged (10 mm in front, 0.5 behind;
+    # 30 mm in front wraps to 18.8 mm behind and 20 mm further in front, both outside)
+    near = TrapezoidBlock("x", 20.0, travel_mm=(10.0, 0.5))
+    nco = absolute_from_reference(phase, oneshot_reference(dec, cal, near), near)
+    assert not nco.valid.any() and ((nco.reasons[239:241, cols] & Reason.ORDER) > 0).all()
+
+
 # ------------------------------------------------------------------------------ the bench rig, with truth
 
 

@@ -112,3 +112,79 @@ def test_calibration_term_on_pixels_away_from_every_sample():
     expect = np.sqrt((n - 1) / n * (n - 1) / (n - 3) * np.sum(dev**2, axis=0))
     assert np.allclose(u_axes[101, 301], expect, rtol=1e-9)
     assert u_ray[237, 413] > 0
+
+
+def _calibrated_scene(mode_sigma=0.05, seed=5):
+    """A calibrated bench rig (its fitted lens distortion on both devices) and the steps scene's
+    decoded coordinates on every camera pixel."""
+    rig, cal, _, _ = calibrated("holdout-wide", 6, 7)
+    xyz, ok, _ = StepsScene().cast(rig.rays)
+    return rig, cal, rig.coordinates(xyz, ok, np.random.default_rng(seed), mode_sigma)
+
+
+@pytest.mark.parametrize("mode", ["u", "v"])
+def test_plane_solution_projects_onto_its_coordinate_and_its_pixel(mode):
+    from huefringe.rig.triangulation import project
+
+    rig, cal, m = _calibrated_scene()
+    assert np.abs(cal.projector_distortion[:2]).max() > 0.05 and np.abs(cal.camera_distortion[:2]).max() > 0.1
+    t = triangulate(cal, **{mode: m[mode]}, valid=m["valid"], mode=mode)
+    assert t.valid.sum() > 0.99 * m["valid"].sum()
+    axis = 0 if mode == "u" else 1
+    back = project(t.xyz[t.valid], cal.projector_matrix, cal.projector_distortion, cal.R, cal.T)[:, axis]
+    assert np.abs(back - m[mode][t.valid]).max() < 1e-8                   # projector px
+    yy, xx = np.nonzero(t.valid)
+    cam = project(t.xyz[t.valid], cal.camera_matrix, cal.camera_distortion)
+    assert np.abs(cam - np.column_stack([xx, yy])).max() < 1e-8            # camera px: on the pixel's ray
+
+
+@pytest.mark.parametrize("mode", ["u", "both"])
+def test_sigma_is_the_solution_derivative_times_the_coordinate_sigma(mode):
+    rig, cal, m = _calibrated_scene()
+    sl = (slice(100, 380, 7), slice(60, 600, 9))
+    u, v, s = (m[k][sl] for k in ("u", "v", "sigma"))
+    valid = m["valid"][sl]
+    yy, xx = np.mgrid[0:480, 0:640]
+    pix = np.column_stack([xx[sl].ravel(), yy[sl].ravel()])
+    args = dict(valid=valid.ravel(), pixels=pix, mode=mode)
+    vv = v.ravel() if mode == "both" else None
+    t = triangulate(cal, u.ravel(), vv, sigma_u=s.ravel(), sigma_v=s.ravel() if mode == "both" else None, **args)
+    h = 1e-3
+    var = np.zeros_like(t.xyz)
+    for k in ("u", "v") if mode == "both" else ("u",):
+        step = {"u": u.ravel(), "v": vv}
+        hi = triangulate(cal, **{**step, k: step[k] + h}, **args).xyz
+        lo = triangulate(cal, **{**step, k: step[k] - h}, **args).xyz
+        var += ((hi - lo) / (2 * h) * s.ravel()[:, None]) ** 2
+    ok = t.valid & np.isfinite(var).all(axis=1)
+    assert ok.sum() > 1500
+    ref, got = np.sqrt(var[ok]), t.sigma[ok]
+    big = ref > 1e-4 * ref.max()
+    assert np.abs(got[big] / ref[big] - 1).max() < 1e-5
+    assert 0.005 < np.median(t.sigma_ray[ok]) < 0.2                       # mm per 0.05 px on this rig
+
+
+@pytest.mark.parametrize("mode", ["u", "both"])
+def test_longer_distortion_models_give_the_five_coefficient_solution(mode):
+    from dataclasses import replace
+
+    rig, cal, m = _calibrated_scene()
+    longer = np.zeros(14)
+    longer[:5] = cal.projector_distortion[:5]
+    longer[5] = 1e-15                      # a rational coefficient: OpenCV's 14-coefficient model's path
+    cam = np.zeros(8)
+    cam[:5] = cal.camera_distortion[:5]
+    cam[7] = 1e-15
+    other = replace(cal, projector_distortion=longer, camera_distortion=cam)
+    sl = (slice(0, 480, 5), slice(0, 640, 5))
+    kw = dict(u=m["u"][sl], v=m["v"][sl] if mode == "both" else None, sigma_u=m["sigma"][sl],
+              sigma_v=m["sigma"][sl] if mode == "both" else None, valid=m["valid"][sl], mode=mode)
+    yy, xx = np.mgrid[0:480:5, 0:640:5]
+    pix = np.column_stack([xx.ravel(), yy.ravel()])
+    a = triangulate(cal, **{k: (None if val is None else val.ravel()) for k, val in kw.items() if k != "mode"},
+                    pixels=pix, mode=mode)
+    b = triangulate(other, **{k: (None if val is None else val.ravel()) for k, val in kw.items() if k != "mode"},
+                    pixels=pix, mode=mode)
+    assert np.array_equal(a.valid, b.valid) and a.valid.sum() > 8000
+    assert np.abs(a.xyz[a.valid] - b.xyz[a.valid]).max() < 1e-6
+    assert np.abs(a.sigma[a.valid] / b.sigma[a.valid] - 1).max() < 1e-6

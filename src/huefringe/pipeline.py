@@ -123,7 +123,10 @@ def _refuse_bad_table(folder: Path, stats: Mapping[str, Any], min_valid: float =
 def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mapping[str, Any], *,
                       reader: CaptureReader | None = None) -> HueTable:
     """The hue table of a session's reference plate or object, in memory (:func:`hue_table` writes it);
-    the captures read through ``reader`` (the camera corrections; default: as stored).
+    the captures read through ``reader`` (the camera corrections; default: as stored). The
+    reference table's ``stats["colour_flicker_means"]`` carries the image-mean hues of the
+    colour-flicker QA's bands (:func:`reference_colour_flicker`), taken from the images as the table
+    reads them.
 
     Raises
     ------
@@ -142,8 +145,12 @@ def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mappi
             f"{100 * limit:g} %, calibration.max_white_clipped_fraction): white balance needs the unclipped level; "
             "reduce the exposure"
         )
-    built = build_table(bands, white, model=hue_model, progress=False, read=reader.rgb, **_calibration_opts(calibration))
+    flicker = _FlickerMeans(len(bands), len(bands[0]), white, hue_model, calibration) if which == "reference" else None
+    built = build_table(bands, white, model=hue_model, progress=False, read=reader.rgb,
+                        on_image=None if flicker is None else flicker.add, **_calibration_opts(calibration))
     _refuse_bad_table(s.root / which / "hue", built.stats)
+    if flicker is not None:
+        built.stats["colour_flicker_means"] = flicker.record()
     if reader.bayer is not None and len(bands[0]) >= 2:  # re-demosaiced: its noise is correlated between neighbours
         built.stats["noise_correlation"] = bayer_noise_correlation(bands, white, reader, hue_model, calibration)
     return built
@@ -245,7 +252,7 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
         cal.stats.setdefault("uncertainty", {})["phase_error_residual_u_rad"] = phase_error_residual_rad(lut.stats)
     cal.stats["row_banding"] = plane_row_banding(s, decoded, valid, cal,
                                                  threshold_rad=float(calibration["row_banding_max_rad"]))
-    cal.stats["colour_flicker"] = reference_colour_flicker(s, hue_model, calibration, reader)
+    cal.stats["colour_flicker"] = reference_colour_flicker(s, hue_model, calibration, reader, table=t)
     return cal
 
 
@@ -253,12 +260,52 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
 FLICKER_BANDS = 16
 
 
+def flicker_bands(n: int) -> list[int]:
+    """The reference bands (of ``n``) the colour-flicker QA looks at: up to :data:`FLICKER_BANDS`, evenly spaced."""
+    return sorted({int(round(i * n / min(n, FLICKER_BANDS))) % n for i in range(min(n, FLICKER_BANDS))})
+
+
+class _FlickerMeans:
+    """The colour-flicker QA's image-mean hues (:func:`huefringe.row_banding.mean_hue` of the
+    white-balanced hue) of :func:`flicker_bands`, gathered from the images as the hue table reads them."""
+
+    def __init__(self, n_bands: int, repeats: int, white: NDArray[np.floating], hue_model: str,
+                 calibration: Mapping[str, Any]) -> None:
+        self.bands = flicker_bands(n_bands) if repeats >= 2 else []
+        self.means: dict[int, list[float | None]] = {i: [None] * repeats for i in self.bands}
+        self.white, self.hue_model = white, hue_model
+        self.min_saturation = float(calibration["min_saturation"])
+
+    def add(self, i: int, r: int, image: NDArray[np.floating]) -> None:
+        if i in self.means:
+            self.means[i][r] = row_banding.mean_hue(hue_of(white_balance(image, self.white), self.hue_model,
+                                                           min_saturation=self.min_saturation))
+
+    def record(self) -> dict[str, Any]:
+        return {"hue_model": self.hue_model, "min_saturation": self.min_saturation, "bands": self.bands,
+                "mean_hue_rad": [self.means[i] for i in self.bands]}
+
+
+def _flicker_means_of(table: HueTable | None, n: int, hue_model: str, calibration: Mapping[str, Any]
+                      ) -> list[list[float | None]] | None:
+    """The image-mean hues a reference table carries for the colour-flicker QA, when they were taken
+    with this hue model, minimum saturation and band choice; else None."""
+    rec = (table.stats or {}).get("colour_flicker_means") if table is not None else None
+    if (not rec or rec.get("hue_model") != hue_model or rec.get("bands") != flicker_bands(n)
+            or rec.get("min_saturation") != float(calibration["min_saturation"])):
+        return None
+    return [list(m) for m in rec["mean_hue_rad"]]
+
+
 def reference_colour_flicker(s: Session, hue_model: str, calibration: Mapping[str, Any],
-                             reader: CaptureReader | None = None) -> dict[str, Any]:
+                             reader: CaptureReader | None = None, table: HueTable | None = None) -> dict[str, Any]:
     """The reference bands' colour flicker (:func:`huefringe.row_banding.repeat_hue_flicker`):
     whether a uniform band's white-balanced hue changes between its repeats (a colour-sequential
     projector with an exposure that is not a whole number of its colour cycles, a flickering
-    light, auto white balance). Reads up to :data:`FLICKER_BANDS` bands, every repeat. QA only.
+    light, auto white balance). Looks at up to :data:`FLICKER_BANDS` bands, every repeat: their
+    image-mean hues from the reference ``table``'s ``stats["colour_flicker_means"]`` (taken as the
+    table read the images, :func:`session_hue_table`) when it carries them for this hue model and
+    minimum saturation, else read again through ``reader``. QA only.
 
     Returns the record kept in ``calib/planes.json`` (``colour_flicker``): the
     :class:`~huefringe.row_banding.ColourFlicker` fields (``amplitude_rad`` None with one repeat);
@@ -267,13 +314,15 @@ def reference_colour_flicker(s: Session, hue_model: str, calibration: Mapping[st
     if s.repeats < 2:
         return row_banding.ColourFlicker(None, None, 0, s.repeats, False,
                                          float(calibration["colour_flicker_max_rad"])).to_dict()
-    read = (reader or CaptureReader()).rgb
-    white = read(s.reference_white)
     n = len(s.reference_bands)
-    picks = sorted({int(round(i * n / min(n, FLICKER_BANDS))) % n for i in range(min(n, FLICKER_BANDS))})
-    hues = [[hue_of(white_balance(read(p), white), hue_model, min_saturation=calibration["min_saturation"])
-             for p in s.reference_bands[i]] for i in picks]
-    fl = row_banding.repeat_hue_flicker(hues, threshold_rad=float(calibration["colour_flicker_max_rad"]))
+    means = _flicker_means_of(table, n, hue_model, calibration)
+    if means is None:
+        read = (reader or CaptureReader()).rgb
+        white = read(s.reference_white)
+        means = [[row_banding.mean_hue(hue_of(white_balance(read(p), white), hue_model,
+                                              min_saturation=calibration["min_saturation"]))
+                  for p in s.reference_bands[i]] for i in flicker_bands(n)]
+    fl = row_banding.flicker_from_means(means, threshold_rad=float(calibration["colour_flicker_max_rad"]))
     if fl.suspected:
         _log.warning("%s: the repeats of a uniform hue band differ in hue by %.4f rad (standard deviation over %d "
                      "bands): the colour balance changes from image to image (a colour-sequential projector filmed "

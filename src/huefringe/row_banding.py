@@ -33,7 +33,8 @@ from numpy.typing import NDArray
 from huefringe.height import PlaneCalibrationError, fit_poly2d, unwrap_smooth
 
 __all__ = ["FLICKER_THRESHOLD_RAD", "MAX_PERIOD_FRACTION", "MIN_PEAK_RATIO", "MIN_PERIOD_ROWS", "THRESHOLD_RAD",
-           "ColourFlicker", "RowBanding", "repeat_hue_flicker", "row_banding", "row_periodic_rms"]
+           "ColourFlicker", "RowBanding", "flicker_from_means", "mean_hue", "repeat_hue_flicker", "row_banding",
+           "row_periodic_rms"]
 
 #: shortest row period looked at (rows): below it, camera noise and demosaic patterns
 MIN_PERIOD_ROWS = 4.0
@@ -222,6 +223,35 @@ class ColourFlicker:
         return asdict(self)
 
 
+def mean_hue(hue: NDArray[np.floating]) -> float | None:
+    """An image's mean hue: the angle of the mean unit vector over its finite pixels (rad, a
+    circular mean); None where no pixel has a hue."""
+    a = np.asarray(hue, np.float64)
+    a = a[np.isfinite(a)]
+    return float(np.angle(np.mean(np.exp(1j * a)))) if a.size else None
+
+
+def flicker_from_means(means: list[list[float | None]], *, threshold_rad: float = FLICKER_THRESHOLD_RAD) -> ColourFlicker:
+    """:func:`repeat_hue_flicker` from each repeat's image-mean hue (:func:`mean_hue`; None: no
+    hue), per band: what a caller that already holds the images' means passes instead of the images."""
+    sq, dof, worst, n_bands, n_rep = 0.0, 0, 0.0, 0, 0
+    for reps in means:
+        got = [m for m in reps if m is not None]
+        if len(got) < 2:
+            continue
+        m = np.asarray(got, np.float64)
+        dev = np.angle(np.exp(1j * (m - np.angle(np.mean(np.exp(1j * m))))))
+        sq += float(np.sum(dev**2))
+        dof += len(m) - 1
+        worst = max(worst, float(np.max(np.abs(dev))))
+        n_bands += 1
+        n_rep = max(n_rep, len(m))
+    if dof == 0:
+        return ColourFlicker(None, None, 0, n_rep, False, float(threshold_rad))
+    amp = float(np.sqrt(sq / dof))
+    return ColourFlicker(amp, worst, n_bands, n_rep, bool(amp > threshold_rad), float(threshold_rad))
+
+
 def repeat_hue_flicker(hues: list[list[NDArray[np.floating]]], *,
                        threshold_rad: float = FLICKER_THRESHOLD_RAD) -> ColourFlicker:
     """The spread between repeats of uniform hue bands' image-mean hue.
@@ -245,24 +275,4 @@ def repeat_hue_flicker(hues: list[list[NDArray[np.floating]]], *,
     circular mean); the deviations from the band's circular mean over repeats are pooled into a
     standard deviation with ``sum (repeats - 1)`` degrees of freedom.
     """
-    sq, dof, worst, n_bands, n_rep = 0.0, 0, 0.0, 0, 0
-    for reps in hues:
-        means = []
-        for h in reps:
-            a = np.asarray(h, np.float64)
-            a = a[np.isfinite(a)]
-            if a.size:
-                means.append(np.angle(np.mean(np.exp(1j * a))))
-        if len(means) < 2:
-            continue
-        m = np.asarray(means)
-        dev = np.angle(np.exp(1j * (m - np.angle(np.mean(np.exp(1j * m))))))
-        sq += float(np.sum(dev**2))
-        dof += len(m) - 1
-        worst = max(worst, float(np.max(np.abs(dev))))
-        n_bands += 1
-        n_rep = max(n_rep, len(m))
-    if dof == 0:
-        return ColourFlicker(None, None, 0, n_rep, False, float(threshold_rad))
-    amp = float(np.sqrt(sq / dof))
-    return ColourFlicker(amp, worst, n_bands, n_rep, bool(amp > threshold_rad), float(threshold_rad))
+    return flicker_from_means([[mean_hue(h) for h in reps] for reps in hues], threshold_rad=threshold_rad)

@@ -243,6 +243,7 @@ def build_table(
     out: NDArray[np.uint16] | None = None,
     prefetch: int = 0,
     progress: bool = False,
+    on_image: Callable[[int, int, NDArray[np.floating]], None] | None = None,
 ) -> HueTable:
     """Build a per-pixel hue table from ``N`` bands x ``R`` repeats, streaming the images.
 
@@ -288,6 +289,9 @@ def build_table(
         the calling thread. At most ``(prefetch + 1) R`` images are alive at a time.
     progress : bool
         Show a tqdm progress bar over bands.
+    on_image : callable, optional
+        ``on_image(i, r, image)`` with every image as read (band ``i``, repeat ``r``), before it
+        is reduced: a caller's own statistics of the same images without reading them again.
 
     Returns
     -------
@@ -344,6 +348,8 @@ def build_table(
                     raise ValueError(f"{path}: image shape {img.shape} differs from white {white.shape}")
                 colour.balanced_hue(img, gains, model, min_saturation=min_saturation, out=hues[r])
                 repeat_stats.add(img)
+                if on_image is not None:
+                    on_image(i, r, img)
                 del img
             _accumulate_kernel(hues, tab[i], var_sum, dof_map, missing)
             repeat_stats.end_band()

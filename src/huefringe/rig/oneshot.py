@@ -40,6 +40,15 @@ reference: a surface between half a period and a whole period in front of the re
 to there, so it is flagged instead of measured at a wrong depth. A surface more than a whole
 period (less ``behind_mm``) in front aliases undetectably: that is the method's limit, stated
 with the range.
+
+A declared working volume (the trapezoid block's ``travel_mm``: how far the surface may stand in
+front of and behind the reference point along each ray) removes that limit's silence: the
+volume's two ends on each ray are projected to the projector coordinate once
+(:func:`oneshot_reference`), and a frame's order is the one candidate ``u = origin + w + k P``
+inside that interval (:func:`absolute_from_reference`). A pixel with no candidate inside (its
+surface outside the volume) or with two (the volume spans a period or more there and both
+candidates are possible) is flagged ``ORDER``: while the surface stays in the declared volume no
+pixel is measured at a wrong order.
 """
 
 from __future__ import annotations
@@ -61,7 +70,7 @@ from huefringe.colour import white_balance
 from huefringe.huetable import HueTable, band_smoothing_matrix, build_table
 from huefringe.perframe import clipped_mask, phase_sigma
 from huefringe.rig.model import RigCalibration
-from huefringe.rig.triangulation import triangulate
+from huefringe.rig.triangulation import project, triangulate
 
 __all__ = ["CODED_GEOMETRY", "ONESHOT_GEOMETRY", "OneShotCaptures", "OneShotCoordinate", "OneShotPhase",
            "OneShotReference", "OneShotResult", "OneShotSession", "absolute_from_reference", "hue_table_from_frames",
@@ -154,7 +163,7 @@ def oneshot_captures(paths: Sequence[str | os.PathLike[str]], spec: SequenceSpec
     b0 = traps[0][0]
     nb = bands[0][0].n_frames
     return OneShotCaptures(images[0], np.stack(images[1 : 1 + nb]), np.stack(images[1 + nb :]), bands[0][0],
-                           TrapezoidBlock(b0.axis, b0.period_px, b0.origin_px, spec.oneshot_frames),
+                           TrapezoidBlock(b0.axis, b0.period_px, b0.origin_px, spec.oneshot_frames, b0.travel_mm),
                            8 if ref is not None and ref[2] == np.uint8 else 16)
 
 
@@ -287,6 +296,14 @@ class OneShotReference:
     px_per_mm : ndarray of float64
         ``|du / d(depth)|`` at the reference (projector px per mm along the ray), from the same
         two triangulations.
+    travel_mm : (float, float) or None
+        The declared working volume (:attr:`TrapezoidBlock.travel_mm
+        <huefringe.codecs.TrapezoidBlock.travel_mm>`): how far the surface may stand in front of
+        and behind the reference point along each ray, mm; None when not declared.
+    travel_coord : ndarray of float64, shape (H, W, 2), or None
+        With ``travel_mm``: the projector coordinate of the volume's two ends on each ray (the
+        reference point moved ``front`` mm towards the camera, and ``back`` mm away, projected),
+        NaN where the reference is not valid.
     """
 
     coord: F64
@@ -298,6 +315,8 @@ class OneShotReference:
     range_back_mm: F64
     front_sign: F64
     px_per_mm: F64
+    travel_mm: tuple[float, float] | None = None
+    travel_coord: F64 | None = None
 
     def summary(self) -> dict[str, float]:
         """Median, 5th and 95th percentile of the range in front and behind over valid pixels (mm)."""
@@ -309,6 +328,17 @@ class OneShotReference:
                         f"{name}_p95_mm": float(np.percentile(v, 95))}
         return out
 
+    def travel_summary(self) -> dict[str, Any] | None:
+        """The declared working volume, its median span in projector px and the share of pixels where
+        it spans a period or more (there a second candidate order may fall inside it, and a pixel
+        whose does is flagged ``ORDER``), for the QA record; None when not declared."""
+        if self.travel_mm is None or self.travel_coord is None:
+            return None
+        span = np.abs(self.travel_coord[..., 0] - self.travel_coord[..., 1])[self.valid]
+        return {"front_mm": self.travel_mm[0], "back_mm": self.travel_mm[1],
+                "span_px_median": float(np.median(span)) if span.size else None,
+                "wider_than_period_fraction": float(np.mean(span >= self.period_px)) if span.size else None}
+
 
 def oneshot_reference(decoded: Decoded, calib: RigCalibration, block: TrapezoidBlock) -> OneShotReference:
     """The order reference from an absolute decode of the reference scene (Gray code + phase).
@@ -316,6 +346,9 @@ def oneshot_reference(decoded: Decoded, calib: RigCalibration, block: TrapezoidB
     The range: the reference point (``u_ref`` triangulated) against the points at
     ``u_ref +- P / 2`` on the same camera ray; their distances along the ray are
     ``range_front_mm`` and ``range_back_mm`` (the one nearer the camera is the front).
+    With the block's ``travel_mm`` the working volume's ends on each ray (the reference point
+    moved ``front`` mm towards the camera and ``back`` mm away) are projected to the projector
+    coordinate (``travel_coord``).
 
     Raises
     ------
@@ -332,11 +365,11 @@ def oneshot_reference(decoded: Decoded, calib: RigCalibration, block: TrapezoidB
     mode = "u" if block.axis == "x" else "v"
     half = 0.5 * block.period_px
 
-    def tri(c: F64) -> F64:
+    def tri(c: F64) -> tuple[F64, F64]:
         t = triangulate(calib, **{mode: c}, valid=valid & np.isfinite(c), mode=mode)  # type: ignore[arg-type]
-        return np.linalg.norm(t.xyz, axis=-1)          # distance from the camera along the ray
+        return np.linalg.norm(t.xyz, axis=-1), t.xyz     # distance from the camera along the ray
 
-    r0, rp, rm = tri(coord), tri(coord + half), tri(coord - half)
+    (r0, x0), (rp, _), (rm, _) = tri(coord), tri(coord + half), tri(coord - half)
     plus_front = (rp < r0)                              # +P/2 brings the point nearer the camera
     front = np.where(plus_front, r0 - rp, r0 - rm)
     back = np.where(plus_front, rm - r0, rp - r0)
@@ -345,9 +378,18 @@ def oneshot_reference(decoded: Decoded, calib: RigCalibration, block: TrapezoidB
     px_per_mm = np.where(ok, 2.0 * half / (front + back), np.nan)
     reasons = decoded.reasons.copy() if decoded.reasons.size else np.zeros(coord.shape, np.uint8)
     reasons[valid & ~ok] |= np.uint8(Reason.ORDER)
+    travel_coord = None
+    if block.travel_mm is not None:
+        travel_coord = np.full((*coord.shape, 2), np.nan)
+        p0 = x0[ok]
+        unit = p0 / r0[ok][:, None]
+        axis = 0 if block.axis == "x" else 1
+        for j, shift in enumerate((-block.travel_mm[0], block.travel_mm[1])):   # front: towards the camera
+            travel_coord[ok, j] = project(p0 + shift * unit, calib.projector_matrix, calib.projector_distortion,
+                                          calib.R, calib.T)[:, axis]
     return OneShotReference(np.where(ok, coord, np.nan), np.where(ok, decoded.sigma, np.nan), ok, reasons,
                             float(block.period_px), np.where(ok, front, np.nan), np.where(ok, back, np.nan), sign,
-                            px_per_mm)
+                            px_per_mm, block.travel_mm, travel_coord)
 
 
 @dataclass(frozen=True, eq=False)
@@ -366,6 +408,10 @@ class OneShotCoordinate:
         ``OUTSIDE`` (off the projector).
     offset : ndarray of float64
         ``u - u_ref`` (projector px) wherever both are decoded, flagged or not.
+    margin : ndarray of float64
+        How far (projector px) the order decision is from going another way, wherever both are
+        decoded: ``P / 2 - |u - u_ref|``; with a working volume the smallest distance of ``u``
+        inside, or of ``u +- P`` outside, the volume's coordinate interval (negative: flagged).
     """
 
     coord: F64
@@ -373,6 +419,7 @@ class OneShotCoordinate:
     valid: NDArray[np.bool_]
     reasons: NDArray[np.uint8]
     offset: F64
+    margin: F64 | None = None
 
 
 def absolute_from_reference(phase: OneShotPhase, reference: OneShotReference, block: TrapezoidBlock, *,
@@ -397,6 +444,17 @@ def absolute_from_reference(phase: OneShotPhase, reference: OneShotReference, bl
         How far behind the reference a surface may be and still count as on it.
     extent : int, optional
         Projector pixels along the axis: ``OUTSIDE`` beyond ``[-0.5, extent - 0.5]``.
+
+    Notes
+    -----
+    With a declared working volume (``reference.travel_mm``, from the block's ``travel_mm``) the
+    order is instead the one candidate ``u = origin + w + k P`` inside the volume's coordinate
+    interval on the pixel's ray (``reference.travel_coord``, widened by ``order_sigmas`` standard
+    uncertainties): a pixel with no candidate there (its surface outside the declared volume) or
+    with more than one (the volume spans a period or more there: an alias could not be told from
+    the surface) is flagged ``ORDER``. ``stands_on_reference`` and the half-period margin do not
+    apply then: the volume replaces them. Without it a surface more than a period in front of or
+    behind the reference aliases undetectably.
     """
     P = float(block.period_px)
     if not math.isclose(P, reference.period_px):
@@ -404,14 +462,29 @@ def absolute_from_reference(phase: OneShotPhase, reference: OneShotReference, bl
     reasons = phase.reasons | reference.reasons
     both = phase.valid & reference.valid
     w = np.where(both, phase.wrapped + block.origin_px, np.nan)
-    k = np.rint((reference.coord - w) / P)
+    margin = order_sigmas * np.sqrt(phase.sigma**2 + reference.sigma**2)
+    if reference.travel_coord is not None:                   # the one candidate inside the working volume
+        ends = reference.travel_coord
+        with np.errstate(invalid="ignore"):
+            lo = np.minimum(ends[..., 0], ends[..., 1]) - margin
+            hi = np.maximum(ends[..., 0], ends[..., 1]) + margin
+            k_lo, k_hi = np.ceil((lo - w) / P), np.floor((hi - w) / P)
+            ambiguous = both & ~(k_hi == k_lo)
+        k = k_lo
+    else:
+        k = np.rint((reference.coord - w) / P)
     u = w + k * P
     d = u - reference.coord
-    margin = order_sigmas * np.sqrt(phase.sigma**2 + reference.sigma**2)
+    if reference.travel_coord is not None:
+        lo0, hi0 = lo + margin, hi - margin
+        decision = np.minimum(np.minimum(u - lo0, hi0 - u), np.minimum(lo0 - (u - P), (u + P) - hi0))
+    else:
+        decision = 0.5 * P - np.abs(d)
     with np.errstate(invalid="ignore"):
-        ambiguous = both & ~(np.abs(d) <= 0.5 * P - margin)
-        if stands_on_reference:
-            ambiguous |= both & (d * reference.front_sign < -behind_mm * reference.px_per_mm)
+        if reference.travel_coord is None:
+            ambiguous = both & ~(np.abs(d) <= 0.5 * P - margin)
+            if stands_on_reference:
+                ambiguous |= both & (d * reference.front_sign < -behind_mm * reference.px_per_mm)
         reasons = reasons | np.where(ambiguous, np.uint8(Reason.ORDER), np.uint8(0))
         if extent is not None:
             outside = both & ~((u >= -0.5) & (u <= extent - 0.5))
@@ -420,7 +493,7 @@ def absolute_from_reference(phase: OneShotPhase, reference: OneShotReference, bl
     reasons = reasons.astype(np.uint8)
     valid = (reasons == 0) & both
     return OneShotCoordinate(np.where(valid, u, np.nan), np.where(valid, phase.sigma, np.nan), valid, reasons,
-                             np.where(both, d, np.nan))
+                             np.where(both, d, np.nan), np.where(both, decision, np.nan))
 
 
 @dataclass(frozen=True, eq=False)
@@ -504,7 +577,9 @@ class OneShotSession:
                 "period_px": self.block.period_px, "reference_valid_fraction": float(self.reference.valid.mean()),
                 "unambiguous_range_mm": self.reference.summary(),
                 "what": "how far each pixel's surface may move along its camera ray towards the camera (front) or away "
-                        "(back) from where the coded blocks saw it and keep its order; beyond, pixels are flagged order"}
+                        "(back) from where the coded blocks saw it and keep its order; beyond, pixels are flagged order",
+                **({} if self.reference.travel_mm is None else {"travel": self.reference.travel_summary(), "order":
+                    "the one candidate inside the declared working volume (travel_mm); none or several: flagged order"})}
 
 
 def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, Any], *,
@@ -518,7 +593,9 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
     (:func:`hue_table_from_frames`, model ``cfg['hue_model']``); then each trapezoid frame in turn
     goes through :func:`measure_oneshot` with the order nearest the reference on either side
     (``stands_on_reference=False``: the reference is the scene itself, so a surface may move
-    towards or away from the camera), flagged ``ORDER`` within ``order_sigmas`` of half a period.
+    towards or away from the camera), flagged ``ORDER`` within ``order_sigmas`` of half a period;
+    with the trapezoid block's ``travel_mm`` the one order inside that working volume, flagged
+    ``ORDER`` where none or two are (:func:`absolute_from_reference`).
 
     Raises
     ------
@@ -560,7 +637,7 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
         co = res.coordinate
         top = 255.0 if caps.bit_depth == 8 else 65535.0
         dec = Decoded(block.axis, co.coord, co.sigma, (caps.frames[k].mean(axis=-1) * top).astype(np.float32), co.valid,
-                      np.where(co.valid, 0.5 * block.period_px - np.abs(co.offset), np.nan).astype(np.float32), True,
+                      np.where(co.valid, co.margin, np.nan).astype(np.float32), True,
                       co.reasons)
         maps = {key: co.coord, other: None, f"sigma_{key}": co.sigma, f"sigma_{other}": None, f"valid_{key}": co.valid,
                 f"valid_{other}": None, "mean": caps.frames[k].mean(axis=-1).astype(np.float64) * top,

@@ -157,6 +157,11 @@ class TrapezoidBlock:
     period_px: float
     origin_px: float = 0.0
     frames: int = 1
+    travel_mm: tuple[float, float] | None = None
+    """The working volume, when the sequence declares one: how far each pixel's surface may stand in
+    front of (towards the camera) and behind the point where the order reference saw it, mm along
+    the camera ray. With it the order is the one candidate inside that volume and a pixel with none
+    or several is flagged (:func:`huefringe.rig.oneshot.absolute_from_reference`)."""
 
     @property
     def n_frames(self) -> int:
@@ -461,9 +466,9 @@ def _trapezoid_block(d: Any, where: str, problems: list[str]) -> TrapezoidBlock 
     if not isinstance(d, dict):
         problems.append(f"{where}: expected a mapping with axis, period_px (origin_px, frames)")
         return None
-    unknown = set(d) - {"axis", "period_px", "origin_px", "frames"}
+    unknown = set(d) - {"axis", "period_px", "origin_px", "frames", "travel_mm"}
     if unknown:
-        problems.append(f"{where}: unknown keys {sorted(unknown)} (axis, period_px, origin_px, frames)")
+        problems.append(f"{where}: unknown keys {sorted(unknown)} (axis, period_px, origin_px, frames, travel_mm)")
     axis = d.get("axis")
     if axis not in ("x", "y"):
         problems.append(f"{where}: axis must be x (projector columns) or y (rows), got {axis!r}")
@@ -479,9 +484,24 @@ def _trapezoid_block(d: Any, where: str, problems: list[str]) -> TrapezoidBlock 
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         problems.append(f"{where}.frames: the number of one-shot frames, an integer >= 1, got {n!r}")
         n = None
+    travel: tuple[float, float] | None = None
+    if "travel_mm" in d:
+        t = d["travel_mm"]
+        f = _float(t.get("front"), f"{where}.travel_mm.front", problems) if isinstance(t, dict) else None
+        b = _float(t.get("back"), f"{where}.travel_mm.back", problems) if isinstance(t, dict) else None
+        if not isinstance(t, dict) or set(t) != {"front", "back"}:
+            problems.append(f"{where}.travel_mm: expected {{front: mm, back: mm}} (how far the surface may stand in "
+                            f"front of and behind the order reference along each camera ray), got {t!r}")
+        elif f is not None and b is not None:
+            if not (np.isfinite(f) and np.isfinite(b) and f >= 0 and b >= 0 and f + b > 0):
+                problems.append(f"{where}.travel_mm: front and back must be finite, >= 0 and not both 0, got {f}, {b}")
+            else:
+                travel = (float(f), float(b))
+        if travel is None:
+            return None
     if axis not in ("x", "y") or period is None or origin is None or n is None:
         return None
-    return TrapezoidBlock(axis, period, origin, n)
+    return TrapezoidBlock(axis, period, origin, n, travel)
 
 
 def _hue_bands_block(d: Any, where: str, problems: list[str]) -> HueBandsBlock | None:
@@ -671,6 +691,8 @@ def _oneshot_problems(spec: SequenceSpec) -> list[str]:
                    "the sequence has none")
     if len({(b.axis, b.period_px, b.origin_px) for b in traps}) > 1:
         out.append("trapezoid blocks of different axes, periods or origins (one hue table decodes one pattern)")
+    if len({b.travel_mm for b in traps}) > 1:
+        out.append("trapezoid blocks with different travel_mm (one working volume per scene)")
     return out
 
 
@@ -739,8 +761,11 @@ def sequence_to_mapping(spec: SequenceSpec) -> dict[str, Any]:
         elif isinstance(b, SkipBlock):
             blocks.append({"skip": int(b.frames)})
         elif isinstance(b, TrapezoidBlock):
-            blocks.append({"trapezoid": {"axis": b.axis, "period_px": float(b.period_px),
-                                         "origin_px": float(b.origin_px), "frames": int(b.frames)}})
+            trap: dict[str, Any] = {"axis": b.axis, "period_px": float(b.period_px), "origin_px": float(b.origin_px),
+                                    "frames": int(b.frames)}
+            if b.travel_mm is not None:
+                trap["travel_mm"] = {"front": float(b.travel_mm[0]), "back": float(b.travel_mm[1])}
+            blocks.append({"trapezoid": trap})
         elif isinstance(b, HueBandsBlock):
             blocks.append({"hue_bands": {"n": int(b.n), "repeats": int(b.repeats)}})
         elif isinstance(b, PhaseBlock):
