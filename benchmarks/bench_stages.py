@@ -26,7 +26,24 @@ correction and the adaptive filter have edges to work on) it runs one frame thro
 
 and two references on the same frame: ``cv2.cvtColor(RGB2HSV)`` (one colour pass) and the **I/O
 floor** (decoding the PNG plus writing the float32 height TIFF: what a chain that computed
-nothing would cost). Stages are timed in interleaved rounds (medians over rounds), one core
+nothing would cost).
+
+Beside it (``--tables plane,oneshot``, the default; ``--tables oneshot`` alone) the **one-shot rig
+path**: one trapezoid frame of the bench's holdout-wide rig (``huefringe.bench.oneshot``: the
+paper's gauge blocks on a tilted base, a hue table of ``--bands`` bands x 2 repeats built from the scene's
+captures, the order from the base plane's Gray code + phase, a calibration from 6 simulated board
+poses with its 6 leave-one-pose-out calibrations; at other sizes the same rig and calibrations
+with the camera's focal length and principal point scaled, so the view is the same) through what
+``huefringe.rig.oneshot.measure_oneshot`` and the rig route's calibration term run for it:
+
+``read``         decoding the colour PNG to float RGB (as ``oneshot_captures`` reads it),
+``decode``       ``trapezoid_coordinate``: white balance, hue, the table's inverse and slope, sigma,
+``order``        ``absolute_from_reference``: the order nearest the reference, the flags,
+``triangulate``  ``huefringe.rig.triangulate`` with ``sigma_u`` (ray against the projector plane),
+``calibration u`` ``huefringe.rig.measure.calibration_spread``: the leave-one-pose-out calibrations' term,
+``write``        the X, Y, Z, sigma and u TIFFs,
+
+with its own cvtColor and I/O floor on its frame, timed the same way. Stages are timed in interleaved rounds (medians over rounds), one core
 (``NUMBA_NUM_THREADS``, ``cv2.setNumThreads`` = ``--threads``), as CPU time of the process (so
 that time spent waiting for a core on a busy machine is left out; the best wall times are in the
 JSON). The table gives ms per frame and
@@ -68,6 +85,8 @@ from huefringe.io import write_tiff  # noqa: E402
 from huefringe.session import read_rgb_codes  # noqa: E402
 from huefringe.settings import defaults as load_defaults  # noqa: E402
 from huefringe.uncertainty import add_lateral, texture_term  # noqa: E402
+
+ONESHOT_STAGES = ("read", "decode", "order", "triangulate", "calibration u", "write")
 
 BLUR_PX2 = 0.4
 BLUR_U_PX2 = 0.1
@@ -178,6 +197,122 @@ def bench_size(rig: KernelCase, rounds: int) -> dict[str, Any]:
             "vs_floor": med["floor"] / total, "threads": _THREADS, "wall_best_ms": wall_ms}
 
 
+def oneshot_case(w: int, h: int, n_bands: int) -> dict[str, Any]:
+    """A one-shot frame of the bench's holdout-wide rig at ``w`` x ``h`` with everything the rig
+    path needs prepared once per session: hue table, order reference, calibration, jackknife."""
+    from dataclasses import replace
+
+    from huefringe.bench.oneshot import calibrated_rig, gauge_scene, render_session
+    from huefringe.bench.rig import RIGS
+    from huefringe.rig.oneshot import hue_table_from_frames, oneshot_reference
+
+    base = RIGS["holdout-wide"]
+    s = w / base.camera_size[0]
+    dy = (h - base.camera_size[1] * s) / 2.0
+    rig = replace(base, camera_size=(w, h), camera_f=base.camera_f * s,
+                  camera_pp=(base.camera_pp[0] * s, base.camera_pp[1] * s + dy))
+
+    def scaled(c: Any) -> Any:
+        K = c.camera_matrix.copy()
+        K[:2, :] *= s
+        K[2, :] = (0.0, 0.0, 1.0)
+        K[1, 2] += dy
+        return replace(c, camera_matrix=K, camera_size=(w, h))
+
+    cal, jack = calibrated_rig(n_poses=6, seed=7)
+    cal, jack = scaled(cal), [(n, scaled(c)) for n, c in jack]
+    cap = render_session(gauge_scene(), n_bands=n_bands, repeats=2, seed=1, rig=rig)
+    table = hue_table_from_frames(cap.white, cap.bands, cap.bands_block)
+    ref = oneshot_reference(cap.reference, cal, cap.block)
+    frame8 = np.clip(np.rint(cap.frames[0] * 255.0), 0, 255).astype(np.uint8)
+    return {"cap": cap, "table": table, "ref": ref, "cal": cal, "jack": jack, "frame8": frame8}
+
+
+def oneshot_chain(case: dict[str, Any], work: Path) -> dict[str, Callable[[], Any]]:
+    """The timed calls of one one-shot frame on the rig (each a closure over the prepared inputs)."""
+    from huefringe.rig.measure import RigFrame, calibration_spread
+    from huefringe.rig.oneshot import absolute_from_reference, trapezoid_coordinate
+    from huefringe.rig.triangulation import triangulate
+
+    cap, cal = case["cap"], case["cal"]
+    png = work / "oneshot.png"
+    cv2.imwrite(str(png), cv2.cvtColor(case["frame8"], cv2.COLOR_RGB2BGR))
+    rgb = case["frame8"].astype(np.float32) / np.float32(255.0)
+    extent = cal.projector_size[0]
+    ph = trapezoid_coordinate(rgb, cap.white, case["table"], cap.block)
+    co = absolute_from_reference(ph, case["ref"], cap.block, extent=extent)
+    t = triangulate(cal, co.coord, sigma_u=co.sigma, valid=co.valid, mode="u")
+    frame = RigFrame(t.xyz, t.sigma, t.valid, {"u": co.coord, "v": None}, "u", t.sigma_ray)
+    u_axes, u_ray = calibration_spread(frame, case["jack"])
+
+    def read() -> Any:
+        im = cv2.imread(str(png), cv2.IMREAD_UNCHANGED)
+        return cv2.cvtColor(im, cv2.COLOR_BGR2RGB).astype(np.float32) / np.float32(255.0)
+
+    def write() -> None:
+        write_tiff(work / "xyz.tiff", t.xyz.astype(np.float32))
+        write_tiff(work / "sigma.tiff", np.concatenate([t.sigma, t.sigma_ray[..., None]], axis=-1).astype(np.float32))
+        write_tiff(work / "u.tiff", np.concatenate([u_axes, u_ray[..., None]], axis=-1).astype(np.float32))
+
+    return {
+        "read": read,
+        "decode": lambda: trapezoid_coordinate(rgb, cap.white, case["table"], cap.block),
+        "order": lambda: absolute_from_reference(ph, case["ref"], cap.block, extent=extent),
+        "triangulate": lambda: triangulate(cal, co.coord, sigma_u=co.sigma, valid=co.valid, mode="u"),
+        "calibration u": lambda: calibration_spread(frame, case["jack"]),
+        "write": write,
+        "cvtColor": lambda: cv2.cvtColor(case["frame8"], cv2.COLOR_RGB2HSV),
+        "floor": lambda: (read_rgb_codes(png), write_tiff(work / "f.tiff", t.xyz[..., 2].astype(np.float32))),
+    }
+
+
+def bench_oneshot(case: dict[str, Any], rounds: int) -> dict[str, Any]:
+    """Median CPU ms per stage of the one-shot rig path over ``rounds`` interleaved rounds."""
+    cv2.setNumThreads(_THREADS)
+    with tempfile.TemporaryDirectory(prefix="hf-bench-oneshot-") as tmp:
+        calls = oneshot_chain(case, Path(tmp))
+        for fn in calls.values():
+            fn()
+        per: dict[str, list[float]] = {k: [] for k in calls}
+        wall: dict[str, list[float]] = {k: [] for k in calls}
+        for _ in range(rounds):
+            for k, fn in calls.items():
+                reps = 5 if k in ("cvtColor", "read", "floor") else 1
+                best = min((_clock(fn) for _ in range(reps)), key=lambda x: x[0])
+                per[k].append(best[0])
+                wall[k].append(best[1])
+    med = {k: 1e3 * statistics.median(v) for k, v in per.items()}
+    ms = {k: med[k] for k in ONESHOT_STAGES}
+    compute = sum(v for k, v in ms.items() if k not in ("read", "write"))
+    total = sum(ms.values())
+    h, w = case["frame8"].shape[:2]
+    return {"size": [w, h], "ms": ms, "compute_ms": compute, "total_ms": total, "cvtColor_ms": med["cvtColor"],
+            "floor_ms": med["floor"], "fps_1core": 1e3 / total, "fps_2cores": 2e3 / total,
+            "floor_fps_2cores": 2e3 / med["floor"], "vs_floor": med["floor"] / total, "threads": _THREADS,
+            "valid_px": int(case["ref"].valid.sum()), "wall_best_ms": {k: 1e3 * min(v) for k, v in wall.items()}}
+
+
+def oneshot_markdown(results: list[dict[str, Any]]) -> str:
+    """The one-shot rig path's table: ms per frame, x cvtColor and x the I/O floor, per size."""
+    sizes = [f"{r['size'][0]} × {r['size'][1]}" for r in results]
+    lines = ["| one-shot rig stage | " + " | ".join(f"{s}: ms | × cvtColor | × floor" for s in sizes) + " |",
+             "| --- | " + " | ".join("---: | ---: | ---:" for _ in sizes) + " |"]
+
+    def row(name: str, vals: list[float]) -> None:
+        cells = [f"{v:.1f} | {v / r['cvtColor_ms']:.1f} | {v / r['floor_ms']:.2f}" for v, r in zip(vals, results, strict=True)]
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+
+    for st in ONESHOT_STAGES:
+        row(st, [r["ms"][st] for r in results])
+    row("**compute** (decode … calibration u)", [r["compute_ms"] for r in results])
+    row("**frame** (all stages)", [r["total_ms"] for r in results])
+    row("*cv2.cvtColor RGB→HSV*", [r["cvtColor_ms"] for r in results])
+    row("*I/O floor (PNG read + TIFF write)*", [r["floor_ms"] for r in results])
+    lines.append("| frames/s, 2 cores (two jobs) | " + " | ".join(
+        f"{r['fps_2cores']:.2f} | | {r['vs_floor']:.3f} × floor" for r in results) + " |")
+    return "\n".join(lines) + "\n"
+
+
 def markdown(results: list[dict[str, Any]], command: str) -> str:
     sizes = [f"{r['size'][0]} × {r['size'][1]}" for r in results]
     lines = ["| stage | " + " | ".join(f"{s}: ms | × cvtColor" for s in sizes) + " |",
@@ -198,51 +333,80 @@ def markdown(results: list[dict[str, Any]], command: str) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _replace_between(page: Path, begin: str, end: str, body: str) -> None:
+    text = page.read_text(encoding="utf-8")
+    i, j = text.index(begin) + len(begin), text.index(end)
+    page.write_text(text[:i] + body + text[j:], encoding="utf-8")
+
+
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sizes", default="640x480,1280x1024")
     ap.add_argument("--bands", type=int, default=64)
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--threads", type=int, default=1, help="numba and OpenCV threads (default: one core)")
-    ap.add_argument("--markdown", type=Path, default=None, help="also write the table here")
+    ap.add_argument("--tables", default="plane,oneshot",
+                    help="which chains: plane (the capture-session frame), oneshot (the one-shot rig path), or both")
+    ap.add_argument("--markdown", type=Path, default=None, help="also write the table(s) here")
     ap.add_argument("--page", type=Path, default=None,
-                    help="a manual page whose table between the stages:begin / stages:end markers is replaced")
+                    help="a manual page whose tables between the stages:begin / stages:end (plane) and "
+                         "oneshot-stages:begin / oneshot-stages:end markers are replaced (those it has)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--quick", action="store_true", help="smoke mode: 160 x 120, 16 bands, 2 rounds")
     a = ap.parse_args(argv)
     if a.quick:
         a.sizes, a.bands, a.rounds = "160x120", 16, 2
+    tables = {t.strip() for t in a.tables.split(",") if t.strip()}
+    if not tables or tables - {"plane", "oneshot"}:
+        ap.error(f"--tables {a.tables}: plane, oneshot or both")
     sizes = [tuple(int(x) for x in s.split("x")) for s in a.sizes.split(",")]
     t0 = time.perf_counter()
-    print(f"stage benchmark: {a.sizes}, {a.bands} bands, {a.rounds} rounds, {a.threads} thread(s); "
+    print(f"stage benchmark: {a.sizes}, {a.bands} bands, {a.rounds} rounds, {a.threads} thread(s), {a.tables}; "
           f"load average {os.getloadavg()[0]:.2f} on {os.cpu_count()} cores", flush=True)
-    base = make_case(*sizes[0], n_bands=a.bands)
-    results = []
-    for w, h in sizes:
-        rig = base if (w, h) == sizes[0] else tile_case(base, w, h)
-        r = bench_size(rig, a.rounds)
-        results.append(r)
-        print(f"\n{w} x {h}: " + ", ".join(f"{k} {v:.1f}" for k, v in r["ms"].items()) + " ms", flush=True)
-        print(f"  compute {r['compute_ms']:.1f} ms, frame {r['total_ms']:.1f} ms; cvtColor {r['cvtColor_ms']:.2f} ms, "
-              f"I/O floor {r['floor_ms']:.2f} ms; 2 cores: {r['fps_2cores']:.1f} frames/s = {r['vs_floor']:.2f} of the "
-              f"floor ({r['floor_fps_2cores']:.0f} frames/s)", flush=True)
+    results: list[dict[str, Any]] = []
+    oneshot: list[dict[str, Any]] = []
+    if "plane" in tables:
+        base = make_case(*sizes[0], n_bands=a.bands)
+        for w, h in sizes:
+            rig = base if (w, h) == sizes[0] else tile_case(base, w, h)
+            r = bench_size(rig, a.rounds)
+            results.append(r)
+            print(f"\n{w} x {h}: " + ", ".join(f"{k} {v:.1f}" for k, v in r["ms"].items()) + " ms", flush=True)
+            print(f"  compute {r['compute_ms']:.1f} ms, frame {r['total_ms']:.1f} ms; cvtColor {r['cvtColor_ms']:.2f} ms, "
+                  f"I/O floor {r['floor_ms']:.2f} ms; 2 cores: {r['fps_2cores']:.1f} frames/s = {r['vs_floor']:.2f} of "
+                  f"the floor ({r['floor_fps_2cores']:.0f} frames/s)", flush=True)
+    if "oneshot" in tables:
+        for w, h in sizes:
+            c0 = time.perf_counter()
+            case = oneshot_case(w, h, a.bands)
+            r = bench_oneshot(case, a.rounds)
+            oneshot.append(r)
+            print(f"\none-shot rig {w} x {h} ({r['valid_px']} px with an order reference; set-up "
+                  f"{time.perf_counter() - c0:.0f} s): " + ", ".join(f"{k} {v:.1f}" for k, v in r["ms"].items()) + " ms",
+                  flush=True)
+            print(f"  compute {r['compute_ms']:.1f} ms, frame {r['total_ms']:.1f} ms; cvtColor {r['cvtColor_ms']:.2f} ms, "
+                  f"I/O floor {r['floor_ms']:.2f} ms; 2 cores: {r['fps_2cores']:.2f} frames/s", flush=True)
     cmd = "./run python benchmarks/bench_stages.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    table = markdown(results, cmd.strip())
-    print("\n" + table)
-    print(f"load average {os.getloadavg()[0]:.2f}; {time.perf_counter() - t0:.0f} s")
+    table = markdown(results, cmd.strip()) if results else ""
+    otable = oneshot_markdown(oneshot) if oneshot else ""
+    print("\n" + table + ("\n" if table and otable else "") + otable)
+    load = os.getloadavg()[0]
+    print(f"load average {load:.2f}; {time.perf_counter() - t0:.0f} s")
     if a.markdown:
-        a.markdown.write_text(table)
+        a.markdown.write_text(table + ("\n" if table and otable else "") + otable)
     if a.page:
         text = a.page.read_text(encoding="utf-8")
-        begin, end = "<!-- stages:begin -->\n", "<!-- stages:end -->"
-        i, j = text.index(begin) + len(begin), text.index(end)
-        note = (f"*{results[0]['threads']} thread, CPU ms per frame, medians of {a.rounds} rounds, {a.bands} bands; "
-                f"load average {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores.*\n\n")
-        a.page.write_text(text[:i] + note + table + text[j:], encoding="utf-8")
+        if results and "<!-- stages:begin -->" in text:
+            note = (f"*{results[0]['threads']} thread, CPU ms per frame, medians of {a.rounds} rounds, {a.bands} bands; "
+                    f"load average {load:.1f} on {os.cpu_count()} cores.*\n\n")
+            _replace_between(a.page, "<!-- stages:begin -->\n", "<!-- stages:end -->", note + table)
+        if oneshot and "<!-- oneshot-stages:begin -->" in text:
+            note = (f"*{oneshot[0]['threads']} thread, CPU ms per frame, medians of {a.rounds} rounds, {a.bands} bands; "
+                    f"load average {load:.1f} on {os.cpu_count()} cores.*\n\n")
+            _replace_between(a.page, "<!-- oneshot-stages:begin -->\n", "<!-- oneshot-stages:end -->", note + otable)
     if a.json:
-        a.json.write_text(json.dumps(results, indent=2))
+        a.json.write_text(json.dumps({"plane": results, "oneshot": oneshot} if oneshot else results, indent=2))
     return 0
-
 
 if __name__ == "__main__":
     raise SystemExit(main())

@@ -4,11 +4,14 @@ rig_calibrate -> rig_measure -> rig_metrology -> rig_accuracy (docs/rig.md, "Mea
 
 Usage: ./run python benchmarks/rig_session_route.py [--rigs tune,holdout-wide,holdout-narrow]
                                                     [--seeds 4,5,6] [--poses 8] [--work DIR]
+                                                    [--sessions rig-gauge,rig-board[,rig-oneshot]]
 Each (rig, pose seed) case writes its sessions with huefringe.bench (the presets rig-poses,
 rig-gauge, rig-board with the rig, the pose seed and count replaced), calibrates and measures them
 with huefringe.stages.calibrate_rig_session / measure_rig_session (the workflow's stages), and
 prints one row per figure: error, U (k = 2), |error| <= U, and the per-pixel X, Y, Z coverage
-|e_ray| <= 2 u_ray. About 25 s per case on one core.
+|e_ray| <= 2 u_ray. About 25 s per case on one core. ``--sessions`` picks the measured presets;
+``rig-oneshot`` (the one-shot colour session: its report and accuracy are of its first frame) adds
+about 30 s per case.
 """
 
 from __future__ import annotations
@@ -19,18 +22,20 @@ import tempfile
 import time
 from pathlib import Path
 
+import numpy as np
+
 from huefringe.bench import load_sl_bench_config, write_sl_session
 from huefringe.settings import load_config
 from huefringe.stages import calibrate_rig_session, measure_rig_session
 
 
-def case(work: Path, rig: str, seed: int, poses: int) -> dict:
+def case(work: Path, rig: str, seed: int, poses: int, sessions: tuple[str, ...] = ("rig-gauge", "rig-board")) -> dict:
     root = work / f"{rig}-s{seed}"
     cfg = load_sl_bench_config("rig-poses")
     cfg.update(rig=rig)
     cfg["poses"].update(seed=seed, count=poses)
     write_sl_session(cfg, root / "rig-poses")
-    for name in ("rig-gauge", "rig-board"):
+    for name in sessions:
         c = load_sl_bench_config(name)
         c.update(rig=rig, calibration_session="../rig-poses")
         write_sl_session(c, root / name)
@@ -39,7 +44,7 @@ def case(work: Path, rig: str, seed: int, poses: int) -> dict:
     calib = calibrate_rig_session(root / "rig-poses", root / "results/rig-poses/calib/rig.yml", conf)["calibration"]
     t_cal = time.perf_counter() - t0
     out = {"rig": rig, "seed": seed, "poses": poses, "calibrate_s": t_cal, "figures": [], "pixels": {}}
-    for name in ("rig-gauge", "rig-board"):
+    for name in sessions:
         t0 = time.perf_counter()
         files = measure_rig_session(root / name, root / "results" / name, conf, calibration=calib, surfaces=False)
         out[f"measure_{name}_s"] = time.perf_counter() - t0
@@ -58,15 +63,16 @@ def main() -> None:
     ap.add_argument("--seeds", default="4,5,6")
     ap.add_argument("--poses", type=int, default=8)
     ap.add_argument("--work")
+    ap.add_argument("--sessions", default="rig-gauge,rig-board", help="the measured bench presets, comma separated")
     a = ap.parse_args()
     work = Path(a.work) if a.work else Path(tempfile.mkdtemp(prefix="rig-route-"))
     rows = []
     for rig in a.rigs.split(","):
         for seed in (int(s) for s in a.seeds.split(",")):
-            r = case(work, rig, seed, a.poses)
+            r = case(work, rig, seed, a.poses, tuple(a.sessions.split(",")))
             rows.append(r)
-            print(f"\n## {rig}, pose seed {seed}, {a.poses} poses (calibration {r['calibrate_s']:.1f} s, "
-                  f"gauge {r['measure_rig-gauge_s']:.1f} s, board {r['measure_rig-board_s']:.1f} s)")
+            took = ", ".join(f"{k[len('measure_'):-2]} {v:.1f} s" for k, v in r.items() if k.startswith("measure_"))
+            print(f"\n## {rig}, pose seed {seed}, {a.poses} poses (calibration {r['calibrate_s']:.1f} s, {took})")
             print("| session | figure | nominal mm | error mm | error % | U mm | u calibration mm | u points mm | |e| <= U |")
             print("|---|---|---|---|---|---|---|---|---|")
             for f in r["figures"]:
@@ -85,6 +91,10 @@ def main() -> None:
     print(f"\nall cases: {inside} of {len(figs)} figures with |error| <= U (k = 2)")
     steps = [f for f in figs if f["name"].startswith("block-")]
     print("steps within 0.3 %:", sum(abs(f["error"]) <= 0.003 * f["nominal"] for f in steps), "of", len(steps))
+    z = [f["error"] / (f["U"] / 2) for f in steps if f["U"] > 0]
+    if z:
+        print(f"steps' standardised errors e / u: RMS {float(np.sqrt(np.mean(np.square(z)))):.2f}, "
+              f"|e / u| max {max(abs(v) for v in z):.2f} over {len(z)} (1 and about 2 if u holds the errors)")
     (work / "rig_session_route.json").write_text(json.dumps(rows, indent=1))
     print(f"raw: {work / 'rig_session_route.json'}")
 

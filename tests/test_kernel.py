@@ -241,16 +241,20 @@ def test_lookup_matches_table_to_phase(n_bands: int) -> None:
 
 def test_quick_benchmark_runs(tmp_path: Path) -> None:
     """``benchmarks/bench_stages.py --quick`` (160 x 120, 16 bands) runs end to end and prints its
-    stage table and page (a smoke test: no speed is asserted, and no time limit either)."""
+    stage tables, the plane path's and the one-shot rig path's, and writes both into the page (a
+    smoke test: no speed is asserted, and no time limit either)."""
     page = tmp_path / "page.md"
-    page.write_text("# t\n<!-- stages:begin -->\nold\n<!-- stages:end -->\n", encoding="utf-8")
+    page.write_text("# t\n<!-- stages:begin -->\nold\n<!-- stages:end -->\n"
+                    "<!-- oneshot-stages:begin -->\nold\n<!-- oneshot-stages:end -->\n", encoding="utf-8")
     env = dict(os.environ, NUMBA_NUM_THREADS="1")
     proc = subprocess.run([sys.executable, str(REPO / "benchmarks" / "bench_stages.py"), "--quick", "--page", str(page)],
                           capture_output=True, text=True, env=env, cwd=REPO)
     assert proc.returncode == 0, proc.stdout[-3000:] + proc.stderr[-3000:]
     assert "| adaptive |" in proc.stdout and "frames/s, 2 cores" in proc.stdout
+    assert "| triangulate |" in proc.stdout and "| calibration u |" in proc.stdout
     text = page.read_text(encoding="utf-8")
-    assert "old" not in text and "| texture u |" in text and text.endswith("<!-- stages:end -->\n")
+    assert "old" not in text and "| texture u |" in text and "| order |" in text
+    assert text.endswith("<!-- oneshot-stages:end -->\n")
 
 
 @pytest.mark.parametrize("pd", [True, False])

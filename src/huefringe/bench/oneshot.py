@@ -31,9 +31,9 @@ from huefringe.bench.rig import RIGS, BenchRig, CompositeScene, PlaneScene, pose
 from huefringe.bench.scenes import BLOCK_COLOURS
 from huefringe.codecs import DecodeOptions, decode_sequence, generate, generate_rgb, sequence_from_mapping
 from huefringe.codecs.sequence import FlatBlock, HueBandsBlock, SequenceSpec, TrapezoidBlock
-from huefringe.rig import Board, PoseObservation, RigCalibration, calibrate_rig, projector_corners
+from huefringe.rig import Board, CalibrationReport, PoseObservation, RigCalibration, calibrate_rig, projector_corners
 
-__all__ = ["CROSSTALK", "GAUGE_BLOCKS", "OneShotCapture", "calibrated_rig", "face_mask", "flatness_scores", "gauge_scene", "pixel_scores",
+__all__ = ["CROSSTALK", "GAUGE_BLOCKS", "OneShotCapture", "calibrated_rig", "calibrated_rig_report", "face_mask", "flatness_scores", "gauge_scene", "pixel_scores",
            "reference_scene", "step_scores",
            "reference_spec", "render_session"]
 
@@ -71,27 +71,42 @@ def reference_spec(width: int, height: int, axis: str = "x", period_px: float = 
         {"gray": {"axis": axis, "cells": cells, "cell_px": period_px}}, "white", "black"]}, "<bench>", ".")
 
 
-@lru_cache(maxsize=4)
 def calibrated_rig(rig_name: str = "holdout-wide", n_poses: int = 6, seed: int = 7, *, corner_sigma_px: float = 0.03,
-                   coord_sigma_px: float = 0.05) -> tuple[RigCalibration, tuple[tuple[str, RigCalibration], ...]]:
+                   coord_sigma_px: float = 0.05, aim: tuple[float, float] = (0.06, 0.05)
+                   ) -> tuple[RigCalibration, tuple[tuple[str, RigCalibration], ...]]:
     """The bench rig calibrated from ``n_poses`` board poses, and its leave-one-pose-out calibrations.
 
     Corners detected with ``corner_sigma_px`` noise, decoded projector coordinates with
     ``coord_sigma_px``; projector corners by local homographies
-    (:func:`~huefringe.rig.projector_corners`), :func:`~huefringe.rig.calibrate_rig`.
+    (:func:`~huefringe.rig.projector_corners`), :func:`~huefringe.rig.calibrate_rig`. ``aim``:
+    how far off the camera's axis the boards are placed (:func:`~huefringe.bench.rig.pose_set`;
+    the default keeps them near the middle of the image, ``(0.14, 0.11)`` spreads them over it).
+    :func:`calibrated_rig_report` gives the calibration's report beside them.
     """
+    cal, jack, _ = calibrated_rig_report(rig_name, n_poses, seed, corner_sigma_px=corner_sigma_px,
+                                         coord_sigma_px=coord_sigma_px, aim=aim)
+    return cal, jack
+
+
+@lru_cache(maxsize=4)
+def calibrated_rig_report(rig_name: str = "holdout-wide", n_poses: int = 6, seed: int = 7, *,
+                          corner_sigma_px: float = 0.03, coord_sigma_px: float = 0.05,
+                          aim: tuple[float, float] = (0.06, 0.05)
+                          ) -> tuple[RigCalibration, tuple[tuple[str, RigCalibration], ...], CalibrationReport]:
+    """:func:`calibrated_rig` with the calibration's :class:`~huefringe.rig.CalibrationReport`
+    (per-pose RMS, the calibrated field)."""
     rig = RIGS[rig_name]
     rng = np.random.default_rng(seed + 100)
     obs = []
-    for i, (R, t) in enumerate(pose_set(rig, BOARD, n_poses, seed=seed)):
+    for i, (R, t) in enumerate(pose_set(rig, BOARD, n_poses, seed=seed, aim=aim)):
         p = rig.board_pose(BOARD, R, t, rng, corner_sigma_px=corner_sigma_px, coord_sigma_px=coord_sigma_px)
         pc, _ = projector_corners(p["camera"], p["u"], p["v"], p["valid"], 10, 50, sigma_u=p["sigma"], sigma_v=p["sigma"])
         obs.append(PoseObservation(f"pose{i:02d}", p["camera"], pc))
     kw = dict(outlier_factor=3.0, fix_k3=True, min_poses=4)
-    cal, _ = calibrate_rig(obs, BOARD, rig.camera_size, rig.projector_size, **kw)
+    cal, report = calibrate_rig(obs, BOARD, rig.camera_size, rig.projector_size, **kw)
     jack = tuple((o.name, calibrate_rig([q for q in obs if q is not o], BOARD, rig.camera_size, rig.projector_size,
                                         **kw)[0]) for o in obs)
-    return cal, jack
+    return cal, jack, report
 
 
 @dataclass
@@ -126,13 +141,14 @@ def render_session(scene: CompositeScene | PlaneScene, *, rig_name: str = "holdo
                    n_bands: int = 64, repeats: int = 3, frames: int = 1, seed: int = 0, noise_dn: float = 1.0,
                    ambient: float = 0.05, gamma: tuple[float, float, float] = (1.0, 1.0, 1.0),
                    colours: dict[int, tuple[float, float, float]] | None = None,
-                   reference: CompositeScene | None = None) -> OneShotCapture:
+                   reference: CompositeScene | None = None, rig: BenchRig | None = None) -> OneShotCapture:
     """Render the reference decode and the object's white, hue bands and ``frames`` trapezoid frames.
 
     ``colours``: face label -> RGB albedo (default: the gauge blocks' coatings for the gauge scene,
     the base's grey elsewhere). ``reference``: the reference scene (default :func:`reference_scene`).
+    ``rig``: a rig of its own instead of ``RIGS[rig_name]`` (e.g. another camera size).
     """
-    rig = RIGS[rig_name]
+    rig = rig if rig is not None else RIGS[rig_name]
     pw, ph = rig.projector_size
     rng = np.random.default_rng(seed)
     # the reference, absolute sequence, grey captures
@@ -233,13 +249,16 @@ def step_scores(cap: OneShotCapture, res: Any, jackknife: tuple[tuple[str, RigCa
 
 
 def flatness_scores(cap: OneShotCapture, res: Any, jackknife: tuple[tuple[str, RigCalibration], ...],
-                    label: int = 0, margin_px: int = 6) -> dict[str, Any]:
+                    label: int = 0, margin_px: int = 6, within: NDArray[np.bool_] | None = None) -> dict[str, Any]:
     """A face's flatness (:func:`huefringe.metrology.flatness_u`: FLTq noise-corrected, raw RMS)
     with ``U = 2 sqrt(u_form^2 + u_calibration^2)``, the calibration's term the jackknife of FLTq over
-    the leave-one-pose-out calibrations (t-scaled; zero without them)."""
+    the leave-one-pose-out calibrations (t-scaled; zero without them). ``within``: only these
+    pixels (e.g. the calibrated field, :func:`huefringe.rig.field_mask`)."""
     from huefringe.metrology import flatness_u, jackknife_u
 
     m = face_mask(cap, label, margin_px) & res.valid
+    if within is not None:
+        m &= within
     f = flatness_u(res.xyz[m], res.sigma[m])
     u_cal = 0.0
     if jackknife:

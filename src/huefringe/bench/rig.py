@@ -206,8 +206,14 @@ def _checker_image(local: F64, on: NDArray[np.bool_], board: Board) -> NDArray[n
 
 
 def pose_set(rig: BenchRig, board: Board, n: int, seed: int, *, distance_mm: tuple[float, float] = (340.0, 460.0),
-             tilt_deg: float = 40.0, margin_px: float = 20.0) -> list[tuple[F64, F64]]:
-    """``n`` board poses with every corner inside both images (``margin_px`` from the edges)."""
+             tilt_deg: float = 40.0, margin_px: float = 20.0,
+             aim: tuple[float, float] = (0.06, 0.05)) -> list[tuple[F64, F64]]:
+    """``n`` board poses with every corner inside both images (``margin_px`` from the edges).
+
+    Each board's centre is aimed at a random point within ``aim`` (x, y) times its distance off
+    the camera's axis: the default keeps the boards near the middle of the image; wider (about
+    ``(0.14, 0.11)`` on the 640 x 480 rigs) spreads them over the field, into its corners.
+    """
     rng = np.random.default_rng(seed)
     centre = np.array([(board.cols - 1) * board.pitch_mm / 2, (board.rows - 1) * board.pitch_mm / 2, 0.0])
     obj = board.object_points().astype(np.float64)
@@ -217,8 +223,8 @@ def pose_set(rig: BenchRig, board: Board, n: int, seed: int, *, distance_mm: tup
             break
         R_b = rot(180 + rng.uniform(-tilt_deg, tilt_deg), rng.uniform(-tilt_deg, tilt_deg), rng.uniform(-15, 15))
         z = rng.uniform(*distance_mm)
-        aim = np.array([rng.uniform(-0.06, 0.06) * z, rng.uniform(-0.05, 0.05) * z, z])
-        t_b = aim - R_b @ centre
+        at = np.array([rng.uniform(-aim[0], aim[0]) * z, rng.uniform(-aim[1], aim[1]) * z, z])
+        t_b = at - R_b @ centre
         pts = obj @ R_b.T + t_b
         if (pts[:, 2] <= 0).any() or R_b[2, 2] > -0.5:
             continue

@@ -73,7 +73,8 @@ from huefringe.rig.model import RigCalibration
 from huefringe.rig.triangulation import project, triangulate
 
 __all__ = ["CODED_GEOMETRY", "ONESHOT_GEOMETRY", "OneShotCaptures", "OneShotCoordinate", "OneShotPhase",
-           "OneShotReference", "OneShotResult", "OneShotSession", "absolute_from_reference", "hue_table_from_frames",
+           "OneShotReference", "OneShotResult", "OneShotSession", "absolute_from_reference", "filter_against_reference",
+           "hue_table_from_frames",
            "is_oneshot", "measure_oneshot", "measure_oneshot_session", "oneshot_captures", "oneshot_reference",
            "table_phase_sigma", "trapezoid_coordinate"]
 
@@ -496,6 +497,62 @@ def absolute_from_reference(phase: OneShotPhase, reference: OneShotReference, bl
                              np.where(both, d, np.nan), np.where(both, decision, np.nan))
 
 
+def filter_against_reference(phase: OneShotPhase, reference: OneShotReference, block: TrapezoidBlock, *,
+                             radius: int, adaptive: dict[str, Any] | None = None,
+                             systematic_rad: NDArray[np.floating] | None = None) -> OneShotPhase:
+    """The plane route's phase filter on a one-shot frame: its offset from the reference, filtered.
+
+    The capture-session route filters the phase difference from its reference plane
+    (:func:`huefringe.phase.denoise_phase`: inverse-variance weighted, a neighbour accepted only
+    within ``k`` combined sigma, so a step is not blurred; ``adaptive`` grows the window where the
+    filtered sigma stays above its target). Here the difference is the frame's coordinate less
+    the reference's, ``2 pi (origin + w - u_ref) / P`` (wrapped: the filter takes differences
+    modulo ``2 pi``), nearly flat where the plane route's is; it is filtered with the frame's own
+    sigma and put back on the reference, ``u = u_ref + filtered offset``. Its standard uncertainty:
+    ``1 / sqrt(sum w)`` (the capture's and the hue table's noise, independent between pixels,
+    averaged), the reference's own sigma (which the offset carries and putting it back restores),
+    and ``systematic_rad``, an error that neighbours share and averaging does not reduce (the
+    table's interpolation between bands, :func:`huefringe.uncertainty.table_interpolation_rad`, as
+    the plane route adds it), in quadrature.
+
+    Parameters
+    ----------
+    phase : OneShotPhase
+        :func:`trapezoid_coordinate`'s result.
+    reference : OneShotReference
+    block : TrapezoidBlock
+    radius : int
+        The filter's radius (``measurement.denoise_radius``); 0 returns ``phase`` unchanged.
+    adaptive : dict, optional
+        ``measurement.denoise_adaptive`` (:func:`huefringe.phase.adaptive_kwargs`); None: a fixed window.
+    systematic_rad : ndarray, optional
+        Per-pixel code-phase error (rad) that neighbours share.
+    """
+    from huefringe.phase import adaptive_kwargs, denoise_phase
+
+    if radius <= 0:
+        return phase
+    P = float(block.period_px)
+    both = phase.valid & reference.valid
+    k = TWO_PI / P
+    d = np.where(both, k * (phase.wrapped + block.origin_px - reference.coord), np.nan)
+    d = np.angle(np.exp(1j * d))
+    wsum = np.zeros(d.shape, np.float32)
+    f = denoise_phase(d, np.where(both, k * phase.sigma, np.nan), both, radius=radius, weight_sum=wsum,
+                      **adaptive_kwargs(adaptive))
+    ok = both & np.isfinite(f) & (wsum > 0)
+    wrapped = np.where(ok, np.mod(reference.coord + f.astype(np.float64) / k - block.origin_px, P), np.nan)
+    sys2 = 0.0 if systematic_rad is None else np.nan_to_num(np.asarray(systematic_rad, np.float64)) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        var = 1.0 / np.where(ok, wsum, 1.0).astype(np.float64) + sys2 + (k * np.nan_to_num(reference.sigma)) ** 2
+        sigma = np.where(ok, np.sqrt(var) / k, np.nan)
+    reasons = phase.reasons.copy()
+    reasons[both & ~ok] |= np.uint8(Reason.LOW_SIGNAL)   # rejected by the adaptive filter
+    valid = phase.valid & (ok | ~reference.valid)
+    return OneShotPhase(np.where(valid, np.where(ok, wrapped, phase.wrapped), np.nan),
+                        np.where(valid, np.where(ok, sigma, phase.sigma), np.nan), valid, reasons, phase.code_phase)
+
+
 @dataclass(frozen=True, eq=False)
 class OneShotResult:
     """One one-shot frame triangulated.
@@ -527,11 +584,19 @@ class OneShotResult:
 
 def measure_oneshot(rgb: NDArray[np.floating], white: NDArray[np.floating], table: HueTable, block: TrapezoidBlock,
                     calib: RigCalibration, reference: OneShotReference, *, bit_depth: int = 8,
-                    order_sigmas: float = 3.0, stands_on_reference: bool = True, behind_mm: float = 0.25) -> OneShotResult:
+                    order_sigmas: float = 3.0, stands_on_reference: bool = True, behind_mm: float = 0.25,
+                    denoise_radius: int = 0, denoise_adaptive: dict[str, Any] | None = None) -> OneShotResult:
     """One trapezoid frame to X, Y, Z: :func:`trapezoid_coordinate`, :func:`absolute_from_reference`,
     :func:`~huefringe.rig.triangulate` (ray against the projector plane of the coordinate, ``sigma_u``
-    the coordinate's). Pixels flagged by either step are never triangulated."""
+    the coordinate's). Pixels flagged by either step are never triangulated. ``denoise_radius`` > 0
+    filters the frame's offset from the reference first, as the plane route filters its phase
+    difference (:func:`filter_against_reference`, ``denoise_adaptive`` its adaptive support)."""
     ph = trapezoid_coordinate(rgb, white, table, block, bit_depth=bit_depth)
+    if denoise_radius > 0:
+        from huefringe.uncertainty import table_interpolation_rad
+
+        ph = filter_against_reference(ph, reference, block, radius=denoise_radius, adaptive=denoise_adaptive,
+                                      systematic_rad=table_interpolation_rad(table))
     extent = calib.projector_size[0 if block.axis == "x" else 1] or None
     co = absolute_from_reference(ph, reference, block, order_sigmas=order_sigmas,
                                  stands_on_reference=stands_on_reference, behind_mm=behind_mm, extent=extent)
