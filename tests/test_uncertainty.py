@@ -682,6 +682,32 @@ def test_lateral_term_compiled_is_its_numpy_definition_bit_for_bit() -> None:
         uncertainty.add_lateral(h, u, lateral=0.5)
 
 
+def test_texture_delta_is_the_wrapped_difference_bit_for_bit() -> None:
+    """``texture_delta`` is ``pi - (pi - d) % (2 pi)`` of ``d = moved - dphi`` in float64 (Python's
+    ``%``), as float32, 0 where not finite: the same bits on two phases in [-pi, pi] (the branch-free
+    rows), around +-pi, and in rows holding NaN, infinities or phases outside (the ``%`` itself)."""
+    rng = np.random.default_rng(3)
+    m = rng.uniform(-np.pi, np.pi, (40, 333)).astype(np.float32)
+    p = (m + rng.normal(0, 0.01, m.shape)).astype(np.float32)
+    p[:10] = rng.uniform(-np.pi, np.pi, (10, 333))  # any two phases
+    e = np.float32(np.pi) + np.float32(1e-7) * np.arange(-20, 20, dtype=np.float32)
+    m[10, :40], p[10, :40] = e, -e
+    m[11, :40], p[11, :40] = -e, e
+    m[12, :40], p[12, :40] = e, 0.0
+    special = np.array([np.nan, np.inf, -np.inf, 7, -7, 20, -20, 3 * np.pi, 1e30, -1e30, -0.0], np.float32)
+    for row, (a, b) in enumerate(((special, 0), (0, special), (special, special[::-1])), start=20):
+        m[row, :special.size], p[row, :special.size] = a, b
+    def python(x: float, y: float) -> np.float32:
+        d = float(x) - float(y)
+        d = np.pi - (np.pi - d) % (2.0 * np.pi)
+        return np.float32(d) if np.isfinite(d) else np.float32(0.0)
+    want = np.array([[python(x, y) for x, y in zip(a, b)] for a, b in zip(m, p)], np.float32)
+    with np.errstate(invalid="ignore"):
+        got = uncertainty.texture_delta(m, p)
+    assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+    assert np.all(np.abs(got) <= np.float32(np.pi)) and np.count_nonzero(got[20:23]) > 10
+
+
 @pytest.mark.parametrize("frames", [1, 5])
 def test_coating_term_recovers_a_fixed_pattern(frames: int) -> None:
     """A top carrying a pattern fixed to the fringe (rms 8 um, period 60 px) under frame noise of
