@@ -675,6 +675,10 @@ def test_lateral_term_compiled_is_its_numpy_definition_bit_for_bit() -> None:
             with np.errstate(invalid="ignore", over="ignore"):
                 want = np.sqrt(np.asarray(s, np.float64) ** 2 + _lateral_numpy(z, s, **kw).astype(np.float64) ** 2)
             assert _same_bits(uncertainty.add_lateral(z, s, **kw), want.astype(np.float32))
+    u64 = np.asarray(uu, np.float64) * (1 + 1e-9)  # a float64 u enters the sum as given
+    with np.errstate(invalid="ignore"):
+        want = np.sqrt(u64**2 + _lateral_numpy(hh, u64).astype(np.float64) ** 2).astype(np.float32)
+    assert _same_bits(uncertainty.add_lateral(hh, u64), want)
     assert np.nanmax(uncertainty.lateral_term(hh, uu, step_px=2.0)) > 0.01  # the rig's steps give the term work
     with pytest.raises(ValueError, match="2 x 2"):
         uncertainty.lateral_term(h[:1])

@@ -474,8 +474,10 @@ def _lateral(height: NDArray[np.floating], u: NDArray[np.floating] | None, later
         hmc, denc = _smoothed_sums(x0, okf, coarse_px)
         _normalised(hmc, denc, hmc)
     out = np.empty_like(h)
+    # the sum with u in float64 from u as given (a float64 map is not rounded to float32 first)
+    ua = uf if not add or np.asarray(u).dtype == np.float32 else np.ascontiguousarray(u, np.float64)
     _lateral_kernel(h, hm, hmc, va, vb, den, has_u, step, np.float32(lateral_px) ** 2, np.float32(step_px) ** 2,
-                    uf, add, out)
+                    ua, add, out)
     return out
 
 
