@@ -15,7 +15,7 @@ core and prints:
   every neighbour of the largest window),
 * how the grown pixels lie along a row (runs of neighbouring grown pixels per row, their median
   length): the pass takes each row's grown pixels through each window offset together, their
-  neighbours gathered, so scattered pixels cost no more than contiguous ones,
+  neighbours gathered; walking short runs as contiguous rows costs more than the gather,
 * the neighbour visits (``sum (2 r + 1)^2`` over the grown pixels) and the pass's CPU time per visit.
 
 Each visit is a neighbour tested against the local plane and, when accepted, added to the
