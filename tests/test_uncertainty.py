@@ -710,6 +710,7 @@ def test_texture_delta_is_the_wrapped_difference_bit_for_bit() -> None:
         got = uncertainty.texture_delta(m, p)
     assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
     assert np.all(np.abs(got) <= np.float32(np.pi)) and np.count_nonzero(got[20:23]) > 10
+    assert np.all(got[20:23, :3] == 0)  # NaN and infinities: 0
 
 
 @pytest.mark.parametrize("frames", [1, 5])

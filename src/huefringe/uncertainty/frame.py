@@ -574,9 +574,10 @@ def _texture_delta(m, p, out):  # pragma: no cover - compiled
     """``d = m - p`` (float64), ``pi - (pi - d) % (2 pi)`` (Python's ``%``), as float32; 0 where
     not finite. A row's pixels whose ``a = pi - d`` lies in ``(-2 pi, 4 pi)`` (every pixel of two
     phases in ``[-pi, pi]``) take ``a``, ``a - 2 pi`` or ``a + 2 pi`` in a branch-free loop (SIMD):
-    the ``%``'s bits (``fmod`` is exact there and so is ``a - 2 pi``, Sterbenz's lemma); a row
-    holding any other value (NaN, infinities, phases outside) goes through the ``%`` itself, whose
-    call in the loop would keep it from vectorising."""
+    the ``%``'s bits (``fmod`` is exact there and so is ``a - 2 pi``, Sterbenz's lemma), and a
+    value that is not finite gives 0 either way; a row holding a finite ``a`` outside (phases
+    outside ``[-pi, pi]``) goes through the ``%`` itself, whose call in the loop would keep it
+    from vectorising."""
     h, w = m.shape
     b = 2.0 * np.pi
     for v in numba.prange(h):
@@ -584,7 +585,7 @@ def _texture_delta(m, p, out):  # pragma: no cover - compiled
         for u in range(w):
             d = np.float64(m[v, u]) - np.float64(p[v, u])
             a = np.pi - d
-            outside |= not ((a > -b) & (a < b + b))
+            outside |= (a - a == 0) & ((a <= -b) | (a >= b + b))  # (not finite: 0 either way)
             r = a if (a >= 0.0) & (a < b) else (a - b if a >= b else a + b)
             d = np.pi - r
             out[v, u] = np.float32(d) if d - d == 0 else np.float32(0.0)
