@@ -301,7 +301,7 @@ def _box_sums_by_tables(inv, r2, rad, radius, wsum):
 def test_grown_window_sums_are_the_summed_area_tables_bit_for_bit(shape: tuple[int, int]) -> None:
     """``_box_sums`` (the tables' rows built in a ring of the rows the boxes reach) gives the
     whole tables' bits: windows of half sides up to past the image, invalid pixels, any ratio;
-    the pixels at the common half side are left as they were."""
+    the pixels at the common half side keep the values their outputs held."""
     from huefringe.phase import _box_sums
 
     rng = np.random.default_rng(sum(shape))
