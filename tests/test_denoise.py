@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from huefringe.phase import denoise_phase, wrap
 
@@ -275,6 +276,47 @@ def _exact_sums(dz, s2, inv, r2, radius, k2):
             rs[v, u] = np.sum((inv[sl] * r2[sl])[keep], dtype=np.float64)
             cn[v, u] = keep.sum()
     return rs, cn
+
+
+def _box_sums_by_tables(inv, r2, rad, radius, wsum):
+    """The grown windows' ``sum w r2`` and support from whole summed-area tables (NumPy: each row's
+    running sums, then running sums of the rows, float64), the boxes' four corners in order."""
+    h, w = inv.shape
+    tables = []
+    for x in (inv.astype(np.float64), inv.astype(np.float64) * r2, (inv > 0).astype(np.float64)):
+        t = np.zeros((h + 1, w + 1))
+        t[1:, 1:] = np.cumsum(np.cumsum(x, axis=1), axis=0)
+        tables.append(t)
+    rsum, cnt = np.full((h, w), -1, np.float32), np.full((h, w), -1, np.float32)
+    for v, u in zip(*np.nonzero((rad > radius) & (inv > 0)), strict=True):
+        r = int(rad[v, u])
+        v0, v1, u0, u1 = max(v - r, 0), min(v + r + 1, h), max(u - r, 0), min(u + r + 1, w)
+        bw, br, bn = (t[v1, u1] - t[v0, u1] - t[v1, u0] + t[v0, u0] for t in tables)
+        sc = float(wsum[v, u]) / bw if bw > 0 else 0.0
+        rsum[v, u], cnt[v, u] = np.float32(sc * br), np.float32(sc * bn)
+    return rsum, cnt
+
+
+@pytest.mark.parametrize("shape", [(40, 57), (1, 30), (25, 1), (3, 3)])
+def test_grown_window_sums_are_the_summed_area_tables_bit_for_bit(shape: tuple[int, int]) -> None:
+    """``_box_sums`` (the tables' rows built in a ring of the rows the boxes reach) gives the
+    whole tables' bits: windows of half sides up to past the image, invalid pixels, any ratio;
+    the pixels at the common half side keep the values their outputs held."""
+    from huefringe.phase import _box_sums
+
+    rng = np.random.default_rng(sum(shape))
+    inv = rng.uniform(1e2, 1e6, shape).astype(np.float32) * rng.choice([1e-3, 1.0, 1e3], shape).astype(np.float32)
+    inv[rng.random(shape) < 0.2] = 0
+    r2 = rng.uniform(0.5, 2.0, shape).astype(np.float32)
+    wsum = rng.uniform(0, 5, shape).astype(np.float32) * inv
+    for top in (3, 7, 60):
+        rad = rng.integers(1, top, shape).astype(np.float32)
+        rsum, cnt = np.full(shape, -1, np.float32), np.full(shape, -1, np.float32)
+        _box_sums(inv, r2, rad, 2, wsum, rsum, cnt)
+        want_r, want_n = _box_sums_by_tables(inv, r2, rad, 2, wsum)
+        assert np.array_equal(rsum.view(np.uint32), want_r.view(np.uint32))
+        assert np.array_equal(cnt.view(np.uint32), want_n.view(np.uint32))
+    assert ((rad > 2) & (inv > 0)).sum() > 0
 
 
 def test_first_pass_sums_are_the_exact_sums_where_nothing_was_rejected() -> None:

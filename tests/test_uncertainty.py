@@ -619,6 +619,135 @@ def test_filter_on_a_textured_ramp_errs_by_slope_times_weight_centroid() -> None
     cx1, cy1 = uncertainty.filter_centroid(np.ones(h.shape, np.float32), 2)
     assert np.abs(cx1[inner]).max() < 1e-6 and np.abs(cy1[inner]).max() < 1e-6
     assert cx1[10, 0] == pytest.approx(1.0 * (1 + 2) / 3)  # at the left border the window holds x = 0, 1, 2
+def _lateral_numpy(height, u=None, *, lateral_px=0.5, smooth_px=1.5, step_px=0.0, coarse_px=5.0, weight=None,
+                   filter_radius=0):
+    """The lateral term's definition in NumPy and OpenCV's separable filters (``lateral_term``'s
+    docstring, step by step): the reference the compiled passes must match bit for bit."""
+    from huefringe.uncertainty.frame import _gaussian_kernel, _sep
+
+    def slope(h, ok, px):
+        g = _gaussian_kernel(px)[1:-1]
+        num = _sep(np.where(ok, h, np.float32(0.0)), g, g)
+        den = _sep(ok.astype(np.float32), g, g)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            hm = np.where(den > 1e-3, num / np.maximum(den, np.float32(1e-3)), np.float32(np.nan))
+        gy, gx = np.gradient(hm)
+        return np.nan_to_num(gx), np.nan_to_num(gy), den
+
+    h = np.asarray(height, np.float32)
+    ok = np.isfinite(h)
+    gx, gy, den = slope(h, ok, smooth_px)
+    slope2 = gx**2 + gy**2
+    if u is not None:
+        g_ext = _gaussian_kernel(smooth_px)
+        d2 = (0.5 * (g_ext[:-2] - g_ext[2:])) ** 2
+        g2 = g_ext[1:-1] ** 2
+        with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+            u2 = np.where(ok, np.nan_to_num(np.asarray(u, np.float32)) ** 2, np.float32(0.0))
+            var = (_sep(u2, d2, g2) + _sep(u2, g2, d2)) / np.maximum(den, np.float32(1e-3)) ** 2
+            slope2 = np.maximum(slope2 - var, np.float32(0.0))
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        lat2 = np.float32(lateral_px) ** 2 * slope2
+        if weight is not None and filter_radius > 0:  # (g . c)^2 on the share of the slope not its noise
+            ox, oy = uncertainty.filter_centroid(weight, filter_radius)
+            shift = (gx * ox + gy * oy) ** 2
+            raw2 = gx * gx + gy * gy
+            lat2 = lat2 + shift * np.where(raw2 > 0, slope2 / np.where(raw2 > 0, raw2, 1), np.float32(0.0))
+        if step_px > 0:
+            cx, cy, _ = slope(h, ok, coarse_px)
+            lat2 = lat2 + np.float32(step_px) ** 2 * np.minimum((gx - cx) ** 2 + (gy - cy) ** 2, slope2)
+        return np.where(ok, np.sqrt(lat2), np.nan).astype(np.float32)
+
+
+def _same_bits(a, b) -> bool:
+    """Equal float32 maps: the same bits where finite, NaN at the same pixels."""
+    a, b = np.asarray(a, np.float32), np.asarray(b, np.float32)
+    fin = np.isfinite(a)
+    return a.shape == b.shape and np.array_equal(np.isnan(a), np.isnan(b)) \
+        and np.array_equal(a[fin].view(np.uint32), b[fin].view(np.uint32))
+
+
+def test_lateral_term_compiled_is_its_numpy_definition_bit_for_bit() -> None:
+    """``lateral_term`` and ``add_lateral`` (compiled passes around OpenCV's filters) give the
+    NumPy definition's bits on the demo's heights and uncertainties, on the bench rig's (the stage
+    benchmark's frame after the step-edge mask) and on a map with holes, infinities and a step,
+    for the default and other scales; a map smaller than 2 x 2 is refused."""
+    import sys
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "benchmarks"))
+    from _kernel_case import make_case
+    from huefringe import kernel, perframe, texture
+    from huefringe.settings import defaults
+
+    rig = make_case(160, 120, n_bands=16)
+    m = defaults()["measurement"]
+    prep = kernel.prepare(rig.table, rig.cal, rig.white, hue_model="hexcone", min_saturation=m["min_saturation"],
+                          shadow=perframe.shadow_mask(rig.white, m["shadow_fraction"]), bit_depth=8)
+    raw = rig.frame.astype(np.float32) * np.float32(1 / 255)
+    rgb = texture.correct(raw, rig.white, 0.4, clipped=perframe.clipped_mask(raw, 8))
+    fm = kernel.frame_maps(prep, rgb, denoise_radius=int(m["denoise_radius"]), denoise_adaptive=m["denoise_adaptive"],
+                           want_uncertainty=True)
+    hh, (uu,), _, _ = perframe.remove_step_edges(fm.height, float(m["edge_jump_mm"]), nan_maps=(fm.uncertainty,),
+                                                 test=str(m["edge_test"]), tol_mm=float(m["edge_plane_tol_mm"]))
+    rng = np.random.default_rng(1)
+    h = rng.normal(0, 1, (57, 83)).astype(np.float32)
+    h[rng.random(h.shape) < 0.2] = np.nan
+    h[3, 4], h[5, 5] = np.inf, -np.inf
+    h[:, 40:] += 3
+    u = np.abs(rng.normal(0, 0.1, h.shape)).astype(np.float32)
+    u[rng.random(h.shape) < 0.1] = np.nan
+    u[7, 7] = np.inf
+    cases = [(hh, uu), (h, u), (h[:2, :3].copy(), u[:2, :3].copy())]
+    demo = Path(__file__).resolve().parents[1] / "results" / "gauge-blocks-demo"
+    if (demo / "height" / "frame_0000.tiff").exists():
+        cases.append((read_tiff(demo / "height" / "frame_0000.tiff"), read_tiff(demo / "uncertainty" / "frame_0000.tiff")))
+    assert np.isnan(hh).any() and np.isfinite(hh).mean() > 0.9  # holes and heights
+    for z, s in cases:
+        w = np.abs(np.nan_to_num(np.asarray(s, np.float32), posinf=0.0)) + np.float32(0.01)
+        w = (np.float32(1.0) / w**2).astype(np.float32)  # inverse-variance weights following u
+        for kw in ({}, {"step_px": 2.0}, {"lateral_px": 0.37, "step_px": 1.3, "smooth_px": 1.1, "coarse_px": 4.0},
+                   {"step_px": 2.0, "weight": w, "filter_radius": 2}):
+            for with_u in (s, None):
+                want = _lateral_numpy(z, with_u, **kw)
+                assert _same_bits(uncertainty.lateral_term(z, with_u, **kw), want)
+            with np.errstate(invalid="ignore", over="ignore"):
+                want = np.sqrt(np.asarray(s, np.float64) ** 2 + _lateral_numpy(z, s, **kw).astype(np.float64) ** 2)
+            assert _same_bits(uncertainty.add_lateral(z, s, **kw), want.astype(np.float32))
+    u64 = np.asarray(uu, np.float64) * (1 + 1e-9)  # a float64 u enters the sum as given
+    with np.errstate(invalid="ignore"):
+        want = np.sqrt(u64**2 + _lateral_numpy(hh, u64).astype(np.float64) ** 2).astype(np.float32)
+    assert _same_bits(uncertainty.add_lateral(hh, u64), want)
+    assert np.nanmax(uncertainty.lateral_term(hh, uu, step_px=2.0)) > 0.01  # the rig's steps give the term work
+    with pytest.raises(ValueError, match="2 x 2"):
+        uncertainty.lateral_term(h[:1])
+    with pytest.raises(TypeError, match="unexpected"):
+        uncertainty.add_lateral(h, u, lateral=0.5)
+
+
+def test_texture_delta_is_the_wrapped_difference_bit_for_bit() -> None:
+    """``texture_delta`` is ``pi - (pi - d) % (2 pi)`` of ``d = moved - dphi`` in float64 (Python's
+    ``%``), as float32, 0 where not finite: the same bits on two phases in [-pi, pi] (the branch-free
+    rows), around +-pi, and in rows holding NaN, infinities or phases outside (the ``%`` itself)."""
+    rng = np.random.default_rng(3)
+    m = rng.uniform(-np.pi, np.pi, (40, 333)).astype(np.float32)
+    p = (m + rng.normal(0, 0.01, m.shape)).astype(np.float32)
+    p[:10] = rng.uniform(-np.pi, np.pi, (10, 333))  # any two phases
+    e = np.float32(np.pi) + np.float32(1e-7) * np.arange(-20, 20, dtype=np.float32)
+    m[10, :40], p[10, :40] = e, -e
+    m[11, :40], p[11, :40] = -e, e
+    m[12, :40], p[12, :40] = e, 0.0
+    special = np.array([np.nan, np.inf, -np.inf, 7, -7, 20, -20, 3 * np.pi, 1e30, -1e30, -0.0], np.float32)
+    for row, (a, b) in enumerate(((special, 0), (0, special), (special, special[::-1])), start=20):
+        m[row, :special.size], p[row, :special.size] = a, b
+    def python(x: float, y: float) -> np.float32:
+        d = float(x) - float(y)
+        d = np.pi - (np.pi - d) % (2.0 * np.pi)
+        return np.float32(d) if np.isfinite(d) else np.float32(0.0)
+    want = np.array([[python(x, y) for x, y in zip(a, b)] for a, b in zip(m, p)], np.float32)
+    with np.errstate(invalid="ignore"):
+        got = uncertainty.texture_delta(m, p)
+    assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+    assert np.all(np.abs(got) <= np.float32(np.pi)) and np.count_nonzero(got[20:23]) > 10
+    assert np.all(got[20:23, :3] == 0)  # NaN and infinities: 0
 
 
 @pytest.mark.parametrize("frames", [1, 5])

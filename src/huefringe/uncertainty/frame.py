@@ -325,16 +325,180 @@ def _sep(img: NDArray[np.float32], kx: NDArray[np.floating], ky: NDArray[np.floa
                            borderType=cv2.BORDER_REPLICATE)
 
 
-def _smoothed_slope(h: NDArray[np.float32], ok: NDArray[np.bool_], smooth_px: float):
-    """The gradient (mm/px, central differences) of the normalised Gaussian average of the valid
-    heights, and that average's weight sum (NaN heights carry no weight)."""
+def _smoothed_sums(x0: NDArray[np.float32], okf: NDArray[np.float32],
+                   smooth_px: float) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """The Gaussian sums of the valid heights (``x0``: the heights, 0 where not valid) and of the
+    valid pixels (``okf``: 1 or 0): the numerator and weight sum of their normalised average."""
     g = _gaussian_kernel(smooth_px)[1:-1]
-    num = _sep(np.where(ok, h, np.float32(0.0)), g, g)
-    den = _sep(ok.astype(np.float32), g, g)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        hm = np.where(den > 1e-3, num / np.maximum(den, np.float32(1e-3)), np.float32(np.nan))
-    gy, gx = np.gradient(hm)
-    return np.nan_to_num(gx), np.nan_to_num(gy), den
+    return _sep(x0, g, g), _sep(okf, g, g)
+
+
+_F32_MAX = np.float32(np.finfo(np.float32).max)
+
+
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _finite_or_big(g):  # pragma: no cover - compiled
+    """``np.nan_to_num`` of one float32: NaN 0, +-inf the largest float32."""
+    big = _F32_MAX
+    return np.float32(0.0) if g != g else (big if g > big else (-big if g < -big else g))
+
+
+@numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _lateral_inputs(h, u, has_u, x0, okf, u2):  # pragma: no cover - compiled
+    """The lateral term's filter inputs: ``x0`` the heights, 0 where not finite, ``okf`` the finite
+    ones as 1.0, and (``has_u``) ``u2`` their squared uncertainty (NumPy's ``nan_to_num``: NaN 0,
+    +-inf the largest float32), 0 where the height is not finite."""
+    rows, cols = h.shape
+    zero = np.float32(0.0)
+    one = np.float32(1.0)
+    for v in numba.prange(rows):
+        for x in range(cols):
+            z = h[v, x]
+            ok = z - z == 0
+            x0[v, x] = z if ok else zero
+            okf[v, x] = one if ok else zero
+            if has_u:
+                q = _finite_or_big(u[v, x])
+                u2[v, x] = q * q if ok else zero
+
+
+@numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _normalised(num, den, hm):  # pragma: no cover - compiled
+    """``hm = den > 1e-3 ? num / max(den, 1e-3) : NaN`` (float32): the normalised average (``hm``
+    may be ``num``)."""
+    rows, cols = num.shape
+    lo = np.float32(1e-3)
+    nan = np.float32(np.nan)
+    for v in numba.prange(rows):
+        for x in range(cols):
+            d = den[v, x]
+            hm[v, x] = num[v, x] / max(d, lo) if d > lo else nan
+
+
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _lateral_pixel(z, gx, gy, cx, cy, va, vb, den, uu, has_u, step, c_lat, c_step, add,
+                   centroid, ox, oy):  # pragma: no cover
+    """One pixel of :func:`_lateral_kernel` from its (``nan_to_num``-ed) fine and coarse slopes and
+    (with ``centroid``) the filter's centroid offset ``ox, oy``."""
+    zero = np.float32(0.0)
+    raw2 = gx * gx + gy * gy
+    s2 = raw2
+    if has_u:
+        m = max(den, np.float32(1e-3))
+        t = s2 - (va + vb) / (m * m)
+        s2 = t if (t > zero or t != t) else zero
+    lat2 = c_lat * s2
+    if centroid:  # (g . c)^2 on the share of the slope that is not its noise
+        sh = gx * ox + gy * oy
+        sh = sh * sh
+        share = s2 / raw2 if raw2 > zero else zero
+        lat2 = lat2 + sh * share
+    if step:
+        ex = gx - cx
+        ey = gy - cy
+        b = ex * ex + ey * ey
+        b = b if (b <= s2 or b != b) else s2
+        lat2 = lat2 + c_step * b
+    lat = np.sqrt(lat2)
+    if add:
+        u64 = np.float64(uu)
+        l64 = np.float64(lat)
+        lat = np.float32(np.sqrt(u64 * u64 + l64 * l64))
+    return lat if z - z == 0 else np.float32(np.nan)
+
+
+@numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _lateral_kernel(h, hm, hmc, va, vb, den, has_u, step, c_lat, c_step, u, add, centroid, ox, oy,
+                    out):  # pragma: no cover
+    """:func:`lateral_term` per pixel from the normalised averages ``hm`` (fine) and ``hmc``
+    (coarse, with ``step``), the slope noise's two separable sums ``va + vb`` over ``max(den,
+    1e-3)^2`` (with ``has_u``), ``c_lat = lateral_px^2``, ``c_step = step_px^2``: float32, in
+    NumPy's order of operations (``np.gradient``'s central differences over 2, one-sided at the
+    borders, through ``nan_to_num``; NaN-propagating ``maximum`` / ``minimum``). With ``add``,
+    ``out`` is ``float32(sqrt(float64(u)^2 + float64(term)^2))`` (:func:`add_lateral`), else the
+    term; NaN where the height is not finite. The inner columns in a branch-free loop (SIMD)."""
+    rows, cols = h.shape
+    two = np.float32(2.0)
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    for v in numba.prange(rows):
+        vm = max(v - 1, 0)
+        vp = min(v + 1, rows - 1)
+        ydiv = two if 0 < v < rows - 1 else one
+        for x in (0, cols - 1):  # the border columns: one-sided differences along u
+            xm = max(x - 1, 0)
+            xp = min(x + 1, cols - 1)
+            gx = _finite_or_big(hm[v, xp] - hm[v, xm])
+            gy = _finite_or_big((hm[vp, x] - hm[vm, x]) / ydiv)
+            cx = cy = zero
+            if step:
+                cx = _finite_or_big(hmc[v, xp] - hmc[v, xm])
+                cy = _finite_or_big((hmc[vp, x] - hmc[vm, x]) / ydiv)
+            out[v, x] = _lateral_pixel(h[v, x], gx, gy, cx, cy, va[v, x] if has_u else zero,
+                                       vb[v, x] if has_u else zero, den[v, x], u[v, x] if add else zero, has_u, step,
+                                       c_lat, c_step, add, centroid, ox[v, x] if centroid else zero,
+                                       oy[v, x] if centroid else zero)
+        hr = hm[v]
+        hu = hm[vp]
+        hd = hm[vm]
+        cr = hmc[v] if step else hmc[0]
+        cu = hmc[vp] if step else hmc[0]
+        cd = hmc[vm] if step else hmc[0]
+        for x in range(1, cols - 1):
+            gx = _finite_or_big((hr[x + 1] - hr[x - 1]) / two)
+            gy = _finite_or_big((hu[x] - hd[x]) / ydiv)
+            cx = cy = zero
+            if step:
+                cx = _finite_or_big((cr[x + 1] - cr[x - 1]) / two)
+                cy = _finite_or_big((cu[x] - cd[x]) / ydiv)
+            out[v, x] = _lateral_pixel(h[v, x], gx, gy, cx, cy, va[v, x] if has_u else zero,
+                                       vb[v, x] if has_u else zero, den[v, x], u[v, x] if add else zero, has_u, step,
+                                       c_lat, c_step, add, centroid, ox[v, x] if centroid else zero,
+                                       oy[v, x] if centroid else zero)
+
+
+def _lateral(height: NDArray[np.floating], u: NDArray[np.floating] | None, lateral_px: float, smooth_px: float,
+             step_px: float, coarse_px: float, add: bool, weight: NDArray[np.floating] | None = None,
+             filter_radius: int = 0) -> NDArray[np.float32]:
+    """:func:`lateral_term` (``add`` False) or :func:`add_lateral` (``add`` True): the filter inputs
+    and the normalised averages in compiled passes, the Gaussian sums by OpenCV, the rest per
+    pixel in one compiled pass."""
+    h = np.ascontiguousarray(height, np.float32)
+    if h.ndim != 2 or min(h.shape) < 2:
+        raise ValueError(f"the lateral term needs a 2-D height map of at least 2 x 2 pixels, got {h.shape}")
+    has_u = u is not None
+    uf = np.ascontiguousarray(u, np.float32) if has_u else np.empty((1, 1), np.float32)
+    if has_u and uf.shape != h.shape:
+        raise ValueError(f"uncertainty map {uf.shape} differs from the height map {h.shape}")
+    x0, okf = np.empty_like(h), np.empty_like(h)
+    u2 = np.empty_like(h) if has_u else np.empty((1, 1), np.float32)
+    _lateral_inputs(h, uf, has_u, x0, okf, u2)
+    hm, den = _smoothed_sums(x0, okf, smooth_px)
+    _normalised(hm, den, hm)  # in place
+    va = vb = np.empty((1, 1), np.float32)
+    if has_u:  # the noise of the slope itself: sum K^2 u^2 of the separable kernels
+        g_ext = _gaussian_kernel(smooth_px)
+        d2 = (0.5 * (g_ext[:-2] - g_ext[2:])) ** 2  # central difference of the smoothed map
+        g2 = g_ext[1:-1] ** 2
+        va, vb = _sep(u2, d2, g2), _sep(u2, g2, d2)
+    step = step_px > 0
+    hmc = np.empty((1, 1), np.float32)
+    if step:
+        hmc, denc = _smoothed_sums(x0, okf, coarse_px)
+        _normalised(hmc, denc, hmc)
+    out = np.empty_like(h)
+    # the sum with u in float64 from u as given (a float64 map is not rounded to float32 first)
+    ua = uf if not add or np.asarray(u).dtype == np.float32 else np.ascontiguousarray(u, np.float64)
+    centroid = weight is not None and filter_radius > 0
+    if centroid:
+        ox, oy = filter_centroid(weight, int(filter_radius))
+        if ox.shape != h.shape:
+            raise ValueError(f"filter weights {ox.shape} differ from the height map {h.shape}")
+    else:
+        ox = oy = np.empty((1, 1), np.float32)
+    _lateral_kernel(h, hm, hmc, va, vb, den, has_u, step, np.float32(lateral_px) ** 2, np.float32(step_px) ** 2,
+                    ua, add, centroid, ox, oy, out)
+    return out
 
 
 def filter_centroid(weight: NDArray[np.floating], radius: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
@@ -391,43 +555,24 @@ def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = 
     variance from pixel errors of standard uncertainty ``u`` is ``sum K^2 u^2`` (taken
     independent: on unfiltered heights exact, on filtered ones it removes a little more than the
     noise holds); the step part never exceeds that noise-free slope (on a noisy flat top both
-    are ~0). NaN where the height is NaN.
+    are ~0). NaN where the height is NaN. Compiled passes around OpenCV's separable filters,
+    float32 in the order of operations the NumPy form has (tests compare them bit for bit).
     """
-    h = np.asarray(height, np.float32)
-    ok = np.isfinite(h)
-    gx, gy, den = _smoothed_slope(h, ok, smooth_px)
-    slope2 = gx**2 + gy**2
-    if u is not None:  # the noise of the slope itself: sum K^2 u^2 of the separable kernels
-        g_ext = _gaussian_kernel(smooth_px)
-        d2 = (0.5 * (g_ext[:-2] - g_ext[2:])) ** 2  # central difference of the smoothed map
-        g2 = g_ext[1:-1] ** 2
-        u2 = np.where(ok, np.nan_to_num(np.asarray(u, np.float32)) ** 2, np.float32(0.0))
-        var = _sep(u2, d2, g2) + _sep(u2, g2, d2)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            var = var / np.maximum(den, np.float32(1e-3)) ** 2
-        slope2 = np.maximum(slope2 - var, np.float32(0.0))
-    lat2 = np.float32(lateral_px) ** 2 * slope2
-    if weight is not None and filter_radius > 0:  # the filter's centroid on the (noise-free part of the) slope
-        ox, oy = filter_centroid(weight, int(filter_radius))
-        shift = gx * ox
-        shift += gy * oy
-        shift *= shift
-        raw2 = gx * gx
-        raw2 += gy * gy
-        np.divide(slope2, raw2, out=raw2, where=raw2 > 0)  # the share of the slope that is not its noise
-        shift *= raw2
-        lat2 = lat2 + shift
-    if step_px > 0:
-        cx, cy, _ = _smoothed_slope(h, ok, coarse_px)
-        bend2 = np.minimum((gx - cx) ** 2 + (gy - cy) ** 2, slope2)
-        lat2 = lat2 + np.float32(step_px) ** 2 * bend2
-    return np.where(ok, np.sqrt(lat2), np.nan).astype(np.float32)
+    return _lateral(height, u, lateral_px, smooth_px, step_px, coarse_px, add=False, weight=weight,
+                    filter_radius=filter_radius)
 
 
 def add_lateral(height: NDArray[np.floating], u: NDArray[np.floating], **kwargs: Any) -> NDArray[np.float32]:
-    """``sqrt(u^2 + lateral_term(height, u, **kwargs)^2)`` (a new float32 map; NaN where either is NaN)."""
-    lat = lateral_term(height, u, **kwargs).astype(np.float64)
-    return np.sqrt(np.asarray(u, np.float64) ** 2 + lat**2).astype(np.float32)
+    """``sqrt(u^2 + lateral_term(height, u, **kwargs)^2)`` (a new float32 map; NaN where either is NaN),
+    the sum in float64, in the same compiled pass as the term."""
+    o: dict[str, Any] = {"lateral_px": LATERAL_PX, "smooth_px": LATERAL_SMOOTH_PX, "step_px": 0.0,
+                         "coarse_px": LATERAL_COARSE_PX, "weight": None, "filter_radius": 0}
+    unknown = set(kwargs) - o.keys()
+    if unknown:
+        raise TypeError(f"add_lateral got unexpected keyword arguments {sorted(unknown)}")
+    o.update(kwargs)
+    return _lateral(height, u, float(o["lateral_px"]), float(o["smooth_px"]), float(o["step_px"]),
+                    float(o["coarse_px"]), add=True, weight=o["weight"], filter_radius=int(o["filter_radius"] or 0))
 
 
 def texture_term(height: NDArray[np.floating], moved: NDArray[np.floating]) -> NDArray[np.float32]:
@@ -478,12 +623,29 @@ def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArra
 
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def _texture_delta(m, p, out):  # pragma: no cover - compiled
+    """``d = m - p`` (float64), ``pi - (pi - d) % (2 pi)`` (Python's ``%``), as float32; 0 where
+    not finite. A row's pixels whose ``a = pi - d`` lies in ``(-2 pi, 4 pi)`` (every pixel of two
+    phases in ``[-pi, pi]``) take ``a``, ``a - 2 pi`` or ``a + 2 pi`` in a branch-free loop (SIMD):
+    the ``%``'s bits (``fmod`` is exact there and so is ``a - 2 pi``, Sterbenz's lemma), and a
+    value that is not finite gives 0 either way; a row holding a finite ``a`` outside (phases
+    outside ``[-pi, pi]``) goes through the ``%`` itself, whose call in the loop would keep it
+    from vectorising."""
     h, w = m.shape
+    b = 2.0 * np.pi
     for v in numba.prange(h):
+        outside = False
         for u in range(w):
             d = np.float64(m[v, u]) - np.float64(p[v, u])
-            d = np.pi - (np.pi - d) % (2.0 * np.pi)
+            a = np.pi - d
+            outside |= (a - a == 0) & ((a <= -b) | (a >= b + b))  # (not finite: 0 either way)
+            r = a if (a >= 0.0) & (a < b) else (a - b if a >= b else a + b)
+            d = np.pi - r
             out[v, u] = np.float32(d) if d - d == 0 else np.float32(0.0)
+        if outside:
+            for u in range(w):
+                d = np.float64(m[v, u]) - np.float64(p[v, u])
+                d = np.pi - (np.pi - d) % b
+                out[v, u] = np.float32(d) if d - d == 0 else np.float32(0.0)
 
 
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
