@@ -192,7 +192,8 @@ def oneshot_outputs(sid):
 
 def rig_report_frames(kind):
     """The rig_metrology input ``kind`` (a RIG_FRAME_FILES key): frame_0000's file, or every one-shot
-    frame's for a one-shot session (its report carries each figure's per-frame series)."""
+    frame's for a one-shot session (its report carries each figure's per-frame series).
+    """
 
     def files(w):
         if w.sid in ONESHOT_IDS:

@@ -103,7 +103,7 @@ for _sid in ONESHOT_IDS:
                 "rig_oneshot", mem_mb=4000, runtime=max(30, PLANS[_sid].oneshot_frames)
             ),
         params:
-            session=session_dir(_sid),
+            session=lambda w, input: str(Path(input.session).parent),
             config=config,
         script:
             "../../scripts/rig_oneshot.py"
