@@ -87,9 +87,8 @@ def _plane_by_pixel(first, wfirst, v, u, base):
     """The local plane the grown rings test against at pixel ``(v, u)``: its slopes along ``u``
     and ``v`` (rad/px) and their variances, each the central difference of the first-pass
     estimates ``base`` px either side (float32), where the two one-sided differences agree within
-    3 sigma of their difference and the slope exceeds 2 of its sigma (its variance the larger of
-    the estimates' and their scatter about the line's); else 0 (a step, an edge, a slope lost in
-    the noise, a side outside the image or not valid)."""
+    3 sigma of their difference and the slope exceeds 2 of its sigma; else 0 (a step, an edge, a
+    slope lost in the noise, a side outside the image or not valid)."""
     f32 = np.float32
     two_pi, inv_two_pi, pi = f32(2 * np.pi), f32(1 / (2 * np.pi)), f32(np.pi)
 
@@ -108,8 +107,6 @@ def _plane_by_pixel(first, wfirst, v, u, base):
             return f32(0), f32(0)
         g = f32(f32(0.5) * f32(fwd + bwd))
         vg = f32(f32(va + vc) / f32(f32(4) * b * b))
-        ve = f32(f32(f32(f32(f32(dd * dd) * b) * b) * vg) / f32(f32(va + f32(f32(4) * vb)) + vc))
-        vg = ve if ve > vg else vg  # the estimates' own scatter about their line, where larger
         if f32(g * g) <= f32(f32(4) * vg):
             return f32(0), f32(0)
         return g, vg

@@ -301,20 +301,10 @@ def _plane_slope(first, wfirst, a, b, c, base):  # pragma: no cover - compiled
     """The local phase slope (rad/px) through a pixel along one axis, and its variance, from the
     first-pass estimates ``first`` at flat indices ``a`` (``-base`` px), ``b`` (the pixel) and ``c``
     (``+base`` px), their variances ``1 / wfirst``: the central difference ``(first_c - first_a) /
-    (2 base)``, variance ``vg = (1 / wfirst_a + 1 / wfirst_c) / (4 base^2)``, where the two one-sided
+    (2 base)``, variance ``(1 / wfirst_a + 1 / wfirst_c) / (4 base^2)``, where the two one-sided
     differences agree within 3 standard deviations of their difference and the slope exceeds 2 of
     its own; else 0 (a step, an edge or a kink between the sides, a slope lost in the noise, a side
-    outside the image or not valid: the pixel's level). Differences wrapped to [-pi, pi).
-
-    ``1 / wfirst`` is the estimates' variance from the frame's independent pixel noise only; the
-    first-pass map also carries errors the frames share and that vary over a few px (on the
-    gauge benches the slopes found significant on flat tops are 0.95-0.99 the same in both
-    frames). The three estimates' own scatter about their line measures the whole: the curvature
-    ``e = first_c - 2 first_b + first_a = (fwd - bwd) base`` has variance ``va + 4 vb + vc`` when
-    ``1 / wfirst`` holds, so the slope's variance is taken as the larger of ``vg`` and its
-    empirical counterpart ``vg e^2 / (va + 4 vb + vc)`` (one degree of freedom, so a floor on the
-    model, never below it: where ``1 / wfirst`` holds, ``e`` is independent of the slope and the
-    false-slope rate on a flat field is 0.034 instead of 0.045 per axis)."""
+    outside the image or not valid: the pixel's level). Differences wrapped to [-pi, pi)."""
     two_pi = np.float32(2.0 * np.pi)
     inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
     pi = np.float32(np.pi)
@@ -335,9 +325,6 @@ def _plane_slope(first, wfirst, a, b, c, base):  # pragma: no cover - compiled
         return zero, zero  # the sides disagree (a step, an edge, a kink): no plane
     g = np.float32(0.5) * (fwd + bwd)
     vg = (va + vc) / (np.float32(4.0) * base * base)
-    ve = dd * dd * base * base * vg / (va + np.float32(4.0) * vb + vc)
-    if ve > vg:  # the three estimates scatter about their line more than their variances say
-        vg = ve
     if g * g <= np.float32(4.0) * vg:
         return zero, zero  # not significant: the level
     return g, vg
