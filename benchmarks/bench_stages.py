@@ -292,45 +292,39 @@ def bench_oneshot(case: dict[str, Any], rounds: int) -> dict[str, Any]:
             "valid_px": int(case["ref"].valid.sum()), "wall_best_ms": {k: 1e3 * min(v) for k, v in wall.items()}}
 
 
-def oneshot_markdown(results: list[dict[str, Any]]) -> str:
-    """The one-shot rig path's table: ms per frame, x cvtColor and x the I/O floor, per size."""
+def _stage_table(results: list[dict[str, Any]], stages: tuple[str, ...], head: str, compute: str,
+                 per_floor: bool) -> str:
+    """A stage table: ms per frame and x cvtColor per size (``per_floor``: also x the I/O floor)."""
     sizes = [f"{r['size'][0]} × {r['size'][1]}" for r in results]
-    lines = ["| one-shot rig stage | " + " | ".join(f"{s}: ms | × cvtColor | × floor" for s in sizes) + " |",
-             "| --- | " + " | ".join("---: | ---: | ---:" for _ in sizes) + " |"]
+    cols = "ms | × cvtColor | × floor" if per_floor else "ms | × cvtColor"
+    lines = [f"| {head} | " + " | ".join(f"{s}: {cols}" for s in sizes) + " |",
+             "| --- | " + " | ".join("---: | ---: | ---:" if per_floor else "---: | ---:" for _ in sizes) + " |"]
 
     def row(name: str, vals: list[float]) -> None:
-        cells = [f"{v:.1f} | {v / r['cvtColor_ms']:.1f} | {v / r['floor_ms']:.2f}" for v, r in zip(vals, results, strict=True)]
+        cells = [f"{v:.1f} | {v / r['cvtColor_ms']:.1f}" + (f" | {v / r['floor_ms']:.2f}" if per_floor else "")
+                 for v, r in zip(vals, results, strict=True)]
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
 
-    for st in ONESHOT_STAGES:
+    for st in stages:
         row(st, [r["ms"][st] for r in results])
-    row("**compute** (decode … calibration u)", [r["compute_ms"] for r in results])
+    row(f"**compute** ({compute})", [r["compute_ms"] for r in results])
     row("**frame** (all stages)", [r["total_ms"] for r in results])
     row("*cv2.cvtColor RGB→HSV*", [r["cvtColor_ms"] for r in results])
     row("*I/O floor (PNG read + TIFF write)*", [r["floor_ms"] for r in results])
-    lines.append("| frames/s, 2 cores (two jobs) | " + " | ".join(
-        f"{r['fps_2cores']:.2f} | | {r['vs_floor']:.3f} × floor" for r in results) + " |")
+    last = [f"{r['fps_2cores']:.2f} | | {r['vs_floor']:.3f} × floor" if per_floor
+            else f"{r['fps_2cores']:.1f} | {r['vs_floor']:.2f} × floor" for r in results]
+    lines.append("| frames/s, 2 cores (two jobs) | " + " | ".join(last) + " |")
     return "\n".join(lines) + "\n"
+
+
+def oneshot_markdown(results: list[dict[str, Any]]) -> str:
+    """The one-shot rig path's table: ms per frame, x cvtColor and x the I/O floor, per size."""
+    return _stage_table(results, ONESHOT_STAGES, "one-shot rig stage", "decode … calibration u", per_floor=True)
 
 
 def markdown(results: list[dict[str, Any]], command: str) -> str:
-    sizes = [f"{r['size'][0]} × {r['size'][1]}" for r in results]
-    lines = ["| stage | " + " | ".join(f"{s}: ms | × cvtColor" for s in sizes) + " |",
-             "| --- | " + " | ".join("---: | ---:" for _ in sizes) + " |"]
-
-    def row(name: str, vals: list[float]) -> None:
-        cells = [f"{v:.1f} | {v / r['cvtColor_ms']:.1f}" for v, r in zip(vals, results, strict=True)]
-        lines.append(f"| {name} | " + " | ".join(cells) + " |")
-
-    for st in STAGES:
-        row(st, [r["ms"][st] for r in results])
-    row("**compute** (texture … flags)", [r["compute_ms"] for r in results])
-    row("**frame** (all stages)", [r["total_ms"] for r in results])
-    row("*cv2.cvtColor RGB→HSV*", [r["cvtColor_ms"] for r in results])
-    row("*I/O floor (PNG read + TIFF write)*", [r["floor_ms"] for r in results])
-    lines.append("| frames/s, 2 cores (two jobs) | " + " | ".join(
-        f"{r['fps_2cores']:.1f} | {r['vs_floor']:.2f} × floor" for r in results) + " |")
-    return "\n".join(lines) + "\n"
+    """The plane path's table: ms per frame and x cvtColor per size."""
+    return _stage_table(results, STAGES, "stage", "texture … flags", per_floor=False)
 
 
 def _replace_between(page: Path, begin: str, end: str, body: str) -> None:
