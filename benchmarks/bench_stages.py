@@ -168,11 +168,14 @@ def chain(rig: KernelCase, work: Path) -> dict[str, Callable[[], Any]]:
     }
 
 
-def bench_size(rig: KernelCase, rounds: int) -> dict[str, Any]:
+def _timed(calls_of: Callable[[Path], dict[str, Callable[[], Any]]], rounds: int,
+           prefix: str) -> tuple[dict[str, float], dict[str, float]]:
+    """Median CPU ms and best wall ms of each call over ``rounds`` interleaved rounds (after one
+    warm-up call each: compiled paths, caches; the quick references best of 5 per round)."""
     cv2.setNumThreads(_THREADS)
-    with tempfile.TemporaryDirectory(prefix="hf-bench-stages-") as tmp:
-        calls = chain(rig, Path(tmp))
-        for fn in calls.values():  # warm-up: compiled paths, caches
+    with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
+        calls = calls_of(Path(tmp))
+        for fn in calls.values():
             fn()
         per: dict[str, list[float]] = {k: [] for k in calls}
         wall: dict[str, list[float]] = {k: [] for k in calls}
@@ -182,8 +185,12 @@ def bench_size(rig: KernelCase, rounds: int) -> dict[str, Any]:
                 best = min((_clock(fn) for _ in range(reps)), key=lambda x: x[0])
                 per[k].append(best[0])
                 wall[k].append(best[1])
-    med = {k: 1e3 * statistics.median(v) for k, v in per.items()}
-    wall_ms = {k: 1e3 * min(v) for k, v in wall.items()}
+    return ({k: 1e3 * statistics.median(v) for k, v in per.items()},
+            {k: 1e3 * min(v) for k, v in wall.items()})
+
+
+def bench_size(rig: KernelCase, rounds: int) -> dict[str, Any]:
+    med, wall_ms = _timed(lambda work: chain(rig, work), rounds, "hf-bench-stages-")
     ms = {"read": med["read"], "texture": med["texture"], "kernel": med["k0"],
           "filter": max(med["k1"] - med["k0"], 0.0), "adaptive": max(med["k2"] - med["k1"], 0.0),
           "uncertainty": max(med["k3"] - med["k2"], 0.0), "texture u": max(med["texture u"] - med["k3"], 0.0),
@@ -268,20 +275,7 @@ def oneshot_chain(case: dict[str, Any], work: Path) -> dict[str, Callable[[], An
 
 def bench_oneshot(case: dict[str, Any], rounds: int) -> dict[str, Any]:
     """Median CPU ms per stage of the one-shot rig path over ``rounds`` interleaved rounds."""
-    cv2.setNumThreads(_THREADS)
-    with tempfile.TemporaryDirectory(prefix="hf-bench-oneshot-") as tmp:
-        calls = oneshot_chain(case, Path(tmp))
-        for fn in calls.values():
-            fn()
-        per: dict[str, list[float]] = {k: [] for k in calls}
-        wall: dict[str, list[float]] = {k: [] for k in calls}
-        for _ in range(rounds):
-            for k, fn in calls.items():
-                reps = 5 if k in ("cvtColor", "read", "floor") else 1
-                best = min((_clock(fn) for _ in range(reps)), key=lambda x: x[0])
-                per[k].append(best[0])
-                wall[k].append(best[1])
-    med = {k: 1e3 * statistics.median(v) for k, v in per.items()}
+    med, wall_ms = _timed(lambda work: oneshot_chain(case, work), rounds, "hf-bench-oneshot-")
     ms = {k: med[k] for k in ONESHOT_STAGES}
     compute = sum(v for k, v in ms.items() if k not in ("read", "write"))
     total = sum(ms.values())
@@ -289,7 +283,7 @@ def bench_oneshot(case: dict[str, Any], rounds: int) -> dict[str, Any]:
     return {"size": [w, h], "ms": ms, "compute_ms": compute, "total_ms": total, "cvtColor_ms": med["cvtColor"],
             "floor_ms": med["floor"], "fps_1core": 1e3 / total, "fps_2cores": 2e3 / total,
             "floor_fps_2cores": 2e3 / med["floor"], "vs_floor": med["floor"] / total, "threads": _THREADS,
-            "valid_px": int(case["ref"].valid.sum()), "wall_best_ms": {k: 1e3 * min(v) for k, v in wall.items()}}
+            "valid_px": int(case["ref"].valid.sum()), "wall_best_ms": wall_ms}
 
 
 def _stage_table(results: list[dict[str, Any]], stages: tuple[str, ...], head: str, compute: str,
