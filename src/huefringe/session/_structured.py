@@ -443,8 +443,8 @@ def oneshot_reference_problems(other: Path, where: Path, meta: dict[str, Any], a
         out.append(Problem(where, f"oneshot/reference: {seq_path} cannot be read ({exc})"))
     else:
         if not axis_is_absolute(spec, axis):  # type: ignore[arg-type]
-            what = "does not encode" if axis not in spec.axes() else "decodes only within one period"
-            out.append(Problem(where, f"oneshot/reference: {seq_path} {what} axis {axis}, the trapezoid's: no absolute "
+            what = f"does not encode axis {axis}" if axis not in spec.axes() else f"decodes axis {axis} only within one period"
+            out.append(Problem(where, f"oneshot/reference: {seq_path} {what} (the trapezoid's axis): no absolute "
                                       f"coordinate to give the one-shot frames their order (Gray code + phase, or two "
                                       f"periods, along {axis})"))
     mine_cal, theirs_cal = _calibration_identity(meta, root), _calibration_identity(doc, other)
