@@ -132,3 +132,16 @@ def test_a_reference_field_without_trapezoid_frames_is_refused(sessions: dict[st
     _edit(ref / "session.yaml", oneshot={"reference": {"session": "../plane"}})
     with pytest.raises(SessionError, match="names this session itself|no trapezoid blocks"):
         load_sl_session(ref)
+
+
+def test_assembly_writes_the_reference_relative_to_the_session(sessions: dict[str, Path], tmp_path: Path) -> None:
+    from huefringe.session import assemble_sl_session
+
+    src, root = sessions["rig-oneshot-on-base"], sessions["rig-base-plane"].parent
+    seq = yaml.safe_load((src / "sequence.yaml").read_text())
+    seq.update(id="assembled", oneshot_reference=str(root / "rig-base-plane"), calibration_session=str(root / "rig-poses"))
+    (tmp_path / "seq.yaml").write_text(yaml.safe_dump(seq))
+    out = assemble_sl_session(src / "captures", tmp_path / "seq.yaml", root / "assembled")
+    s = load_sl_session(out)
+    assert s.meta["oneshot"] == {"reference": {"session": "../rig-base-plane"}}
+    assert s.oneshot_reference == sessions["rig-base-plane"].resolve()

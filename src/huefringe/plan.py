@@ -313,11 +313,13 @@ def _link_references(plans: dict[str, SessionPlan], base: Path, config: dict[str
             by_path[target] = other
         axis = plan.oneshot_axis or "x"
         if other.kind != "structured-light":
-            refused.append(f"session {plan.path}: its one-shot reference session {target} is not a structured-light session")
+            refused.append(f"session {plan.path}: its one-shot reference session {target} is not a structured-light "
+                           "session")
         elif not (other.reference_absolute or {}).get(axis, False):
-            refused.append(f"session {plan.path}: its one-shot reference session {target}: {full(other.path) / 'sequence.yaml'} "
-                           f"does not decode absolutely along {axis}, the trapezoid's axis (Gray code + phase, or two "
-                           "periods): no order reference")
+            seq = full(other.path) / "sequence.yaml"
+            refused.append(f"session {plan.path}: its one-shot reference session {target}: {seq} does not decode "
+                           f"absolutely along {axis}, the trapezoid's axis (Gray code + phase, or two periods): no order "
+                           "reference")
         else:
             plan.reference_id = other.id
     return refused

@@ -703,7 +703,8 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
     if ref_root is None and block.axis not in spec.axes():
         raise RigError(f"{where}: the trapezoid frames run along {block.axis}, the sequence has no coded blocks along "
                        f"{block.axis} to give them their order (Gray code + phase on the same scene), and "
-                       f"{session.root / 'session.yaml'} names no reference session (oneshot: {{reference: {{session: PATH}}}})")
+                       f"{session.root / 'session.yaml'} names no reference session "
+                       "(oneshot: {reference: {session: PATH}})")
     try:
         caps = oneshot_captures(session.captures, spec)
     except SequenceError as exc:

@@ -62,7 +62,8 @@ CAPTURES = "captures"
 POSES = "poses"
 CALIBRATION = "calibration"
 GROUND_TRUTH = "ground_truth"
-ASSEMBLY_KEYS = ("id", "calibration", "calibration_session", "poses", "board", "features", "provenance")
+ASSEMBLY_KEYS = ("id", "calibration", "calibration_session", "oneshot_reference", "poses", "board", "features",
+                 "provenance")
 """Keys of an assembly YAML that describe the session; every other key is the sequence's."""
 
 SL_IMAGE_SUFFIXES = (*IMAGE_SUFFIXES, ".bmp")
@@ -443,7 +444,8 @@ def oneshot_reference_problems(other: Path, where: Path, meta: dict[str, Any], a
         out.append(Problem(where, f"oneshot/reference: {seq_path} cannot be read ({exc})"))
     else:
         if not axis_is_absolute(spec, axis):  # type: ignore[arg-type]
-            what = f"does not encode axis {axis}" if axis not in spec.axes() else f"decodes axis {axis} only within one period"
+            what = (f"does not encode axis {axis}" if axis not in spec.axes()
+                    else f"decodes axis {axis} only within one period")
             out.append(Problem(where, f"oneshot/reference: {seq_path} {what} (the trapezoid's axis): no absolute "
                                       f"coordinate to give the one-shot frames their order (Gray code + phase, or two "
                                       f"periods, along {axis})"))
@@ -533,7 +535,8 @@ def assemble_sl_session(
         The sequence in :func:`huefringe.codecs.load_sequence`'s YAML form (explicit ``blocks``
         or ``kamino410``, whose ``config`` is relative to ``captures_dir``), plus optional session
         keys :data:`ASSEMBLY_KEYS`: ``id``; ``calibration`` (a FileStorage file),
-        ``calibration_session`` (the session whose poses calibrate this one), ``poses`` (a folder
+        ``calibration_session`` (the session whose poses calibrate this one), ``oneshot_reference``
+        (the session whose coded captures are the one-shot frames' order reference), ``poses`` (a folder
         of pose folders) and ``features`` (a features YAML), paths relative to the YAML's folder;
         ``board`` (the target the poses show) and ``provenance``.
     out_dir : path
@@ -661,6 +664,9 @@ def assemble_sl_session(
             meta["calibration"] = {"file": f"{CALIBRATION}/{dst.name}", "sha256": _sha256(dst)}
         if calib_session is not None:
             meta["calibration"] = {"session": os.path.relpath(calib_session.resolve(), out.resolve())}
+        if extra.get("oneshot_reference"):
+            ref = (seq_yaml.parent / str(extra["oneshot_reference"])).resolve()
+            meta["oneshot"] = {"reference": {"session": os.path.relpath(ref, out.resolve())}}
         if extra.get("board"):
             meta["board"] = extra["board"]
         if features is not None:
