@@ -752,8 +752,23 @@ def reference_decode(session: Any, block: TrapezoidBlock, cfg: dict[str, Any],
     """The absolute decode, along the trapezoid's axis, of the reference session a one-shot session
     names (``oneshot: {reference: {session: PATH}}``): its coded captures decoded once.
 
-    Returns the :class:`~huefringe.codecs.Decoded` axis and the reference's ``sequence.yaml`` (for
-    messages).
+    Parameters
+    ----------
+    session : SLSession
+        The one-shot session (``oneshot_reference`` set).
+    block : TrapezoidBlock
+        Its trapezoid blocks' pattern (the axis decoded).
+    cfg : dict
+        The run's configuration (``codecs``).
+    camera_size : (int, int)
+        The one-shot captures' width and height.
+
+    Returns
+    -------
+    Decoded
+        The reference's absolute decode along ``block.axis``.
+    Path
+        The reference's ``sequence.yaml`` (for messages).
 
     Raises
     ------
