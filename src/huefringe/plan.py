@@ -72,6 +72,16 @@ class SessionPlan:
     oneshot_frames: int = 0
     """Structured light: the sequence's one-shot (``trapezoid``) frames, measured by rule
     ``rig_oneshot_<sid>`` into ``frame_0000 ..``; 0 for a coded session (rule ``rig_measure``)."""
+    oneshot_axis: str | None = None
+    """Structured light: the trapezoid blocks' axis (None without one-shot frames)."""
+    oneshot_reference: Path | None = None
+    """Structured light: the folder of the session whose coded captures are the one-shot frames'
+    order reference (``oneshot: {reference: {session: PATH}}``), as named; None: its own coded blocks."""
+    reference_id: str | None = None
+    """Structured light: id of the session ``oneshot_reference`` names (in the run, measured or not)."""
+    reference_absolute: dict[str, bool] | None = None
+    """Structured light, read from the folder or the bench YAML: whether the sequence decodes absolutely
+    along each axis (``{"x": bool, "y": bool}``), for a session that is another's order reference."""
 
     def frame_selection(self, sel: Any) -> list[int]:
         if sel == "first":
@@ -100,7 +110,22 @@ def _from_sl_session(path: Path) -> SessionPlan:
         calibration_session=s.calibration_session,
         sequence=s.spec,
         oneshot_frames=s.spec.oneshot_frames,
+        oneshot_axis=_trapezoid_axis(s.spec),
+        oneshot_reference=s.oneshot_reference,
+        reference_absolute=_absolute_axes(s.spec),
     )
+
+
+def _trapezoid_axis(spec: Any) -> str | None:
+    from huefringe.codecs.sequence import TrapezoidBlock
+
+    return next((b.axis for b in spec.blocks if isinstance(b, TrapezoidBlock)), None)
+
+
+def _absolute_axes(spec: Any) -> dict[str, bool]:
+    from huefringe.codecs.sequence import axis_is_absolute
+
+    return {a: bool(axis_is_absolute(spec, a)) for a in ("x", "y")}
 
 
 def _from_session(path: Path) -> SessionPlan:
@@ -228,6 +253,7 @@ def plan_sessions(config: dict[str, Any], base: str | Path = ".") -> dict[str, S
             refused.append(f"session {entry} cannot be written by the bench:\n{exc}")
             continue
         _add(plans, plan, config)
+    refused += _link_references(plans, base, config, bench_sessions)
     refused += _link_calibrations(plans, base, config, bench_sessions)
     if refused:
         head = f"{len(refused)} of {len(config['sessions'])} sessions refused:\n" if len(refused) > 1 else ""
@@ -251,11 +277,52 @@ def _plan_folder(path: Path, base: Path, bench_sessions: dict[str, str]) -> Sess
 
 def _from_sl_bench(path: Path, cfg_path: Path) -> SessionPlan:
     info = bench.sl_session_plan(bench.load_sl_bench_config(cfg_path))
-    cal = info["calibration_session"]
+    cal, ref = info["calibration_session"], info["oneshot_reference"]
     return SessionPlan(path=path, id=str(info["id"]), frames=[0], phase_shift=[], ground_truth=bool(info["ground_truth"]),
                        specimen=bool(info["features"]), bench=str(cfg_path), kind="structured-light",
                        calibrate=bool(info["poses"]), calibration_session=None if cal is None else path / cal,
-                       oneshot_frames=int(info["oneshot_frames"]))
+                       oneshot_frames=int(info["oneshot_frames"]), oneshot_axis=info["oneshot_axis"],
+                       oneshot_reference=None if ref is None else path / ref, reference_absolute=info["absolute_axes"])
+
+
+def _link_references(plans: dict[str, SessionPlan], base: Path, config: dict[str, Any],
+                     bench_sessions: dict[str, str]) -> list[str]:
+    """Give each one-shot session that names a reference session (``oneshot: {reference: {session:
+    PATH}}``) that session: one of the run, else added to it (not measured) from its folder or the
+    bench YAML that writes it; refused when it cannot be read or does not decode absolutely along the
+    trapezoid's axis."""
+    def full(p: Path) -> Path:
+        return (p if p.is_absolute() else base / p).resolve()
+
+    by_path = {full(p.path): p for p in plans.values()}
+    bench_by_path = {full(Path(k)): Path(k) for k in bench_sessions}
+    refused = []
+    for plan in list(plans.values()):
+        if plan.oneshot_reference is None or not plan.measure:
+            continue
+        target = full(plan.oneshot_reference)
+        other = by_path.get(target)
+        if other is None:
+            try:
+                other = _plan_folder(bench_by_path.get(target, target), base, bench_sessions)
+            except (SessionError, bench.BenchConfigError) as exc:
+                refused.append(f"session {plan.path}: its one-shot reference session {target} is refused:\n{exc}")
+                continue
+            other.measure = False
+            _add(plans, other, config)
+            by_path[target] = other
+        axis = plan.oneshot_axis or "x"
+        if other.kind != "structured-light":
+            refused.append(f"session {plan.path}: its one-shot reference session {target} is not a structured-light "
+                           "session")
+        elif not (other.reference_absolute or {}).get(axis, False):
+            seq = full(other.path) / "sequence.yaml"
+            refused.append(f"session {plan.path}: its one-shot reference session {target}: {seq} does not decode "
+                           f"absolutely along {axis}, the trapezoid's axis (Gray code + phase, or two periods): no order "
+                           "reference")
+        else:
+            plan.reference_id = other.id
+    return refused
 
 
 def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[str, Any],
@@ -269,7 +336,7 @@ def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[s
     bench_by_path = {full(Path(k)): Path(k) for k in bench_sessions}
     refused = []
     for plan in list(plans.values()):
-        if plan.measure and plan.sequence is not None:
+        if plan.measure and plan.sequence is not None and plan.oneshot_reference is None:
             refused += [f"session {plan.path} is refused:\n{full(plan.path) / 'sequence.yaml'}: {p}"
                         for p in relative_axes_problems(plan.sequence, config["rig"]["triangulation"])]
         if plan.kind != "structured-light" or plan.calibration_file:

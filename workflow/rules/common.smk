@@ -190,6 +190,22 @@ def oneshot_outputs(sid):
     }
 
 
+def oneshot_reference_inputs(sid):
+    """The files of the session whose coded captures are one-shot session ``sid``'s order reference
+    (``oneshot: {reference: {session: PATH}}``): its session.yaml (which rule bench_session writes
+    for a bench session) and, when the folder is there as planned, every file of it."""
+    ref = PLANS[sid].reference_id
+    if ref is None:
+        return []
+    folder = Path(session_dir(ref))
+    files = [str(folder / "session.yaml")]
+    if (folder / "session.yaml").is_file():
+        from huefringe.session import load_sl_session
+
+        files += [str(p) for p in load_sl_session(folder).input_files()]
+    return sorted(set(files))
+
+
 def rig_report_frames(kind):
     """The rig_metrology input ``kind`` (a RIG_FRAME_FILES key): frame_0000's file, or every one-shot
     frame's for a one-shot session (its report carries each figure's per-frame series).

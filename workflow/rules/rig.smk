@@ -80,7 +80,8 @@ rule rig_measure:
 
 
 # A session with one-shot frames (trapezoid blocks): one job measures them frame after frame (the
-# coded blocks decoded once as the order reference, the hue table from the bands) into the files
+# coded blocks decoded once as the order reference, or those of the reference session it names,
+# whose files are inputs; the hue table from the bands) into the files
 # rig_measure writes, one set per frame; a rule per session, as the frame count names its outputs.
 for _sid in ONESHOT_IDS:
 
@@ -91,6 +92,7 @@ for _sid in ONESHOT_IDS:
             session=str(Path(session_dir(_sid)) / "session.yaml"),
             calibration=rig_calibration(_sid),
             jackknife=rig_jackknife(_sid),
+            reference=oneshot_reference_inputs(_sid),
         output:
             **oneshot_outputs(_sid),
         log:
@@ -146,6 +148,7 @@ rule rig_metrology:
         calibration=rig_calibration,
         jackknife=rig_jackknife,
         calibration_report=rig_calibration_report,
+        reference=lambda w: oneshot_reference_inputs(w.sid),
         xyz=rig_report_frames("xyz"),
         xyz_sigma=rig_report_frames("xyz_sigma"),
         decoded=rig_report_frames("decoded"),

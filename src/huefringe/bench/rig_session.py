@@ -1,7 +1,8 @@
 """Structured-light sessions written by the bench rig: calibration poses, object scenes, ground truth.
 
 One YAML file (format ``huefringe-sl-bench/1``, schema ``sl_bench.schema.json`` beside this
-module; presets ``rig-poses``, ``rig-gauge``, ``rig-board``, ``rig-oneshot``, ``rig-oneshot-vibrating``) describes a
+module; presets ``rig-poses``, ``rig-gauge``, ``rig-board``, ``rig-oneshot``, ``rig-oneshot-vibrating``,
+``rig-base-plane``, ``rig-oneshot-on-base``) describes a
 ``structured-light-session/1`` folder (``docs/spec/structured-light-session.md``):
 
 * ``captures/0000.png ..``: the sequence on the scene (a flat board, or a tilted base plane with
@@ -12,6 +13,8 @@ module; presets ``rig-poses``, ``rig-gauge``, ``rig-board``, ``rig-oneshot``, ``
 * with ``poses``: ``poses/pose_NN/0000.png ..``, a printed board in each pose, and ``board:`` in
   session.yaml (a calibration session);
 * with ``calibration_session``: ``calibration: {session: <relative path>}`` in session.yaml;
+* with ``oneshot_reference``: ``oneshot: {reference: {session: <relative path>}}`` in session.yaml
+  (the one-shot frames' order from another session's coded captures, e.g. the base plane alone);
 * ``features.yaml``: camera-pixel boxes well inside each face of the scene's truth (eroded by
   ``features.margin_px``, clear of shadows), nominal values from the scene;
 * ``ground_truth/x.tiff``, ``y.tiff`` (true projector coordinates) and ``xyz.tiff`` (true
@@ -178,6 +181,9 @@ def validate_sl_bench_config(raw: Any, source: str | os.PathLike[str] = "<dict>"
     if "vibration" in cfg and (kind != "composite" or _spec(cfg).oneshot_frames == 0):
         raise BenchConfigError(source, "vibration: moves a composite scene while its one-shot (trapezoid) frames are "
                                        f"captured; this one is a {kind} scene with {_spec(cfg).oneshot_frames} one-shot frames")
+    if cfg.get("oneshot_reference") and _spec(cfg).oneshot_frames == 0:
+        raise BenchConfigError(source, "oneshot_reference: the order reference of one-shot (trapezoid) frames; the "
+                                       "sequence has none")
     colours = cfg["scene"].get("colours")
     if colours is not None and len(colours) != len(cfg["scene"]["blocks"]):
         raise BenchConfigError(source, f"scene.colours: {len(colours)} coatings for {len(cfg['scene']['blocks'])} blocks")
@@ -193,10 +199,15 @@ def sl_session_plan(cfg: dict[str, Any]) -> dict[str, Any]:
         ``id``; ``poses`` (bool: ``poses/`` and ``board:``); ``pose_names``; ``board`` (the
         board mapping or None); ``calibration_session`` (the relative path or None); ``features``
         (bool: ``features.yaml``); ``ground_truth`` (bool); ``frames`` (captures per sequence);
-        ``format`` (``structured-light-session/1``).
+        ``format`` (``structured-light-session/1``); ``oneshot_frames``; ``oneshot_axis`` (the
+        trapezoid blocks' axis or None); ``absolute_axes`` (``{"x": bool, "y": bool}``: the
+        sequence decodes absolutely along the axis).
     """
+    from huefringe.codecs.sequence import TrapezoidBlock, axis_is_absolute
+
     cfg = validate_sl_bench_config(cfg)
     poses = "poses" in cfg
+    spec = _spec(cfg)
     return {
         "id": cfg["id"],
         "format": "structured-light-session/1",
@@ -204,10 +215,13 @@ def sl_session_plan(cfg: dict[str, Any]) -> dict[str, Any]:
         "pose_names": [f"pose_{i:02d}" for i in range(cfg["poses"]["count"])] if poses else [],
         "board": dict(cfg["poses"]["board"]) if poses else None,
         "calibration_session": cfg.get("calibration_session"),
+        "oneshot_reference": cfg.get("oneshot_reference"),
         "features": _writes_features(cfg),
         "ground_truth": bool(cfg["ground_truth"]),
         "frames": _spec(cfg).n_frames,
         "oneshot_frames": _oneshot_frames(_spec(cfg)),
+        "oneshot_axis": next((b.axis for b in spec.blocks if isinstance(b, TrapezoidBlock)), None),
+        "absolute_axes": {a: bool(axis_is_absolute(spec, a)) for a in ("x", "y")},
     }
 
 
@@ -522,6 +536,8 @@ def write_sl_session(cfg: dict[str, Any], out_dir: str | os.PathLike[str]) -> Pa
             meta["board"] = {"cols": board.cols, "rows": board.rows, "pitch_mm": board.pitch_mm, "kind": board.kind}
         if cfg.get("calibration_session"):
             meta["calibration"] = {"session": cfg["calibration_session"]}
+        if cfg.get("oneshot_reference"):
+            meta["oneshot"] = {"reference": {"session": cfg["oneshot_reference"]}}
         notes = cfg.get("notes") or (f"huefringe bench rig {cfg['rig']}, scene {cfg['scene']['kind']}, "
                                      f"noise {cam['noise_dn']:g} DN, ambient {cam['ambient']:g}")
         if cfg.get("vibration") and not cfg.get("notes"):

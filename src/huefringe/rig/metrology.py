@@ -329,19 +329,31 @@ def rig_report(session: Any, config: Mapping[str, Any], *, calibration: str | os
     forms = {k: v for k, v in forms.items() if v}
     specimen = {"tolerance_mm": feats.tolerance_mm, "steps": [{"name": s["name"], "nominal_mm": s["nominal_mm"]} for s in steps]}
     method_result = {"method": ONESHOT_METHOD if oneshot else METHOD, "frames": nf, "steps": steps}
+    ref_root = getattr(session, "oneshot_reference", None) if oneshot else None
+    ref_doc: dict[str, Any] = {}
     inputs = [p for p in session.input_files()] + [Path(calibration)]
+    if ref_root is not None:
+        from huefringe.session import load_sl_session
+
+        ref = load_sl_session(ref_root)
+        inputs += ref.input_files()
+        ref_doc = {"oneshot_reference": {"session": ref.id, "path": str(ref_root),
+                                         "what": "the coded captures of a plane under the object, captured apart from the "
+                                                 "one-shot frames: their fringe-order reference"}}
+    order_from = (f"the reference session {ref_doc['oneshot_reference']['session']}'s coded captures (a plane under the "
+                  "object)" if ref_doc else "the session's coded blocks on the same scene")
     which = "the first one-shot trapezoid frame's" if nf == 1 else f"each of the {nf} one-shot trapezoid frames'"
     route = (f"{ONESHOT_GEOMETRY}: {which} hue through the per-pixel hue table to the "
-             "projector coordinate, its fringe order from the session's coded blocks on the same scene, triangulated "
+             f"projector coordinate, its fringe order from {order_from}, triangulated "
              "with the rig calibration" + ("" if nf == 1 else "; every figure the mean over the frames") if oneshot else
              "structured light: decoded projector coordinates triangulated with the rig calibration")
     extras: dict[str, Any] = {
         "geometry": {"route": route, "triangulation": mode, "calibration": str(calibration),
-                     **({"name": ONESHOT_GEOMETRY} if oneshot else {})},
+                     **({"name": ONESHOT_GEOMETRY} if oneshot else {}), **ref_doc},
         "forms": forms,
         "provenance": {**collect_provenance(session.id, dict(config), inputs),
                        "capture": session.meta.get("provenance") or {},
-                       **({"geometry": ONESHOT_GEOMETRY} if oneshot else {})},
+                       **({"geometry": ONESHOT_GEOMETRY} if oneshot else {}), **ref_doc},
     }
     if nf > 1:
         extras["uncertainty_over_frames"] = (

@@ -76,6 +76,7 @@ __all__ = ["CODED_GEOMETRY", "ONESHOT_GEOMETRY", "OneShotCaptures", "OneShotCoor
            "OneShotReference", "OneShotResult", "OneShotSession", "absolute_from_reference", "filter_against_reference",
            "hue_table_from_frames",
            "is_oneshot", "measure_oneshot", "measure_oneshot_session", "oneshot_captures", "oneshot_reference",
+           "reference_decode",
            "table_phase_sigma", "trapezoid_coordinate"]
 
 ONESHOT_GEOMETRY = "oneshot-trapezoid via rig calibration"
@@ -627,6 +628,9 @@ class OneShotSession:
     table : HueTable
         The per-pixel hue table of the session's ``hue_bands`` block.
     block : TrapezoidBlock
+    reference_session : Path or None
+        The reference session the order came from (``oneshot: {reference: {session: PATH}}``),
+        resolved; None: the session's own coded blocks.
     """
 
     frames: list[Any]
@@ -634,15 +638,25 @@ class OneShotSession:
     reference: OneShotReference
     table: HueTable
     block: TrapezoidBlock
+    reference_session: Path | None = None
 
     def order_summary(self) -> dict[str, Any]:
         """The order reference and its unambiguous range, for the QA record."""
-        return {"reference": "the session's coded blocks decoded on its own scene (absolute coordinate along "
-                             f"{self.block.axis}): each one-shot frame's order is the one nearest it",
+        if self.reference_session is not None:
+            what = (f"the coded captures of the reference session {self.reference_session} (absolute coordinate along "
+                    f"{self.block.axis}), a plane under the object: each one-shot frame's order is the one nearest it, "
+                    "flagged where the point would lie behind the reference")
+        else:
+            what = ("the session's coded blocks decoded on its own scene (absolute coordinate along "
+                    f"{self.block.axis}): each one-shot frame's order is the one nearest it")
+        return {"reference": what,
+                **({} if self.reference_session is None else {"reference_session": str(self.reference_session)}),
                 "period_px": self.block.period_px, "reference_valid_fraction": float(self.reference.valid.mean()),
                 "unambiguous_range_mm": self.reference.summary(),
                 "what": "how far each pixel's surface may move along its camera ray towards the camera (front) or away "
-                        "(back) from where the coded blocks saw it and keep its order; beyond, pixels are flagged order",
+                        "(back) from where the coded blocks saw it and keep its order; beyond, pixels are flagged order"
+                        + ("" if self.reference_session is None else
+                           " (in front of the reference plane up to the front range; behind it by at most 0.25 mm)"),
                 **({} if self.reference.travel_mm is None else {"travel": self.reference.travel_summary(), "order":
                     "the one candidate inside the declared working volume (travel_mm); none or several: flagged order"})}
 
@@ -662,11 +676,22 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
     with the trapezoid block's ``travel_mm`` the one order inside that working volume, flagged
     ``ORDER`` where none or two are (:func:`absolute_from_reference`).
 
+    A session naming a reference session (``session.oneshot_reference``, from
+    ``oneshot: {reference: {session: PATH}}``) takes its order reference from that session's coded
+    captures instead (:func:`reference_decode`: the same rig and calibration, a plane under the
+    object captured once) and needs no coded blocks of its own; the order is then the one nearest
+    the reference with ``stands_on_reference=True``, as on the plane route: a point more than
+    0.25 mm behind the reference plane is flagged ``ORDER`` (the alias of a surface between half a
+    period and a period in front of it). The hue table still comes from the session's own bands,
+    captured on the object's scene (the table is per pixel of the surface it sees).
+
     Raises
     ------
     RigError
-        No coded blocks along the trapezoid's axis, or relative ones; unreadable or grey one-shot
-        captures; captures not of the calibration's camera size; fewer than 3 points in a frame.
+        No coded blocks along the trapezoid's axis and no reference session, or relative ones; a
+        reference session missing, refused, of another camera, projector or calibration, or
+        decoding too few pixels (:func:`reference_decode`); unreadable or grey one-shot captures;
+        captures not of the calibration's camera size; fewer than 3 points in a frame.
     """
     from huefringe.codecs import Decoded
     from huefringe.rig.measure import RigError, RigFrame, decode_frame
@@ -674,28 +699,38 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
     spec = session.spec
     where = session.root / "sequence.yaml"
     block = next(b for b in spec.blocks if isinstance(b, TrapezoidBlock))
-    if block.axis not in spec.axes():
+    ref_root = getattr(session, "oneshot_reference", None)
+    if ref_root is None and block.axis not in spec.axes():
         raise RigError(f"{where}: the trapezoid frames run along {block.axis}, the sequence has no coded blocks along "
-                       f"{block.axis} to give them their order (Gray code + phase on the same scene)")
+                       f"{block.axis} to give them their order (Gray code + phase on the same scene), and "
+                       f"{session.root / 'session.yaml'} names no reference session "
+                       "(oneshot: {reference: {session: PATH}})")
     try:
-        d = decode_frame(session.read_captures(), spec, cfg)
         caps = oneshot_captures(session.captures, spec)
     except SequenceError as exc:
         raise RigError(str(exc)) from None
-    h, w = d["mean"].shape
+    h, w = caps.white.shape[:2]
     if calib.camera_size != (0, 0) and calib.camera_size != (w, h):
         raise RigError(f"{session.root / 'captures'}: {w} x {h} captures, the calibration's camera is "
                        f"{calib.camera_size[0]} x {calib.camera_size[1]}")
+    if ref_root is None:
+        try:
+            decoded = decode_frame(session.read_captures(), spec, cfg)["decoded"][block.axis]
+        except SequenceError as exc:
+            raise RigError(str(exc)) from None
+        ref_where = where
+    else:
+        decoded, ref_where = reference_decode(session, block, cfg, (w, h))
     try:
-        ref = oneshot_reference(d["decoded"][block.axis], calib, block)
+        ref = oneshot_reference(decoded, calib, block)
     except ValueError as exc:
-        raise RigError(f"{where}: {exc}") from None
+        raise RigError(f"{ref_where}: {exc}") from None
     table = hue_table_from_frames(caps.white, caps.bands, caps.bands_block, model=cfg.get("hue_model", "hexcone"))
     key, other = ("u", "v") if block.axis == "x" else ("v", "u")
     frames, results = [], []
     for k in range(caps.frames.shape[0]):
         res = measure_oneshot(caps.frames[k], caps.white, table, caps.block, calib, ref, bit_depth=caps.bit_depth,
-                              order_sigmas=order_sigmas, stands_on_reference=False)
+                              order_sigmas=order_sigmas, stands_on_reference=ref_root is not None)
         if int(res.valid.sum()) < 3:
             raise RigError(f"{session.root / 'captures'}: one-shot frame {k}: {int(res.valid.sum())} pixels decoded and "
                            "triangulated; nothing to measure")
@@ -709,4 +744,73 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
                 "decoded": {block.axis: dec}}
         frames.append(RigFrame(res.xyz, res.sigma, res.valid, maps, key, res.sigma_ray))
         results.append(res)
-    return OneShotSession(frames, results, ref, table, caps.block)
+    return OneShotSession(frames, results, ref, table, caps.block, ref_root)
+
+
+def reference_decode(session: Any, block: TrapezoidBlock, cfg: dict[str, Any],
+                     camera_size: tuple[int, int]) -> tuple[Decoded, Path]:
+    """The absolute decode, along the trapezoid's axis, of the reference session a one-shot session
+    names (``oneshot: {reference: {session: PATH}}``): its coded captures decoded once.
+
+    Parameters
+    ----------
+    session : SLSession
+        The one-shot session (``oneshot_reference`` set).
+    block : TrapezoidBlock
+        Its trapezoid blocks' pattern (the axis decoded).
+    cfg : dict
+        The run's configuration (``codecs``).
+    camera_size : (int, int)
+        The one-shot captures' width and height.
+
+    Returns
+    -------
+    Decoded
+        The reference's absolute decode along ``block.axis``.
+    Path
+        The reference's ``sequence.yaml`` (for messages).
+
+    Raises
+    ------
+    RigError
+        Every problem at once, each naming its file: the reference missing or not a valid
+        structured-light session, not of the same camera, projector or calibration, its sequence
+        not absolute along the trapezoid's axis, its captures of another size, or fewer decoded
+        pixels than ``codecs.min_valid_fraction`` of the camera.
+    """
+    from huefringe.codecs.sequence import axis_is_absolute
+    from huefringe.rig.measure import RigError, decode_frame
+    from huefringe.session import SessionError, load_sl_session
+    from huefringe.session._structured import oneshot_reference_problems
+
+    root = Path(session.oneshot_reference)
+    here = session.root / "session.yaml"
+    if not (root / "session.yaml").is_file():
+        raise RigError(f"{here}: oneshot/reference: {root} holds no session (session.yaml missing)")
+    problems = [f"{p.path}: {p.message}" if p.path else p.message
+                for p in oneshot_reference_problems(root, here, session.meta, block.axis, session.root)]
+    try:
+        ref = load_sl_session(root)
+    except SessionError as exc:
+        problems.append(f"{here}: oneshot/reference: {root} is refused: {exc}")
+        ref = None
+    if ref is not None and not axis_is_absolute(ref.spec, block.axis):   # type: ignore[arg-type]
+        problems.append(f"{root / 'sequence.yaml'}: no absolute coordinate along {block.axis} (the trapezoid's axis)")
+    if problems:
+        raise RigError("; ".join(dict.fromkeys(problems)))
+    assert ref is not None
+    try:
+        d = decode_frame(ref.read_captures(), ref.spec, cfg)
+    except SequenceError as exc:
+        raise RigError(f"{root / 'captures'}: {exc}") from None
+    dec = d["decoded"][block.axis]
+    hh, ww = d["mean"].shape
+    if (ww, hh) != tuple(camera_size):
+        raise RigError(f"{root / 'captures'}: {ww} x {hh} captures, the one-shot session's are "
+                       f"{camera_size[0]} x {camera_size[1]}")
+    least = float(cfg.get("codecs", {}).get("min_valid_fraction", 0.01))
+    frac = float(np.mean(dec.valid))
+    if frac < least:
+        raise RigError(f"{root / 'captures'}: the reference decodes {frac:.1%} of the camera along {block.axis}, below "
+                       f"codecs.min_valid_fraction {least:.1%}: no order reference for the one-shot frames")
+    return dec, root / "sequence.yaml"

@@ -34,6 +34,7 @@ from numpy.typing import NDArray
 
 from huefringe.codecs.sequence import (
     GrayBlock,
+    TrapezoidBlock,
     PhaseBlock,
     SequenceError,
     SequenceSpec,
@@ -61,7 +62,8 @@ CAPTURES = "captures"
 POSES = "poses"
 CALIBRATION = "calibration"
 GROUND_TRUTH = "ground_truth"
-ASSEMBLY_KEYS = ("id", "calibration", "calibration_session", "poses", "board", "features", "provenance")
+ASSEMBLY_KEYS = ("id", "calibration", "calibration_session", "oneshot_reference", "poses", "board", "features",
+                 "provenance")
 """Keys of an assembly YAML that describe the session; every other key is the sequence's."""
 
 SL_IMAGE_SUFFIXES = (*IMAGE_SUFFIXES, ".bmp")
@@ -89,6 +91,9 @@ class SLSession(SessionMeta):
     """The session whose ``poses/`` calibrate this one (``calibration: {session: PATH}``), resolved."""
     features: Features | None = None
     """``features.yaml``: what to measure."""
+    oneshot_reference: Path | None = None
+    """The session whose coded captures give the one-shot frames their fringe order
+    (``oneshot: {reference: {session: PATH}}``), resolved; None: the sequence's own coded blocks."""
 
     @property
     def board(self) -> dict[str, Any] | None:
@@ -338,6 +343,18 @@ def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
         calib_session = (root / meta["calibration"]["session"]).resolve()
         if (calib_session / "session.yaml").exists():  # an absent one is refused where it is needed (plan, rig-measure)
             problems += calibration_session_problems(calib_session, yaml_path, meta)
+    oneshot_ref = None
+    if "oneshot" in meta:
+        oneshot_ref = (root / meta["oneshot"]["reference"]["session"]).resolve()
+        trap = None if spec is None else next((b for b in spec.blocks if isinstance(b, TrapezoidBlock)), None)
+        if spec is not None and trap is None:
+            problems.append(Problem(yaml_path, "oneshot/reference: the sequence has no trapezoid blocks (one-shot frames) "
+                                               "to give an order reference"))
+        elif oneshot_ref == root.resolve():
+            problems.append(Problem(yaml_path, "oneshot/reference: names this session itself; without oneshot the "
+                                               "sequence's own coded blocks are the reference"))
+        elif trap is not None and (oneshot_ref / "session.yaml").exists():  # an absent one: refused where needed
+            problems += oneshot_reference_problems(oneshot_ref, yaml_path, meta, trap.axis, root)
     features = None
     if (root / FEATURES_FILE).exists():
         features, fp = load_features(root / FEATURES_FILE, cam["width"], cam["height"])
@@ -364,7 +381,7 @@ def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
             gt[p.stem] = p
     if problems or spec is None:
         raise SessionError(problems)
-    return SLSession(root, meta, spec, tuple(captures), calib, poses, gt, calib_session, features)
+    return SLSession(root, meta, spec, tuple(captures), calib, poses, gt, calib_session, features, oneshot_ref)
 
 
 def calibration_session_problems(other: Path, where: Path, meta: dict[str, Any]) -> list[Problem]:
@@ -383,6 +400,60 @@ def calibration_session_problems(other: Path, where: Path, meta: dict[str, Any])
     for key in ("width", "height"):
         if doc.get("camera", {}).get(key) != meta["camera"][key] or doc.get("projector", {}).get(key) != meta["projector"][key]:
             out.append(Problem(where, f"calibration/session: {doc_path} has another camera or projector {key}"))
+    return out
+
+
+def _calibration_identity(meta: dict[str, Any], root: Path) -> tuple[str, str] | None:
+    """What calibrates a session: ``("file", sha256)``, ``("session", resolved folder)`` (its own when
+    its poses and board calibrate it), or None when it names no calibration."""
+    cal = meta.get("calibration") or {}
+    if "sha256" in cal:
+        return ("file", str(cal["sha256"]))
+    if "session" in cal:
+        return ("session", str((root / str(cal["session"])).resolve()))
+    if meta.get("poses") and "board" in meta:
+        return ("session", str(root.resolve()))
+    return None
+
+
+def oneshot_reference_problems(other: Path, where: Path, meta: dict[str, Any], axis: str, root: Path) -> list[Problem]:
+    """An ``oneshot: {reference: {session: PATH}}`` that does not name a structured-light session of
+    the same camera and projector, whose sequence decodes absolutely along the trapezoid's
+    ``axis`` (Gray code + phase, or two periods) and whose calibration, when it names one, is this
+    session's (read from its ``session.yaml`` and ``sequence.yaml`` only; its captures are checked
+    when it is loaded to be decoded)."""
+    from huefringe.codecs.sequence import axis_is_absolute
+
+    doc_path = other / "session.yaml"
+    try:
+        doc = yaml.safe_load(doc_path.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError, UnicodeDecodeError):
+        return [Problem(where, f"oneshot/reference: {other} holds no readable session.yaml")]
+    if not isinstance(doc, dict) or doc.get("format") != SL_FORMAT:
+        return [Problem(where, f"oneshot/reference: {doc_path} is not a {SL_FORMAT} session")]
+    out = []
+    for dev in ("camera", "projector"):
+        mine, theirs = meta[dev], doc.get(dev) if isinstance(doc.get(dev), dict) else {}
+        if (theirs.get("width"), theirs.get("height")) != (mine["width"], mine["height"]):
+            out.append(Problem(where, f"oneshot/reference: {doc_path} has a {theirs.get('width')} x {theirs.get('height')} "
+                                      f"{dev}, this session's is {mine['width']} x {mine['height']}"))
+    seq_path = other / SEQUENCE_FILE
+    try:
+        spec = sequence_from_mapping(yaml.safe_load(seq_path.read_text(encoding="utf-8")), seq_path, other)
+    except (OSError, yaml.YAMLError, UnicodeDecodeError, SequenceError) as exc:
+        out.append(Problem(where, f"oneshot/reference: {seq_path} cannot be read ({exc})"))
+    else:
+        if not axis_is_absolute(spec, axis):  # type: ignore[arg-type]
+            what = (f"does not encode axis {axis}" if axis not in spec.axes()
+                    else f"decodes axis {axis} only within one period")
+            out.append(Problem(where, f"oneshot/reference: {seq_path} {what} (the trapezoid's axis): no absolute "
+                                      f"coordinate to give the one-shot frames their order (Gray code + phase, or two "
+                                      f"periods, along {axis})"))
+    mine_cal, theirs_cal = _calibration_identity(meta, root), _calibration_identity(doc, other)
+    if theirs_cal is not None and theirs_cal != mine_cal:
+        out.append(Problem(where, f"oneshot/reference: {doc_path} is calibrated by {theirs_cal[0]} {theirs_cal[1]}, this "
+                                  f"session by {'nothing' if mine_cal is None else ' '.join(mine_cal)}: the reference "
+                                  "must be captured on the same rig with the same calibration"))
     return out
 
 
@@ -464,7 +535,8 @@ def assemble_sl_session(
         The sequence in :func:`huefringe.codecs.load_sequence`'s YAML form (explicit ``blocks``
         or ``kamino410``, whose ``config`` is relative to ``captures_dir``), plus optional session
         keys :data:`ASSEMBLY_KEYS`: ``id``; ``calibration`` (a FileStorage file),
-        ``calibration_session`` (the session whose poses calibrate this one), ``poses`` (a folder
+        ``calibration_session`` (the session whose poses calibrate this one), ``oneshot_reference``
+        (the session whose coded captures are the one-shot frames' order reference), ``poses`` (a folder
         of pose folders) and ``features`` (a features YAML), paths relative to the YAML's folder;
         ``board`` (the target the poses show) and ``provenance``.
     out_dir : path
@@ -592,6 +664,9 @@ def assemble_sl_session(
             meta["calibration"] = {"file": f"{CALIBRATION}/{dst.name}", "sha256": _sha256(dst)}
         if calib_session is not None:
             meta["calibration"] = {"session": os.path.relpath(calib_session.resolve(), out.resolve())}
+        if extra.get("oneshot_reference"):
+            ref = (seq_yaml.parent / str(extra["oneshot_reference"])).resolve()
+            meta["oneshot"] = {"reference": {"session": os.path.relpath(ref, out.resolve())}}
         if extra.get("board"):
             meta["board"] = extra["board"]
         if features is not None:

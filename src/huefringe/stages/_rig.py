@@ -97,9 +97,11 @@ def rig_measure(session: str, config: Mapping[str, Any], calibration: str, xyz: 
 
 def rig_oneshot(session: str, config: Mapping[str, Any], calibration: str, xyz: Any, xyz_sigma: Any, xyz_u: Any,
                 decoded: Any, cloud: Any, height: Any, uncertainty: Any, x3p: Any, qa: Any, quality: Any,
-                jackknife: Any = "") -> None:
+                jackknife: Any = "", reference: Any = ()) -> None:
     """A one-shot structured-light session (``trapezoid`` frames) measured frame after frame: the
-    coded blocks decoded once as the order reference, the hue table from the bands, then each
+    coded blocks decoded once as the order reference (or the coded captures of the reference
+    session it names, ``oneshot: {reference: {session: PATH}}``, whose files the workflow gives as
+    ``reference`` so that a changed reference re-measures it), the hue table from the bands, then each
     trapezoid frame to X, Y, Z with its uncertainties and the same files as :func:`rig_measure`
     writes (``frame_NNNN`` the one-shot frame's index), each saying the geometry that measured it
     (:data:`huefringe.rig.oneshot.ONESHOT_GEOMETRY`)."""
@@ -120,7 +122,8 @@ def rig_oneshot(session: str, config: Mapping[str, Any], calibration: str, xyz: 
     loo = read_jackknife(_one(jackknife)) if _one(jackknife) else []
     order = run.order_summary()
     prov = dict(s.meta.get("provenance") or {})
-    prov["notes"] = "; ".join(x for x in (prov.get("notes"), f"geometry: {ONESHOT_GEOMETRY}") if x)
+    ref_note = None if run.reference_session is None else f"order reference: session {run.reference_session}"
+    prov["notes"] = "; ".join(x for x in (prov.get("notes"), f"geometry: {ONESHOT_GEOMETRY}", ref_note) if x)
     for k, f in enumerate(run.frames):
         counts = run.results[k].reason_counts()
         _write_frame(s, f, cfg, calib_file, loo, **{key: v[k] for key, v in paths.items()}, frame=k, provenance=prov,
@@ -235,14 +238,15 @@ def rig_surfaces(session: str, height: str, uncertainty: str, mesh: Mapping[str,
 
 def rig_metrology(session: str, config: Mapping[str, Any], calibration: str, xyz: Any, xyz_sigma: Any, decoded: Any,
                   qa: Any, render: str, height_map: str, quality: str, json: str, html: str,
-                  jackknife: Any = "", calibration_report: Any = "") -> None:
+                  jackknife: Any = "", calibration_report: Any = "", reference: Any = ()) -> None:
     """``metrology/report.json`` and ``report.html`` of a structured-light session: its features'
     steps, flatness, plane distances and parallelism, spheres, each with U (k = 2) and the ISO
     14253-1 decision, and the calibration's summary (:func:`huefringe.rig.metrology.rig_report`).
 
     ``xyz``, ``xyz_sigma``, ``decoded`` (and ``qa``) are one frame's files or, for a one-shot
     session, every one-shot frame's in capture order: each figure is then measured on every frame
-    and reported as its per-frame series, mean and standard deviation."""
+    and reported as its per-frame series, mean and standard deviation. ``reference``: the files of the
+    session a one-shot session takes its order from (named in its provenance and inputs' hashes)."""
     s = load_sl_session(session)
     xyz, xyz_sigma, decoded = ([p] if isinstance(p, str) else list(p) for p in (xyz, xyz_sigma, decoded))
     rig_report(s, dict(config), calibration=_calibration_file(s, calibration), xyz=[read_tiff(p) for p in xyz],
