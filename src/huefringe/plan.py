@@ -7,6 +7,7 @@ from its bench configuration.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -291,26 +292,16 @@ def _link_references(plans: dict[str, SessionPlan], base: Path, config: dict[str
     PATH}}``) that session: one of the run, else added to it (not measured) from its folder or the
     bench YAML that writes it; refused when it cannot be read or does not decode absolutely along the
     trapezoid's axis."""
-    def full(p: Path) -> Path:
-        return (p if p.is_absolute() else base / p).resolve()
-
-    by_path = {full(p.path): p for p in plans.values()}
-    bench_by_path = {full(Path(k)): Path(k) for k in bench_sessions}
+    full, by_path, bench_by_path = _run_folders(plans, base, bench_sessions)
     refused = []
     for plan in list(plans.values()):
         if plan.oneshot_reference is None or not plan.measure:
             continue
         target = full(plan.oneshot_reference)
-        other = by_path.get(target)
+        other = _session_of_run(target, plans, by_path, bench_by_path, base, config, bench_sessions, refused,
+                                f"session {plan.path}: its one-shot reference session {target}")
         if other is None:
-            try:
-                other = _plan_folder(bench_by_path.get(target, target), base, bench_sessions)
-            except (SessionError, bench.BenchConfigError) as exc:
-                refused.append(f"session {plan.path}: its one-shot reference session {target} is refused:\n{exc}")
-                continue
-            other.measure = False
-            _add(plans, other, config)
-            by_path[target] = other
+            continue
         axis = plan.oneshot_axis or "x"
         if other.kind != "structured-light":
             refused.append(f"session {plan.path}: its one-shot reference session {target} is not a structured-light "
@@ -325,15 +316,40 @@ def _link_references(plans: dict[str, SessionPlan], base: Path, config: dict[str
     return refused
 
 
+def _run_folders(plans: dict[str, SessionPlan], base: Path, bench_sessions: dict[str, str]
+                 ) -> tuple[Callable[[Path], Path], dict[Path, SessionPlan], dict[Path, Path]]:
+    """Resolving a session folder against ``base``, the run's plans by resolved folder, and the bench
+    sessions' folders by resolved folder."""
+    def full(p: Path) -> Path:
+        return (p if p.is_absolute() else base / p).resolve()
+
+    return full, {full(p.path): p for p in plans.values()}, {full(Path(k)): Path(k) for k in bench_sessions}
+
+
+def _session_of_run(target: Path, plans: dict[str, SessionPlan], by_path: dict[Path, SessionPlan],
+                    bench_by_path: dict[Path, Path], base: Path, config: dict[str, Any],
+                    bench_sessions: dict[str, str], refused: list[str], what: str) -> SessionPlan | None:
+    """The run's plan of the session folder ``target`` (resolved), else that session added to the run,
+    not measured, from its folder or the bench YAML that writes it; None, with ``what`` and the cause
+    in ``refused``, when it cannot be read."""
+    other = by_path.get(target)
+    if other is None:
+        try:
+            other = _plan_folder(bench_by_path.get(target, target), base, bench_sessions)
+        except (SessionError, bench.BenchConfigError) as exc:
+            refused.append(f"{what} is refused:\n{exc}")
+            return None
+        other.measure = False
+        _add(plans, other, config)
+        by_path[target] = other
+    return other
+
+
 def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[str, Any],
                        bench_sessions: dict[str, str]) -> list[str]:
     """Give each structured-light session its calibration: its own file, the session it names (added to
     the run, calibration only, when the configuration does not list it) or its own poses."""
-    def full(p: Path) -> Path:
-        return (p if p.is_absolute() else base / p).resolve()
-
-    by_path = {full(p.path): p for p in plans.values()}
-    bench_by_path = {full(Path(k)): Path(k) for k in bench_sessions}
+    full, by_path, bench_by_path = _run_folders(plans, base, bench_sessions)
     refused = []
     for plan in list(plans.values()):
         if plan.measure and plan.sequence is not None and plan.oneshot_reference is None:
@@ -343,16 +359,10 @@ def _link_calibrations(plans: dict[str, SessionPlan], base: Path, config: dict[s
             continue
         if plan.calibration_session is not None:
             target = full(plan.calibration_session)
-            other = by_path.get(target)
+            other = _session_of_run(target, plans, by_path, bench_by_path, base, config, bench_sessions, refused,
+                                    f"session {plan.path}: its calibration session {target}")
             if other is None:
-                try:
-                    other = _plan_folder(bench_by_path.get(target, target), base, bench_sessions)
-                except (SessionError, bench.BenchConfigError) as exc:
-                    refused.append(f"session {plan.path}: its calibration session {target} is refused:\n{exc}")
-                    continue
-                other.measure = False
-                _add(plans, other, config)
-                by_path[target] = other
+                continue
             if not other.calibrate:
                 refused.append(f"session {plan.path}: its calibration session {target} has no poses and board to calibrate from")
                 continue

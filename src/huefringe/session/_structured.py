@@ -384,16 +384,25 @@ def load_sl_session(root: str | Path, *, deep: bool = False) -> SLSession:
     return SLSession(root, meta, spec, tuple(captures), calib, poses, gt, calib_session, features, oneshot_ref)
 
 
-def calibration_session_problems(other: Path, where: Path, meta: dict[str, Any]) -> list[Problem]:
-    """A ``calibration: {session: PATH}`` that does not name a structured-light session with poses and a
-    board, of the same camera and projector (read from its ``session.yaml`` only)."""
+def _other_session(other: Path, where: Path, key: str) -> tuple[Path, dict[str, Any], list[Problem]]:
+    """Another session's ``session.yaml`` named by ``key`` of ``where``: its path, its document, and
+    the problem (unreadable, or not a structured-light session) when there is one."""
     doc_path = other / "session.yaml"
     try:
         doc = yaml.safe_load(doc_path.read_text(encoding="utf-8"))
     except (OSError, yaml.YAMLError, UnicodeDecodeError):
-        return [Problem(where, f"calibration/session: {other} holds no readable session.yaml")]
+        return doc_path, {}, [Problem(where, f"{key}: {other} holds no readable session.yaml")]
     if not isinstance(doc, dict) or doc.get("format") != SL_FORMAT:
-        return [Problem(where, f"calibration/session: {doc_path} is not a {SL_FORMAT} session")]
+        return doc_path, {}, [Problem(where, f"{key}: {doc_path} is not a {SL_FORMAT} session")]
+    return doc_path, doc, []
+
+
+def calibration_session_problems(other: Path, where: Path, meta: dict[str, Any]) -> list[Problem]:
+    """A ``calibration: {session: PATH}`` that does not name a structured-light session with poses and a
+    board, of the same camera and projector (read from its ``session.yaml`` only)."""
+    doc_path, doc, bad = _other_session(other, where, "calibration/session")
+    if bad:
+        return bad
     out = []
     if not doc.get("poses") or "board" not in doc:
         out.append(Problem(where, f"calibration/session: {doc_path} has no poses and board to calibrate from"))
@@ -424,13 +433,9 @@ def oneshot_reference_problems(other: Path, where: Path, meta: dict[str, Any], a
     when it is loaded to be decoded)."""
     from huefringe.codecs.sequence import axis_is_absolute
 
-    doc_path = other / "session.yaml"
-    try:
-        doc = yaml.safe_load(doc_path.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError, UnicodeDecodeError):
-        return [Problem(where, f"oneshot/reference: {other} holds no readable session.yaml")]
-    if not isinstance(doc, dict) or doc.get("format") != SL_FORMAT:
-        return [Problem(where, f"oneshot/reference: {doc_path} is not a {SL_FORMAT} session")]
+    doc_path, doc, bad = _other_session(other, where, "oneshot/reference")
+    if bad:
+        return bad
     out = []
     for dev in ("camera", "projector"):
         mine, theirs = meta[dev], doc.get(dev) if isinstance(doc.get(dev), dict) else {}
