@@ -15,6 +15,7 @@ import tifffile
 import yaml
 
 from bench_helpers import CONFIG
+from test_rig_workflow import rig_workdir, snakemake
 from huefringe.bench.rig import RIGS
 from huefringe.bench.rig_session import load_sl_bench_config, write_sl_session
 from huefringe.plan import PlanError, plan_sessions
@@ -148,22 +149,11 @@ def test_assembly_writes_the_reference_relative_to_the_session(sessions: dict[st
 
 
 def test_the_workflow_plans_the_reference_as_an_input_of_the_one_shot_rules(tmp_path: Path) -> None:
-    import subprocess
-    import sys
-
-    cfg = json.loads(json.dumps(CONFIG))
-    cfg["sessions"] = ["sessions/rig-oneshot-on-base"]
-    cfg["bench_sessions"] = {"sessions/rig-oneshot-on-base": "rig-oneshot-on-base",
-                             "sessions/rig-base-plane": "rig-base-plane", "sessions/rig-poses": "rig-poses"}
-    cfg.pop("table1", None)
-    plans = plan_sessions(cfg, base=tmp_path)
+    work = rig_workdir(tmp_path, "rig-oneshot-on-base", ("rig-base-plane", "rig-poses"))
+    plans = plan_sessions(yaml.safe_load((work / "config.yaml").read_text()), base=work)
     assert plans["rig-oneshot-on-base"].reference_id == "rig-base-plane"
     assert not plans["rig-base-plane"].measure and plans["rig-base-plane"].calibrated_by == "rig-poses"
-    (tmp_path / "config.yaml").write_text(yaml.safe_dump(cfg))
-    repo = Path(__file__).resolve().parents[1]
-    proc = subprocess.run([sys.executable, "-m", "snakemake", "-s", str(repo / "Snakefile"), "--directory", str(tmp_path),
-                           "-n", "--cores", "2"], capture_output=True, text=True)
-    assert proc.returncode == 0, proc.stderr[-3000:]
+    proc = snakemake(work, "-n", "--cores", "2")   # fails the test, with its output, unless it plans
     out = proc.stdout + proc.stderr
     for rule in ("rule rig_oneshot_rig_oneshot_on_base:", "rule rig_metrology:"):
         block = out.split(rule, 1)[1].split("\n\n", 1)[0]

@@ -13,9 +13,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import tifffile
-import yaml
 from bench_helpers import CONFIG
-from test_rig_workflow import snakemake
+from test_rig_workflow import rig_workdir, snakemake
 
 from huefringe.report import validate_report
 from huefringe.rig.metrology import ONESHOT_METHOD
@@ -24,22 +23,9 @@ from huefringe.rig.oneshot import ONESHOT_GEOMETRY
 TRUTH = {"block-3": 3.0, "block-1": 1.0, "block-4": 4.0}
 
 
-def oneshot_workdir(path: Path) -> Path:
-    """A run folder whose config lists the one-shot session only (its calibration session joins by itself)."""
-    path.mkdir(parents=True, exist_ok=True)
-    cfg = json.loads(json.dumps(CONFIG))
-    cfg["sessions"] = ["sessions/rig-oneshot"]
-    cfg["bench_sessions"] = {"sessions/rig-oneshot": "rig-oneshot", "sessions/rig-poses": "rig-poses"}
-    cfg["render"].update(width=320, height=240)
-    cfg["codecs"]["noise"] = {"read_dn": 1.0, "full_well_e": None}
-    cfg.pop("table1", None)
-    (path / "config.yaml").write_text(yaml.safe_dump(cfg))
-    return path
-
-
 @pytest.fixture(scope="module")
 def run(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    work = oneshot_workdir(tmp_path_factory.mktemp("oneshotwf"))
+    work = rig_workdir(tmp_path_factory.mktemp("oneshotwf"), "rig-oneshot")
     (work / "run.stderr").write_text(snakemake(work, "--cores", "2").stderr)
     return work
 

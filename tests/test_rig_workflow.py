@@ -23,13 +23,14 @@ from huefringe.io import tiff_pixel_pitch_mm
 from huefringe.report import validate_report
 
 
-def rig_workdir(path: Path) -> Path:
-    """A run folder whose config lists the gauge only: its calibration session (named in its
-    session.yaml) joins the run by itself; both are written by the bench."""
+def rig_workdir(path: Path, session: str = "rig-gauge", others: tuple[str, ...] = ("rig-poses",)) -> Path:
+    """A run folder whose config lists bench preset ``session`` only (``sessions/<session>``): the
+    sessions it names (its calibration session, a one-shot reference: ``others``) join the run by
+    themselves; the bench writes every one."""
     path.mkdir(parents=True, exist_ok=True)
     cfg = json.loads(json.dumps(CONFIG))
-    cfg["sessions"] = ["sessions/rig-gauge"]
-    cfg["bench_sessions"] = {"sessions/rig-gauge": "rig-gauge", "sessions/rig-poses": "rig-poses"}
+    cfg["sessions"] = [f"sessions/{session}"]
+    cfg["bench_sessions"] = {f"sessions/{s}": s for s in (session, *others)}
     cfg["render"].update(width=320, height=240)
     cfg["codecs"]["noise"] = {"read_dn": 1.0, "full_well_e": None}  # the bench rig's camera: 1 DN read noise, no shot noise
     cfg.pop("table1", None)
