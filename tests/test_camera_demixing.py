@@ -102,8 +102,8 @@ def test_gate_refuses_bands_that_show_no_fixed_mixing() -> None:
     assert not none["applied"] and "not_applied_because" not in none
 
 
-def test_camera_json_without_the_check_reads_as_before() -> None:
-    """Records of estimates made before the leave-out check (no ``max_segment_spread``) are not
+def test_camera_json_without_the_check_reads_as_stored() -> None:
+    """Records of estimates without the leave-out check (no ``max_segment_spread``) are not
     demixed by auto; the corrections a stored camera.json asks for are read as stored."""
     mix = _truth(bench_config("plain_gauge"))
     est = camera.estimate_channel_mixing(_plate_bands(32, mix), 32)

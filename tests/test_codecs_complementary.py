@@ -137,7 +137,7 @@ def load_sequence_text(text: str) -> SequenceSpec:
     return sequence_from_mapping(yaml.safe_load(text), "sequence.yaml", ".")
 
 
-def test_complementary_block_round_trips_and_plain_blocks_are_written_as_before(tmp_path):
+def test_complementary_block_round_trips_and_adds_one_pattern_after_the_plain_code(tmp_path):
     spec = load_sequence_text("""
 projector: {width: 1024, height: 768}
 blocks:

@@ -210,7 +210,8 @@ def test_the_manual_states_what_is_true_now() -> None:
     """No work-session history in the manual or the README: no "Session 9" headings, no dated
     runs, no "before = main at <hash>"; how the figures moved is CHANGELOG.md's (and git's)."""
     history = re.compile(r"\b[Ss]ession [0-9]+\b|\b[0-9]{1,2} (?:Jan|Feb|Mar|Apr|May|Jun|Jul|Aug|Sep|Oct|Nov|Dec)[a-z]* 20[0-9]{2}\b"
-                         r"|\bmain at [0-9a-f]{7,40}\b|\bHEAD [0-9a-f]{7,40}\b")
+                         r"|\bmain at [0-9a-f]{7,40}\b|\bHEAD [0-9a-f]{7,40}\b"
+                         r"|\bas before\b|, (?:before|now) \||\b(?:before|now): ")
     pages = [p for p in DOCS.rglob("*.md") if p.relative_to(DOCS).parts[0] not in ("spec", "api", "_build")]
     found = [f"{p.relative_to(REPO)}:{i}: {m[0]}" for p in [*pages, REPO / "README.md"]
              for i, line in enumerate(p.read_text(encoding="utf-8").splitlines(), 1) for m in [history.search(line)] if m]
@@ -218,3 +219,5 @@ def test_the_manual_states_what_is_true_now() -> None:
     # and the test sees what it looks for
     assert history.search("## Session 9, after every merge (3 Dec 2026, 17:25 UTC)")
     assert history.search("before = main at f821a46") and not history.search("a capture session with 3 planes, 10 frames")
+    assert history.search("| whole, before | 0.0333 |") and history.search("measures as before (its own")
+    assert not history.search("refused before any work starts") and not history.search("| whole, fixed noise |")

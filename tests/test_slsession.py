@@ -250,7 +250,7 @@ def test_cli_sl_session_and_check(rig, tmp_path: Path, capsys: pytest.CaptureFix
     assert "calibration calibration/rig.yml" in out
 
 
-def test_capture_sessions_load_and_check_as_before(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_capture_sessions_load_and_check_as_capture_sessions(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     root = make_session(tmp_path / "s")
     assert session_format(root) == "capture-session/1"
     assert load_session(root).id == "test-session"

@@ -11,7 +11,7 @@ exposure centred on its instant. White, hue bands and the reference planes are t
 object at rest.
 
 Camera lens (:mod:`.lens`, only with ``camera.model``, ``camera.distortion`` or
-``camera.lateral_ca_px``): the scene is shaded as before on a plate grid (a margin wider than
+``camera.lateral_ca_px``): the scene is shaded as above on a plate grid (a margin wider than
 the image by what the lens shows beyond it), then every camera (sub-)sample takes the light of
 the plate point its ray meets (per colour channel for chromatic aberration; the pinhole's rays
 cast against the surface's height field), by bilinear interpolation of the plate grid, before
