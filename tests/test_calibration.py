@@ -397,6 +397,32 @@ def test_on_image_sees_every_image_as_read_once_in_order_with_prefetch():
     assert a.stats == b.stats
 
 
+def test_on_hue_gives_every_image_the_tables_own_white_balanced_hue():
+    rig = make_rig("gamma2.2")
+    white = rig.white().copy()
+    white[0, 0, 2] = 0.006                              # between one 8-bit count and the table's floor 0.01
+    bands = {(i, r): rig.band(i, 24) for i in range(24) for r in range(2)}
+    paths = [[(i, r) for r in range(2)] for i in range(24)]
+    gains = colour.white_gains(white, cal.white_balance_floor(0.02))
+    seen = []
+
+    def on_hue(i, r, hue):
+        want = colour.balanced_hue(bands[(i, r)], gains, "hexcone", min_saturation=0.05)
+        np.testing.assert_array_equal(hue, want)
+        seen.append((i, r, float(hue[0, 0])))
+
+    a = cal.build_table(paths, white, read=bands.__getitem__, min_intensity=0.02, min_saturation=0.05)
+    b = cal.build_table(paths, white, read=bands.__getitem__, min_intensity=0.02, min_saturation=0.05, on_hue=on_hue)
+    assert [s[:2] for s in seen] == [(i, r) for i in range(24) for r in range(2)]
+    np.testing.assert_array_equal(np.asarray(a.table), np.asarray(b.table))
+    assert cal.white_balance_floor(0.02) == 0.01 and cal.white_balance_floor(0.0) == 1.0 / 255.0
+    # the floor is the table's: one 8-bit count would give that pixel another hue
+    other = colour.white_gains(white, 1.0 / 255.0)
+    moved = [abs(colour.balanced_hue(bands[(i, r)], other, "hexcone", min_saturation=0.05)[0, 0] - h)
+             for i, r, h in seen if np.isfinite(h)]
+    assert max(moved) > 1e-2
+
+
 def test_build_from_png_files_and_preallocated_memmap(tmp_path):
     n, reps, h, w = 32, 2, 6, 20
     rig = ToyRig(surface_rows(h, w, [(3, WHITE), (3, RED)]), gamma=(2.2, 2.2, 2.2), bits=16, noise=0.001)

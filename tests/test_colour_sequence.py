@@ -228,7 +228,7 @@ def test_qa_fires_on_a_rolling_shutter_and_stays_quiet_on_3ccd_and_whole_cycles(
         assert rb["planes"][key]["amplitude_rad"] == pytest.approx(injected, rel=0.15), z
 
 
-def test_flicker_qa_takes_the_reference_tables_means_and_gives_the_numbers_of_reading_again(tmp_path):
+def test_flicker_qa_takes_the_reference_tables_hue_and_gives_the_numbers_of_reading_again(tmp_path):
     from huefringe.huetable import HueTable
 
     cfg = _cfg(sequence=2.25)
@@ -241,6 +241,7 @@ def test_flicker_qa_takes_the_reference_tables_means_and_gives_the_numbers_of_re
     rec = loaded.stats["colour_flicker_means"]
     assert rec["bands"] == [0, 2, 3, 4, 6, 8, 9, 10, 12, 14, 15, 16, 18, 20, 21, 22]     # 16 of 24, evenly spread
     assert all(len(m) == 3 and all(isinstance(v, float) for v in m) for m in rec["mean_hue_rad"])
+    assert rec["floor"] == 0.5 * float(cal["min_intensity"]) == loaded.stats["params"]["floor"]   # the table's own
 
     class NoReading:
         def rgb(self, path):
@@ -255,3 +256,7 @@ def test_flicker_qa_takes_the_reference_tables_means_and_gives_the_numbers_of_re
     other = {**cal, "min_saturation": float(cal["min_saturation"]) + 0.01}
     with pytest.raises(AssertionError, match="read again"):
         reference_colour_flicker(s, CONFIG["hue_model"], other, NoReading(), table=loaded)
+    # a table whose means do not say their white-balance floor: read again
+    loaded.stats["colour_flicker_means"] = {k: v for k, v in rec.items() if k != "floor"}
+    with pytest.raises(AssertionError, match="read again"):
+        reference_colour_flicker(s, CONFIG["hue_model"], cal, NoReading(), table=loaded)

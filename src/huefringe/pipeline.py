@@ -26,9 +26,9 @@ from numpy.typing import NDArray
 from huefringe import kernel, phase_error, row_banding, texture
 from huefringe.camera import CameraModel, CaptureReader, bayer_resampling, camera_record, corrections, mixing_band_pairs
 from huefringe.colour import hue as hue_of
-from huefringe.colour import white_balance
+from huefringe.colour import balanced_hue, white_balance, white_gains
 from huefringe.height import PlaneCalibration, PlaneCalibrationError, calibrate_planes
-from huefringe.huetable import HueTable, HueTableError, build_table
+from huefringe.huetable import HueTable, HueTableError, build_table, white_balance_floor
 from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
 from huefringe.session import Session
 from huefringe.uncertainty import PixelBudget, add_lateral, noise_correlation, phase_error_residual_rad, pixel_budget
@@ -125,8 +125,8 @@ def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mappi
     """The hue table of a session's reference plate or object, in memory (:func:`hue_table` writes it);
     the captures read through ``reader`` (the camera corrections; default: as stored). The
     reference table's ``stats["colour_flicker_means"]`` carries the image-mean hues of the
-    colour-flicker QA's bands (:func:`reference_colour_flicker`), taken from the images as the table
-    reads them.
+    colour-flicker QA's bands (:func:`reference_colour_flicker`), taken from the table's own
+    white-balanced hue as it builds.
 
     Raises
     ------
@@ -145,9 +145,9 @@ def session_hue_table(s: Session, which: str, hue_model: str, calibration: Mappi
             f"{100 * limit:g} %, calibration.max_white_clipped_fraction): white balance needs the unclipped level; "
             "reduce the exposure"
         )
-    flicker = _FlickerMeans(len(bands), len(bands[0]), white, hue_model, calibration) if which == "reference" else None
+    flicker = _FlickerMeans(len(bands), len(bands[0]), hue_model, calibration) if which == "reference" else None
     built = build_table(bands, white, model=hue_model, progress=False, read=reader.rgb,
-                        on_image=None if flicker is None else flicker.add, **_calibration_opts(calibration))
+                        on_hue=None if flicker is None else flicker.add, **_calibration_opts(calibration))
     _refuse_bad_table(s.root / which / "hue", built.stats)
     if flicker is not None:
         built.stats["colour_flicker_means"] = flicker.record()
@@ -265,34 +265,40 @@ def flicker_bands(n: int) -> list[int]:
     return sorted({int(round(i * n / min(n, FLICKER_BANDS))) % n for i in range(min(n, FLICKER_BANDS))})
 
 
-class _FlickerMeans:
-    """The colour-flicker QA's image-mean hues (:func:`huefringe.row_banding.mean_hue` of the
-    white-balanced hue) of :func:`flicker_bands`, gathered from the images as the hue table reads them."""
+def _flicker_floor(calibration: Mapping[str, Any]) -> float:
+    """The white-balance floor of the colour-flicker QA's hue: the reference table's own."""
+    return white_balance_floor(float(calibration["min_intensity"]))
 
-    def __init__(self, n_bands: int, repeats: int, white: NDArray[np.floating], hue_model: str,
-                 calibration: Mapping[str, Any]) -> None:
+
+class _FlickerMeans:
+    """The colour-flicker QA's image-mean hues (:func:`huefringe.row_banding.mean_hue`) of
+    :func:`flicker_bands`, taken from the white-balanced hue the hue table computes as it builds
+    (``build_table(on_hue=...)``: its floor, :func:`_flicker_floor`, and minimum saturation)."""
+
+    def __init__(self, n_bands: int, repeats: int, hue_model: str, calibration: Mapping[str, Any]) -> None:
         self.bands = flicker_bands(n_bands) if repeats >= 2 else []
         self.means: dict[int, list[float | None]] = {i: [None] * repeats for i in self.bands}
-        self.white, self.hue_model = white, hue_model
+        self.hue_model = hue_model
         self.min_saturation = float(calibration["min_saturation"])
+        self.floor = _flicker_floor(calibration)
 
-    def add(self, i: int, r: int, image: NDArray[np.floating]) -> None:
+    def add(self, i: int, r: int, hue: NDArray[np.floating]) -> None:
         if i in self.means:
-            self.means[i][r] = row_banding.mean_hue(hue_of(white_balance(image, self.white), self.hue_model,
-                                                           min_saturation=self.min_saturation))
+            self.means[i][r] = row_banding.mean_hue(hue)
 
     def record(self) -> dict[str, Any]:
-        return {"hue_model": self.hue_model, "min_saturation": self.min_saturation, "bands": self.bands,
-                "mean_hue_rad": [self.means[i] for i in self.bands]}
+        return {"hue_model": self.hue_model, "min_saturation": self.min_saturation, "floor": self.floor,
+                "bands": self.bands, "mean_hue_rad": [self.means[i] for i in self.bands]}
 
 
 def _flicker_means_of(table: HueTable | None, n: int, hue_model: str, calibration: Mapping[str, Any]
                       ) -> list[list[float | None]] | None:
     """The image-mean hues a reference table carries for the colour-flicker QA, when they were taken
-    with this hue model, minimum saturation and band choice; else None."""
+    with this hue model, minimum saturation, white-balance floor and band choice; else None."""
     rec = (table.stats or {}).get("colour_flicker_means") if table is not None else None
     if (not rec or rec.get("hue_model") != hue_model or rec.get("bands") != flicker_bands(n)
-            or rec.get("min_saturation") != float(calibration["min_saturation"])):
+            or rec.get("min_saturation") != float(calibration["min_saturation"])
+            or rec.get("floor") != _flicker_floor(calibration)):
         return None
     return [list(m) for m in rec["mean_hue_rad"]]
 
@@ -303,9 +309,10 @@ def reference_colour_flicker(s: Session, hue_model: str, calibration: Mapping[st
     whether a uniform band's white-balanced hue changes between its repeats (a colour-sequential
     projector with an exposure that is not a whole number of its colour cycles, a flickering
     light, auto white balance). Looks at up to :data:`FLICKER_BANDS` bands, every repeat: their
-    image-mean hues from the reference ``table``'s ``stats["colour_flicker_means"]`` (taken as the
-    table read the images, :func:`session_hue_table`) when it carries them for this hue model and
-    minimum saturation, else read again through ``reader``. QA only.
+    image-mean hues from the reference ``table``'s ``stats["colour_flicker_means"]`` (the table's own
+    hue, taken as it was built, :func:`session_hue_table`) when it carries them for this hue model,
+    minimum saturation and white-balance floor, else read again through ``reader`` and white
+    balanced as the table does (:func:`huefringe.huetable.white_balance_floor` of ``min_intensity``). QA only.
 
     Returns the record kept in ``calib/planes.json`` (``colour_flicker``): the
     :class:`~huefringe.row_banding.ColourFlicker` fields (``amplitude_rad`` None with one repeat);
@@ -318,9 +325,9 @@ def reference_colour_flicker(s: Session, hue_model: str, calibration: Mapping[st
     means = _flicker_means_of(table, n, hue_model, calibration)
     if means is None:
         read = (reader or CaptureReader()).rgb
-        white = read(s.reference_white)
-        means = [[row_banding.mean_hue(hue_of(white_balance(read(p), white), hue_model,
-                                              min_saturation=calibration["min_saturation"]))
+        gains = white_gains(read(s.reference_white), _flicker_floor(calibration))
+        means = [[row_banding.mean_hue(balanced_hue(read(p), gains, hue_model,
+                                                    min_saturation=float(calibration["min_saturation"])))
                   for p in s.reference_bands[i]] for i in flicker_bands(n)]
     fl = row_banding.flicker_from_means(means, threshold_rad=float(calibration["colour_flicker_max_rad"]))
     if fl.suspected:

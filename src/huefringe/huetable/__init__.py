@@ -102,6 +102,7 @@ from ._build import (  # noqa: F401
     _accumulate_kernel,
     _finalise_kernel,
     build_table,
+    white_balance_floor,
 )
 
 __all__ = [
@@ -116,4 +117,5 @@ __all__ = [
     "fit_sensor_noise",
     "hue_band_paths",
     "table_nbytes",
+    "white_balance_floor",
 ]

@@ -225,6 +225,24 @@ def _finalise_kernel(table, sigma, reason, start, coef, max_noise, max_gap, orde
                 table[i, v, u] = q[i]
 
 
+def white_balance_floor(min_intensity: float) -> float:
+    """The white-balance floor :func:`build_table` uses by default: half the table's
+    ``min_intensity`` (pixels whose white image is below it in a channel are masked anyway), one
+    8-bit count (``1 / 255``) when ``min_intensity`` is 0.
+
+    Parameters
+    ----------
+    min_intensity : float
+        The table's minimum white-image level (0..1).
+
+    Returns
+    -------
+    float
+        The floor on the white image before its inversion (:func:`huefringe.colour.white_gains`).
+    """
+    return 0.5 * min_intensity if min_intensity > 0 else 1.0 / 255.0
+
+
 def build_table(
     band_paths: Sequence[Sequence[str | os.PathLike[str]]],
     white: NDArray[np.floating],
@@ -244,6 +262,7 @@ def build_table(
     prefetch: int = 0,
     progress: bool = False,
     on_image: Callable[[int, int, NDArray[np.floating]], None] | None = None,
+    on_hue: Callable[[int, int, NDArray[np.float32]], None] | None = None,
 ) -> HueTable:
     """Build a per-pixel hue table from ``N`` bands x ``R`` repeats, streaming the images.
 
@@ -265,7 +284,7 @@ def build_table(
         Pixels whose white image is below this in any channel are masked ``low_signal``.
     floor : float, optional
         White-balance floor (see :func:`huefringe.colour.white_balance`); default
-        ``min_intensity / 2``.
+        :func:`white_balance_floor` of ``min_intensity`` (``min_intensity / 2``).
     smooth_window, smooth_order : int
         Local-polynomial window (odd, in bands) and degree along the band axis, not crossing the
         code's sextant boundaries (:func:`band_smoothing_matrix`); window <= 1 disables.
@@ -292,6 +311,11 @@ def build_table(
     on_image : callable, optional
         ``on_image(i, r, image)`` with every image as read (band ``i``, repeat ``r``), before it
         is reduced: a caller's own statistics of the same images without reading them again.
+    on_hue : callable, optional
+        ``on_hue(i, r, hue)`` with every image's white-balanced hue as the table takes it
+        (``colour.balanced_hue`` with ``floor`` and ``min_saturation``; float32 ``(H, W)``, NaN
+        where no hue), valid only during the call: a caller's statistics of the table's own hue
+        without computing it again.
 
     Returns
     -------
@@ -318,7 +342,7 @@ def build_table(
         raise ValueError(f"white must be (H, W, 3), got {white.shape}")
     h, w = white.shape[:2]
     if floor is None:
-        floor = 0.5 * min_intensity if min_intensity > 0 else 1.0 / 255.0
+        floor = white_balance_floor(min_intensity)
     if out is None:
         table = np.empty((n, h, w), dtype=np.uint16)
     else:
@@ -347,6 +371,8 @@ def build_table(
                 if img.shape != (h, w, 3):
                     raise ValueError(f"{path}: image shape {img.shape} differs from white {white.shape}")
                 colour.balanced_hue(img, gains, model, min_saturation=min_saturation, out=hues[r])
+                if on_hue is not None:
+                    on_hue(i, r, hues[r])
                 repeat_stats.add(img)
                 if on_image is not None:
                     on_image(i, r, img)
