@@ -685,6 +685,10 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
     period and a period in front of it). The hue table still comes from the session's own bands,
     captured on the object's scene (the table is per pixel of the surface it sees).
 
+    ``cfg['rig']['oneshot_denoise_radius']`` > 0 filters each frame's offset from the reference
+    with that radius and ``cfg['measurement']['denoise_adaptive']`` (:func:`measure_oneshot`,
+    :func:`filter_against_reference`); 0 or absent: unfiltered.
+
     Raises
     ------
     RigError
@@ -726,11 +730,14 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
     except ValueError as exc:
         raise RigError(f"{ref_where}: {exc}") from None
     table = hue_table_from_frames(caps.white, caps.bands, caps.bands_block, model=cfg.get("hue_model", "hexcone"))
+    radius = int((cfg.get("rig") or {}).get("oneshot_denoise_radius") or 0)
+    adaptive = (cfg.get("measurement") or {}).get("denoise_adaptive") if radius > 0 else None
     key, other = ("u", "v") if block.axis == "x" else ("v", "u")
     frames, results = [], []
     for k in range(caps.frames.shape[0]):
         res = measure_oneshot(caps.frames[k], caps.white, table, caps.block, calib, ref, bit_depth=caps.bit_depth,
-                              order_sigmas=order_sigmas, stands_on_reference=ref_root is not None)
+                              order_sigmas=order_sigmas, stands_on_reference=ref_root is not None,
+                              denoise_radius=radius, denoise_adaptive=adaptive)
         if int(res.valid.sum()) < 3:
             raise RigError(f"{session.root / 'captures'}: one-shot frame {k}: {int(res.valid.sum())} pixels decoded and "
                            "triangulated; nothing to measure")
