@@ -36,6 +36,7 @@ from ._noise import (  # noqa: F401
     sigma_from_slope,
     _phase_sigma_map,
     _RATIO2_BOUNDS,
+    OWN_TRUSTED_RAD,
     noise_ratio2,
     _ratio2_kernel,
     sensor_model,

@@ -99,34 +99,50 @@ def _phase_sigma_map(noise, slope, floor_slope, out):  # pragma: no cover - comp
 # --------------------------------------------------------------------------- sensor noise
 
 
-#: Bounds of :func:`noise_ratio2`: a pixel's own-signal noise only ever raises its variance above
-#: the table's measured per-pixel figure (the first-order propagation of the shot + read model
-#: through the hue reads the noise low where the chroma is small: with it alone, |e| <= 2u held for
-#: 0.71 of the dark half of photo_sensor with two repeats, docs/noise.md), and never more than
-#: 1000 times (keeps the filter's float32 sums finite).
-_RATIO2_BOUNDS = (1.0, 1e6)
+#: Bounds of :func:`noise_ratio2`: never less than 1e-6 nor more than 1e6 times the table's figure
+#: (keeps the filter's float32 sums finite).
+_RATIO2_BOUNDS = (1e-6, 1e6)
+#: Own-signal hue noise (rad) up to which its first-order propagation (:func:`frame_hue_noise`) is
+#: trusted below the table's pooled figure. On hexcone hues with Gaussian channel noise the
+#: propagation is within 4 % of the hue's spread up to 0.08 rad and reads it low beyond 0.1 rad
+#: (median 0.95 of it at 0.2-0.4 rad, as low as 0.72 at 0.4-1 rad;
+#: ``benchmarks/hue_noise_first_order.py``; docs/uncertainty.md, "The noise ratio"): where the
+#: chroma is small the table's measured per-pixel figure is kept (with the model alone there,
+#: |e| <= 2u held for 0.71 of the dark half of photo_sensor with two repeats, docs/noise.md).
+OWN_TRUSTED_RAD = 0.05
 
 
 def noise_ratio2(own: NDArray[np.floating], pooled: NDArray[np.floating]) -> NDArray[np.float32]:
-    """``(own / pooled)^2`` per pixel, float32, clipped to ``[1, 1e6]``: how much the frame's
-    own-signal noise variance (:func:`frame_hue_noise`) exceeds the table's measured per-pixel one
-    that weights the phase filter (:func:`capture_noise`; a frame brighter than the bands keeps the
-    measured figure: the model's first-order propagation reads dark pixels low). The filter sums ``w`` times it
+    """How much the frame's own-signal noise variance differs from the table's measured per-pixel
+    one that weights the phase filter (:func:`capture_noise`), float32: ``s^2 / pooled^2`` with
+
+        s^2 = own^2 + lam * max(pooled^2 - own^2, 0),  lam = clip(own / OWN_TRUSTED_RAD - 1, 0, 1)
+
+    clipped to :data:`_RATIO2_BOUNDS` (NaN -> 1). Above the pooled figure the own one counts
+    (a frame darker than the bands); below it, the own one counts where its first-order
+    propagation holds (``own <= OWN_TRUSTED_RAD``), the pooled one where it does not (``own >=
+    2 OWN_TRUSTED_RAD``: the propagation reads a small chroma's noise low), linearly between. The
+    pooled figure is one number per pixel over all the hue bands, while a hue's noise depends on
+    its chroma: on a high-chroma hue it is below the pooled figure (Table 1 at 100 px, the top's
+    hues 0.021-0.025 rad against 0.040 pooled). The filter sums ``w`` times it
     (:func:`huefringe.phase.denoise_phase`'s ``ratio``), so that the uncertainty follows the
     frame's signal while the weights, and so the heights, do not."""
     o = np.ascontiguousarray(own, np.float64)
     out = np.empty(o.shape, np.float32)
     _ratio2_kernel(o.reshape(-1), np.ascontiguousarray(pooled, np.float64).reshape(-1), _RATIO2_BOUNDS[0],
-                   _RATIO2_BOUNDS[1], out.reshape(-1))
+                   _RATIO2_BOUNDS[1], OWN_TRUSTED_RAD, out.reshape(-1))
     return out
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _ratio2_kernel(own, pooled, lo, hi, out):  # pragma: no cover - compiled
+def _ratio2_kernel(own, pooled, lo, hi, trusted, out):  # pragma: no cover - compiled
     """:func:`noise_ratio2`'s loop (NaN -> 1, then clipped)."""
     for i in range(own.size):
-        r = own[i] / pooled[i]
-        r = r * r
+        o = own[i]
+        p2 = pooled[i] * pooled[i]
+        lam = min(max(o / trusted - 1.0, 0.0), 1.0)
+        s2 = o * o + lam * max(p2 - o * o, 0.0)
+        r = s2 / p2
         r = r if r == r else 1.0
         out[i] = np.float32(min(max(r, lo), hi))
 
