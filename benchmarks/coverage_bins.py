@@ -3,6 +3,7 @@ distance to a texture edge or a step edge, on the demo and on photo-textured sce
 realistic sensors.
 
 Usage: ./run python benchmarks/coverage_bins.py [--scenes NAME ...] [--frames-demo 3] [--keep DIR] [--markdown FILE]
+                                                [--filter-check] [--box-chi-z Z]
 
 Scenes (``SCENES``): the capture-session demo (bench preset ``demo``, the session
 ``gauge-blocks-demo`` of config.yaml, 400 x 300, its first ``--frames-demo`` frames), and the
@@ -27,6 +28,10 @@ pixels, target 0.95 +- 0.03):
   the truth's border (NaN).
 
 ``--keep DIR`` keeps the sessions and results (a second run reuses them and only scores).
+``--box-chi-z Z`` measures with ``measurement.denoise_adaptive.box_chi_z`` set to ``Z`` (plane boxes,
+results in a folder of their own beside the default's) and prints, per scene, how the grown pixels
+grew (a box, or the rings after the box's band, scatter or mean test), and runs the filter check
+with it. Each scene also prints the median and 95th percentile of |e|.
 
 ``--filter-check`` adds what the misses come from (docs/uncertainty.md): the phase filter at the
 defaults (radius 2, sigma-adaptive to 0.002 rad, up to radius 6, neighbours rejected beyond
