@@ -5,7 +5,7 @@ Usage::
 
     ./run python benchmarks/bench_stages.py [--sizes 640x480,1280x1024] [--bands 64] [--rounds 5]
                                             [--threads 1] [--markdown OUT.md] [--json OUT.json] [--quick]
-                                            [--page docs/throughput.md]
+                                            [--page docs/throughput.md] [--box-chi-z Z]
 
 On the kernel benchmark's toy rig (``_kernel_case.py``: a hue table built from captured bands, a
 known surface with steps and a dome, coloured and dark reflectance patches, so that the texture
@@ -49,6 +49,10 @@ that time spent waiting for a core on a busy machine is left out; the best wall 
 JSON). The table gives ms per frame and
 each stage's ratio to ``cvtColor``; the chain's frames/s on 2 cores is twice the one-core rate of
 two independent jobs (the workflow's plan).
+
+``--box-chi-z Z`` also times the adaptive support and the uncertainty with
+``measurement.denoise_adaptive.box_chi_z`` set to ``Z`` (plane boxes), interleaved with the
+default's calls in the same rounds, and prints their rows and the compute row they give.
 
 It prints and never fails on a slow machine: nothing is compared with a limit.
 ``--quick`` runs 160 x 120 with 16 bands and 2 rounds (seconds; figures mean nothing).
@@ -100,10 +104,13 @@ def _clock(fn: Callable[[], Any]) -> tuple[float, float]:
     return time.process_time() - c, time.perf_counter() - t
 
 
-def chain(rig: KernelCase, work: Path) -> dict[str, Callable[[], Any]]:
-    """The timed calls of one frame (each a closure over the frame's prepared inputs)."""
+def chain(rig: KernelCase, work: Path, box_chi_z: float | None = None) -> dict[str, Callable[[], Any]]:
+    """The timed calls of one frame (each a closure over the frame's prepared inputs); with
+    ``box_chi_z`` also the adaptive support and the uncertainty with the adaptive support's
+    ``box_chi_z`` set to it (``k2 box``, ``k3 box``), timed in the same rounds."""
     m_cfg = load_defaults()["measurement"]
     adaptive = m_cfg["denoise_adaptive"]
+    boxed = {**adaptive, "box_chi_z": box_chi_z}
     radius = int(m_cfg["denoise_radius"])
     h, w = rig.table.shape
     png = work / "frame.png"
@@ -152,7 +159,12 @@ def chain(rig: KernelCase, work: Path) -> dict[str, Callable[[], Any]]:
         write_tiff(work / "u.tiff", u_map)
         write_tiff(work / "s.tiff", np.rint(support).astype(np.uint16))
 
+    boxes = {} if box_chi_z is None else {
+        "k2 box": lambda: maps(denoise_radius=radius, denoise_adaptive=boxed),
+        "k3 box": lambda: maps(denoise_radius=radius, denoise_adaptive=boxed, want_uncertainty=True),
+    }
     return {
+        **boxes,
         "read": lambda: read_rgb_codes(png),
         "texture": ((lambda: texture.correct_pair(raw, rig.white, BLUR_PX2, BLUR_PX2 + BLUR_U_PX2, clipped=clip))
                     if carried else (lambda: texture.correct(raw, rig.white, BLUR_PX2, clipped=clip))),
@@ -189,8 +201,8 @@ def _timed(calls_of: Callable[[Path], dict[str, Callable[[], Any]]], rounds: int
             {k: 1e3 * min(v) for k, v in wall.items()})
 
 
-def bench_size(rig: KernelCase, rounds: int) -> dict[str, Any]:
-    med, wall_ms = _timed(lambda work: chain(rig, work), rounds, "hf-bench-stages-")
+def bench_size(rig: KernelCase, rounds: int, box_chi_z: float | None = None) -> dict[str, Any]:
+    med, wall_ms = _timed(lambda work: chain(rig, work, box_chi_z), rounds, "hf-bench-stages-")
     ms = {"read": med["read"], "texture": med["texture"], "kernel": med["k0"],
           "filter": max(med["k1"] - med["k0"], 0.0), "adaptive": max(med["k2"] - med["k1"], 0.0),
           "uncertainty": max(med["k3"] - med["k2"], 0.0), "texture u": max(med["texture u"] - med["k3"], 0.0),
@@ -198,7 +210,12 @@ def bench_size(rig: KernelCase, rounds: int) -> dict[str, Any]:
           "write": med["write"]}
     compute = sum(v for k, v in ms.items() if k not in ("read", "write"))
     total = sum(ms.values())
-    return {"size": list(rig.frame.shape[1::-1]), "ms": ms, "compute_ms": compute, "total_ms": total,
+    box = {}
+    if box_chi_z is not None:  # the same frame with plane boxes: adaptive and uncertainty rows, compute
+        ad_b, un_b = max(med["k2 box"] - med["k1"], 0.0), max(med["k3 box"] - med["k2 box"], 0.0)
+        box = {"box_chi_z": box_chi_z, "adaptive_ms": ad_b, "uncertainty_ms": un_b,
+               "compute_ms": compute - ms["adaptive"] - ms["uncertainty"] + ad_b + un_b}
+    return {"size": list(rig.frame.shape[1::-1]), "ms": ms, "compute_ms": compute, "total_ms": total, "box": box,
             "cvtColor_ms": med["cvtColor"], "floor_ms": med["floor"],
             "fps_1core": 1e3 / total, "fps_2cores": 2e3 / total, "floor_fps_2cores": 2e3 / med["floor"],
             "vs_floor": med["floor"] / total, "threads": _THREADS, "wall_best_ms": wall_ms}
@@ -341,6 +358,9 @@ def main(argv: list[str] | None = None) -> int:
                          "oneshot-stages:begin / oneshot-stages:end markers are replaced (those it has)")
     ap.add_argument("--json", type=Path, default=None)
     ap.add_argument("--quick", action="store_true", help="smoke mode: 160 x 120, 16 bands, 2 rounds")
+    ap.add_argument("--box-chi-z", type=float, default=None,
+                    help="also time the adaptive support and the uncertainty with measurement.denoise_adaptive.box_chi_z "
+                         "set to this, interleaved in the same rounds (printed below the plane chain's line)")
     a = ap.parse_args(argv)
     if a.quick:
         a.sizes, a.bands, a.rounds = "160x120", 16, 2
@@ -357,9 +377,13 @@ def main(argv: list[str] | None = None) -> int:
         base = make_case(*sizes[0], n_bands=a.bands)
         for w, h in sizes:
             rig = base if (w, h) == sizes[0] else tile_case(base, w, h)
-            r = bench_size(rig, a.rounds)
+            r = bench_size(rig, a.rounds, a.box_chi_z)
             results.append(r)
             print(f"\n{w} x {h}: " + ", ".join(f"{k} {v:.1f}" for k, v in r["ms"].items()) + " ms", flush=True)
+            if r["box"]:
+                b = r["box"]
+                print(f"  box_chi_z {b['box_chi_z']:g}: adaptive {b['adaptive_ms']:.1f} ms, uncertainty "
+                      f"{b['uncertainty_ms']:.1f} ms, compute {b['compute_ms']:.1f} ms (the rest as above)", flush=True)
             print(f"  compute {r['compute_ms']:.1f} ms, frame {r['total_ms']:.1f} ms; cvtColor {r['cvtColor_ms']:.2f} ms, "
                   f"I/O floor {r['floor_ms']:.2f} ms; 2 cores: {r['fps_2cores']:.1f} frames/s = {r['vs_floor']:.2f} of "
                   f"the floor ({r['floor_fps_2cores']:.0f} frames/s)", flush=True)

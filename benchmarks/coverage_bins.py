@@ -3,6 +3,7 @@ distance to a texture edge or a step edge, on the demo and on photo-textured sce
 realistic sensors.
 
 Usage: ./run python benchmarks/coverage_bins.py [--scenes NAME ...] [--frames-demo 3] [--keep DIR] [--markdown FILE]
+                                                [--filter-check] [--box-chi-z Z]
 
 Scenes (``SCENES``): the capture-session demo (bench preset ``demo``, the session
 ``gauge-blocks-demo`` of config.yaml, 400 x 300, its first ``--frames-demo`` frames), and the
@@ -27,6 +28,10 @@ pixels, target 0.95 +- 0.03):
   the truth's border (NaN).
 
 ``--keep DIR`` keeps the sessions and results (a second run reuses them and only scores).
+``--box-chi-z Z`` measures with ``measurement.denoise_adaptive.box_chi_z`` set to ``Z`` (plane boxes,
+results in a folder of their own beside the default's) and prints, per scene, how the grown pixels
+grew (a box, or the rings after the box's band, scatter or mean test), and runs the filter check
+with it. Each scene also prints the median and 95th percentile of |e|.
 
 ``--filter-check`` adds what the misses come from (docs/uncertainty.md): the phase filter at the
 defaults (radius 2, sigma-adaptive to 0.002 rad, up to radius 6, neighbours rejected beyond
@@ -130,18 +135,56 @@ BINS = {"white level": WHITE_BINS, "texture contrast": CONTRAST_BINS,
         "distance to texture edge": DIST_BINS, "distance to step edge": DIST_BINS}
 
 
-def measure_scene(name: str, root: Path, frames_demo: int) -> dict:
+class BoxShare:
+    """Counts, over the adaptive pass's calls while measuring, the grown pixels (first-pass weight
+    below the target) by how their support grew: a plane box, or the rings after the box's band,
+    scatter or mean test (``phase._adaptive_pass``'s ``boxed`` codes; only with ``box_chi_z`` > 0)."""
+
+    def __init__(self) -> None:
+        from huefringe.phase import _denoise
+        self.counts = np.zeros(5, np.int64)
+        self._mod, self._inner = _denoise, _denoise._adaptive_pass
+
+    def __enter__(self) -> "BoxShare":
+        def spy(*args):  # noqa: ANN002, ANN202 - the pass's positional arguments
+            inv, wfirst, target_w, chi_z = args[2], args[4], args[8], args[14]
+            boxed = np.zeros(inv.shape, np.float32) if chi_z > 0 else args[-1]
+            self._inner(*args[:-1], boxed)
+            if chi_z > 0:
+                grown = (inv > 0) & (wfirst < target_w)
+                self.counts += np.bincount(boxed[grown].astype(np.int64), minlength=5)[:5]
+        self._mod._adaptive_pass = spy
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self._mod._adaptive_pass = self._inner
+
+    def line(self) -> str:
+        if not self.counts.sum():
+            return ""
+        n = int(self.counts.sum())
+        names = ("no box tried", "plane box", "rings: band", "rings: scatter", "rings: mean")
+        return "grown pixels " + str(int(self.counts.sum())) + ": " + ", ".join(
+            f"{k} {c / n:.1%}" for k, c in zip(names, self.counts, strict=True) if c)
+
+
+def measure_scene(name: str, root: Path, frames_demo: int, box_chi_z: float | None = None) -> dict:
+    """The scene measured at config.yaml's defaults (``box_chi_z`` given: with the adaptive support's
+    ``box_chi_z`` set to it, in a results folder of its own), its truth and pixel kinds."""
     case = _demo(frames_demo) if name == "demo" else {**am.CASES, **am.NOISE_CASES}[name]
     where = root / am._slug(name if name != "demo" else f"demo-{frames_demo}")
     session, tables = am._case_dirs(where, case["cfg"])
-    out = where / "all-on"
+    out = where / ("all-on" if box_chi_z is None else f"box-chi-z-{box_chi_z:g}")
+    variant = {} if box_chi_z is None else {"measurement": {"denoise_adaptive": {"box_chi_z": box_chi_z}}}
+    share = BoxShare()
     heights = sorted(out.glob("frame_*[0-9].tiff"))
     if heights and all(Path(str(h).replace(".tiff", ".u.tiff")).exists() for h in heights):
         s = load_session(session)
         paths = {"session": s, "heights": [str(out / f"frame_{n:04d}.tiff") for n in s.frame_ids]}
         paths["uncertainties"] = [h.replace(".tiff", ".u.tiff") for h in paths["heights"]]
     else:
-        paths = am.measure(session, tables, out, am._config({}))
+        with share:
+            paths = am.measure(session, tables, out, am._config(variant))
     s = paths["session"]
     hs = np.stack([tifffile.imread(h).astype(np.float64) for h in paths["heights"]])
     us = np.stack([tifffile.imread(u).astype(np.float64) for u in paths["uncertainties"]])
@@ -152,7 +195,7 @@ def measure_scene(name: str, root: Path, frames_demo: int) -> dict:
     refl, rest = true_maps(case["cfg"])
     return {"e": hs - truths, "u": us, "white": white, "dn": float(2**bit_depth - 1),
             "kinds": pixel_kinds(white, refl, np.where(np.isfinite(truths[0]), rest, np.nan)),
-            "shape": case["cfg"]["session"], "frames": len(s.frame_ids)}
+            "shape": case["cfg"]["session"], "frames": len(s.frame_ids), "share": share.line()}
 
 
 def bin_table(r: dict) -> dict[str, list[dict]]:
@@ -192,13 +235,15 @@ def bin_table(r: dict) -> dict[str, list[dict]]:
 
 def error_parts(r: dict) -> dict[str, float]:
     """On the pixels valid in every frame: rms of e, of the frames' mean of e (the part they share
-    plus noise / sqrt(F)), of the frame-to-frame part (sample sd over the frames: noise), and of u."""
+    plus noise / sqrt(F)), of the frame-to-frame part (sample sd over the frames: noise), of u, and the
+    median and 95th percentile of |e|."""
     e, u = r["e"], r["u"]
     ok = np.all(np.isfinite(e) & np.isfinite(u), axis=0)
     ee = e[:, ok]
     return {"rms_e": float(np.sqrt(np.mean(ee**2))), "rms_mean": float(np.sqrt(np.mean(ee.mean(axis=0) ** 2))),
             "rms_noise": float(np.sqrt(np.mean(ee.var(axis=0, ddof=1)))) if e.shape[0] > 1 else float("nan"),
-            "rms_u": float(np.sqrt(np.mean(u[:, ok] ** 2)))}
+            "rms_u": float(np.sqrt(np.mean(u[:, ok] ** 2))),
+            "median_e": float(np.median(np.abs(ee))), "p95_e": float(np.percentile(np.abs(ee), 95))}
 
 
 def _cell(row: dict) -> str:
@@ -231,8 +276,9 @@ def markdown(results: dict[str, dict], tables: dict[str, dict]) -> list[str]:
     return lines
 
 
-def filter_check(draws: int = 40, seed: int = 1) -> list[str]:
-    """Filtered phase spread over noise draws against ``1 / sqrt(sum w)`` (``--filter-check``)."""
+def filter_check(draws: int = 40, seed: int = 1, box_chi_z: float = 0.0) -> list[str]:
+    """Filtered phase spread over noise draws against ``1 / sqrt(sum w)`` (``--filter-check``;
+    the adaptive support's ``box_chi_z`` as given)."""
     from huefringe.phase import denoise_phase
 
     rng = np.random.default_rng(seed)
@@ -251,7 +297,7 @@ def filter_check(draws: int = 40, seed: int = 1) -> list[str]:
                     ws = np.zeros((h, w), np.float32)
                     d = base + rng.normal(0.0, 1.0, (h, w)).astype(np.float32) * sig
                     outs.append(denoise_phase(d, sig, valid, radius=2, k=k, max_radius=6, target_sigma=0.002,
-                                              reject_sigma=0.03, weight_sum=ws) - base)
+                                              reject_sigma=0.03, weight_sum=ws, box_chi_z=box_chi_z) - base)
                     sums.append(ws)
                 o, ws = np.array(outs)[:, 8:-8, 8:-8], np.array(sums)[:, 8:-8, 8:-8]
                 cells.append(float(np.nanmedian(np.nanstd(o, axis=0) / np.sqrt(np.nanmean(1.0 / ws, axis=0)))))
@@ -264,7 +310,7 @@ def filter_check(draws: int = 40, seed: int = 1) -> list[str]:
             ws = np.zeros((h, w), np.float32)
             d = ramp + rng.normal(0.0, 1.0, (h, w)).astype(np.float32) * sig
             outs.append(denoise_phase(d, sig, valid, radius=2, k=3.0, max_radius=max_r, target_sigma=0.002,
-                                      reject_sigma=0.03, weight_sum=ws) - ramp)
+                                      reject_sigma=0.03, weight_sum=ws, box_chi_z=box_chi_z) - ramp)
             sums.append(ws)
         o, ws = np.array(outs)[:, 8:-8, 8:-8], np.array(sums)[:, 8:-8, 8:-8]
         cells.append(float(np.nanmedian(np.nanstd(o, axis=0) / np.sqrt(np.nanmean(1.0 / ws, axis=0)))))
@@ -281,20 +327,25 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="keep sessions and results here; reuse them")
     ap.add_argument("--markdown", type=Path, default=None, help="also write the Markdown table to this file")
     ap.add_argument("--filter-check", action="store_true", help="also the filter's spread against 1 / sqrt(sum w)")
+    ap.add_argument("--box-chi-z", type=float, default=None,
+                    help="measure with measurement.denoise_adaptive.box_chi_z set to this (results in a folder of "
+                         "their own; default: config.yaml's value)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     results, tables = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         for name in args.scenes:
-            r = measure_scene(name, root, args.frames_demo)
+            r = measure_scene(name, root, args.frames_demo, args.box_chi_z)
             results[name], tables[name] = r, bin_table(r)
             sh = r["shape"]
             print(f"\n## {name} ({SCENES[name]}; {sh['width']} x {sh['height']}, {r['frames']} frames, "
                   f"{time.perf_counter() - t0:.0f} s so far)")
             p = error_parts(r)
             print(f"rms e {p['rms_e']:.4f} mm: frames' mean {p['rms_mean']:.4f}, frame-to-frame {p['rms_noise']:.4f}; "
-                  f"rms u {p['rms_u']:.4f}")
+                  f"rms u {p['rms_u']:.4f}; |e| median {p['median_e']:.4f}, p95 {p['p95_e']:.4f} mm")
+            if r["share"]:
+                print(r["share"])
             print(f"{'bin':28} {'pixels':>8} {'share':>6} {'2u cov':>7} {'rms e/u':>8} {'median u':>9}")
             for kind, rows in tables[name].items():
                 print(f"-- {kind}")
@@ -309,7 +360,7 @@ def main() -> None:
     if args.markdown:
         args.markdown.write_text("\n".join(md) + "\n")
     if args.filter_check:
-        fc = filter_check()
+        fc = filter_check(box_chi_z=args.box_chi_z or 0.0)
         print("\nfiltered phase spread / predicted 1 / sqrt(sum w), median over pixels:\n" + "\n".join(fc))
         if args.markdown:
             with args.markdown.open("a") as fh:

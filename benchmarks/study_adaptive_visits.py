@@ -85,9 +85,9 @@ def main(argv: list[str] | None = None) -> int:
     _denoise_kernel(dz, s2, inv, radius, k2, first, wfirst)
     tw, rw = np.float32(1 / ad["target_sigma"] ** 2), np.float32(1 / ad["reject_sigma"] ** 2)
     out, wout, rad = (np.empty_like(dz) for _ in range(3))
-    none64, none32 = np.empty((1, 1)), np.empty((1, 1), np.float32)
+    none32 = np.empty((1, 1), np.float32)
     args = (dz, s2, inv, first, wfirst, radius, ad["max_radius"], k2, tw, rw, out, wout, rad, True,
-            none64, none64, none64, none64, 0.0, False, none32, none32, none32, none64)
+            0.0, none32, False, none32, none32, none32, none32)
     _adaptive_pass(*args)  # compiled or loaded from the cache
     cpu = []
     for _ in range(a.rounds):

@@ -175,7 +175,7 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
 
 #: ``_adaptive_pass``'s carry arguments when nothing is carried
 _NO_CARRY = (False, np.empty((1, 1), np.float32), np.empty((1, 1), np.float32), np.empty((1, 1), np.float32),
-             np.empty((1, 1)))
+             np.empty((1, 1), np.float32))
 
 
 def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
@@ -196,18 +196,17 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
     k2 = np.float32(9.0)
     _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst)
     none = np.empty((1, 1), np.float32)
-    rings = [np.empty((1, 1)) for _ in range(4)]  # no summed-area tables: rings everywhere (box_chi_z = 0)
     ok = inv > 0
     for max_radius, target, reject in ((4, 0.0008, 0.002), (6, 0.0005, 0.001), (2, 0.0009, 0.0)):
         tw, rw = np.float32(1 / target**2), np.float32(1 / reject**2 if reject else 0.0)
         got, got_w, got_rad = (np.empty_like(dz) for _ in range(3))
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, got_rad, True, *rings, 0.0, *_NO_CARRY)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, got_rad, True, 0.0, none, *_NO_CARRY)  # rings everywhere (box_chi_z = 0)
         want, want_w, want_rad = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw)
         assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))  # the final weight sums too
         assert np.array_equal(got_rad[ok], want_rad[ok])  # and each pixel's final window
         assert got_rad[ok].max() > 1  # windows grew
         bare, bare_w = np.empty_like(dz), np.empty_like(dz)
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, False, *rings, 0.0, *_NO_CARRY)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, False, 0.0, none, *_NO_CARRY)
         assert np.array_equal(bare.view(np.uint32), got.view(np.uint32))
         assert np.array_equal(bare_w.view(np.uint32), got_w.view(np.uint32))
         grown = (inv > 0) & (wfirst < tw)
@@ -216,49 +215,159 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
         assert not np.array_equal(got[grown], first[grown])  # and it changed those pixels
 
 
-def test_adaptive_boxes_are_the_box_mean_where_one_level_and_rings_at_a_step() -> None:
-    """With ``box_chi_z`` the grown support is the whole box's weighted mean and weight
-    sum (O(1) per pixel from summed-area tables) where the box holds one level, and the ring pass's
-    bits wherever a box would cross the step; both estimate the true level alike."""
-    from huefringe.phase import _adaptive_pass, _denoise_kernel, _denoise_weights, _level_tables
+def _box_case(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, radius: int, max_radius: int, target: float,
+              chi_z: float) -> dict[str, np.ndarray]:
+    """The adaptive pass on a map with plane boxes (``chi_z``) and rings only (``chi_z = 0``): each
+    one's phase, weight sums, final half side and the box codes (``boxed``), the inputs, the grown pixels."""
+    from huefringe.phase import _adaptive_pass, _denoise_kernel, _denoise_weights, band_floor
 
-    rng = np.random.default_rng(11)
-    h, w = 40, 60
-    sigma = np.where(rng.random((h, w)) < 0.3, 0.02, 0.004) * rng.uniform(0.5, 2, (h, w))
-    truth = np.where(np.arange(w)[None, :] >= 30, 1.4, 0.4) * np.ones((h, 1))
-    d = wrap(truth + rng.normal(0, 1, (h, w)) * sigma)
-    valid = rng.random((h, w)) > 0.05
+    h, w = d.shape
     dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
     _denoise_weights(d, sigma, valid, dz, s2, inv)
     first, wfirst = np.empty_like(dz), np.empty_like(dz)
     k2 = np.float32(9.0)
-    _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst)
-    tw, rw = np.float32(1 / 0.0007**2), np.float32(0.0)
-    tables = [np.empty((h + 1, w + 1)) for _ in range(4)]
-    _level_tables(dz, inv, *tables)
-    got, got_w, got_rad = (np.empty_like(dz) for _ in range(3))
-    _adaptive_pass(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, got, got_w, got_rad, True, *tables, 3.0, *_NO_CARRY)
-    want, want_w, _ = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw)
-    ok = inv > 0
-    grown = ok & (wfirst < tw)
-    vv, uu = np.nonzero(grown)
-    boxes = 0
-    for v, u in zip(vv, uu, strict=True):
-        r = int(got_rad[v, u])
-        sl = (slice(max(v - r, 0), v + r + 1), slice(max(u - r, 0), u + r + 1))
+    _denoise_kernel(dz, s2, inv, radius, k2, first, wfirst)
+    tw, rw = np.float32(1 / target**2), np.float32(0.0)
+    res: dict[str, np.ndarray] = {"dz": dz, "inv": inv, "grown": (inv > 0) & (wfirst < tw)}
+    for tag, z in (("box", chi_z), ("ring", 0.0)):
+        out, wout, rad, boxed = (np.zeros_like(dz) for _ in range(4))
+        _adaptive_pass(dz, s2, inv, first, wfirst, radius, max_radius, k2, tw, rw, out, wout, rad, True, z,
+                       band_floor(s2, max_radius), *_NO_CARRY[:-1], boxed)
+        res.update({tag: out, tag + "_w": wout, tag + "_rad": rad, tag + "_boxed": boxed})
+    return res
+
+
+@pytest.mark.parametrize("texture", [False, True])
+def test_plane_boxes_equal_the_rings_where_the_rings_take_every_pixel(texture: bool) -> None:
+    """On a ramp (0.004 and 0.003 rad/px) whose pixels the rings all accept (noise-free with one
+    sigma; with textured sigma and noise of half of it), a grown pixel that takes a plane box gets
+    the ring pass's phase, weight sum and half side to float rounding (float64 tables against
+    float32 sums in ring order), and most grown pixels take one."""
+    rng = np.random.default_rng(3)
+    h, w = 48, 64
+    vv, uu = np.mgrid[0:h, 0:w]
+    truth = 0.004 * uu + 0.003 * vv - 0.2
+    sigma = np.full((h, w), 0.03)
+    d = truth.copy()
+    if texture:
+        sigma = 0.03 * np.exp(rng.normal(0, 0.3, (h, w)))
+        d = truth + 0.5 * sigma * rng.normal(0, 1, (h, w))
+    r = _box_case(d, sigma, np.ones((h, w), bool), 1, 6, 0.0035, 3.0)
+    grown, took = r["grown"], r["box_boxed"] == 1
+    assert grown.sum() > 0.9 * h * w and np.all(r["ring_boxed"] == 0)
+    assert took[grown].mean() > 0.6  # most grown pixels take a box (the others: the band near the borders ...)
+    assert np.all(r["box_boxed"][~grown] == 0)
+    same = took & (np.abs(r["ring_w"] / r["box_w"] - 1) < 1e-5)  # ... where the rings took every pixel too
+    assert same.sum() > 0.95 * took.sum()
+    np.testing.assert_allclose(r["box"][same], r["ring"][same], rtol=0, atol=2e-6)
+    np.testing.assert_allclose(r["box_w"][same], r["ring_w"][same], rtol=2e-6)
+    assert np.array_equal(r["box_rad"][same], r["ring_rad"][same])
+    assert np.array_equal(r["box"][~took].view(np.uint32), r["ring"][~took].view(np.uint32))  # the rest: ring bits
+    inner = took & (vv >= 6) & (vv < h - 6) & (uu >= 6) & (uu < w - 6)  # the slope known both sides
+    if not texture:
+        assert np.max(np.abs(r["box"][inner] - truth[inner])) < 2e-6  # a plane's mean at the pixel is its value
+
+
+@pytest.mark.parametrize("chi_z", [3.0, 30.0])
+def test_plane_boxes_never_cross_a_step_or_the_wrap(chi_z: float) -> None:
+    """On a ramp with a step (0.3 rad, 10 sigma of the noisy pixels) and a wrap at +-pi, no plane
+    box holds pixels of both sides of either (the scatter about the plane rejects it), the pixels
+    beside them get the ring pass's bits, and boxes and rings estimate the truth alike."""
+    rng = np.random.default_rng(11)
+    h, w = 40, 90
+    vv, uu = np.mgrid[0:h, 0:w]
+    truth = 0.0025 * uu + 0.0005 * vv + 2.7 + np.where(uu >= 30, 0.3, 0.0)  # crosses pi at u = 49 .. 57
+    sigma = np.where(rng.random((h, w)) < 0.3, 0.03, 0.01) * rng.uniform(0.8, 1.25, (h, w))
+    d = wrap(truth + rng.normal(0, 1, (h, w)) * sigma)
+    valid = rng.random((h, w)) > 0.05
+    r = _box_case(d, sigma, valid, 1, 5, 0.002, chi_z)
+    took = r["box_boxed"] == 1
+    wrap_u = np.argmax(truth > np.pi, axis=1)  # the first column past pi, per row
+    assert np.all((wrap_u > 40) & (wrap_u < 60))
+    assert took[r["grown"]].mean() > 0.3
+    for v, u in zip(*np.nonzero(took), strict=True):
+        rr = int(r["box_rad"][v, u])
+        u0, u1 = u - rr, u + rr
+        assert u1 < 30 or u0 >= 30  # the step
+        rows = wrap_u[max(v - rr, 0):v + rr + 1]
+        assert np.all((u1 < rows) | (u0 >= rows))  # the wrap
+    near = (np.abs(uu - 29.5) < 2) | (np.abs(uu - wrap_u[:, None] + 0.5) < 2)
+    assert np.array_equal(r["box"][near].view(np.uint32), r["ring"][near].view(np.uint32))
+    ok = r["grown"] & np.isfinite(r["box"])
+    e_box = np.abs(wrap(r["box"][ok] - truth[ok]))
+    e_ring = np.abs(wrap(r["ring"][ok] - truth[ok]))
+    assert np.median(e_box) < 1.2 * np.median(e_ring) and np.percentile(e_box, 99) < 1.2 * np.percentile(e_ring, 99)
+
+
+def test_plane_tables_keep_their_precision_far_from_the_origin() -> None:
+    """The boxes' plane statistics from summed-area tables of a 1024 x 1280 map in its global
+    coordinates (the worst case: the pass's tables count rows from each block, a few tens) with
+    weights of 1e6 (sigma 1 mm rad) and phases near +-3: mean and scatter about the plane against
+    the direct float64 sums over the box, at boxes across the map and in its far corner."""
+    from huefringe.phase import _plane_box, _plane_tables
+
+    rng = np.random.default_rng(2)
+    h, w = 1024, 1280
+    vv, uu = np.mgrid[0:h, 0:w]
+    gu, gv = 0.0021, -0.0017
+    d = (np.where(uu < w // 2, 2.9, -2.9) + gu * (uu % 200) + gv * (vv % 150)
+         + 1e-3 * rng.normal(0, 1, (h, w))).astype(np.float32)
+    inv = (1e6 * rng.uniform(0.5, 2, (h, w))).astype(np.float32)
+    inv[rng.random((h, w)) < 0.05] = 0
+    d[inv == 0] = 0
+    xc = float(w // 2)
+    tab = _plane_tables(d, inv, np.empty((1, 1), np.float32), False, xc)
+    worst_mean = worst_chi = 0.0
+    for v, u in [(h - 7, w - 7), (h - 7, 6), (500, 700), (6, w - 7)] + [tuple(x) for x in rng.integers(6, 1000, (40, 2))]:
+        rr = 6
+        sl = (slice(v - rr, v + rr + 1), slice(u - rr, u + rr + 1))
+        ww = inv[sl].astype(np.float64)
+        oy, ox = np.mgrid[-rr:rr + 1, -rr:rr + 1]
+        e = d[sl].astype(np.float64) - gu * ox - gv * oy
+        mean = (ww * e).sum() / ww.sum()
+        chi = (ww * (e - mean) ** 2).sum()
+        bw, bn, m, c, _ = _plane_box(tab, v - rr, v + rr + 1, u - rr, u + rr + 1, u - xc, float(v), gu, gv, 0.0, 0.0)
+        assert bn == (ww > 0).sum() and abs(bw / ww.sum() - 1) < 1e-12
+        worst_mean = max(worst_mean, abs(m - mean))
+        worst_chi = max(worst_chi, abs(c - chi))
+    assert worst_mean < 1e-9  # rad, against a target sigma of 2e-3
+    assert worst_chi < 0.05  # against a chi-square of ~168 +- 18 on a 13 x 13 box
+
+
+def test_plane_boxes_keep_the_carried_map_and_window_sums_consistent() -> None:
+    """With plane boxes the carried map is the box's weighted mean of it, the support and ``sum w
+    ratio`` the box's, where a box was taken; the phase and weights are the same with or without them."""
+    from huefringe.phase import _denoise_weights
+
+    rng = np.random.default_rng(8)
+    h, w = 40, 50
+    vv, uu = np.mgrid[0:h, 0:w]
+    sigma = 0.03 * np.exp(rng.normal(0, 0.3, (h, w)))
+    d = 0.004 * uu + 0.003 * vv + 0.5 * sigma * rng.normal(0, 1, (h, w))
+    valid = rng.random((h, w)) > 0.05
+    c = rng.normal(0, 1, (h, w)).astype(np.float32)
+    ratio = rng.uniform(0.5, 2, (h, w)).astype(np.float32)
+    kw = {"radius": 1, "max_radius": 6, "target_sigma": 0.0035, "box_chi_z": 3.0}
+    cm, ws, rs, sup = (np.zeros((h, w), np.float32) for _ in range(4))
+    got = denoise_phase(d, sigma, valid, carry=c, carry_mean=cm, weight_sum=ws, ratio=ratio, ratio_sum=rs,
+                        support=sup, **kw)
+    ws0 = np.zeros((h, w), np.float32)
+    bare = denoise_phase(d, sigma, valid, weight_sum=ws0, **kw)
+    assert np.array_equal(got.view(np.uint32), bare.view(np.uint32)) and np.array_equal(ws, ws0)
+    r = _box_case(d, sigma, valid, 1, 6, 0.0035, 3.0)
+    assert np.array_equal(r["box"].view(np.uint32), got.view(np.uint32))
+    dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
+    _denoise_weights(d, sigma, valid, dz, s2, inv)
+    took = np.nonzero(r["box_boxed"] == 1)
+    assert took[0].size > 200
+    for v, u in zip(*took, strict=True):
+        rr = int(r["box_rad"][v, u])
+        sl = (slice(max(v - rr, 0), v + rr + 1), slice(max(u - rr, 0), u + rr + 1))
         wb = inv[sl].astype(np.float64)
-        mean = (wb * dz[sl]).sum() / wb.sum()
-        if abs(got[v, u] - mean) < 2e-6 and abs(got_w[v, u] / wb.sum() - 1) < 1e-6:
-            boxes += 1  # a box: every valid pixel of it
-            assert u - r >= 30 or u + r < 30  # no box crosses the step
-        else:  # otherwise the ring pass's bits
-            assert got[v, u].view(np.uint32) == want[v, u].view(np.uint32) and got_w[v, u] == want_w[v, u]
-    assert boxes > 0.5 * grown.sum()  # most grown pixels took a box
-    near = ok & (np.abs(np.arange(w)[None, :] - 29.5) < 2)  # beside the step: the ring pass, bit for bit
-    assert np.array_equal(got[near].view(np.uint32), want[near].view(np.uint32))
-    err_box = np.abs(got[grown] - truth[grown])
-    err_ring = np.abs(want[grown] - truth[grown])
-    assert np.median(err_box) < 1.3 * np.median(err_ring) and err_box.max() < 0.01
+        assert abs(ws[v, u] / wb.sum() - 1) < 1e-6
+        assert abs(cm[v, u] - (wb * c[sl]).sum() / wb.sum()) < 1e-5
+        assert abs(rs[v, u] / (wb * ratio[sl]).sum() - 1) < 1e-5
+        assert abs(sup[v, u] - (wb > 0).sum()) < 1e-3
 
 
 def _exact_sums(dz, s2, inv, r2, radius, k2):

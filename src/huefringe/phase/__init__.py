@@ -34,8 +34,11 @@ from ._passes import (  # noqa: F401
     _window_sums,
     _box_sums,
     window_sums,
-    _level_tables,
+    _table_row,
+    _plane_tables,
     _box,
+    _plane_box,
+    _plane_slope,
     _adaptive_pass,
 )
 from ._denoise import (  # noqa: F401
@@ -43,12 +46,14 @@ from ._denoise import (  # noqa: F401
     denoise_weight_sums,
     denoise_weighted,
     adaptive_kwargs,
+    band_floor,
 )
 
 __all__ = [
     "UnwrapMode",
     "Unwrapped",
     "adaptive_kwargs",
+    "band_floor",
     "denoise_phase",
     "denoise_weight",
     "denoise_weight_sums",

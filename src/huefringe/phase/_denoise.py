@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from huefringe.settings import defaults
 
-from ._passes import _adaptive_pass, _denoise_kernel, _denoise_kernel_carry, _denoise_weights, _level_tables, window_sums
+from ._passes import _adaptive_pass, _denoise_kernel, _denoise_kernel_carry, _denoise_weights, window_sums
 
 
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
@@ -47,9 +48,11 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         Pixels whose filtered sigma stays above this become NaN (invalid); 0 = never.
     box_chi_z : float
         > 0: the adaptive support grows by whole boxes, O(1) per pixel and radius from
-        summed-area tables of the weighted phase and its square, wherever the box is consistent with one level
-        within this many standard deviations of its chi-square (:func:`_adaptive_pass`); the
-        pixels where it is not (steps, outliers) grow ring by ring. 0 = rings everywhere.
+        summed-area tables of the weighted phase, its square and their moments in x and y,
+        wherever the box lies on the local plane the rings use (its scatter about the plane within
+        this many standard deviations of its chi-square, the plane's rise across it within the
+        rings' band; :func:`_adaptive_pass`); the pixels where it does not (steps, outliers, steep
+        ramps) grow ring by ring. 0 = rings everywhere.
     carry, carry_mean : float32 ndarray, optional
         ``carry_mean`` receives each pixel's weighted mean of ``carry`` (finite everywhere) over
         the neighbours its final window accepted, ``sum(w carry) / sum(w)`` (0 where not valid):
@@ -161,17 +164,11 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
         reject_w = np.float32(1.0 / reject_sigma**2) if reject_sigma > 0 else np.float32(0.0)
         rad = np.empty(out.shape if full else (1, 1), np.float32)
         grows = max_radius > radius and target_sigma > 0 and box_chi_z > 0
-        tables = [np.empty((h + 1, w + 1) if grows else (1, 1)) for h, w in [arrays[0].shape] for _ in range(4)]
-        scar = np.empty((1, 1))
-        if grows:
-            _level_tables(arrays[0], arrays[2], *tables)
-            if carry is not None:  # the boxes' sums of w carry
-                scar = np.zeros((out.shape[0] + 1, out.shape[1] + 1))
-                np.cumsum(np.cumsum(arrays[2].astype(np.float64) * c, axis=0), axis=1, out=scar[1:, 1:])
         cfinal = carry_mean if carry is not None else np.empty((1, 1), np.float32)
+        s2min = band_floor(arrays[1], int(max_radius)) if grows else np.empty((1, 1), np.float32)
         _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), k2, target_w, reject_w, final,
-                       wfinal, rad, full, *tables, float(box_chi_z) if grows else 0.0, carry is not None, c, cfirst,
-                       cfinal, scar)
+                       wfinal, rad, full, float(box_chi_z) if grows else 0.0, s2min, carry is not None, c, cfirst,
+                       cfinal, np.empty((1, 1), np.float32))
         out, wsum = final, wfinal
     else:
         rad = np.float32(radius)
@@ -185,6 +182,16 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
             if dst is not None:
                 dst[...] = src
     return out
+
+
+def band_floor(s2: NDArray[np.float32], max_radius: int) -> NDArray[np.float32]:
+    """The smallest ``s2`` within ``max_radius`` px (Chebyshev) of each pixel (OpenCV's ``erode``
+    with a square of side ``2 max_radius + 1``; outside the image counts as no pixel): the floor of
+    the ring pass's band ``k2 (s_j^2 + 1 / wfirst)`` over any box the adaptive pass tries
+    (:func:`_adaptive_pass`)."""
+    side = 2 * int(max_radius) + 1
+    return np.ascontiguousarray(cv2.erode(np.ascontiguousarray(s2, np.float32), np.ones((side, side), np.uint8),
+                                          borderType=cv2.BORDER_CONSTANT, borderValue=float(np.finfo(np.float32).max)))
 
 
 def adaptive_kwargs(opts: dict | None) -> dict:

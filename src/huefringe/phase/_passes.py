@@ -249,58 +249,127 @@ def window_sums(inv: NDArray[np.float32], r2: NDArray[np.float32], rad: NDArray[
     return rsum, cnt
 
 
-@njit(cache=True, nogil=True, parallel=True)
-def _level_tables(d, inv, sw, sc, ss, sn):  # pragma: no cover - compiled
-    """Summed-area tables (float64, ``(H + 1, W + 1)``) of the weights ``w = inv``, ``w d``,
-    ``w d^2`` and the valid pixels: rows summed in parallel, then the columns in parallel."""
+#: the layers of the adaptive pass's summed-area tables (a pixel's weight ``w``, phase ``d``, table coordinates ``x, y``)
+_T_W, _T_D, _T_DD, _T_N, _T_X, _T_Y, _T_XD, _T_YD, _T_XX, _T_YY, _T_XY, _T_C = range(12)
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _table_row(d, inv, c, carry, tab, prev, cur, row, y, xc):  # pragma: no cover - compiled
+    """One row of the summed-area tables (float64, ``tab[slot, u, layer]``, ``(W + 1)`` columns):
+    slot ``cur`` = slot ``prev`` plus the running sums along image row ``row`` of ``w``, ``w d``,
+    ``w d^2``, the valid pixels, ``w x``, ``w y``, ``w x d``, ``w y d``, ``w x^2``, ``w y^2``,
+    ``w x y`` (and ``w c`` with ``carry``), ``x = u - xc`` and ``y`` the row's table coordinates
+    (small integers, so that the sums keep their precision: :func:`_plane_box`)."""
     h, w = d.shape
-    for v in prange(h):
-        aw = 0.0
-        ac = 0.0
-        a_s = 0.0
-        an = 0.0
-        sw[v + 1, 0] = 0.0
-        sc[v + 1, 0] = 0.0
-        ss[v + 1, 0] = 0.0
-        sn[v + 1, 0] = 0.0
-        for u in range(w):
-            iv = np.float64(inv[v, u])
-            if iv > 0:
-                x = np.float64(d[v, u])
-                aw += iv
-                ac += iv * x
-                a_s += iv * x * x
-                an += 1.0
-            sw[v + 1, u + 1] = aw
-            sc[v + 1, u + 1] = ac
-            ss[v + 1, u + 1] = a_s
-            sn[v + 1, u + 1] = an
-    for u in prange(w + 1):
-        sw[0, u] = 0.0
-        sc[0, u] = 0.0
-        ss[0, u] = 0.0
-        sn[0, u] = 0.0
-    for b in prange((w + 1 + 63) // 64):  # column blocks of 64 (contiguous loads down the rows)
-        u0 = b * 64
-        u1 = min(u0 + 64, w + 1)
-        for v in range(1, h + 1):
-            for u in range(u0, u1):
-                sw[v, u] += sw[v - 1, u]
-                sc[v, u] += sc[v - 1, u]
-                ss[v, u] += ss[v - 1, u]
-                sn[v, u] += sn[v - 1, u]
+    nt = tab.shape[2]
+    for k in range(nt):
+        tab[cur, 0, k] = 0.0
+    aw = 0.0
+    ad = 0.0
+    add = 0.0
+    an = 0.0
+    ax = 0.0
+    ay = 0.0
+    axd = 0.0
+    ayd = 0.0
+    axx = 0.0
+    ayy = 0.0
+    axy = 0.0
+    ac = 0.0
+    for u in range(w):
+        iv = np.float64(inv[row, u])
+        if iv > 0:
+            x = np.float64(d[row, u])
+            xu = np.float64(u) - xc
+            wx = iv * xu
+            wy = iv * y
+            aw += iv
+            ad += iv * x
+            add += iv * x * x
+            an += 1.0
+            ax += wx
+            ay += wy
+            axd += wx * x
+            ayd += wy * x
+            axx += wx * xu
+            ayy += wy * y
+            axy += wx * y
+            if carry:
+                ac += iv * np.float64(c[row, u])
+        tab[cur, u + 1, 0] = tab[prev, u + 1, 0] + aw
+        tab[cur, u + 1, 1] = tab[prev, u + 1, 1] + ad
+        tab[cur, u + 1, 2] = tab[prev, u + 1, 2] + add
+        tab[cur, u + 1, 3] = tab[prev, u + 1, 3] + an
+        tab[cur, u + 1, 4] = tab[prev, u + 1, 4] + ax
+        tab[cur, u + 1, 5] = tab[prev, u + 1, 5] + ay
+        tab[cur, u + 1, 6] = tab[prev, u + 1, 6] + axd
+        tab[cur, u + 1, 7] = tab[prev, u + 1, 7] + ayd
+        tab[cur, u + 1, 8] = tab[prev, u + 1, 8] + axx
+        tab[cur, u + 1, 9] = tab[prev, u + 1, 9] + ayy
+        tab[cur, u + 1, 10] = tab[prev, u + 1, 10] + axy
+        if carry:
+            tab[cur, u + 1, 11] = tab[prev, u + 1, 11] + ac
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _plane_tables(d, inv, c, carry, xc):  # pragma: no cover - compiled
+    """Whole summed-area tables ``(H + 1, W + 1, layers)`` of :func:`_table_row` (row ``i`` the
+    sums over image rows ``0 .. i - 1``, ``y`` the image row): what the adaptive pass builds a
+    ring of rows at a time, for tests and studies."""
+    h, w = d.shape
+    tab = np.zeros((h + 1, w + 1, 12 if carry else 11))
+    for i in range(1, h + 1):
+        _table_row(d, inv, c, carry, tab, i - 1, i, i - 1, np.float64(i - 1), xc)
+    return tab
 
 
 @njit(cache=True, inline="always")
-def _box(t, v0, v1, u0, u1):  # pragma: no cover - compiled
-    return t[v1, u1] - t[v0, u1] - t[v1, u0] + t[v0, u0]
+def _box(tab, r0, r1, u0, u1, k):  # pragma: no cover - compiled
+    """Layer ``k`` of a summed-area table summed over a box (table rows ``r0``, ``r1``, columns ``u0``, ``u1``)."""
+    return tab[r1, u1, k] - tab[r0, u1, k] - tab[r1, u0, k] + tab[r0, u0, k]
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _plane_slope(first, wfirst, a, b, c, base):  # pragma: no cover - compiled
+def _plane_box(tab, r0, r1, u0, u1, xp, yp, gu, gv, vgu, vgv):  # pragma: no cover - compiled
+    """A box's statistics about the plane of slope ``(gu, gv)`` (rad/px) through the pixel at table
+    coordinates ``(xp, yp)``, O(1) from the summed-area tables ``tab`` (:func:`_table_row`; the
+    box's top and bottom table rows in slots ``r0``, ``r1``, its columns ``u0 .. u1``): its weight ``W = sum w``, valid pixels ``n``, plane-corrected
+    mean ``sum w (d - g.o) / W`` (``o`` a pixel's offset from the pixel), its weighted scatter about
+    that mean ``sum w (d - g.o - mean)^2`` and the part of that scatter's expectation the slope's
+    own variances ``vgu, vgv`` add, ``vgu sum w (o_x - mean o_x)^2 + vgv sum w (o_y - mean o_y)^2``.
+    The moments are centred on the pixel algebraically (``sum w o_x = sum w x - xp W``, ...) in
+    float64."""
+    bw = _box(tab, r0, r1, u0, u1, 0)
+    sd = _box(tab, r0, r1, u0, u1, 1)
+    sdd = _box(tab, r0, r1, u0, u1, 2)
+    bn = _box(tab, r0, r1, u0, u1, 3)
+    sx = _box(tab, r0, r1, u0, u1, 4)
+    sy = _box(tab, r0, r1, u0, u1, 5)
+    sxd = _box(tab, r0, r1, u0, u1, 6)
+    syd = _box(tab, r0, r1, u0, u1, 7)
+    sxx = _box(tab, r0, r1, u0, u1, 8)
+    syy = _box(tab, r0, r1, u0, u1, 9)
+    sxy = _box(tab, r0, r1, u0, u1, 10)
+    ox = sx - xp * bw
+    oy = sy - yp * bw
+    oxd = sxd - xp * sd
+    oyd = syd - yp * sd
+    oxx = sxx - 2.0 * xp * sx + xp * xp * bw
+    oyy = syy - 2.0 * yp * sy + yp * yp * bw
+    oxy = sxy - xp * sy - yp * sx + xp * yp * bw
+    se = sd - gu * ox - gv * oy
+    see = sdd - 2.0 * (gu * oxd + gv * oyd) + gu * gu * oxx + 2.0 * gu * gv * oxy + gv * gv * oyy
+    mean = se / bw
+    chi = see - se * mean
+    extra = vgu * (oxx - ox * ox / bw) + vgv * (oyy - oy * oy / bw)
+    return bw, bn, mean, chi, extra
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _plane_slope(fl, wl, a, b, c, base):  # pragma: no cover - compiled
     """The local phase slope (rad/px) through a pixel along one axis, and its variance, from the
-    first-pass estimates ``first`` at flat indices ``a`` (``-base`` px), ``b`` (the pixel) and ``c``
-    (``+base`` px), their variances ``1 / wfirst``: the central difference ``(first_c - first_a) /
+    first-pass estimates ``fl`` (the map flattened, C order) at flat indices ``a`` (``-base`` px), ``b`` (the pixel) and ``c``
+    (``+base`` px), their variances ``1 / wl``: the central difference ``(first_c - first_a) /
     (2 base)``, variance ``(1 / wfirst_a + 1 / wfirst_c) / (4 base^2)``, where the two one-sided
     differences agree within 3 standard deviations of their difference and the slope exceeds 2 of
     its own; else 0 (a step, an edge or a kink between the sides, a slope lost in the noise, a side
@@ -309,8 +378,6 @@ def _plane_slope(first, wfirst, a, b, c, base):  # pragma: no cover - compiled
     inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
     pi = np.float32(np.pi)
     zero = np.float32(0.0)
-    fl = first.ravel()
-    wl = wfirst.ravel()
     if a < 0 or c < 0 or wl[a] <= 0 or wl[c] <= 0:
         return zero, zero
     va = np.float32(1.0) / wl[a]
@@ -332,7 +399,7 @@ def _plane_slope(first, wfirst, a, b, c, base):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
-                   rad, full, sw, sc, ss, sn, chi_z, carry, c, cfirst, cout, scar):
+                   rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed):
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
@@ -360,213 +427,282 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     target; each pixel still adds its neighbours in the same order (ring, then row ``dv``, then
     ``du``), so the sums are those of a pixel-by-pixel loop, bit for bit.
 
-    With ``chi_z > 0`` a pixel first tries whole boxes (half side ``radius .. max_radius``) in
-    O(1) each from the summed-area tables of :func:`_level_tables`: the box's weighted mean
-    ``sum w d / sum w`` is taken, with every valid pixel of the box and its weight sum, when the
-    box is consistent with one level (its weighted scatter ``sum w d^2 - (sum w d)^2 / sum w =
-    sum w (d - mean)^2`` within ``chi_z`` standard deviations of its ``n - 1`` expectation: a box
-    across the wrap at +-pi fails it by far) and its mean agrees with the pixel's first-pass
-    estimate within ``k`` combined sigma; at the first box that reaches ``target_w`` (or the
-    last) it stops. A box that fails either test (a step, an outlier, a slope steep for
-    the noise) sends the pixel through the ring pass above. Rows run in parallel (``prange``):
+    With ``chi_z > 0`` a pixel first tries whole boxes (half side ``radius .. max_radius``, clipped
+    to the image) in O(1) each, about the same local plane: from summed-area tables of ``w``,
+    ``w d``, ``w d^2``, the valid pixels and their moments in ``x``, ``y`` (:func:`_table_row`,
+    built a ring of ``2 max_radius + 2`` rows at a time per block of rows, ``x`` centred on the
+    image, ``y`` counted from the block's first table row), the box's plane-corrected weighted mean
+    ``sum w (d_j - p_j) / sum w`` and its scatter about it (:func:`_plane_box`). A box is taken,
+    with every valid pixel of it and its weight sum, when (1) the plane's largest rise across it
+    stays within the ring pass's band for every pixel, ``max p_j^2 <= k2 (s2min + 1 / wfirst)``
+    with ``s2min`` the smallest ``s_j^2`` within ``max_radius`` of the pixel (so that the ring pass
+    would not leave any pixel out for being off the iso-phase band), (2) its scatter about
+    the plane is within ``chi_z`` standard deviations of its ``n - 1`` expectation (plus the slope
+    variances' share): a box across a step, an outlier, a kink or the wrap at +-pi fails it by far,
+    and (3) its mean agrees with the pixel's first-pass estimate within ``k`` combined sigma; at
+    the first box that reaches ``target_w`` (or the last) it stops. A box that fails any test sends
+    the pixel through the ring pass above. Where the ring pass would accept every pixel of the box,
+    both give the same mean and weight sum to float rounding. ``boxed`` (when of the phase's shape)
+    receives 1 where a box was taken, else the test that sent the pixel to the rings: 2 the band,
+    3 the scatter, 4 the mean (0: no box tried). Rows run in parallel (``prange``, blocks of 32 rows):
     each pixel's result depends only on the inputs, not on the threads.
 
     With ``carry``, ``cout`` receives each pixel's weighted mean of ``c`` over the neighbours its
     final window accepted, ``sum w c / sum w``: ``cfirst`` (the first pass's, from
     :func:`_denoise_kernel_carry`) where the first pass stands, the ring pass's own sums where it
-    grew, the box's (``scar``: the summed-area table of ``w c``) where a box was taken. The phase,
+    grew, the box's (a layer ``w c`` of the tables) where a box was taken. The phase,
     ``wout`` and ``rad`` are the same bits with or without it."""
+    h, w = d.shape
+    boxes = chi_z > 0
+    mark = boxed.shape[0] == h and boxed.shape[1] == w
+    big = max_radius
+    nring = 2 * big + 2 if boxes else 1
+    ntab = 12 if carry else 11
+    block = 32
+    xc = np.float64(w // 2)
+    fl = first.ravel()  # the first-pass map and its weights flattened, for the local planes
+    wl = wfirst.ravel()
+    for blk in prange((h + block - 1) // block):
+        vb0 = blk * block
+        t0 = max(vb0 - big, 0)  # table row i: the sums over image rows t0 .. t0 + i - 1
+        tab = np.empty((nring, w + 1 if boxes else 1, ntab))  # a ring of table rows (only its built rows are read)
+        tab[0] = 0.0
+        built = 0
+        for v in range(vb0, min(vb0 + block, h)):
+            _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout, rad,
+                          full, chi_z, s2min, carry, c, cfirst, cout, boxed, mark, boxes, v, tab, nring, t0,
+                          built, xc, fl, wl)
+            if boxes:
+                built = min(v + big + 1, h) - t0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
+                  rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed, mark, boxes, v, tab, nring, t0, built, xc,
+                  fl, wl):
+    """One row of :func:`_adaptive_pass` (its tables' ring built up to the rows the row's boxes reach)."""
     h, w = d.shape
     nan = np.float32(np.nan)
     two_pi = np.float32(2.0 * np.pi)
     inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
     pi = np.float32(np.pi)
     zero = np.float32(0.0)
-    boxes = chi_z > 0
-    for v in prange(h):
-        pu = np.empty(w, np.int64)  # the row's pixels that need the pass, and their running state
-        pm = np.empty(w, np.float32)
-        psf = np.empty(w, np.float32)
-        pgu = np.empty(w, np.float32)  # the local plane: phase slope along u and v (rad/px), variances
-        pgv = np.empty(w, np.float32)
-        pvu = np.empty(w, np.float32)
-        pvv = np.empty(w, np.float32)
-        pdc = np.empty(w, np.float32)
-        pacc = np.empty(w, np.float32)
-        pw = np.empty(w, np.float32)
-        xg = np.empty(w, np.float32)  # scratch: the gathered neighbours
-        ig = np.empty(w, np.float32)
-        sg = np.empty(w, np.float32)
-        cg = np.empty(w, np.float32)  # the gathered carried values (``carry``)
-        pcc = np.empty(w, np.float32)
-        n = 0
-        if full:
-            for u in range(w):
-                rad[v, u] = radius
-        if carry:
-            for u in range(w):
-                cout[v, u] = cfirst[v, u]
+    if boxes:
+        top = min(v + max_radius + 1, h) - t0
+        while built < top:
+            i = built + 1
+            _table_row(d, inv, c, carry, tab, (i - 1) % nring, i % nring, t0 + i - 1, np.float64(i - 1), xc)
+            built = i
+    pu = np.empty(w, np.int64)  # the row's pixels that need the pass, and their running state
+    pm = np.empty(w, np.float32)
+    psf = np.empty(w, np.float32)
+    pgu = np.empty(w, np.float32)  # the local plane: phase slope along u and v (rad/px), variances
+    pgv = np.empty(w, np.float32)
+    pvu = np.empty(w, np.float32)
+    pvv = np.empty(w, np.float32)
+    pdc = np.empty(w, np.float32)
+    pacc = np.empty(w, np.float32)
+    pw = np.empty(w, np.float32)
+    xg = np.empty(w, np.float32)  # scratch: the gathered neighbours
+    ig = np.empty(w, np.float32)
+    sg = np.empty(w, np.float32)
+    cg = np.empty(w, np.float32)  # the gathered carried values (``carry``)
+    pcc = np.empty(w, np.float32)
+    n = 0
+    if full:
         for u in range(w):
-            out[v, u] = first[v, u]
-            wout[v, u] = wfirst[v, u]
-            if inv[v, u] <= 0:
-                continue
-            ws = wfirst[v, u]
-            if ws >= target_w or max_radius <= radius:
-                out[v, u] = first[v, u] if ws >= reject_w else nan
-                continue
-            if boxes:
-                m = np.float64(first[v, u])
-                sf = 1.0 / np.float64(ws)
-                dc = d[v, u]
-                done = False
-                for r in range(radius, max_radius + 1):
-                    v0 = max(v - r, 0)
-                    v1 = min(v + r + 1, h)
-                    u0 = max(u - r, 0)
-                    u1 = min(u + r + 1, w)
-                    bw = _box(sw, v0, v1, u0, u1)
-                    bc = _box(sc, v0, v1, u0, u1)
-                    bs = _box(ss, v0, v1, u0, u1)
-                    bn = _box(sn, v0, v1, u0, u1)
-                    dof = bn - 1.0
-                    mean = bc / bw
-                    chi = bs - bc * mean
-                    dm = mean - m
-                    dm = dm - 2.0 * np.pi * np.floor((dm + np.pi) / (2.0 * np.pi))
-                    if chi > dof + chi_z * np.sqrt(2.0 * max(dof, 1.0)) or dm * dm > k2 * (sf + 1.0 / bw):
-                        break  # not one level: the ring pass decides
-                    if bw >= target_w or r == max_radius:
-                        wb = np.float32(bw)
-                        if wb < ws:  # (as the ring pass) never less support than the first pass
-                            wb = ws
-                            val = first[v, u]
-                        else:
-                            dd = np.float32(mean) - dc
-                            dd = dd - two_pi * np.floor((dd + pi) * inv_two_pi)
-                            val = dc + dd
-                            if full:
-                                rad[v, u] = r
-                            if carry:
-                                cout[v, u] = np.float32(_box(scar, v0, v1, u0, u1) / bw)
-                        out[v, u] = val if wb >= reject_w else nan
-                        wout[v, u] = wb
-                        done = True
-                        break
-                if done:
-                    continue
-            pu[n] = u
-            n += 1
-        if n == 0:
+            rad[v, u] = radius
+    if carry:
+        for u in range(w):
+            cout[v, u] = cfirst[v, u]
+    for u in range(w):
+        out[v, u] = first[v, u]
+        wout[v, u] = wfirst[v, u]
+        if mark:
+            boxed[v, u] = 0.0
+        if inv[v, u] <= 0:
             continue
-        for q in range(n):
-            u = pu[q]
-            pm[q] = first[v, u]
-            psf[q] = np.float32(1.0) / wfirst[v, u]
-            bu = max_radius  # the plane from first-pass estimates as far out as the largest ring
-            pgu[q], pvu[q] = _plane_slope(first, wfirst, v * w + u - bu if u >= bu else -1, v * w + u,
-                                          v * w + u + bu if u + bu < w else -1, np.float32(bu))
-            pgv[q], pvv[q] = _plane_slope(first, wfirst, (v - bu) * w + u if v >= bu else -1, v * w + u,
-                                          (v + bu) * w + u if v + bu < h else -1, np.float32(bu))
-            pdc[q] = d[v, u]
-            pacc[q] = 0.0
-            pw[q] = 0.0
-            pcc[q] = 0.0
-        for r in range(0, max_radius + 1):
-            for dv in range(-r, r + 1):
-                vv = v + dv
-                if vv < 0 or vv >= h:
-                    continue
-                edge_row = dv == -r or dv == r
-                step = 1 if edge_row else 2 * r
-                du = -r
-                while du <= r:
-                    # the neighbours gathered into contiguous scratch rows (the arithmetic below
-                    # is not vectorised on gathered loads), 0 inverse variance outside the image;
-                    # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to sums
-                    # that start at +0 and so are never -0: bit for bit as skipping it. The
-                    # carried map in loops of its own (the same operations on the rest)
-                    fdu = np.float32(du)
-                    fdv = np.float32(dv)
-                    du2 = fdu * fdu
-                    dv2 = fdv * fdv
-                    if carry:
-                        for q in range(n):
-                            uu = pu[q] + du
-                            inb = (uu >= 0) & (uu < w)
-                            uc = min(max(uu, 0), w - 1)
-                            xg[q] = d[vv, uc]
-                            ig[q] = inv[vv, uc] if inb else zero
-                            sg[q] = s2[vv, uc]
-                            cg[q] = c[vv, uc]
-                        for q in range(n):
-                            x = xg[q]
-                            iv = ig[q]
-                            pl = pgu[q] * fdu + pgv[q] * fdv
-                            dm = x - pm[q] - pl
-                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            lim = k2 * (sg[q] + psf[q])
-                            keep = (iv > 0) & (pl * pl <= lim) & (dm * dm <= lim + k2 * (pvu[q] * du2 + pvv[q] * dv2))
-                            diff = x - pdc[q]
-                            diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                            pacc[q] += iv * (diff - pl) if keep else zero
-                            pw[q] += iv if keep else zero
-                            pcc[q] += iv * cg[q] if keep else zero
-                    else:
-                        for q in range(n):
-                            uu = pu[q] + du
-                            inb = (uu >= 0) & (uu < w)
-                            uc = min(max(uu, 0), w - 1)
-                            xg[q] = d[vv, uc]
-                            ig[q] = inv[vv, uc] if inb else zero
-                            sg[q] = s2[vv, uc]
-                        for q in range(n):
-                            x = xg[q]
-                            iv = ig[q]
-                            pl = pgu[q] * fdu + pgv[q] * fdv
-                            dm = x - pm[q] - pl
-                            dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
-                            lim = k2 * (sg[q] + psf[q])
-                            keep = (iv > 0) & (pl * pl <= lim) & (dm * dm <= lim + k2 * (pvu[q] * du2 + pvv[q] * dv2))
-                            diff = x - pdc[q]
-                            diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
-                            pacc[q] += iv * (diff - pl) if keep else zero
-                            pw[q] += iv if keep else zero
-                    du += step if step > 0 else 1
-            if r >= radius or r == max_radius:
-                # a pixel stops once its weights reach the target (or at the last ring): its
-                # result is written and it leaves the list
-                last = r == max_radius
-                keep_n = 0
-                for q in range(n):
-                    if last or pw[q] >= target_w:
-                        u = pu[q]
-                        ws = wfirst[v, u]
-                        wsum = pw[q]
-                        if wsum < ws:  # the grown window found less support than the first pass
-                            wsum = ws
-                            val = pm[q]
-                        else:
-                            val = pdc[q] + pacc[q] / wsum
-                            if full:
-                                rad[v, u] = r
-                            if carry:
-                                cout[v, u] = pcc[q] / wsum
-                        out[v, u] = val if wsum >= reject_w else nan
-                        wout[v, u] = wsum
-                        continue
-                    pu[keep_n] = pu[q]
-                    pm[keep_n] = pm[q]
-                    psf[keep_n] = psf[q]
-                    pvv[keep_n] = pvv[q]
-                    pvu[keep_n] = pvu[q]
-                    pgv[keep_n] = pgv[q]
-                    pgu[keep_n] = pgu[q]
-                    pdc[keep_n] = pdc[q]
-                    pacc[keep_n] = pacc[q]
-                    pw[keep_n] = pw[q]
-                    pcc[keep_n] = pcc[q]
-                    keep_n += 1
-                n = keep_n
-                if n == 0:
+        ws = wfirst[v, u]
+        if ws >= target_w or max_radius <= radius:
+            out[v, u] = first[v, u] if ws >= reject_w else nan
+            continue
+        bu = max_radius  # the plane from first-pass estimates as far out as the largest ring
+        gu, vgu = _plane_slope(fl, wl, v * w + u - bu if u >= bu else -1, v * w + u,
+                               v * w + u + bu if u + bu < w else -1, np.float32(bu))
+        gv, vgv = _plane_slope(fl, wl, (v - bu) * w + u if v >= bu else -1, v * w + u,
+                               (v + bu) * w + u if v + bu < h else -1, np.float32(bu))
+        if boxes:
+            m = np.float64(first[v, u])
+            sf = 1.0 / np.float64(ws)
+            dc = d[v, u]
+            gu8 = np.float64(gu)
+            gv8 = np.float64(gv)
+            xp = np.float64(u) - xc
+            yp = np.float64(v - t0)
+            # the smallest box whose weight reaches the target (or the largest): where the ring
+            # pass accepts every pixel, the ring at which it stops
+            r = radius
+            while True:
+                v0 = max(v - r, 0)
+                v1 = min(v + r + 1, h)
+                u0 = max(u - r, 0)
+                u1 = min(u + r + 1, w)
+                r0 = (v0 - t0) % nring
+                r1 = (v1 - t0) % nring
+                if r == max_radius or _box(tab, r0, r1, u0, u1, 0) >= target_w:
                     break
+                r += 1
+            # the plane's largest rise across the box, against the ring pass's band
+            ax0 = gu8 * (u0 - u)
+            ax1 = gu8 * (u1 - 1 - u)
+            ay0 = gv8 * (v0 - v)
+            ay1 = gv8 * (v1 - 1 - v)
+            rise = max(max(ax0, ax1) + max(ay0, ay1), -(min(ax0, ax1) + min(ay0, ay1)))
+            done = False
+            if rise * rise > k2 * (sf + np.float64(s2min[v, u])):
+                if mark:
+                    boxed[v, u] = 2.0  # the ring pass takes a band of the box only: it decides
+            else:
+                bw, bn, mean, chi, extra = _plane_box(tab, r0, r1, u0, u1, xp, yp,
+                                                      gu8, gv8, np.float64(vgu), np.float64(vgv))
+                dof = bn - 1.0
+                dm = mean - m
+                dm = dm - 2.0 * np.pi * np.floor((dm + np.pi) / (2.0 * np.pi))
+                scattered = chi > dof + extra + chi_z * np.sqrt(2.0 * max(dof, 1.0))
+                if scattered or dm * dm > k2 * (sf + 1.0 / bw):
+                    if mark:
+                        boxed[v, u] = 3.0 if scattered else 4.0  # not one plane: the ring pass decides
+                else:
+                    wb = np.float32(bw)
+                    if wb < ws:  # (as the ring pass) never less support than the first pass
+                        wb = ws
+                        val = first[v, u]
+                    else:
+                        dd = np.float32(mean) - dc
+                        dd = dd - two_pi * np.floor((dd + pi) * inv_two_pi)
+                        val = dc + dd
+                        if full:
+                            rad[v, u] = r
+                        if carry:
+                            cout[v, u] = np.float32(_box(tab, r0, r1, u0, u1, 11) / bw)
+                        if mark:
+                            boxed[v, u] = 1.0
+                    out[v, u] = val if wb >= reject_w else nan
+                    wout[v, u] = wb
+                    done = True
+            if done:
+                continue
+        pu[n] = u
+        pgu[n] = gu
+        pvu[n] = vgu
+        pgv[n] = gv
+        pvv[n] = vgv
+        n += 1
+    if n == 0:
+        return
+    for q in range(n):
+        u = pu[q]
+        pm[q] = first[v, u]
+        psf[q] = np.float32(1.0) / wfirst[v, u]
+        pdc[q] = d[v, u]
+        pacc[q] = 0.0
+        pw[q] = 0.0
+        pcc[q] = 0.0
+    for r in range(0, max_radius + 1):
+        for dv in range(-r, r + 1):
+            vv = v + dv
+            if vv < 0 or vv >= h:
+                continue
+            edge_row = dv == -r or dv == r
+            step = 1 if edge_row else 2 * r
+            du = -r
+            while du <= r:
+                # the neighbours gathered into contiguous scratch rows (the arithmetic below
+                # is not vectorised on gathered loads), 0 inverse variance outside the image;
+                # branch-free (SIMD over the pixels); a neighbour not taken adds +0 to sums
+                # that start at +0 and so are never -0: bit for bit as skipping it. The
+                # carried map in loops of its own (the same operations on the rest)
+                fdu = np.float32(du)
+                fdv = np.float32(dv)
+                du2 = fdu * fdu
+                dv2 = fdv * fdv
+                if carry:
+                    for q in range(n):
+                        uu = pu[q] + du
+                        inb = (uu >= 0) & (uu < w)
+                        uc = min(max(uu, 0), w - 1)
+                        xg[q] = d[vv, uc]
+                        ig[q] = inv[vv, uc] if inb else zero
+                        sg[q] = s2[vv, uc]
+                        cg[q] = c[vv, uc]
+                    for q in range(n):
+                        x = xg[q]
+                        iv = ig[q]
+                        pl = pgu[q] * fdu + pgv[q] * fdv
+                        dm = x - pm[q] - pl
+                        dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                        lim = k2 * (sg[q] + psf[q])
+                        keep = (iv > 0) & (pl * pl <= lim) & (dm * dm <= lim + k2 * (pvu[q] * du2 + pvv[q] * dv2))
+                        diff = x - pdc[q]
+                        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                        pacc[q] += iv * (diff - pl) if keep else zero
+                        pw[q] += iv if keep else zero
+                        pcc[q] += iv * cg[q] if keep else zero
+                else:
+                    for q in range(n):
+                        uu = pu[q] + du
+                        inb = (uu >= 0) & (uu < w)
+                        uc = min(max(uu, 0), w - 1)
+                        xg[q] = d[vv, uc]
+                        ig[q] = inv[vv, uc] if inb else zero
+                        sg[q] = s2[vv, uc]
+                    for q in range(n):
+                        x = xg[q]
+                        iv = ig[q]
+                        pl = pgu[q] * fdu + pgv[q] * fdv
+                        dm = x - pm[q] - pl
+                        dm = dm - two_pi * np.floor((dm + pi) * inv_two_pi)
+                        lim = k2 * (sg[q] + psf[q])
+                        keep = (iv > 0) & (pl * pl <= lim) & (dm * dm <= lim + k2 * (pvu[q] * du2 + pvv[q] * dv2))
+                        diff = x - pdc[q]
+                        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
+                        pacc[q] += iv * (diff - pl) if keep else zero
+                        pw[q] += iv if keep else zero
+                du += step if step > 0 else 1
+        if r >= radius or r == max_radius:
+            # a pixel stops once its weights reach the target (or at the last ring): its
+            # result is written and it leaves the list
+            last = r == max_radius
+            keep_n = 0
+            for q in range(n):
+                if last or pw[q] >= target_w:
+                    u = pu[q]
+                    ws = wfirst[v, u]
+                    wsum = pw[q]
+                    if wsum < ws:  # the grown window found less support than the first pass
+                        wsum = ws
+                        val = pm[q]
+                    else:
+                        val = pdc[q] + pacc[q] / wsum
+                        if full:
+                            rad[v, u] = r
+                        if carry:
+                            cout[v, u] = pcc[q] / wsum
+                    out[v, u] = val if wsum >= reject_w else nan
+                    wout[v, u] = wsum
+                    continue
+                pu[keep_n] = pu[q]
+                pm[keep_n] = pm[q]
+                psf[keep_n] = psf[q]
+                pvv[keep_n] = pvv[q]
+                pvu[keep_n] = pvu[q]
+                pgv[keep_n] = pgv[q]
+                pgu[keep_n] = pgu[q]
+                pdc[keep_n] = pdc[q]
+                pacc[keep_n] = pacc[q]
+                pw[keep_n] = pw[q]
+                pcc[keep_n] = pcc[q]
+                keep_n += 1
+            n = keep_n
+            if n == 0:
+                break
