@@ -79,8 +79,9 @@ from huefringe.perframe import (_hue_noise_kernel, capture_noise, height_noise, 
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
-from huefringe.uncertainty import (PixelBudget, edge_floor, height_uncertainty, pixel_budget, texture_delta,
+from huefringe.uncertainty import (PixelBudget, edge_floor, height_uncertainty, pixel_budget,
                                    texture_term_phase)
+from huefringe.uncertainty.frame import _texture_delta_row
 
 __all__ = ["FrameMaps", "Prepared", "frame_maps", "frame_to_height", "prepare"]
 
@@ -540,21 +541,30 @@ def _interp(bb, hq, lo_val, hi_val, n):  # pragma: no cover - numba
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles_x, n, start, phi_ref, a, b, noise,
                   atan, min_sat, use_min_sat, floor_slope, pd_e, pd_c, pd_s, pd_index, pe, out_h, out_valid,
-                  out_dphi, out_w, out_phase, out_hue):  # pragma: no cover - numba
+                  out_dphi, out_w, out_phase, out_hue, rgb2, scale2, atan2, out_delta):  # pragma: no cover - numba
     """The fused per-pixel loop; returns (clipped, hue undefined, valid, guess missed, guess far)
     counts.
 
     Rows go through three passes, pass 1 one row ahead of the others: (1) white balance, hue,
     masks (:func:`_colour_row`, vectorised) and the guessed line of each pixel's column; (2) the
-    count in that line (and the prefetch of the next row's lines); (3) interpolation,
-    pre-distortion, phase difference and height (:func:`_finish_row`). ``out_dphi`` receives the
-    phase difference before any filtering; with ``out_w`` given (``(3, H, W)`` float32), the
-    weights of the denoise filter (``phase.denoise_phase``'s ``dz, s2, inv`` of the phase
-    difference and its uncertainty) are written instead of the height (the filter runs between
-    this loop and :func:`_height_kernel`). ``out_phase``, ``out_hue``, ``out_dphi`` and ``out_w``
-    may be None: numba compiles a version without them (``is None`` pruning); so may the
-    pre-distortion ``pd_e, pd_c, pd_s, pd_index`` (no decoding). ``cols`` and ``heads`` are
-    flat views.
+    count in that line (:func:`_lookup_row`, and the prefetch of the next row's lines); (3)
+    interpolation, pre-distortion, phase difference and height (:func:`_finish_row`). ``out_dphi``
+    receives the phase difference before any filtering; with ``out_w`` given (``(3, H, W)``
+    float32), the weights of the denoise filter (``phase.denoise_phase``'s ``dz, s2, inv`` of the
+    phase difference and its uncertainty) are written instead of the height (the filter runs
+    between this loop and :func:`_height_kernel`). ``out_phase``, ``out_hue``, ``out_dphi`` and
+    ``out_w`` may be None: numba compiles a version without them (``is None`` pruning); so may the
+    pre-distortion ``pd_e, pd_c, pd_s, pd_index`` (no decoding). ``cols`` and ``heads`` are flat
+    views.
+
+    ``rgb2`` (or None): a second capture of the same scene (the texture correction's moved
+    capture, its scale ``scale2`` and HSI ``atan2``) taken through the same three passes beside
+    the first, pixel by pixel, so that its lookups read the column lines the first one's have
+    just fetched; its phase difference is never kept: ``out_delta`` receives
+    ``uncertainty.texture_delta(dphi2, dphi)`` row by row (``out_dphi`` is then required). Its
+    arithmetic is that of a call of its own without the filter (the same functions, ``out_w``
+    None), so ``out_delta`` holds the bits of ``texture_delta`` of the two calls' phase
+    differences.
     """
     h, w, _ = rgb.shape
     ncols = cols.size // (h * w)
@@ -571,6 +581,19 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     row_pds = np.ones(w, dtype=np.float64)
     row_pm = np.zeros(w, dtype=np.float64)  # denoise: column entries p - 1 and p + 2 (hue_slope)
     row_pp = np.ones(w, dtype=np.float64)
+    # the second capture's rows (one pixel each when there is none)
+    w2 = w if rgb2 is not None else 1
+    rows_hq2 = np.empty((2, w2), dtype=np.float64)
+    rows_g2 = np.empty((2, w2), dtype=np.int64)
+    row2_bb = np.zeros(w2, dtype=np.float64)
+    row2_lo = np.zeros(w2, dtype=np.float64)
+    row2_hi = np.ones(w2, dtype=np.float64)
+    row2_em = np.zeros(w2, dtype=np.float32)
+    row2_ph = np.zeros(w2, dtype=np.float32)
+    row2_pds = np.ones(w2, dtype=np.float64)
+    row2_h = np.empty((1, w2), dtype=np.float32)  # its height, valid and phase difference (one row)
+    row2_valid = np.empty((1, w2), dtype=np.bool_)
+    row2_dphi = np.empty((1, w2), dtype=np.float32)
     n_clip = 0
     n_undef = 0
     n_valid = 0
@@ -587,103 +610,144 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                                  out_hue)
             n_clip += nc
             n_undef += nu
-            tile_row = (vi // _TILE) * tiles_x
-            for u in range(w):
-                hq = hq1[u]
-                if hq < 0:
-                    g1[u] = -1
-                    continue
-                gl = np.int64(guess[tile_row + u // _TILE, np.int64(hq) >> _SHIFT])
-                g1[u] = gl
+            _guess_row(guess, vi, tiles_x, hq1, g1)
+            if rgb2 is not None:
+                _colour_row(rgb2, vi, 0, w, scale2, top32, top64, gains, ok, atan2, min_sat, use_min_sat,
+                            rows_hq2[vi & 1], None)
+                _guess_row(guess, vi, tiles_x, rows_hq2[vi & 1], rows_g2[vi & 1])
         if vi > 0:
             v = vi - 1
             row_hq = rows_hq[v & 1]
             row_g = rows_g[v & 1]
             # ---------------------------------------------------------------- pass 2: table lookup
-            # (and the prefetch of row vi's lines, spread over this loop so that the memory
+            # (and the prefetch of row vi's lines, spread over the loop so that the memory
             # requests overlap its arithmetic instead of queueing in a burst)
-            g_next = rows_g[vi & 1]
-            more = vi < h
-            for u in range(w):
-                if more:
-                    gx = g_next[u]
-                    if gx >= 0:
-                        _prefetch(cols, (vi * w + u) * ncols + 32 * gx)
-                gl = row_g[u]
-                if gl < 0:  # neutral values for _finish_row, which masks the pixel
-                    row_hq[u] = 0.0
-                    row_bb[u] = 0.0
-                    row_lo[u] = 0.0
-                    row_hi[u] = 1.0
-                    row_pm[u] = -1.0
-                    row_pp[u] = 2.0
-                    continue
-                hq = row_hq[u]
-                hqi = np.int64(hq)  # entries are integers: entry <= hq  <=>  entry <= floor(hq)
-                s0 = np.int64(start[v, u])
-                o = (v * w + u) * ncols
-                # -- table lookup (huetable._to_phase_kernel). Its bisection finds p + 1, the
-                # number of entries <= hue in the rotated, sorted column; p is the bracketing
-                # entry. Counted here in the guessed line: f entries of line gl (column entries
-                # 29 gl - 1 .. 29 gl + 30) are <= hue; when 2 <= f <= 30, p = 29 gl - 2 + f lies
-                # in the line's own block and the entries p - 1 .. p + 2 are all in the line (the
-                # first line also takes f = 1, p = -1; the last one f > 30: the column's end).
-                # Otherwise the next line down or up, then the line heads, give the line.
-                f = _count32_le(cols, o + 32 * gl, hqi)
-                if not ((f >= 2 or gl == 0) and (f <= 30 or gl == nl - 1)):
-                    n_miss += 1
-                    # mostly the next line down (f <= 1) or up (f >= 31): 64 bytes away, often
-                    # already cached with the guessed one
-                    g2 = gl - 1 if f <= 1 else gl + 1
-                    f2 = 0
-                    if 0 <= g2 < nl:
-                        f2 = _count32_le(cols, o + 32 * g2, hqi)
-                    if 0 <= g2 < nl and (f2 >= 2 or g2 == 0) and (f2 <= 30 or g2 == nl - 1):
-                        gl = g2
-                        f = f2
-                    else:  # heads: E(29 j), the first entry of each block
-                        n_far += 1
-                        oh = (v * w + u) * nheads
-                        cl = 0
-                        for k in range(0, nheads, 16):
-                            cl += _count16_le(heads, oh + k, hqi)
-                        if cl > nl:  # padding counted
-                            cl = nl
-                        gl = cl - 1 if cl > 0 else 0
-                        f = _count32_le(cols, o + 32 * gl, hqi)
-                cnt = 29 * gl - 1 + f
-                p = (cnt if cnt < n else n) - 1  # padding counted: every real entry is <= hue
-                if p < 0:
-                    bb = s0 - 1 if s0 > 0 else n - 1
-                    lo_val = np.float64(cols[np.uint64(o + _phys(n - 1))]) - 65536.0
-                    hi_val = np.float64(cols[np.uint64(o + 1)])
-                else:
-                    bb = s0 + p
-                    if bb >= n:
-                        bb -= n
-                    op = o + 32 * gl + p - 29 * gl + 1  # p's place in line gl (its home line)
-                    lo_val = np.float64(cols[np.uint64(op)])
-                    if p == n - 1:
-                        hi_val = np.float64(cols[np.uint64(o + 1)]) + 65536.0
-                    else:
-                        hi_val = np.float64(cols[np.uint64(op + 1)])
-                row_bb[u] = bb
-                row_lo[u] = lo_val
-                row_hi[u] = hi_val
-                if out_w is not None:  # HueTable.hue_slope needs the entries either side, in line
-                    if p >= 1:
-                        row_pm[u] = np.float64(cols[np.uint64(op - 1)])
-                    else:
-                        row_pm[u] = _line_entry(cols, o, p - 1, n)
-                    if 0 <= p and p + 2 <= n - 1:
-                        row_pp[u] = np.float64(cols[np.uint64(op + 2)])
-                    else:
-                        row_pp[u] = _line_entry(cols, o, p + 2, n)
+            if out_w is not None:  # (two calls: numba prunes the slope entries by ``is None``)
+                nm, nf = _lookup_row(cols, heads, start, v, ncols, nheads, nl, n, row_hq, row_g, row_bb, row_lo,
+                                     row_hi, row_pm, row_pp, rows_g[vi & 1], vi < h)
+            else:
+                nm, nf = _lookup_row(cols, heads, start, v, ncols, nheads, nl, n, row_hq, row_g, row_bb, row_lo,
+                                     row_hi, None, row_pp, rows_g[vi & 1], vi < h)
+            n_miss += nm
+            n_far += nf
             # ---------------------------------------------------------------- pass 3: arithmetic
             n_valid += _finish_row(v, row_bb, row_hq, row_lo, row_hi, row_g, phi_ref, a, b, noise, n, floor_slope, pd_e,
                                    pd_c, pd_s, pd_index, pe, row_em, row_ph, row_pds, row_pm, row_pp, out_h, out_valid,
                                    out_phase, out_dphi, out_w)
+            if rgb2 is not None:  # the second capture: its lines are those just read, mostly
+                row2_hq = rows_hq2[v & 1]
+                row2_g = rows_g2[v & 1]
+                _lookup_row(cols, heads, start, v, ncols, nheads, nl, n, row2_hq, row2_g, row2_bb, row2_lo, row2_hi,
+                            None, row_pp, None, False)
+                _finish_row(0, row2_bb, row2_hq, row2_lo, row2_hi, row2_g, phi_ref[v : v + 1], a[v : v + 1],
+                            b[v : v + 1], noise[v : v + 1], n, floor_slope, pd_e, pd_c, pd_s, pd_index, pe, row2_em,
+                            row2_ph, row2_pds, row_pm, row_pp, row2_h, row2_valid, None, row2_dphi, None)
+                _texture_delta_row(row2_dphi[0], out_dphi[v], out_delta[v])
     return n_clip, n_undef, n_valid, n_miss, n_far
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _guess_row(guess, v, tiles_x, hq_row, out_g):  # pragma: no cover - numba
+    """The guessed line of each pixel of row ``v`` from its tile's guess table; -1 where the pixel
+    is invalid (``hq < 0``)."""
+    tile_row = (v // _TILE) * tiles_x
+    for u in range(hq_row.size):
+        hq = hq_row[u]
+        if hq < 0:
+            out_g[u] = -1
+            continue
+        out_g[u] = np.int64(guess[tile_row + u // _TILE, np.int64(hq) >> _SHIFT])
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _lookup_row(cols, heads, start, v, ncols, nheads, nl, n, row_hq, row_g, row_bb, row_lo, row_hi, row_pm, row_pp,
+                g_next, more):  # pragma: no cover - numba
+    """Pass 2 of :func:`_frame_kernel` on row ``v``: each pixel's bracketing band ``row_bb`` and
+    column entries ``row_lo``, ``row_hi`` (and, with ``row_pm`` given, the entries either side of
+    them for the table slope, ``row_pm``, ``row_pp``), from its guessed line ``row_g``; neutral
+    values where ``row_g < 0``. With ``g_next`` given and ``more``, prefetches the next row's
+    guessed lines. Returns (guess missed, guess far) counts."""
+    w = row_hq.size
+    n_miss = 0
+    n_far = 0
+    vi = v + 1
+    for u in range(w):
+        if g_next is not None and more:
+            gx = g_next[u]
+            if gx >= 0:
+                _prefetch(cols, (vi * w + u) * ncols + 32 * gx)
+        gl = row_g[u]
+        if gl < 0:  # neutral values for _finish_row, which masks the pixel
+            row_hq[u] = 0.0
+            row_bb[u] = 0.0
+            row_lo[u] = 0.0
+            row_hi[u] = 1.0
+            if row_pm is not None:
+                row_pm[u] = -1.0
+                row_pp[u] = 2.0
+            continue
+        hq = row_hq[u]
+        hqi = np.int64(hq)  # entries are integers: entry <= hq  <=>  entry <= floor(hq)
+        s0 = np.int64(start[v, u])
+        o = (v * w + u) * ncols
+        # -- table lookup (huetable._to_phase_kernel). Its bisection finds p + 1, the
+        # number of entries <= hue in the rotated, sorted column; p is the bracketing
+        # entry. Counted here in the guessed line: f entries of line gl (column entries
+        # 29 gl - 1 .. 29 gl + 30) are <= hue; when 2 <= f <= 30, p = 29 gl - 2 + f lies
+        # in the line's own block and the entries p - 1 .. p + 2 are all in the line (the
+        # first line also takes f = 1, p = -1; the last one f > 30: the column's end).
+        # Otherwise the next line down or up, then the line heads, give the line.
+        f = _count32_le(cols, o + 32 * gl, hqi)
+        if not ((f >= 2 or gl == 0) and (f <= 30 or gl == nl - 1)):
+            n_miss += 1
+            # mostly the next line down (f <= 1) or up (f >= 31): 64 bytes away, often
+            # already cached with the guessed one
+            g2 = gl - 1 if f <= 1 else gl + 1
+            f2 = 0
+            if 0 <= g2 < nl:
+                f2 = _count32_le(cols, o + 32 * g2, hqi)
+            if 0 <= g2 < nl and (f2 >= 2 or g2 == 0) and (f2 <= 30 or g2 == nl - 1):
+                gl = g2
+                f = f2
+            else:  # heads: E(29 j), the first entry of each block
+                n_far += 1
+                oh = (v * w + u) * nheads
+                cl = 0
+                for k in range(0, nheads, 16):
+                    cl += _count16_le(heads, oh + k, hqi)
+                if cl > nl:  # padding counted
+                    cl = nl
+                gl = cl - 1 if cl > 0 else 0
+                f = _count32_le(cols, o + 32 * gl, hqi)
+        cnt = 29 * gl - 1 + f
+        p = (cnt if cnt < n else n) - 1  # padding counted: every real entry is <= hue
+        if p < 0:
+            bb = s0 - 1 if s0 > 0 else n - 1
+            lo_val = np.float64(cols[np.uint64(o + _phys(n - 1))]) - 65536.0
+            hi_val = np.float64(cols[np.uint64(o + 1)])
+        else:
+            bb = s0 + p
+            if bb >= n:
+                bb -= n
+            op = o + 32 * gl + p - 29 * gl + 1  # p's place in line gl (its home line)
+            lo_val = np.float64(cols[np.uint64(op)])
+            if p == n - 1:
+                hi_val = np.float64(cols[np.uint64(o + 1)]) + 65536.0
+            else:
+                hi_val = np.float64(cols[np.uint64(op + 1)])
+        row_bb[u] = bb
+        row_lo[u] = lo_val
+        row_hi[u] = hi_val
+        if row_pm is not None:  # HueTable.hue_slope needs the entries either side, in line
+            if p >= 1:
+                row_pm[u] = np.float64(cols[np.uint64(op - 1)])
+            else:
+                row_pm[u] = _line_entry(cols, o, p - 1, n)
+            if 0 <= p and p + 2 <= n - 1:
+                row_pp[u] = np.float64(cols[np.uint64(op + 2)])
+            else:
+                row_pp[u] = _line_entry(cols, o, p + 2, n)
+    return n_miss, n_far
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
@@ -1020,13 +1084,12 @@ def frame_maps(
     ``denoise_adaptive``: the filter's sigma-adaptive support (``measurement.denoise_adaptive``,
     :func:`huefringe.phase.adaptive_kwargs`), as ``measure_frame``'s. ``texture_rgb``: the capture
     corrected with the texture blur moved by its uncertainty; its phase goes through the kernel
-    without the filter, and its change is carried through this frame's filter
+    without the filter, in the same pass as this frame's (each pixel's table lines read once for
+    both), and its change is carried through this frame's filter
     (:func:`huefringe.uncertainty.texture_delta`, ``texture_term_phase``): ``texture_u``.
     """
-    moved_dphi = None
-    if texture_rgb is not None:  # first: the call below reuses nothing of it but its phase
-        moved_dphi = frame_maps(prep, texture_rgb, want_dphi=True).dphi
     a, scale = _check_frame(prep, rgb)
+    a2, scale2 = _check_frame(prep, texture_rgb) if texture_rgb is not None else (None, 1.0)
     h, w = prep.shape
     if out is None:
         height = np.empty((h, w), dtype=np.float32)
@@ -1049,6 +1112,13 @@ def frame_maps(
         y = np.empty((h, w), dtype=np.float32)
         _hsi_xy(a, np.float32(scale), prep.gains, x, y)
         atan = np.arctan2(y, x, out=y)
+    atan2 = None
+    if hsi and a2 is not None:  # the moved capture's, in an arctan2 call of its own (the same bits)
+        x2 = np.empty((h, w), dtype=np.float32)
+        y2 = np.empty((h, w), dtype=np.float32)
+        _hsi_xy(a2, np.float32(scale2), prep.gains, x2, y2)
+        atan2 = np.arctan2(y2, x2, out=y2)
+    delta = np.empty((h, w), dtype=np.float32) if a2 is not None else None
     noise = prep.noise
     if weights is not None and prep.sensor is not None:  # this frame's own hue noise (as measure_frame)
         noise = np.empty((h, w), dtype=np.float64)
@@ -1058,7 +1128,7 @@ def frame_maps(
         prep.heads.reshape(-1), prep.guess, prep.tiles_x, prep.n_bands, prep.start, prep.phi_ref, prep.a, prep.b,
         noise, atan, np.float32(prep.min_saturation), prep.min_saturation > 0.0, prep.floor_slope,
         prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index, prep.phase_error, height, valid, dphi, weights,
-        phase, hue,
+        phase, hue, a2, np.float32(scale2), atan2, delta,
     )
     ratio = None
     if want_uncertainty and prep.u_sensor is not None:  # this frame's own noise, for u alone (as measure_frame)
@@ -1066,7 +1136,6 @@ def frame_maps(
         _hue_noise_kernel(a, np.float32(scale), prep.gains, hsi, prep.u_sensor, prep.noise, own)
         ratio = noise_ratio2(own, prep.noise)
     sumw = rsum = support = None
-    delta = texture_delta(moved_dphi, dphi) if moved_dphi is not None else None
     carried = np.empty((h, w), dtype=np.float32) if delta is not None and denoise else delta
     if denoise:
         if want_uncertainty:

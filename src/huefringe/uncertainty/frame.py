@@ -621,31 +621,39 @@ def split_terms(u: NDArray[np.floating], height: NDArray[np.floating], a: NDArra
     return {k: out[k] for k in TERMS}
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _texture_delta_row(m, p, out):  # pragma: no cover - compiled
+    """One row of :func:`_texture_delta` (1-D ``m``, ``p``, ``out``): ``d = m - p`` (float64),
+    ``pi - (pi - d) % (2 pi)`` (Python's ``%``), as float32; 0 where not finite. The row's pixels
+    whose ``a = pi - d`` lies in ``(-2 pi, 4 pi)`` (every pixel of two phases in ``[-pi, pi]``)
+    take ``a``, ``a - 2 pi`` or ``a + 2 pi`` in a branch-free loop (SIMD): the ``%``'s bits
+    (``fmod`` is exact there and so is ``a - 2 pi``, Sterbenz's lemma), and a value that is not
+    finite gives 0 either way; a row holding a finite ``a`` outside (phases outside
+    ``[-pi, pi]``) goes through the ``%`` itself, whose call in the loop would keep it from
+    vectorising. Also called row by row by the fused kernel (``kernel._frame_kernel``'s
+    ``out_delta``)."""
+    w = m.size
+    b = 2.0 * np.pi
+    outside = False
+    for u in range(w):
+        d = np.float64(m[u]) - np.float64(p[u])
+        a = np.pi - d
+        outside |= (a - a == 0) & ((a <= -b) | (a >= b + b))  # (not finite: 0 either way)
+        r = a if (a >= 0.0) & (a < b) else (a - b if a >= b else a + b)
+        d = np.pi - r
+        out[u] = np.float32(d) if d - d == 0 else np.float32(0.0)
+    if outside:
+        for u in range(w):
+            d = np.float64(m[u]) - np.float64(p[u])
+            d = np.pi - (np.pi - d) % b
+            out[u] = np.float32(d) if d - d == 0 else np.float32(0.0)
+
+
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def _texture_delta(m, p, out):  # pragma: no cover - compiled
-    """``d = m - p`` (float64), ``pi - (pi - d) % (2 pi)`` (Python's ``%``), as float32; 0 where
-    not finite. A row's pixels whose ``a = pi - d`` lies in ``(-2 pi, 4 pi)`` (every pixel of two
-    phases in ``[-pi, pi]``) take ``a``, ``a - 2 pi`` or ``a + 2 pi`` in a branch-free loop (SIMD):
-    the ``%``'s bits (``fmod`` is exact there and so is ``a - 2 pi``, Sterbenz's lemma), and a
-    value that is not finite gives 0 either way; a row holding a finite ``a`` outside (phases
-    outside ``[-pi, pi]``) goes through the ``%`` itself, whose call in the loop would keep it
-    from vectorising."""
-    h, w = m.shape
-    b = 2.0 * np.pi
-    for v in numba.prange(h):
-        outside = False
-        for u in range(w):
-            d = np.float64(m[v, u]) - np.float64(p[v, u])
-            a = np.pi - d
-            outside |= (a - a == 0) & ((a <= -b) | (a >= b + b))  # (not finite: 0 either way)
-            r = a if (a >= 0.0) & (a < b) else (a - b if a >= b else a + b)
-            d = np.pi - r
-            out[v, u] = np.float32(d) if d - d == 0 else np.float32(0.0)
-        if outside:
-            for u in range(w):
-                d = np.float64(m[v, u]) - np.float64(p[v, u])
-                d = np.pi - (np.pi - d) % b
-                out[v, u] = np.float32(d) if d - d == 0 else np.float32(0.0)
+    """:func:`_texture_delta_row` on every row, rows in parallel."""
+    for v in numba.prange(m.shape[0]):
+        _texture_delta_row(m[v], p[v], out[v])
 
 
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
