@@ -570,27 +570,13 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
     ncols = cols.size // (h * w)
     nheads = heads.size // (h * w)
     nl = ncols // 32
-    rows_hq = np.empty((2, w), dtype=np.float64)  # hue in table counts, two rows in flight
-    rows_g = np.empty((2, w), dtype=np.int64)  # guessed line; -1 = pixel invalid
     # pass 2 only looks up; the arithmetic after the lookup is _finish_row's
-    row_bb = np.zeros(w, dtype=np.float64)
-    row_lo = np.zeros(w, dtype=np.float64)
-    row_hi = np.ones(w, dtype=np.float64)
-    row_em = np.zeros(w, dtype=np.float32)
-    row_ph = np.zeros(w, dtype=np.float32)
-    row_pds = np.ones(w, dtype=np.float64)
+    rows_hq, rows_g, row_bb, row_lo, row_hi, row_em, row_ph, row_pds = _row_scratch(w)
     row_pm = np.zeros(w, dtype=np.float64)  # denoise: column entries p - 1 and p + 2 (hue_slope)
     row_pp = np.ones(w, dtype=np.float64)
     # the second capture's rows (one pixel each when there is none)
     w2 = w if rgb2 is not None else 1
-    rows_hq2 = np.empty((2, w2), dtype=np.float64)
-    rows_g2 = np.empty((2, w2), dtype=np.int64)
-    row2_bb = np.zeros(w2, dtype=np.float64)
-    row2_lo = np.zeros(w2, dtype=np.float64)
-    row2_hi = np.ones(w2, dtype=np.float64)
-    row2_em = np.zeros(w2, dtype=np.float32)
-    row2_ph = np.zeros(w2, dtype=np.float32)
-    row2_pds = np.ones(w2, dtype=np.float64)
+    rows_hq2, rows_g2, row2_bb, row2_lo, row2_hi, row2_em, row2_ph, row2_pds = _row_scratch(w2)
     row2_h = np.empty((1, w2), dtype=np.float32)  # its height, valid and phase difference (one row)
     row2_valid = np.empty((1, w2), dtype=np.bool_)
     row2_dphi = np.empty((1, w2), dtype=np.float32)
@@ -644,6 +630,16 @@ def _frame_kernel(rgb, scale, top32, top64, gains, ok, cols, heads, guess, tiles
                             row2_ph, row2_pds, row_pm, row_pp, row2_h, row2_valid, None, row2_dphi, None)
                 _texture_delta_row(row2_dphi[0], out_dphi[v], out_delta[v])
     return n_clip, n_undef, n_valid, n_miss, n_far
+
+
+@numba.njit(cache=True, error_model="numpy", nogil=True)
+def _row_scratch(w):  # pragma: no cover - numba
+    """The scratch rows of one capture in :func:`_frame_kernel`: hue in table counts and guessed
+    line (-1 = pixel invalid), two rows in flight; the bracketing band, its column entries, the
+    emitted phase, the decoded phase and the decoding slope of the row being finished."""
+    return (np.empty((2, w), dtype=np.float64), np.empty((2, w), dtype=np.int64), np.zeros(w, dtype=np.float64),
+            np.zeros(w, dtype=np.float64), np.ones(w, dtype=np.float64), np.zeros(w, dtype=np.float32),
+            np.zeros(w, dtype=np.float32), np.ones(w, dtype=np.float64))
 
 
 @numba.njit(cache=True, error_model="numpy", nogil=True)
