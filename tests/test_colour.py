@@ -213,3 +213,20 @@ def test_hue_is_scale_invariant(rgb, k, model):
         return  # near grey: hue ill-conditioned
     a, b = colour.hue(rgb, model), colour.hue(rgb * k, model)
     assert abs(circ(a, b)) < 1e-4
+
+
+def test_any_channel_at_least_is_the_any_of_its_channels() -> None:
+    """The clipped-code mask channel by channel equals ``np.any(rgb >= top, axis=-1)``, codes at
+    the top included, for 8- and 16-bit codes and float images."""
+    from huefringe.colour import any_channel_at_least
+
+    rng = np.random.default_rng(3)
+    for dtype, top in ((np.uint8, 255), (np.uint16, 65535), (np.float32, 1.0 - 0.5 / 255)):
+        if dtype == np.float32:
+            a = rng.random((40, 50, 3)).astype(np.float32)
+        else:
+            a = rng.integers(top - 3, top + 1, (40, 50, 3), endpoint=False).astype(dtype)
+            a[::2] //= 2
+        want = np.any(a >= top, axis=-1)
+        assert 0 < want.sum() < want.size
+        assert np.array_equal(any_channel_at_least(a, top), want)

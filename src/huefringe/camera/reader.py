@@ -12,6 +12,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from huefringe.colour import any_channel_at_least
 from huefringe.session import read_rgb, read_rgb_codes
 from huefringe.camera.bayer import BayerResampling, bayer_resampling
 from huefringe.camera.crosstalk import estimate_channel_mixing
@@ -74,9 +75,10 @@ class CaptureReader:
         out = data.astype(np.float32) * np.float32(1.0 / top)
         if self.demix is None:
             return out
-        mixed = cv2.transform(np.ascontiguousarray(out), self.demix)
-        clipped = (data >= top).any(axis=-1)
-        return np.where(clipped[..., None], out, mixed).astype(np.float32)
+        mixed = cv2.transform(np.ascontiguousarray(out), self.demix).astype(np.float32, copy=False)
+        clipped = any_channel_at_least(data, top)
+        mixed[clipped] = out[clipped]  # a clipped pixel keeps its codes (the demixing needs them all)
+        return mixed
 
 
 def demixing_record(setting: Any, mixing: Mapping[str, Any] | None) -> dict[str, Any]:

@@ -9,7 +9,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe.colour import intensity
+from huefringe.colour import any_channel_at_least, intensity
 from ._stats import _median_keys
 
 
@@ -319,4 +319,5 @@ def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: 
 def clipped_mask(rgb: NDArray[np.floating], bit_depth: int) -> NDArray[np.bool_]:
     """Pixels with any channel at the sensor's maximum code."""
     top = 1.0 - 0.5 / (2**bit_depth - 1)
-    return np.any(rgb >= top, axis=-1)
+    return any_channel_at_least(rgb, top)
+
