@@ -28,7 +28,8 @@ the height maps, ``heights + rest`` for the default target set. Each is printed 
 (``cv2.imread``) plus an uncompressed float32 TIFF write (``huefringe.io.write_tiff``) of the
 same frames by as many processes at once as the workflow runs jobs (``--cores``), beside the
 one-core figure times the cores. A per-stage breakdown of a measurement job's frame
-(in process, one core) says where the time goes.
+(in process, one core, on the raw codes: without the texture correction and the texture term,
+which ``benchmarks/profile_job.py`` times with the rest of the stage) says where the time goes.
 
 Peak memory: the largest resident set of a single job (any process below Snakemake's, sampled
 every 0.1 s with psutil) and of the whole tree. Every job runs with ``NUMBA_NUM_THREADS=1``
@@ -501,8 +502,8 @@ def main(argv: list[str] | None = None) -> int:
             print(f"  {n:5d} frames: calibration {c['seconds']:.1f} s; heights {h['seconds']:.1f} s ({jobs} jobs), "
                   f"rest of the default targets {r['seconds']:.1f} s; I/O floor {floor['fps']:.0f} frames/s "
                   f"({a.cores} processes at once; one core alone {floor['ms_per_frame']:.1f} ms/frame, x {a.cores} = "
-                  f"{floor['fps_one_core_x_cores']:.0f}); peak per job {max(h['peak_job_mb'], r['peak_job_mb']):.0f} MB, "
-                  f"tree {max(h['peak_tree_mb'], r['peak_tree_mb']):.0f} MB")
+                  f"{floor['fps_one_core_x_cores']:.0f}); peak per job "
+                  f"{max(h['peak_job_mb'], r['peak_job_mb']):.0f} MB, tree {max(h['peak_tree_mb'], r['peak_tree_mb']):.0f} MB")
             print("         job time in the stages (s, summed over jobs): "
                   + ", ".join(f"{k} {v:.1f}" for k, v in job_s.items()))
         for n1, n2 in zip(sizes, sizes[1:]):
@@ -535,7 +536,8 @@ def main(argv: list[str] | None = None) -> int:
         st = kres["stages_ms"]
         job = sum(v for k, v in st.items() if k not in ("cloud ply", "baseline frame"))
         io_ms = st["decode"] + st["height tiff"] + st.get("u+support tiff", 0.0)
-        print(f"  per frame, one core (ms): " + ", ".join(f"{k} {v:.1f}" for k, v in st.items()) +
+        print("  per frame, one core, the raw codes without the texture correction and term (ms; "
+              "benchmarks/profile_job.py times the stage itself): " + ", ".join(f"{k} {v:.1f}" for k, v in st.items()) +
               f"; measurement job {job:.1f} = {io_ms:.1f} I/O + {job - io_ms:.1f} compute")
         if kres["metrology_ms"]:
             print("  metrology job per frame, one thread (ms): "
