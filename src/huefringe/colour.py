@@ -396,7 +396,7 @@ def balanced_hue(
 def any_channel_at_least(rgb: ArrayLike, top: float) -> NDArray[np.bool_]:
     """Pixels of an ``(H, W, C)`` image with any channel ``>= top`` (a clipped sensor code):
     ``np.any(rgb >= top, axis=-1)``, channel by channel (NumPy's reduction over a last axis of 3
-    cost 4 ms at 640 x 480 in a workflow job; the comparisons and ors, a fraction of it)."""
+    takes about 4 ms at 640 x 480; the comparisons and ors a fraction of that)."""
     a = np.asarray(rgb)
     out = a[..., 0] >= top
     for c in range(1, a.shape[-1]):

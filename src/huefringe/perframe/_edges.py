@@ -320,4 +320,3 @@ def clipped_mask(rgb: NDArray[np.floating], bit_depth: int) -> NDArray[np.bool_]
     """Pixels with any channel at the sensor's maximum code."""
     top = 1.0 - 0.5 / (2**bit_depth - 1)
     return any_channel_at_least(rgb, top)
-
