@@ -980,6 +980,15 @@ def _hsi_xy(rgb, scale, gains, out_x, out_y):  # pragma: no cover - numba
             out_y[v, u] = k3 * (g - bl)
 
 
+def _hsi_atan(rgb: NDArray[Any], scale: float, gains: NDArray[np.float32]) -> NDArray[np.float32]:
+    """The HSI hue's ``arctan2(y, x)`` (float32) of a white-balanced frame (:func:`_hsi_xy`)."""
+    h, w = rgb.shape[:2]
+    x = np.empty((h, w), dtype=np.float32)
+    y = np.empty((h, w), dtype=np.float32)
+    _hsi_xy(rgb, np.float32(scale), gains, x, y)
+    return np.arctan2(y, x, out=y)
+
+
 @numba.njit(cache=True, error_model="numpy", nogil=True)
 def _height_kernel(dphi, a, b, valid, out_h, out_phase):  # pragma: no cover - numba
     """Height from a (denoised) float32 phase difference; clears pixels without a finite height."""
@@ -1102,18 +1111,10 @@ def frame_maps(
     weights = np.empty((3, h, w), dtype=np.float32) if denoise or want_uncertainty else None
     top = 1.0 - 0.5 / (2**prep.bit_depth - 1)
     hsi = prep.hue_model == "hsi"
-    atan = None
-    if hsi:  # NumPy's own float32 arctan2, as colour.hue_hsi (one extra pass; hexcone needs none)
-        x = np.empty((h, w), dtype=np.float32)
-        y = np.empty((h, w), dtype=np.float32)
-        _hsi_xy(a, np.float32(scale), prep.gains, x, y)
-        atan = np.arctan2(y, x, out=y)
-    atan2 = None
-    if hsi and a2 is not None:  # the moved capture's, in an arctan2 call of its own (the same bits)
-        x2 = np.empty((h, w), dtype=np.float32)
-        y2 = np.empty((h, w), dtype=np.float32)
-        _hsi_xy(a2, np.float32(scale2), prep.gains, x2, y2)
-        atan2 = np.arctan2(y2, x2, out=y2)
+    # NumPy's own float32 arctan2, as colour.hue_hsi (one extra pass; hexcone needs none), for each
+    # capture in a call of its own (the same bits as a frame_maps call of each)
+    atan = _hsi_atan(a, scale, prep.gains) if hsi else None
+    atan2 = _hsi_atan(a2, scale2, prep.gains) if hsi and a2 is not None else None
     delta = np.empty((h, w), dtype=np.float32) if a2 is not None else None
     noise = prep.noise
     if weights is not None and prep.sensor is not None:  # this frame's own hue noise (as measure_frame)
