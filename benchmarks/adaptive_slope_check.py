@@ -5,7 +5,8 @@ Usage: ./run python benchmarks/adaptive_slope_check.py [--cases NAME ...] [--kee
 The grown rings of the adaptive filter (``huefringe.phase._adaptive_pass``) test and average each
 neighbour against the local plane through the pixel's first-pass estimate; the plane's slope along
 each axis is the central difference of the first-pass map ``max_radius`` px either side, kept
-where the two one-sided differences agree within 3 sigma and the slope exceeds 2 sigma, sigma
+where the two one-sided differences agree within ``plane_kink_sigma`` (3) sigma and the slope exceeds 2
+sigma, sigma
 from the first-pass variances ``1 / sum w`` (``phase._plane_slope``). This script measures each
 case of ``benchmarks/accuracy_matrix.py`` (``CASES``) with the workflow's stages at config.yaml's
 settings, takes the adaptive pass's inputs of every frame, and reports, at the pixels the pass
@@ -49,7 +50,8 @@ def _wrap(x: np.ndarray) -> np.ndarray:
     return (x + np.pi) % (2.0 * np.pi) - np.pi
 
 
-def slope_test(first: np.ndarray, wfirst: np.ndarray, need: np.ndarray, base: int, axis: int) -> dict:
+def slope_test(first: np.ndarray, wfirst: np.ndarray, need: np.ndarray, base: int, axis: int,
+               kink2: float = 9.0) -> dict:
     """``phase._plane_slope``'s decision along ``axis`` (float64) at every pixel: the slope ``g``,
     ``z = g / sigma``, whether the sides agree and whether the slope is kept; ``at`` the pixels
     ``need`` with both sides valid, ``base + 2`` px from the border."""
@@ -63,7 +65,7 @@ def slope_test(first: np.ndarray, wfirst: np.ndarray, need: np.ndarray, base: in
     with np.errstate(divide="ignore", invalid="ignore"):
         va, vb, vc = 1.0 / wa, 1.0 / wfirst, 1.0 / wc
         fwd, bwd = _wrap(fc - first) / base, _wrap(first - fa) / base
-        consistent = (fwd - bwd) ** 2 * base * base <= 9.0 * (va + 4.0 * vb + vc)
+        consistent = (fwd - bwd) ** 2 * base * base <= kink2 * (va + 4.0 * vb + vc)
         g = 0.5 * (fwd + bwd)
         vg = (va + vc) / (4.0 * base * base)
         z = g / np.sqrt(vg)
@@ -84,7 +86,8 @@ def check(name: str, where: Path) -> list[dict]:
     original = _denoise._adaptive_pass
 
     def spy(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, *rest):
-        captured.append([np.array(inv), np.array(first), np.array(wfirst), int(max_radius), float(target_w)])
+        captured.append([np.array(inv), np.array(first), np.array(wfirst), int(max_radius), float(target_w),
+                         float(rest[-1])])
         return original(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, *rest)
 
     session, tables = am._case_dirs(where, am.CASES[name]["cfg"])
@@ -98,8 +101,8 @@ def check(name: str, where: Path) -> list[dict]:
     rows = []
     for axis, label in ((1, "u"), (0, "v")):
         per = []
-        for (inv, first, wfirst, base, target_w), truth in zip(captured, truths, strict=True):
-            t = slope_test(first, wfirst, (inv > 0) & (wfirst < target_w), base, axis)
+        for (inv, first, wfirst, base, target_w, kink2), truth in zip(captured, truths, strict=True):
+            t = slope_test(first, wfirst, (inv > 0) & (wfirst < target_w), base, axis, kink2)
             t["flat"] = t["at"] & flat_truth(truth, base, axis)
             per.append(t)
         cons = [t["at"] & t["consistent"] for t in per]

@@ -3,7 +3,7 @@ distance to a texture edge or a step edge, on the demo and on photo-textured sce
 realistic sensors.
 
 Usage: ./run python benchmarks/coverage_bins.py [--scenes NAME ...] [--frames-demo 3] [--keep DIR] [--markdown FILE]
-                                                [--filter-check] [--box-chi-z Z]
+                                                [--filter-check] [--box-chi-z Z] [--plane-kink-sigma S]
 
 Scenes (``SCENES``): the capture-session demo (bench preset ``demo``, the session
 ``gauge-blocks-demo`` of config.yaml, 400 x 300, its first ``--frames-demo`` frames), and the
@@ -31,7 +31,9 @@ pixels, target 0.95 +- 0.03):
 ``--box-chi-z Z`` measures with ``measurement.denoise_adaptive.box_chi_z`` set to ``Z`` (plane boxes,
 results in a folder of their own beside the default's) and prints, per scene, how the grown pixels
 grew (a box, or the rings after the box's band, scatter or mean test), and runs the filter check
-with it. Each scene also prints the median and 95th percentile of |e|.
+with it. ``--plane-kink-sigma S`` measures with ``measurement.denoise_adaptive.plane_kink_sigma`` set to
+``S`` (the grown rings' plane kept up to that disagreement of its sides; results in a folder of their
+own). Each scene also prints the median and 95th percentile of |e|.
 
 ``--filter-check`` adds what the misses come from (docs/uncertainty.md): the phase filter at the
 defaults (radius 2, sigma-adaptive to 0.002 rad, up to radius 6, neighbours rejected beyond
@@ -148,8 +150,8 @@ class BoxShare:
     def __enter__(self) -> "BoxShare":
         def spy(*args):  # noqa: ANN002, ANN202 - the pass's positional arguments
             inv, wfirst, target_w, chi_z = args[2], args[4], args[8], args[14]
-            boxed = np.zeros(inv.shape, np.float32) if chi_z > 0 else args[-1]
-            self._inner(*args[:-1], boxed)
+            boxed = np.zeros(inv.shape, np.float32) if chi_z > 0 else args[20]
+            self._inner(*args[:20], boxed, *args[21:])
             if chi_z > 0:
                 grown = (inv > 0) & (wfirst < target_w)
                 self.counts += np.bincount(boxed[grown].astype(np.int64), minlength=5)[:5]
@@ -168,14 +170,23 @@ class BoxShare:
             f"{k} {c / n:.1%}" for k, c in zip(names, self.counts, strict=True) if c)
 
 
-def measure_scene(name: str, root: Path, frames_demo: int, box_chi_z: float | None = None) -> dict:
-    """The scene measured at config.yaml's defaults (``box_chi_z`` given: with the adaptive support's
-    ``box_chi_z`` set to it, in a results folder of its own), its truth and pixel kinds."""
+def measure_scene(name: str, root: Path, frames_demo: int, box_chi_z: float | None = None,
+                  kink_sigma: float | None = None) -> dict:
+    """The scene measured at config.yaml's defaults (``box_chi_z`` or ``kink_sigma`` given: with the
+    adaptive support's ``box_chi_z`` or ``plane_kink_sigma`` set to it, in a results folder of its
+    own), its truth and pixel kinds."""
     case = _demo(frames_demo) if name == "demo" else {**am.CASES, **am.NOISE_CASES}[name]
     where = root / am._slug(name if name != "demo" else f"demo-{frames_demo}")
     session, tables = am._case_dirs(where, case["cfg"])
-    out = where / ("all-on" if box_chi_z is None else f"box-chi-z-{box_chi_z:g}")
-    variant = {} if box_chi_z is None else {"measurement": {"denoise_adaptive": {"box_chi_z": box_chi_z}}}
+    adaptive: dict = {}
+    tag = "all-on"
+    if box_chi_z is not None:
+        adaptive["box_chi_z"], tag = box_chi_z, f"box-chi-z-{box_chi_z:g}"
+    if kink_sigma is not None:
+        adaptive["plane_kink_sigma"] = kink_sigma
+        tag = ("" if tag == "all-on" else tag + "-") + f"plane-kink-{kink_sigma:g}"
+    out = where / tag
+    variant = {"measurement": {"denoise_adaptive": adaptive}} if adaptive else {}
     share = BoxShare()
     heights = sorted(out.glob("frame_*[0-9].tiff"))
     if heights and all(Path(str(h).replace(".tiff", ".u.tiff")).exists() for h in heights):
@@ -330,13 +341,16 @@ def main() -> None:
     ap.add_argument("--box-chi-z", type=float, default=None,
                     help="measure with measurement.denoise_adaptive.box_chi_z set to this (results in a folder of "
                          "their own; default: config.yaml's value)")
+    ap.add_argument("--plane-kink-sigma", type=float, default=None,
+                    help="measure with measurement.denoise_adaptive.plane_kink_sigma set to this (results in a "
+                         "folder of their own; default: config.yaml's value)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     results, tables = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         for name in args.scenes:
-            r = measure_scene(name, root, args.frames_demo, args.box_chi_z)
+            r = measure_scene(name, root, args.frames_demo, args.box_chi_z, args.plane_kink_sigma)
             results[name], tables[name] = r, bin_table(r)
             sh = r["shape"]
             print(f"\n## {name} ({SCENES[name]}; {sh['width']} x {sh['height']}, {r['frames']} frames, "

@@ -22,7 +22,8 @@ level (the object white's channel mean over its 99th percentile), as in ``covera
 3. The phase filter alone on the relief: the true phase difference (from the bench's truth) plus
    Gaussian noise of each pixel's own sigma (the raw run's noise term over the height
    sensitivity), ``--draws`` draws, through ``phase.denoise_phase`` (the defaults: radius 2,
-   sigma-adaptive to 0.002 rad up to radius 6, k = 3; the same with k = 100; the fixed window):
+   sigma-adaptive to 0.002 rad up to radius 6, k = 3; the same with the plane kept up to a 10 sigma
+   kink (``plane_kink_sigma``); with k = 100; the fixed window):
    the filtered spread over the draws against ``sqrt(1 / sum w)`` (median per pixel), and the
    filter's error the draws share (mean over the draws less the truth, its noise part removed),
    in mm through the height sensitivity.
@@ -59,6 +60,8 @@ OFF = {"texture_uncertainty": False, "lateral_uncertainty_px": 0.0, "lateral_ste
 RUNS = {"core": OFF, "fixed": {**OFF, "denoise_adaptive": {"enabled": False}},
         "raw": {**OFF, "denoise_radius": 0, "edge_jump_mm": 0.0}}
 FILTERS = {"adaptive, k = 3 (defaults)": {"k": 3.0, "max_radius": 6, "target_sigma": 0.002, "reject_sigma": 0.03},
+           "adaptive, k = 3, plane kink 10": {"k": 3.0, "max_radius": 6, "target_sigma": 0.002, "reject_sigma": 0.03,
+                                              "plane_kink_sigma": 10.0},
            "adaptive, k = 100": {"k": 100.0, "max_radius": 6, "target_sigma": 0.002, "reject_sigma": 0.03},
            "fixed 5 x 5, k = 3": {"k": 3.0}}
 

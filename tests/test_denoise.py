@@ -83,11 +83,11 @@ def test_uncertain_pixels_follow_their_neighbours_and_invalid_ones_are_ignored()
     assert denoise_phase(np.full((5, 5), 0.7, np.float32), np.full((5, 5), 0.1), lone)[2, 2] == np.float32(0.7)
 
 
-def _plane_by_pixel(first, wfirst, v, u, base):
+def _plane_by_pixel(first, wfirst, v, u, base, kink_sigma=3.0):
     """The local plane the grown rings test against at pixel ``(v, u)``: its slopes along ``u``
     and ``v`` (rad/px) and their variances, each the central difference of the first-pass
     estimates ``base`` px either side (float32), where the two one-sided differences agree within
-    3 sigma of their difference and the slope exceeds 2 of its sigma; else 0 (a step, an edge, a
+    ``kink_sigma`` sigma of their difference and the slope exceeds 2 of its sigma; else 0 (a step, an edge, a
     slope lost in the noise, a side outside the image or not valid)."""
     f32 = np.float32
     two_pi, inv_two_pi, pi = f32(2 * np.pi), f32(1 / (2 * np.pi)), f32(np.pi)
@@ -103,7 +103,7 @@ def _plane_by_pixel(first, wfirst, v, u, base):
         fwd = f32(wrapped(f32(first[e] - first[c])) / b)
         bwd = f32(wrapped(f32(first[c] - first[a])) / b)
         dd = f32(fwd - bwd)
-        if f32(f32(dd * dd) * b * b) > f32(f32(9) * f32(f32(va + f32(4) * vb) + vc)):
+        if f32(f32(dd * dd) * b * b) > f32(f32(kink_sigma**2) * f32(f32(va + f32(4) * vb) + vc)):
             return f32(0), f32(0)
         g = f32(f32(0.5) * f32(fwd + bwd))
         vg = f32(f32(va + vc) / f32(f32(4) * b * b))
@@ -117,7 +117,7 @@ def _plane_by_pixel(first, wfirst, v, u, base):
     return gu, vu, gv, vv
 
 
-def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w):
+def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, kink_sigma=3.0):
     """The adaptive pass pixel by pixel, its definition (float32, rings in order, each pixel's
     neighbours added row by row, column by column, stopping once the weights reach the target),
     and each pixel's final window half side."""
@@ -140,7 +140,7 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
                 out[v, u] = first[v, u] if ws >= reject_w else np.nan
                 continue
             m, sf2 = first[v, u], f32(1) / ws
-            gu, vu, gv, vv_ = _plane_by_pixel(first, wfirst, v, u, max_radius)
+            gu, vu, gv, vv_ = _plane_by_pixel(first, wfirst, v, u, max_radius, kink_sigma)
             acc = wsum = f32(0)
             rr = radius
             for r in range(max_radius + 1):
@@ -173,9 +173,11 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
     return out, wout, rad
 
 
-#: ``_adaptive_pass``'s carry arguments when nothing is carried
+#: ``_adaptive_pass``'s carry arguments when nothing is carried (and ``boxed`` not asked for)
 _NO_CARRY = (False, np.empty((1, 1), np.float32), np.empty((1, 1), np.float32), np.empty((1, 1), np.float32),
              np.empty((1, 1), np.float32))
+#: ``_adaptive_pass``'s ``kink2`` at the default ``plane_kink_sigma`` (3)
+_KINK3 = np.float32(9.0)
 
 
 def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
@@ -200,19 +202,59 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
     for max_radius, target, reject in ((4, 0.0008, 0.002), (6, 0.0005, 0.001), (2, 0.0009, 0.0)):
         tw, rw = np.float32(1 / target**2), np.float32(1 / reject**2 if reject else 0.0)
         got, got_w, got_rad = (np.empty_like(dz) for _ in range(3))
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, got_rad, True, 0.0, none, *_NO_CARRY)  # rings everywhere (box_chi_z = 0)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, got_rad, True, 0.0, none,
+                       *_NO_CARRY, _KINK3)  # rings everywhere (box_chi_z = 0)
         want, want_w, want_rad = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw)
         assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))  # the final weight sums too
         assert np.array_equal(got_rad[ok], want_rad[ok])  # and each pixel's final window
         assert got_rad[ok].max() > 1  # windows grew
         bare, bare_w = np.empty_like(dz), np.empty_like(dz)
-        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, False, 0.0, none, *_NO_CARRY)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, False, 0.0, none,
+                       *_NO_CARRY, _KINK3)
         assert np.array_equal(bare.view(np.uint32), got.view(np.uint32))
         assert np.array_equal(bare_w.view(np.uint32), got_w.view(np.uint32))
         grown = (inv > 0) & (wfirst < tw)
         assert grown.sum() > 50  # the pass has work to do
         assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
         assert not np.array_equal(got[grown], first[grown])  # and it changed those pixels
+
+
+def test_plane_kink_sigma_is_the_definitions_threshold() -> None:
+    """``plane_kink_sigma`` is the threshold of the plane's kink test, bit for bit against the
+    pixel-by-pixel definition, on a curved ramp with a step (noisy pixels grow): a larger one keeps
+    the plane on more pixels and changes them, through ``denoise_phase``'s keyword too."""
+    from huefringe.phase import _adaptive_pass, _denoise_kernel, _denoise_weights
+
+    rng = np.random.default_rng(11)
+    h, w = 25, 33
+    sigma = np.where(rng.random((h, w)) < 0.4, 0.03, 0.004) * rng.uniform(0.5, 2, (h, w))
+    yy, xx = np.mgrid[0:h, 0:w]
+    d = wrap(0.06 * xx + 0.004 * (xx - 16.0) ** 2 + 0.003 * (yy - 12.0) ** 2 + 1.5 * (xx >= 24)
+             + rng.normal(0, 1, (h, w)) * sigma)
+    valid = rng.random((h, w)) > 0.05
+    dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
+    _denoise_weights(d, sigma, valid, dz, s2, inv)
+    first, wfirst = np.empty_like(dz), np.empty_like(dz)
+    k2 = np.float32(9.0)
+    _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst)
+    none = np.empty((1, 1), np.float32)
+    tw, rw = np.float32(1 / 0.003**2), np.float32(0.0)
+    outs = {}
+    for kink in (1.0, 3.0, 10.0):
+        got, got_w = np.empty_like(dz), np.empty_like(dz)
+        _adaptive_pass(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, got, got_w, none, False, 0.0, none,
+                       *_NO_CARRY, np.float32(kink**2))
+        want, want_w, _ = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, kink)
+        assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
+        assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))
+        outs[kink] = got
+    grown = (inv > 0) & (wfirst < tw)
+    assert grown.sum() > 100
+    changed = [int((outs[a] != outs[b])[grown].sum()) for a, b in ((1.0, 3.0), (3.0, 10.0))]
+    assert min(changed) > 5, changed
+    kw = {"radius": 1, "max_radius": 5, "target_sigma": 0.003}
+    assert np.array_equal(denoise_phase(d, sigma, valid, plane_kink_sigma=10.0, **kw), outs[10.0], equal_nan=True)
+    assert np.array_equal(denoise_phase(d, sigma, valid, **kw), outs[3.0], equal_nan=True)
 
 
 def _box_case(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, radius: int, max_radius: int, target: float,
@@ -232,7 +274,7 @@ def _box_case(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, radius: int, 
     for tag, z in (("box", chi_z), ("ring", 0.0)):
         out, wout, rad, boxed = (np.zeros_like(dz) for _ in range(4))
         _adaptive_pass(dz, s2, inv, first, wfirst, radius, max_radius, k2, tw, rw, out, wout, rad, True, z,
-                       band_floor(s2, max_radius), *_NO_CARRY[:-1], boxed)
+                       band_floor(s2, max_radius), *_NO_CARRY[:-1], boxed, _KINK3)
         res.update({tag: out, tag + "_w": wout, tag + "_rad": rad, tag + "_boxed": boxed})
     return res
 

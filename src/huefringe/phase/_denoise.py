@@ -16,7 +16,7 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
                   reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None,
                   ratio: NDArray[np.float32] | None = None, ratio_sum: NDArray[np.float32] | None = None,
                   support: NDArray[np.float32] | None = None, box_chi_z: float = 0.0,
-                  carry: NDArray[np.float32] | None = None,
+                  plane_kink_sigma: float = 3.0, carry: NDArray[np.float32] | None = None,
                   carry_mean: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """Edge-preserving, uncertainty-weighted local mean of a phase map.
 
@@ -53,6 +53,13 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         this many standard deviations of its chi-square, the plane's rise across it within the
         rings' band; :func:`_adaptive_pass`); the pixels where it does not (steps, outliers, steep
         ramps) grow ring by ring. 0 = rings everywhere.
+    plane_kink_sigma : float
+        The grown rings' local plane (its slope from the first-pass estimates ``max_radius`` px
+        either side of the pixel) is dropped, the pixel's level used instead, where the two
+        one-sided slopes disagree by more than this many standard deviations of their difference:
+        a step, an edge or a kink between the sides. 3 (the default) keeps blurred steps out of
+        the plane; larger keeps the plane on curved reliefs (docs/uncertainty.md, "The plane's
+        kink test").
     carry, carry_mean : float32 ndarray, optional
         ``carry_mean`` receives each pixel's weighted mean of ``carry`` (finite everywhere) over
         the neighbours its final window accepted, ``sum(w carry) / sum(w)`` (0 where not valid):
@@ -94,7 +101,8 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     _denoise_weights(d, s, valid, dz, s2, inv)
     return denoise_weighted(dz, s2, inv, radius=radius, k=k, max_radius=max_radius, target_sigma=target_sigma,
                             reject_sigma=reject_sigma, weight_sum=weight_sum, ratio=ratio, ratio_sum=ratio_sum,
-                            support=support, box_chi_z=box_chi_z, carry=carry, carry_mean=carry_mean)
+                            support=support, box_chi_z=box_chi_z, plane_kink_sigma=plane_kink_sigma, carry=carry,
+                            carry_mean=carry_mean)
 
 
 def denoise_weight_sums(dphi: NDArray[np.floating], sigma: NDArray[np.floating],
@@ -115,7 +123,7 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
                      reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None,
                      ratio: NDArray[np.float32] | None = None, ratio_sum: NDArray[np.float32] | None = None,
                      support: NDArray[np.float32] | None = None, box_chi_z: float = 0.0,
-                     carry: NDArray[np.float32] | None = None,
+                     plane_kink_sigma: float = 3.0, carry: NDArray[np.float32] | None = None,
                      carry_mean: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """:func:`denoise_phase` on its prepared float32 inputs (for callers that compute them on
     the fly, like the fused kernel): ``ok = valid & finite(dphi) & finite(sigma) & sigma > 0``,
@@ -168,7 +176,7 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
         s2min = band_floor(arrays[1], int(max_radius)) if grows else np.empty((1, 1), np.float32)
         _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), k2, target_w, reject_w, final,
                        wfinal, rad, full, float(box_chi_z) if grows else 0.0, s2min, carry is not None, c, cfirst,
-                       cfinal, np.empty((1, 1), np.float32))
+                       cfinal, np.empty((1, 1), np.float32), np.float32(float(plane_kink_sigma) ** 2))
         out, wsum = final, wfinal
     else:
         rad = np.float32(radius)
@@ -196,15 +204,17 @@ def band_floor(s2: NDArray[np.float32], max_radius: int) -> NDArray[np.float32]:
 
 def adaptive_kwargs(opts: dict | None) -> dict:
     """:func:`denoise_phase` / :func:`denoise_weighted` keywords of a ``measurement.denoise_adaptive``
-    block (``enabled``, ``max_radius``, ``target_sigma_rad``, ``reject_sigma_rad``, ``box_chi_z``); ``{}`` when
+    block (``enabled``, ``max_radius``, ``target_sigma_rad``, ``reject_sigma_rad``, ``box_chi_z``,
+    ``plane_kink_sigma``); ``{}`` when
     absent or disabled (the fixed window). Keys the block leaves out take their value from
     ``defaults.yaml`` (:func:`huefringe.settings.defaults`)."""
     if opts is None or opts is False:
         return {}
     o = dict(opts) if opts is not True else {}
-    if not {"enabled", "max_radius", "target_sigma_rad", "reject_sigma_rad", "box_chi_z"} <= o.keys():
+    if not {"enabled", "max_radius", "target_sigma_rad", "reject_sigma_rad", "box_chi_z", "plane_kink_sigma"} <= o.keys():
         o = {**defaults()["measurement"]["denoise_adaptive"], **o}  # a configured block is complete
     if not o["enabled"]:
         return {}
     return {"max_radius": int(o["max_radius"]), "target_sigma": float(o["target_sigma_rad"]),
-            "reject_sigma": float(o["reject_sigma_rad"]), "box_chi_z": float(o["box_chi_z"])}
+            "reject_sigma": float(o["reject_sigma_rad"]), "box_chi_z": float(o["box_chi_z"]),
+            "plane_kink_sigma": float(o["plane_kink_sigma"])}

@@ -366,12 +366,13 @@ def _plane_box(tab, r0, r1, u0, u1, xp, yp, gu, gv, vgu, vgv):  # pragma: no cov
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _plane_slope(fl, wl, a, b, c, base):  # pragma: no cover - compiled
+def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     """The local phase slope (rad/px) through a pixel along one axis, and its variance, from the
     first-pass estimates ``fl`` (the map flattened, C order) at flat indices ``a`` (``-base`` px), ``b`` (the pixel) and ``c``
     (``+base`` px), their variances ``1 / wl``: the central difference ``(first_c - first_a) /
     (2 base)``, variance ``(1 / wfirst_a + 1 / wfirst_c) / (4 base^2)``, where the two one-sided
-    differences agree within 3 standard deviations of their difference and the slope exceeds 2 of
+    differences agree within ``sqrt(kink2)`` standard deviations of their difference (the
+    filter's ``plane_kink_sigma``, 3 by default) and the slope exceeds 2 of
     its own; else 0 (a step, an edge or a kink between the sides, a slope lost in the noise, a side
     outside the image or not valid: the pixel's level). Differences wrapped to [-pi, pi)."""
     two_pi = np.float32(2.0 * np.pi)
@@ -388,7 +389,7 @@ def _plane_slope(fl, wl, a, b, c, base):  # pragma: no cover - compiled
     bwd = fl[b] - fl[a]
     bwd = (bwd - two_pi * np.floor((bwd + pi) * inv_two_pi)) / base
     dd = fwd - bwd
-    if dd * dd * base * base > np.float32(9.0) * (va + np.float32(4.0) * vb + vc):
+    if dd * dd * base * base > kink2 * (va + np.float32(4.0) * vb + vc):
         return zero, zero  # the sides disagree (a step, an edge, a kink): no plane
     g = np.float32(0.5) * (fwd + bwd)
     vg = (va + vc) / (np.float32(4.0) * base * base)
@@ -399,13 +400,14 @@ def _plane_slope(fl, wl, a, b, c, base):  # pragma: no cover - compiled
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
-                   rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed):
+                   rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed, kink2):
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
     tested against the local plane through the pixel's first-pass estimate ``m``: ``o_j`` the
     neighbour's offset, ``g`` the local phase slope from the first-pass map (:func:`_plane_slope`,
-    estimates ``max_radius`` px either side; 0 where it is not significant or the sides disagree)
+    estimates ``max_radius`` px either side; 0 where it is not significant or the sides disagree
+    by more than ``sqrt(kink2)`` sigma)
     and ``p_j = g . o_j`` the plane's rise to the neighbour, it is accepted when
     ``p_j^2 <= k2 (s_j^2 + 1 / wfirst)`` (the ring follows the ramp's iso-phase band as far as the
     level test would reach on average, but decided by the smooth plane, not by the noisy values)
@@ -471,7 +473,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
         for v in range(vb0, min(vb0 + block, h)):
             _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout, rad,
                           full, chi_z, s2min, carry, c, cfirst, cout, boxed, mark, boxes, v, tab, nring, t0,
-                          built, xc, fl, wl)
+                          built, xc, fl, wl, kink2)
             if boxes:
                 built = min(v + big + 1, h) - t0
 
@@ -479,7 +481,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
                   rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed, mark, boxes, v, tab, nring, t0, built, xc,
-                  fl, wl):
+                  fl, wl, kink2):
     """One row of :func:`_adaptive_pass` (its tables' ring built up to the rows the row's boxes reach)."""
     h, w = d.shape
     nan = np.float32(np.nan)
@@ -528,9 +530,9 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
             continue
         bu = max_radius  # the plane from first-pass estimates as far out as the largest ring
         gu, vgu = _plane_slope(fl, wl, v * w + u - bu if u >= bu else -1, v * w + u,
-                               v * w + u + bu if u + bu < w else -1, np.float32(bu))
+                               v * w + u + bu if u + bu < w else -1, np.float32(bu), kink2)
         gv, vgv = _plane_slope(fl, wl, (v - bu) * w + u if v >= bu else -1, v * w + u,
-                               (v + bu) * w + u if v + bu < h else -1, np.float32(bu))
+                               (v + bu) * w + u if v + bu < h else -1, np.float32(bu), kink2)
         if boxes:
             m = np.float64(first[v, u])
             sf = 1.0 / np.float64(ws)
