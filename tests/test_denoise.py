@@ -180,10 +180,23 @@ _NO_CARRY = (False, np.empty((1, 1), np.float32), np.empty((1, 1), np.float32), 
 _KINK3 = np.float32(9.0)
 
 
+def _first_pass(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, radius: int) -> tuple[np.ndarray, ...]:
+    """The adaptive pass's inputs: the filter's prepared weights ``dz, s2, inv`` and the first pass
+    (``k = 3``, ``radius``) ``first, wfirst``."""
+    from huefringe.phase import _denoise_kernel, _denoise_weights
+
+    h, w = d.shape
+    dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
+    _denoise_weights(d, sigma, valid, dz, s2, inv)
+    first, wfirst = np.empty_like(dz), np.empty_like(dz)
+    _denoise_kernel(dz, s2, inv, radius, np.float32(9.0), first, wfirst)
+    return dz, s2, inv, first, wfirst
+
+
 def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
     """The compiled pass (all of a row's pixels through each window offset together) gives the
     pixel-by-pixel loop's bits: noisy pixels near the borders, invalid neighbours, a step."""
-    from huefringe.phase import _adaptive_pass, _denoise_kernel, _denoise_weights
+    from huefringe.phase import _adaptive_pass
 
     rng = np.random.default_rng(7)
     h, w = 23, 31
@@ -192,11 +205,8 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
     d[:, 20:] += 1.0  # a step
     d = wrap(d)
     valid = rng.random((h, w)) > 0.1
-    dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
-    _denoise_weights(d, sigma, valid, dz, s2, inv)
-    first, wfirst = np.empty_like(dz), np.empty_like(dz)
+    dz, s2, inv, first, wfirst = _first_pass(d, sigma, valid, 1)
     k2 = np.float32(9.0)
-    _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst)
     none = np.empty((1, 1), np.float32)
     ok = inv > 0
     for max_radius, target, reject in ((4, 0.0008, 0.002), (6, 0.0005, 0.001), (2, 0.0009, 0.0)):
@@ -223,7 +233,7 @@ def test_plane_kink_sigma_is_the_definitions_threshold() -> None:
     """``plane_kink_sigma`` is the threshold of the plane's kink test, bit for bit against the
     pixel-by-pixel definition, on a curved ramp with a step (noisy pixels grow): a larger one keeps
     the plane on more pixels and changes them, through ``denoise_phase``'s keyword too."""
-    from huefringe.phase import _adaptive_pass, _denoise_kernel, _denoise_weights
+    from huefringe.phase import _adaptive_pass
 
     rng = np.random.default_rng(11)
     h, w = 25, 33
@@ -232,11 +242,8 @@ def test_plane_kink_sigma_is_the_definitions_threshold() -> None:
     d = wrap(0.06 * xx + 0.004 * (xx - 16.0) ** 2 + 0.003 * (yy - 12.0) ** 2 + 1.5 * (xx >= 24)
              + rng.normal(0, 1, (h, w)) * sigma)
     valid = rng.random((h, w)) > 0.05
-    dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
-    _denoise_weights(d, sigma, valid, dz, s2, inv)
-    first, wfirst = np.empty_like(dz), np.empty_like(dz)
+    dz, s2, inv, first, wfirst = _first_pass(d, sigma, valid, 1)
     k2 = np.float32(9.0)
-    _denoise_kernel(dz, s2, inv, 1, k2, first, wfirst)
     none = np.empty((1, 1), np.float32)
     tw, rw = np.float32(1 / 0.003**2), np.float32(0.0)
     outs = {}
@@ -261,14 +268,10 @@ def _box_case(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, radius: int, 
               chi_z: float) -> dict[str, np.ndarray]:
     """The adaptive pass on a map with plane boxes (``chi_z``) and rings only (``chi_z = 0``): each
     one's phase, weight sums, final half side and the box codes (``boxed``), the inputs, the grown pixels."""
-    from huefringe.phase import _adaptive_pass, _denoise_kernel, _denoise_weights, band_floor
+    from huefringe.phase import _adaptive_pass, band_floor
 
-    h, w = d.shape
-    dz, s2, inv = (np.empty((h, w), np.float32) for _ in range(3))
-    _denoise_weights(d, sigma, valid, dz, s2, inv)
-    first, wfirst = np.empty_like(dz), np.empty_like(dz)
+    dz, s2, inv, first, wfirst = _first_pass(d, sigma, valid, radius)
     k2 = np.float32(9.0)
-    _denoise_kernel(dz, s2, inv, radius, k2, first, wfirst)
     tw, rw = np.float32(1 / target**2), np.float32(0.0)
     res: dict[str, np.ndarray] = {"dz": dz, "inv": inv, "grown": (inv > 0) & (wfirst < tw)}
     for tag, z in (("box", chi_z), ("ring", 0.0)):
