@@ -13,20 +13,25 @@ level (the object white's channel mean over its 99th percentile), as in ``covera
 
 1. Per bin: the 2u coverage of the written u; the frame-to-frame part of the error (per pixel
    the sample std over the frames, rms) against the noise term (``uncertainty.split_terms`` of
-   the core u); the shared part (the frames' mean of ``e``, its noise part ``f2f^2 / F``
-   removed) against the terms the frames share: table (``u_noise sqrt(f_table)``),
-   interpolation, reference + model, the filter's centroid (``g . c``), the rest of the lateral
-   term and the texture term (what the all-on u holds beyond the core u and the lateral term).
+   the core u, which counts the grown windows' bias term with the noise); the shared part (the
+   frames' mean of ``e``, its noise part ``f2f^2 / F`` removed) against the terms the frames
+   share: table (``u_noise sqrt(f_table)``), interpolation, reference + model, the filter's
+   centroid (``g . c``, ``c`` of the first pass's fixed window, on every pixel: the written u leaves
+   the grown windows out of it), the rest of the lateral term and
+   the texture term (what the all-on u holds beyond the core u and the lateral term).
 2. The frame-to-frame part over the noise term (median per pixel) for ``raw``, ``fixed`` and
-   ``core``: which stage of the chain the excess comes from.
+   ``core`` (its noise term with the grown windows' bias): which stage of the chain the excess
+   comes from.
 3. The phase filter alone on the relief: the true phase difference (from the bench's truth) plus
    Gaussian noise of each pixel's own sigma (the raw run's noise term over the height
    sensitivity), ``--draws`` draws, through ``phase.denoise_phase`` (the defaults: radius 2,
    sigma-adaptive to 0.002 rad up to radius 6, k = 3; the same with the plane kept up to a 10 sigma
    kink (``plane_kink_sigma``); with k = 100; the fixed window):
-   the filtered spread over the draws against ``sqrt(1 / sum w)`` (median per pixel), and the
+   the filtered spread over the draws against ``sqrt(1 / sum w)`` (median per pixel), the
    filter's error the draws share (mean over the draws less the truth, its noise part removed),
-   in mm through the height sensitivity.
+   in mm through the height sensitivity, and the grown windows' bias term the filter reports
+   (``bias2``, rms over the draws and pixels, in mm) with its correlation with the size of the
+   shared error per pixel.
 
 About 1 min on one core with ``--keep`` holding the session (2 min without).
 """
@@ -120,7 +125,8 @@ def main() -> None:
         tk = {k: np.stack([t[k] for t in terms]) for k in ("noise", "table", "interpolation", "reference", "model")}
         print(f"astronaut, 8 e- / 5,000 e-, p48, 72 x 1, {nf} frames (tuning scene); {int(valid.sum())} pixels valid "
               f"in every frame ({time.perf_counter() - t0:.0f} s)\n")
-        print("| white level | pixels | 2u | frame-to-frame mm | noise term | ratio | shared mm | table | interpolation "
+        print("| white level | pixels | 2u | frame-to-frame mm | noise term (with the grown windows' bias) | ratio "
+              "| shared mm | table | interpolation "
               "| reference + model | centroid | lateral (rest) | texture | shared terms | ratio |")
         print("| --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
         for lo, hi in BINS:
@@ -174,29 +180,35 @@ def main() -> None:
         print("| filter | quantity | " + " | ".join(_label(lo, hi) for lo, hi in BINS) + " | all |")
         print("| --- | --- |" + " ---: |" * (len(BINS) + 1))
         for name, kw in FILTERS.items():
-            outs, sws = [], []
+            outs, sws, b2s = [], [], []
             for d in draws:
-                sw = np.zeros(d.shape, np.float32)
-                outs.append(denoise_phase(d, sig, ok, radius=fc.RADIUS, weight_sum=sw, **kw))
+                sw, b2 = np.zeros(d.shape, np.float32), np.zeros(d.shape, np.float32)
+                outs.append(denoise_phase(d, sig, ok, radius=fc.RADIUS, weight_sum=sw, bias2=b2, **kw))
                 sws.append(sw)
+                b2s.append(np.nan_to_num(b2))
             o, swa = np.asarray(outs, np.float64), np.asarray(sws, np.float64)
+            term = np.sqrt(np.mean(np.asarray(b2s, np.float64), axis=0))  # the grown windows' bias term, rad
             with np.errstate(divide="ignore", invalid="ignore"):
                 spread = np.std(o, axis=0, ddof=1)
                 pred = np.sqrt(np.mean(1.0 / swa, axis=0))
                 bias = o.mean(axis=0) - d_true
             fine = ok & np.all(np.isfinite(o), axis=0) & np.all(swa > 0, axis=0)
-            c1, c2 = [], []
+            c1, c2, c3, c4 = [], [], [], []
             for lo, hi in (*BINS, (0.0, np.inf)):
                 b = fine & (level >= lo) & (level < hi)
                 if b.sum() < 200:
-                    c1.append("-")
-                    c2.append("-")
+                    for c in (c1, c2, c3, c4):
+                        c.append("-")
                     continue
                 c1.append(f"{np.median(spread[b] / pred[b]):.2f}")
                 v = np.mean((bias[b] * gsens[b]) ** 2) - np.mean((spread[b] * gsens[b]) ** 2) / args.draws
                 c2.append(f"{np.sqrt(max(v, 0.0)):.4f}")
+                c3.append(f"{np.sqrt(np.mean((term[b] * gsens[b]) ** 2)):.4f}")
+                c4.append(f"{np.corrcoef(np.abs(bias[b]), term[b])[0, 1]:.2f}" if term[b].any() else "-")
             print(f"| {name} | spread / predicted | " + " | ".join(c1) + " |")
-            print(f"| | shared error mm | " + " | ".join(c2) + " |")
+            print("| | shared error mm | " + " | ".join(c2) + " |")
+            print("| | grown windows' bias term mm | " + " | ".join(c3) + " |")
+            print("| | its correlation with the shared error's size | " + " | ".join(c4) + " |")
         print(f"\n({time.perf_counter() - t0:.0f} s)")
 
 

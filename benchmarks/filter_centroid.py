@@ -12,7 +12,9 @@ per-pixel noise over the table's slope at the frame's hue (``perframe.phase_sigm
 it returns the heights at the weights' centroid. Its prediction from the bench's truth ``T``,
 ``sum w_j (T_j - T_i) / sum w_j`` over the window's valid pixels, is compared with the frames' mean
 error (correlation, least-squares slope, what is left), and the 2u coverage of the written u
-(which holds the term ``|g . c|``, ``uncertainty.lateral_term``) against the same u without it.
+(which holds the term ``|g . c|``, ``uncertainty.lateral_term``, where the first pass's window
+stands, and the grown windows' own bias where they grew) against the same u with the fixed
+window's term taken out of every pixel (on the grown ones that takes out more than it added).
 Pixels 3 px or more inside the valid region of every frame.
 """
 
@@ -105,7 +107,8 @@ def main() -> None:
           f"least-squares slope {fit[0]:.2f}; median |frames' mean| {np.median(np.abs(m)):.4f} mm, "
           f"less the prediction {np.median(np.abs(m - p)):.4f} mm")
     print(f"2u coverage, every valid pixel of every frame: {np.mean(np.abs(e[ok_all]) <= 2 * u[ok_all]):.3f} with the "
-          f"centroid term, {np.mean(np.abs(e[ok_all]) <= 2 * uw[ok_all]):.3f} without it")
+          f"centroid term (the written u), {np.mean(np.abs(e[ok_all]) <= 2 * uw[ok_all]):.3f} with the fixed "
+          "window's term taken out of every pixel")
 
 
 if __name__ == "__main__":

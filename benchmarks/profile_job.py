@@ -91,7 +91,7 @@ def main(argv: list[str] | None = None) -> int:
     args = list(seen[0])
     none = np.empty((1, 1), np.float32)
     # _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout, rad, full,
-    #                chi_z, s2min, carry, c, cfirst, cout, boxed, kink2)
+    #                chi_z, s2min, carry, c, cfirst, cout, boxed, kink2, bias2)
     grown = int(((args[2] > 0) & (args[4] < args[8])).sum())
     bare = list(args)
     bare[16], bare[17], bare[18], bare[19] = False, none, none, none

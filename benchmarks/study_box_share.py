@@ -80,7 +80,7 @@ def study(name: str, dz: np.ndarray, s2: np.ndarray, inv: np.ndarray, chi_zs: li
         out, wout, rad, boxed = (np.empty_like(dz) for _ in range(4))
         s2min = band_floor(s2, big) if z > 0 else none
         args = (dz, s2, inv, first, wfirst, radius, big, k2, tw, rw, out, wout, rad, True, z, s2min, False,
-                none, none, none, boxed, np.float32(ad["plane_kink_sigma"] ** 2))
+                none, none, none, boxed, np.float32(ad["plane_kink_sigma"] ** 2), none)
         _denoise._adaptive_pass(*args)  # compiled or loaded from the cache
         runs[z] = (args, [], out, rad, boxed)
     for _ in range(rounds):

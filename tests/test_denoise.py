@@ -176,8 +176,8 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
 #: ``_adaptive_pass``'s carry arguments when nothing is carried (and ``boxed`` not asked for)
 _NO_CARRY = (False, np.empty((1, 1), np.float32), np.empty((1, 1), np.float32), np.empty((1, 1), np.float32),
              np.empty((1, 1), np.float32))
-#: ``_adaptive_pass``'s ``kink2`` at the default ``plane_kink_sigma`` (3)
-_KINK3 = np.float32(9.0)
+#: ``_adaptive_pass``'s ``kink2`` at the default ``plane_kink_sigma`` (3), and no bias map asked for
+_KINK3 = (np.float32(9.0), np.empty((1, 1), np.float32))
 
 
 def _first_pass(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, radius: int) -> tuple[np.ndarray, ...]:
@@ -213,14 +213,14 @@ def test_adaptive_pass_is_its_pixel_by_pixel_definition_bit_for_bit() -> None:
         tw, rw = np.float32(1 / target**2), np.float32(1 / reject**2 if reject else 0.0)
         got, got_w, got_rad = (np.empty_like(dz) for _ in range(3))
         _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, got, got_w, got_rad, True, 0.0, none,
-                       *_NO_CARRY, _KINK3)  # rings everywhere (box_chi_z = 0)
+                       *_NO_CARRY, *_KINK3)  # rings everywhere (box_chi_z = 0)
         want, want_w, want_rad = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw)
         assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))  # the final weight sums too
         assert np.array_equal(got_rad[ok], want_rad[ok])  # and each pixel's final window
         assert got_rad[ok].max() > 1  # windows grew
         bare, bare_w = np.empty_like(dz), np.empty_like(dz)
         _adaptive_pass(dz, s2, inv, first, wfirst, 1, max_radius, k2, tw, rw, bare, bare_w, none, False, 0.0, none,
-                       *_NO_CARRY, _KINK3)
+                       *_NO_CARRY, *_KINK3)
         assert np.array_equal(bare.view(np.uint32), got.view(np.uint32))
         assert np.array_equal(bare_w.view(np.uint32), got_w.view(np.uint32))
         grown = (inv > 0) & (wfirst < tw)
@@ -250,7 +250,7 @@ def test_plane_kink_sigma_is_the_definitions_threshold() -> None:
     for kink in (1.0, 3.0, 10.0):
         got, got_w = np.empty_like(dz), np.empty_like(dz)
         _adaptive_pass(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, got, got_w, none, False, 0.0, none,
-                       *_NO_CARRY, np.float32(kink**2))
+                       *_NO_CARRY, np.float32(kink**2), _KINK3[1])
         want, want_w, _ = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, kink)
         assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
         assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))
@@ -277,7 +277,7 @@ def _box_case(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, radius: int, 
     for tag, z in (("box", chi_z), ("ring", 0.0)):
         out, wout, rad, boxed = (np.zeros_like(dz) for _ in range(4))
         _adaptive_pass(dz, s2, inv, first, wfirst, radius, max_radius, k2, tw, rw, out, wout, rad, True, z,
-                       band_floor(s2, max_radius), *_NO_CARRY[:-1], boxed, _KINK3)
+                       band_floor(s2, max_radius), *_NO_CARRY[:-1], boxed, *_KINK3)
         res.update({tag: out, tag + "_w": wout, tag + "_rad": rad, tag + "_boxed": boxed})
     return res
 
@@ -625,3 +625,49 @@ def test_grown_windows_on_a_textured_ramp_have_the_predicted_spread() -> None:
         ratio = float(np.median(np.std(o, axis=0) / np.sqrt(np.mean(1.0 / ws, axis=0))))
         assert abs(ratio - 1.0) < 0.08, (slope, ratio)
         assert abs(float(np.mean(o))) < 2e-3  # and unbiased on the ramp
+
+
+def test_grown_windows_report_their_own_bias() -> None:
+    """``bias2``: on a noise-free ramp with shadows (windows with weight on one side) the grown
+    windows' error at the pixel is their accepted neighbours' own slope times their centroid, with
+    or without the local plane (a plane's slope error is the same kind): ``sqrt(bias2)`` is that
+    error less its noise share; on flat tops beside a step (the far side rejected, the window as
+    lopsided) it is 0, and NaN where the plane's probes straddle the step (a kink: the lateral
+    term's); NaN where the first pass's fixed window stands."""
+    rng = np.random.default_rng(29)
+    vv, uu = np.mgrid[:70, :90].astype(np.float64)
+    sigma = np.exp(rng.normal(np.log(0.05), 0.5, uu.shape)).astype(np.float32)
+    sigma[:, 40:44] *= 4.0
+    valid = np.ones(uu.shape, bool)
+    valid[:, 60:66] = False
+    valid[45:51, :] = False
+    kw = {"radius": 2, "k": 3.0, "max_radius": 5, "target_sigma": 0.004}
+    ramp = (0.007 * uu - 0.004 * vv).astype(np.float32)
+    step = np.where(uu >= 30, 1.5, 0.0).astype(np.float32)
+    for surface, sloped in ((ramp, True), (step, False)):
+        b2, ws = np.zeros(uu.shape, np.float32), np.zeros(uu.shape, np.float32)
+        out = denoise_phase(np.where(valid, surface, np.nan), sigma, valid, weight_sum=ws, bias2=b2, **kw)
+        err = np.abs(out.astype(np.float64) - surface)
+        wf = np.zeros(uu.shape, np.float32)  # the first pass's weights: which windows grew
+        denoise_phase(np.where(valid, surface, np.nan), sigma, valid, radius=2, k=3.0, weight_sum=wf)
+        inner = valid & (uu >= 6) & (uu < 84) & (vv >= 6) & (vv < 64)
+        grown = inner & (wf < 1 / 0.004**2) & (ws > wf)
+        if sloped:  # the fit is exact on a ramp; the term less its slope's noise variance (about 0.002 rad here)
+            big = grown & (err > 0.005)
+            assert big.sum() > 100  # lopsided windows do err
+            ratio = np.sqrt(b2[big]) / err[big]
+            assert 0.85 < np.median(ratio) <= 1.0 and np.percentile(ratio, 5) > 0.4, np.percentile(ratio, [5, 50, 95])
+            assert np.all(np.sqrt(b2[grown]) <= err[grown] + 1e-4)  # never more than the error itself
+            assert np.isfinite(b2[grown]).all()  # shadows drop the plane, no kink: computed everywhere
+        else:
+            assert grown.sum() > 300 and err[grown].max() < 1e-5  # no slope on either side of the step
+            assert np.nanmax(np.sqrt(b2[grown])) < 1e-4
+            # where the plane's probes straddle the step (a kink) the window's bias is left to the
+            # lateral term (NaN); farther away the term is computed, and 0
+            kinked = grown & np.isnan(b2)
+            assert kinked.any() and np.abs(uu[kinked] - 30).max() <= 6
+            assert np.isfinite(b2[grown & (np.abs(uu - 30) > 6)]).all()
+        assert np.isnan(b2[inner & (wf >= 1 / 0.004**2)]).all()  # NaN: the fixed window
+    none = denoise_phase(np.where(valid, ramp, np.nan), sigma, valid, **kw)
+    assert np.array_equal(none, denoise_phase(np.where(valid, ramp, np.nan), sigma, valid, bias2=b2, **kw),
+                          equal_nan=True)  # asking for it changes no phase

@@ -959,3 +959,32 @@ def test_texture_term_is_the_phase_error_of_a_wrong_blur() -> None:
     nan_h = np.full((2, 2), np.nan, np.float32)
     assert np.isnan(uncertainty.texture_term(nan_h, np.zeros((2, 2)))).all()
     assert (uncertainty.texture_term(np.zeros((2, 2)), nan_h) == 0).all()
+
+
+def test_lateral_centroid_part_leaves_grown_windows_to_their_own_bias() -> None:
+    """``grown`` (the filter's ``bias2``: finite where the sigma-adaptive pass grew the window)
+    takes those pixels out of the lateral term's fixed-window centroid part, and only those; the
+    height uncertainty adds their own bias (``height_uncertainty(..., bias2=)``) where finite."""
+    rng = np.random.default_rng(31)
+    vv, uu = np.mgrid[:40, :50].astype(np.float64)
+    h = (0.02 * uu - 0.01 * vv).astype(np.float32)
+    w = np.exp(rng.normal(0.0, 0.7, h.shape)).astype(np.float32)
+    grown = np.full(h.shape, np.nan, np.float32)
+    grown[10:30, 10:25] = 1e-4
+    with_c = uncertainty.lateral_term(h, lateral_px=0.0, weight=w, filter_radius=2)
+    term = uncertainty.lateral_term(h, lateral_px=0.0, weight=w, filter_radius=2, grown=grown)
+    inner = (slice(8, -8), slice(8, -8))
+    assert np.abs(with_c[inner]).max() > 0.005  # the textured weights do move the fixed window's centroid
+    assert np.all(term[np.isfinite(grown)] == 0.0)
+    np.testing.assert_array_equal(term[np.isnan(grown)], with_c[np.isnan(grown)])
+    # the grown windows' bias in the height uncertainty: g^2 bias2 added in quadrature where finite
+    a = np.full(h.shape, 2.0, np.float32)
+    b = np.zeros(h.shape, np.float32)
+    sumw = np.full(h.shape, 1e4, np.float32)
+    valid = np.ones(h.shape, bool)
+    dphi = np.zeros(h.shape, np.float32)
+    bud = uncertainty.PixelBudget(terms=np.zeros((5,) + h.shape, np.float32), table_factor=0.0, noise_factor=1.0)
+    u0 = uncertainty.height_uncertainty(dphi, sumw, valid, a, b, bud)
+    u1 = uncertainty.height_uncertainty(dphi, sumw, valid, a, b, bud, bias2=grown)
+    np.testing.assert_array_equal(u1[np.isnan(grown)], u0[np.isnan(grown)])
+    np.testing.assert_allclose(u1[np.isfinite(grown)], np.sqrt(1e-4 + 1e-4) / 2.0, rtol=1e-5)

@@ -1049,6 +1049,11 @@ class FrameMaps:
     """Each pixel's own filter weight ``1 / sigma^2`` before the filter (0 where no phase was
     decoded; ``want_uncertainty``; as ``perframe.FrameResult.weight``): where the filter's window
     has its centroid (:func:`huefringe.uncertainty.lateral_term`'s ``weight``)."""
+    bias2: NDArray[np.float32] | None = None
+    """The sigma-adaptive filter's own squared bias (rad^2) where it grew the window, NaN where the
+    first pass's fixed window stands or the plane was dropped at a step
+    (:func:`huefringe.phase.denoise_phase`'s ``bias2``): in the uncertainty; the lateral term's
+    centroid part is for the others (``grown``)."""
 
 
 def _check_frame(prep: Prepared, rgb: NDArray[Any]) -> tuple[NDArray[Any], float]:
@@ -1132,16 +1137,17 @@ def frame_maps(
         own = np.empty((h, w), dtype=np.float64)
         _hue_noise_kernel(a, np.float32(scale), prep.gains, hsi, prep.u_sensor, prep.noise, own)
         ratio = noise_ratio2(own, prep.noise)
-    sumw = rsum = support = None
+    sumw = rsum = support = bias2 = None
     carried = np.empty((h, w), dtype=np.float32) if delta is not None and denoise else delta
     if denoise:
         if want_uncertainty:
             sumw, support = np.empty((h, w), dtype=np.float32), np.empty((h, w), dtype=np.float32)
             rsum = np.empty((h, w), dtype=np.float32) if ratio is not None else None
+            bias2 = np.empty((h, w), dtype=np.float32)
         smooth = denoise_weighted(weights[0], weights[1], weights[2], radius=int(denoise_radius), k=float(denoise_k),
                                   weight_sum=sumw, ratio=ratio, ratio_sum=rsum, support=support,
                                   carry=delta if denoise else None, carry_mean=carried if denoise else None,
-                                  **adaptive_kwargs(denoise_adaptive))
+                                  bias2=bias2, **adaptive_kwargs(denoise_adaptive))
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     elif want_uncertainty:  # no filter: the weights path, heights from the unfiltered dz
         smooth, sumw = weights[0], weights[2]
@@ -1153,7 +1159,7 @@ def frame_maps(
         if prep.budget is None:
             raise ValueError("the prepared calibration has no uncertainty budget (kernel.prepare sets it)")
         u_map = edge_floor(height, valid, height_uncertainty(smooth, sumw, valid, prep.a, prep.b, prep.budget,
-                                                             ratio_sum=rsum))
+                                                             ratio_sum=rsum, bias2=bias2))
         support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
         noise_h = height_noise(smooth, sumw, valid, prep.a, prep.b)
     counts = {"clipped": int(n_clip), "hue_undefined": int(n_undef), "valid": int(n_valid), "guess_missed": int(n_miss),
@@ -1162,7 +1168,7 @@ def frame_maps(
     if delta is not None:
         tex_u = texture_term_phase(smooth if denoise else dphi, carried, height, prep.a, prep.b)
     return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map, support, tex_u, noise_h,
-                     weights[2] if want_uncertainty and weights is not None else None)
+                     weights[2] if want_uncertainty and weights is not None else None, bias2)
 
 
 def frame_to_height(

@@ -609,13 +609,13 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
                                       table_invalid_fraction=fp.table_invalid, shadow_fraction=fp.shadow_fraction,
                                       hue_model=fp.hue_model, flag_valid=np.isfinite(k.dphi))
         height, phase, hue, u_map, support, noise_h = k.height, k.phase, k.hue, k.uncertainty, k.support, k.noise
-        tex_u, weight = k.texture_u, k.weight
+        tex_u, weight, grown = k.texture_u, k.weight, k.bias2
         if not fp.want_uncertainty:
             u_map = support = None
     else:
         res = _reference(fp, reader.rgb(path) if rgb is None else rgb, texture_rgb=moved)
         height, phase, hue, stats, u_map, support = res.height, res.phase, res.hue, res.stats, res.uncertainty, res.support
-        tex_u, weight = res.texture_u, res.weight
+        tex_u, weight, grown = res.texture_u, res.weight, res.bias2
         noise_h = res.noise
     if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
         height, (phase, u_map), (support,), changed = remove_step_edges(
@@ -627,7 +627,7 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
     lateral, step = float(m["lateral_uncertainty_px"]), float(m["lateral_step_px"])
     if u_map is not None and (lateral > 0 or step > 0):  # the lateral term on the heights as delivered (after the edge mask)
         u_map = add_lateral(height, u_map, lateral_px=lateral, step_px=step, weight=weight,
-                            filter_radius=int(m["denoise_radius"] or 0))
+                            filter_radius=int(m["denoise_radius"] or 0), grown=grown)
     _refuse_bad_frame(path, stats, m)
     return FrameResult(frame=n, height=height, stats=stats, phase=phase, hue=hue, uncertainty=u_map, support=support)
 

@@ -54,6 +54,11 @@ class FrameResult:
     weight: NDArray[np.float32] | None = None
     """Each pixel's own filter weight ``1 / sigma^2`` before the filter (0 where no phase was
     decoded): where the filter's window has its centroid (:func:`huefringe.uncertainty.lateral_term`)."""
+    bias2: NDArray[np.float32] | None = None
+    """The sigma-adaptive filter's own squared bias (rad^2) where it grew the window, NaN where the
+    first pass's fixed window stands or the plane was dropped at a step
+    (:func:`huefringe.phase.denoise_phase`'s ``bias2``): in the uncertainty; the lateral term's
+    centroid part is for the others (``grown``)."""
 
 
 def measure_frame(
@@ -142,15 +147,17 @@ def measure_frame(
         sigma = sigma * np.abs(predistortion.decode_slope(emitted))
     sumw = np.zeros(valid.shape, np.float32)
     rsum = np.zeros(valid.shape, np.float32)
+    bias2 = None
     support = np.zeros(valid.shape, np.float32)
     raw_dphi = np.asarray(un.dphi, np.float32)
     delta = texture_delta(moved_dphi, raw_dphi) if moved_dphi is not None else None
     carried = np.empty(valid.shape, np.float32) if delta is not None and denoise_radius > 0 else delta
     weight = denoise_weight_sums(un.dphi, sigma, valid)  # each pixel's own 1 / sigma^2, before the filter
     if denoise_radius > 0:
+        bias2 = np.empty(valid.shape, np.float32)
         un.dphi = denoise_phase(un.dphi, sigma, valid, radius=denoise_radius, weight_sum=sumw, ratio=ratio,
                                 ratio_sum=rsum if ratio is not None else None, support=support,
-                                carry=delta, carry_mean=carried, **adaptive_kwargs(denoise_adaptive))
+                                carry=delta, carry_mean=carried, bias2=bias2, **adaptive_kwargs(denoise_adaptive))
     else:  # one pixel's weight 1 / sigma^2, in the filter's float32 arithmetic
         sumw = weight
         rsum = sumw * ratio if ratio is not None else rsum
@@ -161,7 +168,8 @@ def measure_frame(
     if budget is None:
         budget = pixel_budget(table, cal)
     u_map = edge_floor(height, valid, height_uncertainty(np.asarray(un.dphi, np.float32), sumw, valid, cal.a, cal.b,
-                                                         budget, ratio_sum=rsum if ratio is not None else None))
+                                                         budget, ratio_sum=rsum if ratio is not None else None,
+                                                         bias2=bias2))
     support = np.where(valid, support, np.float32(0.0)).astype(np.float32)
     tex_u = texture_term_phase(np.asarray(un.dphi, np.float32), carried, height, cal.a, cal.b) \
         if delta is not None else None
@@ -175,4 +183,4 @@ def measure_frame(
         hue_model=hue_model, unwrap_mode=unwrap_mode, below_reference_mm=below_reference_mm,
     )
     return FrameResult(height, np.where(valid, phase, np.nan).astype(np.float32), hue.astype(np.float32), valid, stats,
-                       u_map, support, raw_dphi, tex_u, noise_h, weight)
+                       u_map, support, raw_dphi, tex_u, noise_h, weight, bias2)

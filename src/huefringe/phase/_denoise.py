@@ -17,7 +17,8 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
                   ratio: NDArray[np.float32] | None = None, ratio_sum: NDArray[np.float32] | None = None,
                   support: NDArray[np.float32] | None = None, box_chi_z: float = 0.0,
                   plane_kink_sigma: float = 3.0, carry: NDArray[np.float32] | None = None,
-                  carry_mean: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+                  carry_mean: NDArray[np.float32] | None = None,
+                  bias2: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """Edge-preserving, uncertainty-weighted local mean of a phase map.
 
     Each valid pixel becomes the inverse-variance weighted mean of the valid pixels in its
@@ -60,6 +61,16 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         a step, an edge or a kink between the sides. 3 (the default) keeps blurred steps out of
         the plane; larger keeps the plane on curved reliefs (docs/uncertainty.md, "The plane's
         kink test").
+    bias2 : float32 ndarray, optional
+        Receives, per pixel whose window the sigma-adaptive pass grew, the squared bias (rad^2) of
+        its weighted mean at the pixel: the accepted neighbours' values (less the local plane where
+        it has one) fitted by least squares to a plane in their offsets, whose slope ``d`` times
+        the weights' centroid ``c`` is what the mean errs by on a surface the plane does not
+        follow (a curved or shadow-bounded relief whose window has weight on one side), less the
+        fitted slope's noise variance (``(d . c)^2 - var``, 0 if negative); NaN where the first
+        pass's fixed window stands (its centroid is the lateral term's) and where the pass dropped
+        its plane at a kink of 5 sigma or more (a step between its probes: the lateral term's step
+        part). A flat side next to a step has no slope: no bias.
     carry, carry_mean : float32 ndarray, optional
         ``carry_mean`` receives each pixel's weighted mean of ``carry`` (finite everywhere) over
         the neighbours its final window accepted, ``sum(w carry) / sum(w)`` (0 where not valid):
@@ -102,7 +113,7 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     return denoise_weighted(dz, s2, inv, radius=radius, k=k, max_radius=max_radius, target_sigma=target_sigma,
                             reject_sigma=reject_sigma, weight_sum=weight_sum, ratio=ratio, ratio_sum=ratio_sum,
                             support=support, box_chi_z=box_chi_z, plane_kink_sigma=plane_kink_sigma, carry=carry,
-                            carry_mean=carry_mean)
+                            carry_mean=carry_mean, bias2=bias2)
 
 
 def denoise_weight_sums(dphi: NDArray[np.floating], sigma: NDArray[np.floating],
@@ -124,7 +135,8 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
                      ratio: NDArray[np.float32] | None = None, ratio_sum: NDArray[np.float32] | None = None,
                      support: NDArray[np.float32] | None = None, box_chi_z: float = 0.0,
                      plane_kink_sigma: float = 3.0, carry: NDArray[np.float32] | None = None,
-                     carry_mean: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+                     carry_mean: NDArray[np.float32] | None = None,
+                     bias2: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """:func:`denoise_phase` on its prepared float32 inputs (for callers that compute them on
     the fly, like the fused kernel): ``ok = valid & finite(dphi) & finite(sigma) & sigma > 0``,
     ``dz = ok ? dphi : 0``, ``s2 = float32(clip(ok ? sigma : 1, 1e-9, 1e9)) ** 2`` and
@@ -138,7 +150,7 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
     if not arrays[0].shape == arrays[1].shape == arrays[2].shape or arrays[0].ndim != 2:
         raise ValueError("dz, s2 and inv must be 2-D arrays of the same shape")
     out = np.empty(arrays[0].shape, np.float32)
-    for name, x in (("weight_sum", weight_sum), ("ratio_sum", ratio_sum), ("support", support)):
+    for name, x in (("weight_sum", weight_sum), ("ratio_sum", ratio_sum), ("support", support), ("bias2", bias2)):
         if x is not None and (x.shape != out.shape or x.dtype != np.float32 or not x.flags.c_contiguous):
             raise ValueError(f"{name} must be a C-contiguous float32 array of the phase's shape")
     if (carry is None) != (carry_mean is None):
@@ -176,7 +188,8 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
         s2min = band_floor(arrays[1], int(max_radius)) if grows else np.empty((1, 1), np.float32)
         _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), k2, target_w, reject_w, final,
                        wfinal, rad, full, float(box_chi_z) if grows else 0.0, s2min, carry is not None, c, cfirst,
-                       cfinal, np.empty((1, 1), np.float32), np.float32(float(plane_kink_sigma) ** 2))
+                       cfinal, np.empty((1, 1), np.float32), np.float32(float(plane_kink_sigma) ** 2),
+                       bias2 if bias2 is not None else np.empty((1, 1), np.float32))
         out, wsum = final, wfinal
     else:
         rad = np.float32(radius)
@@ -184,6 +197,8 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
             weight_sum[...] = wsum
         if carry is not None:
             carry_mean[...] = cfirst
+        if bias2 is not None:  # the fixed window everywhere (its centroid: the lateral term's)
+            bias2[...] = np.nan
     if full:
         rsum, cnt = window_sums(arrays[2], r2, rad, wsum)
         for dst, src in ((ratio_sum, rsum), (support, cnt)):

@@ -374,13 +374,16 @@ def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     differences agree within ``sqrt(kink2)`` standard deviations of their difference (the
     filter's ``plane_kink_sigma``, 3 by default) and the slope exceeds 2 of
     its own; else 0 (a step, an edge or a kink between the sides, a slope lost in the noise, a side
-    outside the image or not valid: the pixel's level). Differences wrapped to [-pi, pi)."""
+    outside the image or not valid: the pixel's level). Differences wrapped to [-pi, pi). The third
+    value is True where the plane was dropped for sides that disagree by 5 sigma or more (a step
+    between them: the grown window's bias is then the lateral term's step part's, not
+    :func:`_centroid_bias2`'s)."""
     two_pi = np.float32(2.0 * np.pi)
     inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
     pi = np.float32(np.pi)
     zero = np.float32(0.0)
     if a < 0 or c < 0 or wl[a] <= 0 or wl[c] <= 0:
-        return zero, zero
+        return zero, zero, False
     va = np.float32(1.0) / wl[a]
     vb = np.float32(1.0) / wl[b]
     vc = np.float32(1.0) / wl[c]
@@ -390,17 +393,45 @@ def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     bwd = (bwd - two_pi * np.floor((bwd + pi) * inv_two_pi)) / base
     dd = fwd - bwd
     if dd * dd * base * base > kink2 * (va + np.float32(4.0) * vb + vc):
-        return zero, zero  # the sides disagree (a step, an edge, a kink): no plane
+        # the sides disagree (a step, an edge, a kink): no plane; a step by far (10 sigma) flagged
+        return zero, zero, dd * dd * base * base > np.float32(25.0) * (va + np.float32(4.0) * vb + vc)
     g = np.float32(0.5) * (fwd + bwd)
     vg = (va + vc) / (np.float32(4.0) * base * base)
     if g * g <= np.float32(4.0) * vg:
-        return zero, zero  # not significant: the level
-    return g, vg
+        return zero, zero, False  # not significant: the level
+    return g, vg, False
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _centroid_bias2(m, sw, sr):  # pragma: no cover - compiled
+    """The squared bias (rad^2) of a grown window's weighted mean at its pixel: the accepted
+    neighbours' values (less the plane, if any) fitted by least squares to a plane in the offsets,
+    ``r = r0 + d . o``; the mean is the fit at the weights' centroid ``c``, the pixel's value is
+    ``r0``, so the mean errs by ``d . c``. Returned as ``(d . c)^2 - var(d . c)`` (the fitted
+    slope's noise, inverse-variance weights, removed; 0 if negative or the offsets are degenerate).
+    ``m``: the sums ``w du, w dv, w du^2, w dv^2, w du dv, w r du, w r dv``; ``sw = sum w``,
+    ``sr = sum w r``."""
+    cu = m[0] / sw
+    cv = m[1] / sw
+    muu = m[2] / sw - cu * cu
+    mvv = m[3] / sw - cv * cv
+    muv = m[4] / sw - cu * cv
+    rb = sr / sw
+    ru = m[5] / sw - rb * cu
+    rv = m[6] / sw - rb * cv
+    det = muu * mvv - muv * muv
+    if not det > 1e-6:
+        return np.float32(0.0)
+    gu = (mvv * ru - muv * rv) / det
+    gv = (muu * rv - muv * ru) / det
+    b = gu * cu + gv * cv
+    vb = (cu * cu * mvv - 2.0 * cu * cv * muv + cv * cv * muu) / (det * sw)
+    return np.float32(max(b * b - vb, 0.0))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
-                   rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed, kink2):
+                   rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed, kink2, b2o):
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
@@ -453,7 +484,15 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     final window accepted, ``sum w c / sum w``: ``cfirst`` (the first pass's, from
     :func:`_denoise_kernel_carry`) where the first pass stands, the ring pass's own sums where it
     grew, the box's (a layer ``w c`` of the tables) where a box was taken. The phase,
-    ``wout`` and ``rad`` are the same bits with or without it."""
+    ``wout`` and ``rad`` are the same bits with or without it.
+
+    With ``b2o`` of the phase's shape, it receives each grown pixel's squared bias
+    (:func:`_centroid_bias2`, rad^2) from the moments of the neighbours its rings accepted, summed
+    in a loop of their own after each window offset (in the pass's inner loops they cost the
+    carried path its vectorisation); NaN where the first pass stands, where a box was taken and where
+    the plane was dropped at a kink of 5 sigma or more (a step: the lateral term's step part holds
+    that window's mixing; counted twice, the gauge blocks' edge zones are over-covered).
+    The phase and the other outputs are the same bits with or without it."""
     h, w = d.shape
     boxes = chi_z > 0
     mark = boxed.shape[0] == h and boxed.shape[1] == w
@@ -473,7 +512,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
         for v in range(vb0, min(vb0 + block, h)):
             _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout, rad,
                           full, chi_z, s2min, carry, c, cfirst, cout, boxed, mark, boxes, v, tab, nring, t0,
-                          built, xc, fl, wl, kink2)
+                          built, xc, fl, wl, kink2, b2o)
             if boxes:
                 built = min(v + big + 1, h) - t0
 
@@ -481,7 +520,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
                   rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed, mark, boxes, v, tab, nring, t0, built, xc,
-                  fl, wl, kink2):
+                  fl, wl, kink2, b2o):
     """One row of :func:`_adaptive_pass` (its tables' ring built up to the rows the row's boxes reach)."""
     h, w = d.shape
     nan = np.float32(np.nan)
@@ -510,6 +549,11 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
     sg = np.empty(w, np.float32)
     cg = np.empty(w, np.float32)  # the gathered carried values (``carry``)
     pcc = np.empty(w, np.float32)
+    bias = b2o.shape[0] == h and b2o.shape[1] == w  # the grown window's own slope times its centroid
+    mom = np.empty((7, w), np.float32)  # sum w du, w dv, w du^2, w dv^2, w du dv, w r du, w r dv
+    wk = np.empty(w, np.float32)  # scratch: each pixel's accepted weight and residual at this offset
+    rk = np.empty(w, np.float32)
+    pk = np.empty(w, np.bool_)  # the plane dropped at a kink (a step): its window's bias is the lateral term's
     n = 0
     if full:
         for u in range(w):
@@ -517,6 +561,9 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
     if carry:
         for u in range(w):
             cout[v, u] = cfirst[v, u]
+    if bias:
+        for u in range(w):
+            b2o[v, u] = nan
     for u in range(w):
         out[v, u] = first[v, u]
         wout[v, u] = wfirst[v, u]
@@ -529,9 +576,9 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
             out[v, u] = first[v, u] if ws >= reject_w else nan
             continue
         bu = max_radius  # the plane from first-pass estimates as far out as the largest ring
-        gu, vgu = _plane_slope(fl, wl, v * w + u - bu if u >= bu else -1, v * w + u,
+        gu, vgu, ku = _plane_slope(fl, wl, v * w + u - bu if u >= bu else -1, v * w + u,
                                v * w + u + bu if u + bu < w else -1, np.float32(bu), kink2)
-        gv, vgv = _plane_slope(fl, wl, (v - bu) * w + u if v >= bu else -1, v * w + u,
+        gv, vgv, kv = _plane_slope(fl, wl, (v - bu) * w + u if v >= bu else -1, v * w + u,
                                (v + bu) * w + u if v + bu < h else -1, np.float32(bu), kink2)
         if boxes:
             m = np.float64(first[v, u])
@@ -595,6 +642,7 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
             if done:
                 continue
         pu[n] = u
+        pk[n] = ku or kv
         pgu[n] = gu
         pvu[n] = vgu
         pgv[n] = gv
@@ -610,6 +658,8 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
         pacc[q] = 0.0
         pw[q] = 0.0
         pcc[q] = 0.0
+        for k in range(7):
+            mom[k, q] = 0.0
     for r in range(0, max_radius + 1):
         for dv in range(-r, r + 1):
             vv = v + dv
@@ -649,6 +699,8 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                         diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
                         pacc[q] += iv * (diff - pl) if keep else zero
                         pw[q] += iv if keep else zero
+                        wk[q] = iv if keep else zero
+                        rk[q] = diff - pl
                         pcc[q] += iv * cg[q] if keep else zero
                 else:
                     for q in range(n):
@@ -670,6 +722,21 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                         diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)
                         pacc[q] += iv * (diff - pl) if keep else zero
                         pw[q] += iv if keep else zero
+                        wk[q] = iv if keep else zero
+                        rk[q] = diff - pl
+                if bias:  # the moments of the grown window's accepted neighbours (their own loop: SIMD)
+                    m0, m1, m2, m3, m4, m5, m6 = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5], mom[6]
+                    duv = fdu * fdv
+                    for q in range(n):
+                        wq = wk[q]
+                        rq = wq * rk[q]
+                        m0[q] += wq * fdu
+                        m1[q] += wq * fdv
+                        m2[q] += wq * du2
+                        m3[q] += wq * dv2
+                        m4[q] += wq * duv
+                        m5[q] += rq * fdu
+                        m6[q] += rq * fdv
                 du += step if step > 0 else 1
         if r >= radius or r == max_radius:
             # a pixel stops once its weights reach the target (or at the last ring): its
@@ -690,6 +757,8 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                             rad[v, u] = r
                         if carry:
                             cout[v, u] = pcc[q] / wsum
+                        if bias and not pk[q]:
+                            b2o[v, u] = _centroid_bias2(mom[:, q], np.float64(wsum), np.float64(pacc[q]))
                     out[v, u] = val if wsum >= reject_w else nan
                     wout[v, u] = wsum
                     continue
@@ -704,6 +773,9 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                 pacc[keep_n] = pacc[q]
                 pw[keep_n] = pw[q]
                 pcc[keep_n] = pcc[q]
+                pk[keep_n] = pk[q]
+                for k in range(7):
+                    mom[k, keep_n] = mom[k, q]
                 keep_n += 1
             n = keep_n
             if n == 0:

@@ -34,11 +34,13 @@ def _interp_of(dphi: NDArray[np.floating], budget: PixelBudget) -> NDArray[np.fl
 
 
 @numba.njit(cache=True, nogil=True, error_model="numpy")
-def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut, phi_ref, out, rsum, nf):  # pragma: no cover
+def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut, phi_ref, out, rsum, nf,
+                        bias2):  # pragma: no cover
     """Branch-free rows (LLVM vectorises them); NaN where not valid or without weight. The
     interpolation error is that of the phase bin of ``phi_ref + dphi`` (``bins``, ``lut``). The
     noise variance is ``rsum / sumw^2`` (``rsum = sumw``: ``1 / sumw``, bit for bit), times ``nf``
-    with the table's (``nf = 1``: the same bits)."""
+    with the table's (``nf = 1``: the same bits). ``bias2`` (of the phase's shape; else not used)
+    adds a phase variance per pixel where finite."""
     h, w = dphi.shape
     nb = bins.shape[2]
     kf = np.float32(nb)
@@ -50,10 +52,12 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
     zero = np.float32(0.0)
     one = np.float32(1.0)
     two = np.float32(2.0)
+    has_b = bias2.shape[0] == h and bias2.shape[1] == w
     for v in range(h):
         dv = dphi[v]
         sv = sumw[v]
         rv = rsum[v]
+        b2v = bias2[v] if has_b else bias2[0]
         okv = valid[v]
         av = a[v]
         bv = b[v]
@@ -82,6 +86,9 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
             jb = ja * d
             var = g * g / sw * tf * nf + (g * t0[u]) ** 2 + (g * t4row[u]) ** 2
             var += ja * ja * t1[u] + two * ja * jb * t2[u] + jb * jb * t3[u]
+            if has_b:
+                bb = b2v[u]
+                var += g * g * (bb if bb == bb else zero)
             r = np.sqrt(max(var, zero))
             ov[u] = r if ok else nan32
 
@@ -89,7 +96,8 @@ def _uncertainty_kernel(dphi, sumw, valid, a, b, terms, table_factor, bins, lut,
 def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], valid: NDArray[np.bool_],
                        a: NDArray[np.float32], b: NDArray[np.float32], budget: PixelBudget,
                        out: NDArray[np.float32] | None = None,
-                       ratio_sum: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+                       ratio_sum: NDArray[np.float32] | None = None,
+                       bias2: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """Combined standard uncertainty (mm) of each pixel's height; NaN where not ``valid``.
 
     Parameters
@@ -109,6 +117,10 @@ def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], val
         The filter's ``sum w r`` (:func:`huefringe.phase.denoise_phase`'s ``ratio_sum``), when the
         pixels' noise variance is ``r`` times the one that weighted them: the filtered phase's
         variance is then ``ratio_sum / sumw^2``.
+    bias2 : float32 (H, W), optional
+        A phase variance (rad^2) added per pixel where finite: the sigma-adaptive filter's own
+        bias where it grew the window (:func:`huefringe.phase.denoise_phase`'s ``bias2``), a term
+        the frames share. :func:`split_terms` counts it with the noise.
     """
     if out is None:
         out = np.empty(np.shape(dphi), np.float32)
@@ -122,7 +134,8 @@ def height_uncertainty(dphi: NDArray[np.float32], sumw: NDArray[np.float32], val
                         np.ascontiguousarray(valid, bool), np.ascontiguousarray(a, np.float32),
                         np.ascontiguousarray(b, np.float32), budget.terms, np.float32(budget.table_factor), bins,
                         _INTERP_LUT, phi_ref, out, sw if ratio_sum is None else np.ascontiguousarray(ratio_sum, np.float32),
-                        np.float32(budget.noise_factor))
+                        np.float32(budget.noise_factor),
+                        np.ascontiguousarray(bias2, np.float32) if bias2 is not None else np.zeros((1, 1), np.float32))
     return out
 
 
@@ -459,7 +472,7 @@ def _lateral_kernel(h, hm, hmc, va, vb, den, has_u, step, c_lat, c_step, u, add,
 
 def _lateral(height: NDArray[np.floating], u: NDArray[np.floating] | None, lateral_px: float, smooth_px: float,
              step_px: float, coarse_px: float, add: bool, weight: NDArray[np.floating] | None = None,
-             filter_radius: int = 0) -> NDArray[np.float32]:
+             filter_radius: int = 0, grown: NDArray[np.floating] | None = None) -> NDArray[np.float32]:
     """:func:`lateral_term` (``add`` False) or :func:`add_lateral` (``add`` True): the filter inputs
     and the normalised averages in compiled passes, the Gaussian sums by OpenCV, the rest per
     pixel in one compiled pass."""
@@ -494,6 +507,13 @@ def _lateral(height: NDArray[np.floating], u: NDArray[np.floating] | None, later
         ox, oy = filter_centroid(weight, int(filter_radius))
         if ox.shape != h.shape:
             raise ValueError(f"filter weights {ox.shape} differ from the height map {h.shape}")
+        if grown is not None:  # the grown windows carry their own bias (the filter's bias2), not this one
+            g2 = np.asarray(grown)
+            if g2.shape != h.shape:
+                raise ValueError(f"grown-window map {g2.shape} differs from the height map {h.shape}")
+            own = np.isfinite(g2)
+            ox = np.where(own, np.float32(0.0), ox)
+            oy = np.where(own, np.float32(0.0), oy)
     else:
         ox = oy = np.empty((1, 1), np.float32)
     _lateral_kernel(h, hm, hmc, va, vb, den, has_u, step, np.float32(lateral_px) ** 2, np.float32(step_px) ** 2,
@@ -525,7 +545,8 @@ def filter_centroid(weight: NDArray[np.floating], radius: int) -> tuple[NDArray[
 def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = None, *,
                  lateral_px: float = LATERAL_PX, smooth_px: float = LATERAL_SMOOTH_PX,
                  step_px: float = 0.0, coarse_px: float = LATERAL_COARSE_PX,
-                 weight: NDArray[np.floating] | None = None, filter_radius: int = 0) -> NDArray[np.float32]:
+                 weight: NDArray[np.floating] | None = None, filter_radius: int = 0,
+                 grown: NDArray[np.floating] | None = None) -> NDArray[np.float32]:
     """The height error of a lateral position uncertainty (mm), per pixel::
 
         u_lat^2 = (lateral_px |g|)^2 + (step_px min(|g - g_coarse|, |g|))^2 + (g . c)^2
@@ -536,7 +557,9 @@ def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = 
     The weights follow the texture (a dark pixel is noisier) and the table's slope along the fringe,
     so ``c`` is fixed from frame to frame and the error is shared by the frames; its sign is known
     but the slope is the measured one, so it is carried here, not corrected (docs/uncertainty.md,
-    "The filter's centroid").
+    "The filter's centroid"). ``grown`` (the filter's ``bias2`` map, finite where the sigma-adaptive
+    pass grew the window and reports its bias) leaves those pixels out of it: their window is not
+    the fixed one, and the height uncertainty holds their own bias.
 
     A pixel's height is a weighted mean over a footprint (camera blur, the phase filter's window,
     the mixed pixels beside a step or a reflectance edge that the first-order texture correction
@@ -559,20 +582,21 @@ def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = 
     float32 in the order of operations the NumPy form has (tests compare them bit for bit).
     """
     return _lateral(height, u, lateral_px, smooth_px, step_px, coarse_px, add=False, weight=weight,
-                    filter_radius=filter_radius)
+                    filter_radius=filter_radius, grown=grown)
 
 
 def add_lateral(height: NDArray[np.floating], u: NDArray[np.floating], **kwargs: Any) -> NDArray[np.float32]:
     """``sqrt(u^2 + lateral_term(height, u, **kwargs)^2)`` (a new float32 map; NaN where either is NaN),
     the sum in float64, in the same compiled pass as the term."""
     o: dict[str, Any] = {"lateral_px": LATERAL_PX, "smooth_px": LATERAL_SMOOTH_PX, "step_px": 0.0,
-                         "coarse_px": LATERAL_COARSE_PX, "weight": None, "filter_radius": 0}
+                         "coarse_px": LATERAL_COARSE_PX, "weight": None, "filter_radius": 0, "grown": None}
     unknown = set(kwargs) - o.keys()
     if unknown:
         raise TypeError(f"add_lateral got unexpected keyword arguments {sorted(unknown)}")
     o.update(kwargs)
     return _lateral(height, u, float(o["lateral_px"]), float(o["smooth_px"]), float(o["step_px"]),
-                    float(o["coarse_px"]), add=True, weight=o["weight"], filter_radius=int(o["filter_radius"] or 0))
+                    float(o["coarse_px"]), add=True, weight=o["weight"], filter_radius=int(o["filter_radius"] or 0),
+                    grown=o["grown"])
 
 
 def texture_term(height: NDArray[np.floating], moved: NDArray[np.floating]) -> NDArray[np.float32]:
