@@ -365,6 +365,12 @@ def _plane_box(tab, r0, r1, u0, u1, xp, yp, gu, gv, vgu, vgv):  # pragma: no cov
     return bw, bn, mean, chi, extra
 
 
+#: The squared disagreement (in sigma^2 of its difference) of the plane's two sides from which a
+#: dropped plane counts as a step (5 sigma): there the grown window's bias is the lateral term's
+#: step part's, not :func:`_centroid_bias2`'s.
+_STEP_KINK2 = np.float32(25.0)
+
+
 @njit(cache=True, inline="always", error_model="numpy")
 def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     """The local phase slope (rad/px) through a pixel along one axis, and its variance, from the
@@ -393,8 +399,8 @@ def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     bwd = (bwd - two_pi * np.floor((bwd + pi) * inv_two_pi)) / base
     dd = fwd - bwd
     if dd * dd * base * base > kink2 * (va + np.float32(4.0) * vb + vc):
-        # the sides disagree (a step, an edge, a kink): no plane; a step by far (10 sigma) flagged
-        return zero, zero, dd * dd * base * base > np.float32(25.0) * (va + np.float32(4.0) * vb + vc)
+        # the sides disagree (a step, an edge, a kink): no plane; flagged from _STEP_KINK2 on (a step)
+        return zero, zero, dd * dd * base * base > _STEP_KINK2 * (va + np.float32(4.0) * vb + vc)
     g = np.float32(0.5) * (fwd + bwd)
     vg = (va + vc) / (np.float32(4.0) * base * base)
     if g * g <= np.float32(4.0) * vg:
@@ -577,9 +583,9 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
             continue
         bu = max_radius  # the plane from first-pass estimates as far out as the largest ring
         gu, vgu, ku = _plane_slope(fl, wl, v * w + u - bu if u >= bu else -1, v * w + u,
-                               v * w + u + bu if u + bu < w else -1, np.float32(bu), kink2)
+                                   v * w + u + bu if u + bu < w else -1, np.float32(bu), kink2)
         gv, vgv, kv = _plane_slope(fl, wl, (v - bu) * w + u if v >= bu else -1, v * w + u,
-                               (v + bu) * w + u if v + bu < h else -1, np.float32(bu), kink2)
+                                   (v + bu) * w + u if v + bu < h else -1, np.float32(bu), kink2)
         if boxes:
             m = np.float64(first[v, u])
             sf = 1.0 / np.float64(ws)
@@ -658,8 +664,9 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
         pacc[q] = 0.0
         pw[q] = 0.0
         pcc[q] = 0.0
-        for k in range(7):
-            mom[k, q] = 0.0
+        if bias:
+            for k in range(7):
+                mom[k, q] = 0.0
     for r in range(0, max_radius + 1):
         for dv in range(-r, r + 1):
             vv = v + dv
@@ -774,8 +781,9 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                 pw[keep_n] = pw[q]
                 pcc[keep_n] = pcc[q]
                 pk[keep_n] = pk[q]
-                for k in range(7):
-                    mom[k, keep_n] = mom[k, q]
+                if bias:
+                    for k in range(7):
+                        mom[k, keep_n] = mom[k, q]
                 keep_n += 1
             n = keep_n
             if n == 0:
