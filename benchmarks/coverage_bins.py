@@ -50,6 +50,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import inspect
 import sys
 import tempfile
 import time
@@ -148,10 +149,12 @@ class BoxShare:
         self._mod, self._inner = _denoise, _denoise._adaptive_pass
 
     def __enter__(self) -> "BoxShare":
+        at = {name: i for i, name in enumerate(inspect.signature(self._inner.py_func).parameters)}
+
         def spy(*args):  # noqa: ANN002, ANN202 - the pass's positional arguments
-            inv, wfirst, target_w, chi_z = args[2], args[4], args[8], args[14]
-            boxed = np.zeros(inv.shape, np.float32) if chi_z > 0 else args[20]
-            self._inner(*args[:20], boxed, *args[21:])
+            inv, wfirst, target_w, chi_z = args[at["inv"]], args[at["wfirst"]], args[at["target_w"]], args[at["chi_z"]]
+            boxed = np.zeros(inv.shape, np.float32) if chi_z > 0 else args[at["boxed"]]
+            self._inner(*args[:at["boxed"]], boxed, *args[at["boxed"] + 1:])
             if chi_z > 0:
                 grown = (inv > 0) & (wfirst < target_w)
                 self.counts += np.bincount(boxed[grown].astype(np.int64), minlength=5)[:5]

@@ -11,7 +11,8 @@ one core (``NUMBA_NUM_THREADS=1``) with the workflow's settings (height, QA, unc
 support maps, the camera corrections): once to warm up, once timed (ms a frame, the batch's ready
 phase included), once under ``cProfile`` (the ``--top`` functions by own time). Then the
 sigma-adaptive pass on the first frame's inputs, as the job called it, timed alone (CPU ms,
-median of 7): as called, without the carried texture change, and without the window sizes either.
+median of 7): as called, without the carried texture change, without the window sizes either, and
+without the grown windows' bias either (the pass's arguments found by name).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import cProfile  # noqa: E402
+import inspect  # noqa: E402
 import pstats  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -90,16 +92,18 @@ def main(argv: list[str] | None = None) -> int:
         pstats.Stats(prof).sort_stats("tottime").print_stats(a.top)
     args = list(seen[0])
     none = np.empty((1, 1), np.float32)
-    # _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout, rad, full,
-    #                chi_z, s2min, carry, c, cfirst, cout, boxed, kink2, bias2)
-    grown = int(((args[2] > 0) & (args[4] < args[8])).sum())
-    bare = list(args)
-    bare[16], bare[17], bare[18], bare[19] = False, none, none, none
+    at = {name: i for i, name in enumerate(inspect.signature(_denoise._adaptive_pass.py_func).parameters)}
+    grown = int(((args[at["inv"]] > 0) & (args[at["wfirst"]] < args[at["target_w"]])).sum())
+    bare = list(args)  # without the carried change (the grown windows' bias as called)
+    bare[at["carry"]], bare[at["c"]], bare[at["cfirst"]], bare[at["cout"]] = False, none, none, none
     norad = list(bare)
-    norad[12], norad[13] = none, False
+    norad[at["rad"]], norad[at["full"]] = none, False
+    nobias = list(norad)
+    nobias[at["b2o"]] = none
     print(f"adaptive pass, first frame: {grown} of {args[0].size} pixels grow; CPU ms as called "
-          f"{_cpu_ms(tuple(args)):.1f} (carry {args[16]}), without the carried change {_cpu_ms(tuple(bare)):.1f}, "
-          f"without the window sizes either {_cpu_ms(tuple(norad)):.1f}")
+          f"{_cpu_ms(tuple(args)):.1f} (carry {args[at['carry']]}), without the carried change {_cpu_ms(tuple(bare)):.1f}, "
+          f"without the window sizes either {_cpu_ms(tuple(norad)):.1f}, without the grown windows' bias either "
+          f"{_cpu_ms(tuple(nobias)):.1f}")
     return 0
 
 
