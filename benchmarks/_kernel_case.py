@@ -24,6 +24,7 @@ from huefringe.bench.toy import ToyRig
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable, build_table
 from huefringe.patterns import TWO_PI, band_rgb, trapezoid_rgb
+from huefringe.texture import projector_off_light
 
 GAMMA = np.array([2.2, 2.0, 2.4])
 MIX = np.array([[0.90, 0.08, 0.02], [0.07, 0.86, 0.07], [0.02, 0.10, 0.88]])
@@ -91,6 +92,8 @@ class KernelCase:
     frame: NDArray[np.uint8]
     truth: NDArray[np.float64]
     build_seconds: float
+    offset: NDArray[np.float64] | None = None
+    """The light without fringe the texture correction takes out (``texture.projector_off_light`` of the bands)."""
 
 
 def make_case(w: int, h: int, n_bands: int = 256, repeats: int = 2, seed: int = 0) -> KernelCase:
@@ -109,7 +112,9 @@ def make_case(w: int, h: int, n_bands: int = 256, repeats: int = 2, seed: int = 
     dt = time.perf_counter() - t
     cal = analytic_calibration(h, w)
     z = height_map(h, w)
-    return KernelCase(table, cal, white, frame_of(cam, cal, z), z, dt)
+    offset = projector_off_light((read((i, 0)), band_rgb(i, n_bands)) for i in range(n_bands)
+                                 if np.any(band_rgb(i, n_bands) == 0.0)).astype(np.float64)  # as a job holds it
+    return KernelCase(table, cal, white, frame_of(cam, cal, z), z, dt, offset)
 
 
 def tile_case(rig: KernelCase, w: int, h: int) -> KernelCase:
@@ -126,4 +131,5 @@ def tile_case(rig: KernelCase, w: int, h: int) -> KernelCase:
     table = HueTable(t.model, t.n_bands, tab, tile(t.valid), tile(t.start), tile(t.reason), tile(t.noise_rad),
                      dict(t.stats))
     cal = PlaneCalibration(tile(rig.cal.phi_ref), tile(rig.cal.a), tile(rig.cal.b), list(rig.cal.planes_mm))
-    return KernelCase(table, cal, tile(rig.white), tile(rig.frame), tile(rig.truth), float("nan"))
+    return KernelCase(table, cal, tile(rig.white), tile(rig.frame), tile(rig.truth), float("nan"),
+                      None if rig.offset is None else tile(rig.offset))

@@ -14,7 +14,7 @@ correction and the adaptive filter have edges to work on) it runs one frame thro
 0.4 px^2 and its uncertainty 0.1 px^2 (the demo's order), and times each stage:
 
 ``read``         decoding the frame's PNG (``session.read_rgb_codes``),
-``texture``      the texture-edge correction (``texture.correct``) of the capture,
+``texture``      the texture-edge correction (``texture.correct``, with the light without fringe the bands give) of the capture,
 ``kernel``       the fused kernel without the filter (``kernel.frame_maps``, phase difference),
 ``filter``       the phase filter at ``denoise_radius`` (the kernel with it, minus without),
 ``adaptive``     its sigma-adaptive support (with minus without),
@@ -120,7 +120,7 @@ def chain(rig: KernelCase, work: Path, box_chi_z: float | None = None) -> dict[s
                           shadow=shadow, bit_depth=8)
     raw = rig.frame.astype(np.float32) * np.float32(1 / 255)
     clip = perframe.clipped_mask(raw, 8)
-    rgb = texture.correct(raw, rig.white, BLUR_PX2, clipped=clip)
+    rgb = texture.correct(raw, rig.white, BLUR_PX2, clipped=clip, offset=rig.offset)
     buf = (np.empty((h, w), np.float32), np.empty((h, w), bool))
 
     def maps(**kw: Any) -> Any:
@@ -131,14 +131,15 @@ def chain(rig: KernelCase, work: Path, box_chi_z: float | None = None) -> dict[s
 
     carried = "texture_rgb" in inspect.signature(kernel.frame_maps).parameters
     if carried:  # the texture term carried through the filter: the moved capture's phase alone
-        _, moved = texture.correct_pair(raw, rig.white, BLUR_PX2, BLUR_PX2 + BLUR_U_PX2, clipped=clip)
+        _, moved = texture.correct_pair(raw, rig.white, BLUR_PX2, BLUR_PX2 + BLUR_U_PX2, clipped=clip,
+                                        offset=rig.offset)
 
         def tex_u() -> Any:
             return maps(denoise_radius=radius, denoise_adaptive=adaptive, want_uncertainty=True, texture_rgb=moved)
     else:  # the second corrected capture through the whole filtered chain
 
         def tex_u() -> Any:
-            mv = texture.correct(raw, rig.white, BLUR_PX2 + BLUR_U_PX2, clipped=clip)
+            mv = texture.correct(raw, rig.white, BLUR_PX2 + BLUR_U_PX2, clipped=clip, offset=rig.offset)
             mh = kernel.frame_maps(prep, mv, denoise_radius=radius, denoise_adaptive=adaptive).height
             return maps(denoise_radius=radius, denoise_adaptive=adaptive, want_uncertainty=True), texture_term(height, mh)
 
@@ -166,8 +167,9 @@ def chain(rig: KernelCase, work: Path, box_chi_z: float | None = None) -> dict[s
     return {
         **boxes,
         "read": lambda: read_rgb_codes(png),
-        "texture": ((lambda: texture.correct_pair(raw, rig.white, BLUR_PX2, BLUR_PX2 + BLUR_U_PX2, clipped=clip))
-                    if carried else (lambda: texture.correct(raw, rig.white, BLUR_PX2, clipped=clip))),
+        "texture": ((lambda: texture.correct_pair(raw, rig.white, BLUR_PX2, BLUR_PX2 + BLUR_U_PX2, clipped=clip,
+                                                  offset=rig.offset))
+                    if carried else (lambda: texture.correct(raw, rig.white, BLUR_PX2, clipped=clip, offset=rig.offset))),
         "k0": lambda: maps(),
         "k1": lambda: maps(denoise_radius=radius),
         "k2": lambda: maps(denoise_radius=radius, denoise_adaptive=adaptive),

@@ -2,8 +2,9 @@
 
 Usage: ./run python benchmarks/texture_variants.py [--cases NAME ...] [--variants NAME ...] [--noise-free] [--keep DIR]
 
-Each variant replaces :func:`huefringe.texture.correct` for the run (the frames are corrected once,
-before either chain, as the library does), with the bench's true lens blur given
+Each variant replaces :func:`huefringe.texture.correct` and ``correct_pair`` for the run (the frames
+are corrected once, before either chain, as the library does; the variants' formula alone, the
+light without fringe not taken out), with the bench's true lens blur given
 (``calibration.texture_blur_px2: 0.81``; the auto estimate stays first-order and is not run). The
 cases are the tuning cases of ``benchmarks/accuracy_matrix.py`` (photographed reliefs astronaut and
 chelsea); ``--noise-free`` adds the astronaut relief rendered without sensor noise (full well and
@@ -12,7 +13,8 @@ docs/accuracy-texture.md (top section) gives the table and what it means.
 
 The variants, ``B`` a capture, ``W`` the object's white image, ``s`` the blur variance (px^2):
 
-- ``first_order``: the library's ``B - s grad W . grad(B / W)``;
+- ``first_order``: the library's ``B - s grad W . grad(B / W)`` (as the library runs it: with the light
+  without fringe taken out, ``calibration.texture_offset``);
 - ``fixed_point``: ``W F`` with ``F = B / W - s grad ln W . grad F`` (3 rounds from ``F = B / W``);
 - ``smooth_gradient r``: ``B - s grad W . grad(G_r * (B / W))``: for a Gaussian blur the lean's
   coefficient ``s grad ln W`` is exact (the first moment of ``G R``), only the fringe's gradient
@@ -43,6 +45,7 @@ import accuracy_matrix as am  # noqa: E402
 from huefringe import texture  # noqa: E402
 
 _first_order = texture.correct
+_first_order_pair = texture.correct_pair
 
 
 def _grad_dot(w: np.ndarray, f: np.ndarray) -> np.ndarray:
@@ -115,6 +118,15 @@ def _patched(fn):
     return correct
 
 
+def _pair(correct):
+    """``texture.correct_pair``'s signature around a patched ``correct`` (the light without fringe is
+    not taken out: the variants are of the correction's formula alone)."""
+    def correct_pair(rgb, white, sigma2_px2, moved_px2, clipped=None, offset=None):
+        return (correct(rgb, white, sigma2_px2, clipped),
+                None if moved_px2 is None else correct(rgb, white, moved_px2, clipped))
+    return correct_pair
+
+
 VARIANTS = {
     "off": (None, 0.0),
     "first_order": (None, 0.81),
@@ -147,12 +159,13 @@ def main() -> None:
             session, tables = am._case_dirs(root / am._slug(name), case["cfg"])
             for vname in args.variants:
                 fn, blur = VARIANTS[vname]
-                texture.correct = fn or _first_order
+                if fn is not None:  # the measurement corrects through correct_pair: both take the variant
+                    texture.correct, texture.correct_pair = fn, _pair(fn)
                 try:
                     cfg = am._config({"calibration": {"texture_blur_px2": blur}})
                     r = am.score(am.measure(session, tables, root / am._slug(name) / ("var-" + am._slug(vname)), cfg))
                 finally:
-                    texture.correct = _first_order
+                    texture.correct, texture.correct_pair = _first_order, _first_order_pair
                 cov = " | ".join(f"{r[f'cov2u_{z}']:.3f}" for z in ("all", "edge", "texture", "rest"))
                 print(f"| {name} | {vname} | {r['median_abs_mm']:.4f} | {r['p95_abs_mm']:.4f} | {r['coverage']:.3f} | {cov} |",
                       flush=True)

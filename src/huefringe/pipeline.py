@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe import kernel, phase_error, row_banding, texture
+from huefringe import kernel, patterns, phase_error, row_banding, texture
 from huefringe.camera import CameraModel, CaptureReader, bayer_resampling, camera_record, corrections, mixing_band_pairs
 from huefringe.colour import hue as hue_of
 from huefringe.colour import balanced_hue, white_balance, white_gains
@@ -239,6 +239,8 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     cal.phase_error = None if lut is None else lut.error
     cal.stats["phase_error"] = None if lut is None else lut.stats
     blur = calibration["texture_blur_px2"]
+    if blur == "auto" or float(blur or 0.0) > 0:  # the light without fringe the correction takes out first
+        cal.projector_off = session_projector_off(s, calibration, reader)
     if blur == "auto":  # the camera's blur from the session's own object frames (needs the object table)
         info = (session_texture_blur(s, object_table, cal, hue_model, calibration, reader=reader) if object_table is not None
                 else {"sigma2_px2": 0.0, "source": "auto, no object table given: off"})
@@ -392,6 +394,31 @@ def plane_row_banding(s: Session, phases: Mapping[float, NDArray[np.floating]],
 TEXTURE_BLUR_FRAMES = 4
 
 
+#: object hue bands per channel (every repeat) the light without fringe is averaged over
+PROJECTOR_OFF_BANDS = 8
+
+
+def session_projector_off(s: Session, calibration: Mapping[str, Any],
+                          reader: CaptureReader | None = None) -> NDArray[np.float32] | None:
+    """The light the object sends the camera with the projector's code at 0 (ambient light
+    reflected, stray light, the projector's black level), per pixel and channel: each channel's mean
+    over object hue bands (every repeat) whose code is 0 in that channel, up to
+    :data:`PROJECTOR_OFF_BANDS` of them spread over its third of the bands
+    (:func:`huefringe.texture.projector_off_light`, ``patterns.band_rgb``), read through ``reader``
+    as the frames are. None when ``calibration.texture_offset`` is off."""
+    if not calibration.get("texture_offset", True):
+        return None
+    read = (reader or CaptureReader()).rgb
+    n = len(s.object_bands)
+    codes = [patterns.band_rgb(i, n) for i in range(n)]
+    chosen: set[int] = set()
+    for c in range(3):
+        zero = [i for i in range(n) if codes[i][c] == 0.0]
+        take = min(len(zero), PROJECTOR_OFF_BANDS)
+        chosen.update(zero[int(k * len(zero) / take)] for k in range(take))
+    return texture.projector_off_light((read(p), codes[i]) for i in sorted(chosen) for p in s.object_bands[i])
+
+
 def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str,
                          calibration: Mapping[str, Any], *, reader: CaptureReader | None = None) -> dict[str, Any]:
     """The camera's blur variance (px^2) for the texture-edge correction, from the session's first
@@ -502,6 +529,9 @@ class FramePipeline:
     """The texture-edge correction's blur variance (px^2, ``calibration.texture_blur_px2``)."""
     blur_u: float
     """Its uncertainty (px^2) when the texture term of u is on, else 0."""
+    offset: NDArray[np.float64] | None = None
+    """The light without fringe the texture-edge correction takes out (``calibration.projector_off``,
+    float64 once for every frame), or None."""
     table: HueTable | None = None
     """The object's hue table (the NumPy chain; None with the kernel, whose pixel-major copy replaces it)."""
     prep: kernel.Prepared | None = None
@@ -531,7 +561,8 @@ def prepare_frames(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: st
     blur_u = float(cal.texture_blur_u_px2 or 0.0) if want_uncertainty and measurement["texture_uncertainty"] else 0.0
     fp = FramePipeline(session=s, calibration=cal, hue_model=hue_model, measurement=measurement, reader=reader,
                        white=white, shadow=shadow, adaptive=noise_aware_adaptive(measurement["denoise_adaptive"], t),
-                       want_uncertainty=want_uncertainty, blur2=float(cal.texture_blur_px2 or 0.0), blur_u=blur_u)
+                       want_uncertainty=want_uncertainty, blur2=float(cal.texture_blur_px2 or 0.0), blur_u=blur_u,
+                       offset=None if cal.projector_off is None else np.ascontiguousarray(cal.projector_off, np.float64))
     if bool(measurement["kernel"]) and measurement["unwrap"] == "reference":
         fp.prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                  shadow=shadow, bit_depth=s.bit_depth, predistortion=s.predistortion,
@@ -589,7 +620,7 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
         raw = reader.rgb(path)
         clip = clipped_mask(raw, s.bit_depth)
         rgb, moved = texture.correct_pair(raw, fp.white, fp.blur2, fp.blur2 + fp.blur_u if fp.blur_u > 0 else None,
-                                          clipped=clip)
+                                          clipped=clip, offset=fp.offset)
         rgb = rgb if fp.blur2 > 0 else None
     if rgb is None and reader.demixed:  # the demixed channels (camera.colour_demixing), to both chains
         rgb = reader.rgb(path)

@@ -12,7 +12,17 @@ term); the last term is the same on the white plate and the phase-error table ho
 
     B'_c = B_c - sigma^2 grad W_c . grad (B_c / W_c)                        (:func:`correct`)
 
-which makes ``B'_c / W_c = F_c`` to first order. ``sigma^2`` is the camera's blur, which a
+which makes ``B'_c / W_c = F_c`` to first order.
+
+Light that carries no fringe breaks the product form: the ambient light the surface reflects, the
+camera's stray light and the projector's black level add ``Q_c`` to capture and white alike
+(``B_c = G * (R_c F_c) + Q_c``), and on a dark pixel ``Q_c`` is a large part of the white. The
+fringe-carrying light is then ``B_c - Q_c`` over ``W_c - Q_c``, and the correction is formed from it
+(``offset`` = ``Q``, :func:`projector_off_light`: the captures of the hue bands in which the
+channel's code is 0; docs/uncertainty.md, "Dark pixels of a textured relief", measures it). The
+blur itself is estimated from the correction without the offset (:func:`blur_from_phases`): with
+it, on noisy frames, the frames' predicted corrections lose their correlation and the estimate is
+refused (docs/design.md). ``sigma^2`` is the camera's blur, which a
 session does not record; :func:`blur_from_phases` finds it from the session's own object frames
 measured with and without the correction: the true surface does not follow the texture, so the
 ``sigma^2`` that removes the phase's texture-correlated fine structure is the blur
@@ -24,7 +34,7 @@ image's sharp edges instead. Pure functions, no I/O.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 import numpy as np
@@ -34,7 +44,8 @@ from scipy import ndimage
 
 from huefringe import _threads  # noqa: F401  (numba's threading layer, before any parallel launch)
 
-__all__ = ["blur_from_phases", "blur_from_white", "blur_uncertainty", "correct", "correct_pair", "lean", "white_floor"]
+__all__ = ["blur_from_phases", "blur_from_white", "blur_uncertainty", "correct", "correct_pair", "lean",
+           "projector_off_light", "white_floor"]
 
 #: white level (full scale 1) below which the normalised fringe is not formed (noise, shadow)
 WHITE_FLOOR = 0.02
@@ -48,7 +59,59 @@ def white_floor(white: NDArray[np.floating]) -> NDArray[np.float64]:
     return np.maximum(np.asarray(white, np.float64), WHITE_FLOOR)
 
 
-def lean(rgb: NDArray[np.floating], white: NDArray[np.floating]) -> NDArray[np.float64]:
+def projector_off_light(captures: Iterable[tuple[NDArray[np.floating], NDArray[np.floating]]]) -> NDArray[np.float32]:
+    """The light a scene sends the camera with the projector's code at 0 (ambient light reflected,
+    stray light, the projector's black level), per pixel and channel, from uniform captures.
+
+    Parameters
+    ----------
+    captures : iterable of (rgb, code)
+        Uniform-colour captures (H, W, 3) in [0, 1] (``read_rgb``, through the same camera
+        corrections as the frames) with their projected code (3,) in [0, 1], e.g. the object's
+        hue bands and ``patterns.band_rgb``: each channel is averaged over the captures whose
+        code is 0 in that channel (a third of the trapezoid's bands).
+
+    Returns
+    -------
+    ndarray of float32 (H, W, 3)
+        ``Q``, the ``offset`` of :func:`correct` and :func:`correct_pair`.
+
+    Raises
+    ------
+    ValueError
+        When no capture has a channel at code 0, or the captures differ in shape.
+    """
+    acc: NDArray[np.float64] | None = None
+    count = np.zeros(3, np.int64)
+    for rgb, code in captures:
+        zero = np.flatnonzero(np.asarray(code, np.float64).reshape(3) == 0.0)
+        if zero.size == 0:
+            continue
+        img = np.asarray(rgb)
+        if acc is None:
+            acc = np.zeros(img.shape, np.float64)
+        if img.shape != acc.shape or img.ndim != 3:
+            raise ValueError(f"capture of shape {img.shape}, expected {acc.shape} (H, W, 3)")
+        for c in zero:
+            acc[..., c] += img[..., c]
+        count[zero] += 1
+    if acc is None or np.any(count == 0):
+        raise ValueError(f"no capture at code 0 in every channel (captures per channel: {count.tolist()})")
+    return (acc / count).astype(np.float32)
+
+
+def _fringe_light(rgb: NDArray[np.floating], white: NDArray[np.floating],
+                  offset: NDArray[np.floating] | None) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+    """Capture and floored white less ``offset`` (the fringe-carrying light), float64."""
+    b = np.asarray(rgb, np.float64)
+    if offset is None:
+        return b, white_floor(white)
+    q = np.asarray(offset, np.float64)
+    return b - q, white_floor(np.asarray(white, np.float64) - q)
+
+
+def lean(rgb: NDArray[np.floating], white: NDArray[np.floating],
+         offset: NDArray[np.floating] | None = None) -> NDArray[np.float64]:
     """``grad W_c . grad (B_c / W_c)`` per channel (central differences; 0 on the border rows and
     columns): the capture's change per unit ``sigma^2`` that :func:`correct` removes.
 
@@ -56,9 +119,11 @@ def lean(rgb: NDArray[np.floating], white: NDArray[np.floating]) -> NDArray[np.f
     ----------
     rgb, white : ndarray (H, W, 3)
         A fringe capture and the object's white image, both in [0, 1] (``read_rgb``).
+    offset : ndarray (H, W, 3), optional
+        The light that carries no fringe (:func:`projector_off_light`), taken out of both first.
     """
-    w = white_floor(white)
-    y = np.asarray(rgb, np.float64) / w
+    b, w = _fringe_light(rgb, white, offset)
+    y = b / w
     out = np.zeros(w.shape, np.float64)
     # central differences: (f[+1] - f[-1]) / 2 along each axis, the pixel's own value left out
     out[1:-1, :, :] += (w[2:] - w[:-2]) * (y[2:] - y[:-2]) / 4.0
@@ -67,7 +132,8 @@ def lean(rgb: NDArray[np.floating], white: NDArray[np.floating]) -> NDArray[np.f
 
 
 def correct(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: float,
-            clipped: NDArray[np.bool_] | None = None) -> NDArray[np.float32]:
+            clipped: NDArray[np.bool_] | None = None,
+            offset: NDArray[np.floating] | None = None) -> NDArray[np.float32]:
     """The capture with the texture-edge lean removed, ``B - sigma^2 grad W . grad (B / W)``.
 
     Parameters
@@ -78,6 +144,9 @@ def correct(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: 
         The camera's blur variance (px^2); 0 returns the capture unchanged (as float32).
     clipped : ndarray of bool (H, W), optional
         Pixels left unchanged (saturated sensor: the chain marks them invalid by their code).
+    offset : ndarray (H, W, 3), optional
+        The light that carries no fringe (:func:`projector_off_light`): the lean is formed from
+        the capture and the white less it (:func:`lean`).
 
     Returns
     -------
@@ -87,16 +156,17 @@ def correct(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: 
     b = np.asarray(rgb, np.float64)
     if sigma2_px2 == 0:
         return b.astype(np.float32)
-    out = np.clip(b - sigma2_px2 * lean(b, white), 0.0, 1.0)
+    out = np.clip(b - sigma2_px2 * lean(b, white, offset), 0.0, 1.0)
     if clipped is not None:
         out[clipped] = b[clipped]
     return out.astype(np.float32)
 
 
 @njit(cache=True, nogil=True, parallel=True)
-def _correct_pair(b, w, s1, s2, clipped, use_clip, out1, out2, want2):  # pragma: no cover - compiled
-    """:func:`lean` of every pixel (float64, the same operations in the same order) and the two
-    corrections ``clip(b - s lean, 0, 1)`` (float32; clipped pixels as captured), rows in parallel."""
+def _correct_pair(b, w, s1, s2, clipped, use_clip, out1, out2, want2, q):  # pragma: no cover - compiled
+    """:func:`lean` of every pixel (float64, the same operations in the same order; of ``b - q``
+    and ``w - q`` unless ``q`` is None, a case compiled on its own) and the two corrections
+    ``clip(b - s lean, 0, 1)`` (float32; clipped pixels as captured), rows in parallel."""
     h, wd, nc = b.shape
     floor = WHITE_FLOOR
     for v in prange(h):
@@ -106,13 +176,23 @@ def _correct_pair(b, w, s1, s2, clipped, use_clip, out1, out2, want2):  # pragma
                 x = b[v, u, c]
                 g = 0.0
                 if 0 < v < h - 1:
-                    wa = max(w[v + 1, u, c], floor)
-                    wb = max(w[v - 1, u, c], floor)
-                    g += (wa - wb) * (b[v + 1, u, c] / wa - b[v - 1, u, c] / wb) / 4.0
+                    if q is None:
+                        ba, bb, wa, wb = b[v + 1, u, c], b[v - 1, u, c], w[v + 1, u, c], w[v - 1, u, c]
+                    else:
+                        qa, qb = q[v + 1, u, c], q[v - 1, u, c]
+                        ba, bb, wa, wb = b[v + 1, u, c] - qa, b[v - 1, u, c] - qb, w[v + 1, u, c] - qa, w[v - 1, u, c] - qb
+                    wa = max(wa, floor)
+                    wb = max(wb, floor)
+                    g += (wa - wb) * (ba / wa - bb / wb) / 4.0
                 if 0 < u < wd - 1:
-                    wa = max(w[v, u + 1, c], floor)
-                    wb = max(w[v, u - 1, c], floor)
-                    g += (wa - wb) * (b[v, u + 1, c] / wa - b[v, u - 1, c] / wb) / 4.0
+                    if q is None:
+                        ba, bb, wa, wb = b[v, u + 1, c], b[v, u - 1, c], w[v, u + 1, c], w[v, u - 1, c]
+                    else:
+                        qa, qb = q[v, u + 1, c], q[v, u - 1, c]
+                        ba, bb, wa, wb = b[v, u + 1, c] - qa, b[v, u - 1, c] - qb, w[v, u + 1, c] - qa, w[v, u - 1, c] - qb
+                    wa = max(wa, floor)
+                    wb = max(wb, floor)
+                    g += (wa - wb) * (ba / wa - bb / wb) / 4.0
                 y1 = x if keep else min(max(x - s1 * g, 0.0), 1.0)
                 out1[v, u, c] = np.float32(y1)
                 if want2:
@@ -122,10 +202,11 @@ def _correct_pair(b, w, s1, s2, clipped, use_clip, out1, out2, want2):  # pragma
 
 def correct_pair(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: float,
                  moved_px2: float | None, clipped: NDArray[np.bool_] | None = None,
+                 offset: NDArray[np.floating] | None = None,
                  ) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
     """:func:`correct` at ``sigma2_px2`` and at ``moved_px2`` (None: not wanted) from one pass of
     :func:`lean` over the capture (compiled, rows in parallel): the arrays two calls of
-    :func:`correct` return."""
+    :func:`correct` return (with the same ``offset``)."""
     b = np.ascontiguousarray(rgb, np.float64)
     if sigma2_px2 == 0 and moved_px2 is None:
         return b.astype(np.float32), None
@@ -135,8 +216,13 @@ def correct_pair(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_
     out1 = np.empty(b.shape, np.float32)
     out2 = np.empty(b.shape if moved_px2 is not None else (1, 1, 1), np.float32)
     clip = np.ascontiguousarray(clipped, bool) if clipped is not None else np.zeros((1, 1), bool)
+    q = None
+    if offset is not None:  # the fringe-carrying light
+        q = np.ascontiguousarray(offset, np.float64)
+        if q.shape != b.shape:
+            raise ValueError(f"capture {b.shape} and offset {q.shape} must be the same (H, W, 3)")
     _correct_pair(b, w, float(sigma2_px2), float(moved_px2 or 0.0), clip, clipped is not None, out1, out2,
-                  moved_px2 is not None)
+                  moved_px2 is not None, q)
     return out1, (out2 if moved_px2 is not None else None)
 
 
