@@ -21,7 +21,8 @@ correction and the adaptive filter have edges to work on) it runs one frame thro
 ``uncertainty``  the uncertainty map (with minus without),
 ``texture u``    the texture term of the uncertainty (``frame_maps``'s ``texture_rgb`` where the library
                  has it, otherwise the second corrected capture through the filtered chain),
-``flags``        the frame statistics, the step-edge mask and the lateral term,
+``flags``        the frame statistics, the step-edge mask (with the pixels shadowed by their own light)
+                 and the lateral term,
 ``write``        the height, uncertainty and support TIFFs,
 
 and two references on the same frame: ``cv2.cvtColor(RGB2HSV)`` (one colour pass) and the **I/O
@@ -116,6 +117,12 @@ def chain(rig: KernelCase, work: Path, box_chi_z: float | None = None) -> dict[s
     png = work / "frame.png"
     cv2.imwrite(str(png), cv2.cvtColor(rig.frame, cv2.COLOR_RGB2BGR))
     shadow = perframe.shadow_mask(rig.white, m_cfg["shadow_fraction"])
+    # the pixels shadowed by their own light, dropped after the edge test (measurement.shadow_own_light;
+    # an older tree without it times the edge test alone)
+    drop: dict[str, Any] = {}
+    if m_cfg.get("shadow_own_light") and "drop" in inspect.signature(perframe.remove_step_edges).parameters:
+        spill = perframe.shadow_mask(rig.white, m_cfg["shadow_fraction"], blur_px2=BLUR_PX2) & ~shadow
+        drop = {"drop": spill} if spill.any() else {}
     prep = kernel.prepare(rig.table, rig.cal, rig.white, hue_model="hexcone", min_saturation=m_cfg["min_saturation"],
                           shadow=shadow, bit_depth=8)
     raw = rig.frame.astype(np.float32) * np.float32(1 / 255)
@@ -151,7 +158,7 @@ def chain(rig: KernelCase, work: Path, box_chi_z: float | None = None) -> dict[s
                                             flag_valid=np.isfinite(full.dphi))
         hh, (uu,), (ss,), _ = perframe.remove_step_edges(
             height, float(m_cfg["edge_jump_mm"]), nan_maps=(u_map,), zero_maps=(support,),
-            test=str(m_cfg["edge_test"]), tol_mm=float(m_cfg["edge_plane_tol_mm"]))
+            test=str(m_cfg["edge_test"]), tol_mm=float(m_cfg["edge_plane_tol_mm"]), **drop)
         return st, add_lateral(hh, uu, lateral_px=float(m_cfg["lateral_uncertainty_px"]),
                                step_px=float(m_cfg["lateral_step_px"]))
 

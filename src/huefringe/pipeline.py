@@ -250,6 +250,9 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     cal.texture_blur_u_px2 = texture.blur_uncertainty(info)  # the per-pixel texture term (docs/uncertainty.md)
     info = {**info, "u_px2": cal.texture_blur_u_px2}
     cal.stats["texture_blur"] = info
+    lens = session_lens_blur(s, cal.texture_blur_px2, reader)
+    cal.lens_blur_px2 = float(lens["sigma2_px2"])
+    cal.stats["lens_blur"] = lens
     if lut is not None:  # its residual on the planes (reported; not added to u: docs/uncertainty.md)
         cal.stats.setdefault("uncertainty", {})["phase_error_residual_u_rad"] = phase_error_residual_rad(lut.stats)
     cal.stats["row_banding"] = plane_row_banding(s, decoded, valid, cal,
@@ -419,6 +422,27 @@ def session_projector_off(s: Session, calibration: Mapping[str, Any],
     return texture.projector_off_light((read(p), codes[i]) for i in sorted(chosen) for p in s.object_bands[i])
 
 
+def session_lens_blur(s: Session, texture_blur_px2: float, reader: CaptureReader | None = None) -> dict[str, Any]:
+    """The camera's lens blur (px^2) the object's shadow test takes out of its white image
+    (``measurement.shadow_own_light``, :func:`~huefringe.perframe.own_light`), with the record kept
+    in ``calib/planes.json`` (``lens_blur``).
+
+    The texture-edge correction's blur where it has one (``texture_blur_px2`` > 0). Otherwise the
+    white image's sharp edges (:func:`huefringe.texture.blur_from_white`) without their spread
+    test: a photograph's soft edges make them disagree, which refuses them for the correction
+    (whose lean they must predict), but the sharpest ones, the estimate's lower quartile, still
+    bound the lens from above, which is what the shadow test needs (an edge's width is never
+    below the lens's). 0 when neither is known (no sharp edges: a flat plate).
+    """
+    if texture_blur_px2 > 0:
+        return {"sigma2_px2": float(texture_blur_px2), "source": "the texture-edge correction's blur"}
+    edges = texture.blur_from_white((reader or CaptureReader()).rgb(s.object_white), max_spread=np.inf)
+    ok = edges["sigma2_px2"] > 0
+    return {"sigma2_px2": float(edges["sigma2_px2"]), "white_edges": edges,
+            "source": ("the white image's sharp edges (their lower quartile)" if ok
+                       else "none: no white-image estimate (see white_edges); the shadow test reads the white image as it is")}
+
+
 def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str,
                          calibration: Mapping[str, Any], *, reader: CaptureReader | None = None) -> dict[str, Any]:
     """The camera's blur variance (px^2) for the texture-edge correction, from the session's first
@@ -540,11 +564,28 @@ class FramePipeline:
     table_invalid: float = 0.0
     shadow_fraction: float = 0.0
     budget: PixelBudget | None = None
+    spill: NDArray[np.bool_] | None = None
+    """Pixels lit by the white image as read but shadowed by their own light
+    (``measurement.shadow_own_light``): invalidated after the step-edge test, which still holds
+    their neighbours against them; None when there are none."""
+    spill_fraction: float = 0.0
+    """The share of the frame's pixels in :attr:`spill`."""
 
     @property
     def fast(self) -> bool:
         """Frames go through the fused kernel."""
         return self.prep is not None
+
+
+def own_light_blur(cal: PlaneCalibration, measurement: Mapping[str, Any]) -> float:
+    """The lens blur (px^2) the object's shadow test takes out of the white image
+    (``measurement.shadow_own_light``, :func:`~huefringe.perframe.shadow_mask`): the calibration's
+    :attr:`~huefringe.height.PlaneCalibration.lens_blur_px2` (:func:`session_lens_blur`; a model
+    file without it: the texture-edge correction's blur), 0 without one or with the key off."""
+    if not measurement["shadow_own_light"]:
+        return 0.0
+    blur = cal.lens_blur_px2 if cal.lens_blur_px2 is not None else cal.texture_blur_px2  # a model file without it
+    return float(blur or 0.0)
 
 
 def prepare_frames(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str, measurement: Mapping[str, Any], *,
@@ -558,11 +599,15 @@ def prepare_frames(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: st
     reader = reader or CaptureReader()
     white = reader.rgb(s.object_white)
     shadow = shadow_mask(white, measurement["shadow_fraction"])
+    blur_own = own_light_blur(cal, measurement)
+    spill = shadow_mask(white, measurement["shadow_fraction"], blur_px2=blur_own) & ~shadow if blur_own > 0 else None
     blur_u = float(cal.texture_blur_u_px2 or 0.0) if want_uncertainty and measurement["texture_uncertainty"] else 0.0
     fp = FramePipeline(session=s, calibration=cal, hue_model=hue_model, measurement=measurement, reader=reader,
                        white=white, shadow=shadow, adaptive=noise_aware_adaptive(measurement["denoise_adaptive"], t),
                        want_uncertainty=want_uncertainty, blur2=float(cal.texture_blur_px2 or 0.0), blur_u=blur_u,
-                       offset=None if cal.projector_off is None else np.ascontiguousarray(cal.projector_off, np.float64))
+                       offset=None if cal.projector_off is None else np.ascontiguousarray(cal.projector_off, np.float64),
+                       spill=spill if spill is not None and spill.any() else None,
+                       spill_fraction=float(spill.mean()) if spill is not None else 0.0)
     if bool(measurement["kernel"]) and measurement["unwrap"] == "reference":
         fp.prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=measurement["min_saturation"],
                                  shadow=shadow, bit_depth=s.bit_depth, predistortion=s.predistortion,
@@ -648,10 +693,15 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
         height, phase, hue, stats, u_map, support = res.height, res.phase, res.hue, res.stats, res.uncertainty, res.support
         tex_u, weight, grown = res.texture_u, res.weight, res.bias2
         noise_h = res.noise
-    if jump > 0:  # mixed pixels at step edges, after either chain (the kernel's buffers are not touched)
+    if jump > 0 or fp.spill is not None:  # mixed pixels at step edges, after either chain (the kernel's buffers are
+        # not touched); then the pixels shadowed by their own light, which the edge test holds their neighbours against
         height, (phase, u_map), (support,), changed = remove_step_edges(
             height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(m["edge_test"]),
-            tol_mm=float(m["edge_plane_tol_mm"]), noise=noise_h, noise_k=noise_k)
+            tol_mm=float(m["edge_plane_tol_mm"]), noise=noise_h, noise_k=noise_k, drop=fp.spill)
+        if fp.spill is not None:  # the session's shadow: the white image's and its own light's
+            changed["shadow_fraction"] = float(stats["shadow_fraction"]) + fp.spill_fraction
+        if jump <= 0:
+            del changed["edge_fraction"]
         stats = {**stats, **changed}
     if u_map is not None and moved is not None:  # the texture term, in quadrature (NaN where the height is)
         u_map = np.hypot(u_map, tex_u).astype(np.float32)

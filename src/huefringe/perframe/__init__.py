@@ -14,6 +14,8 @@ from ._measure import (  # noqa: F401
     measure_frame,
 )
 from ._edges import (  # noqa: F401
+    OWN_LIGHT_ITERATIONS,
+    own_light,
     shadow_mask,
     step_edge_mask,
     _noise_map,
@@ -61,6 +63,7 @@ __all__ = [
     "frame_hue_noise",
     "height_noise",
     "noise_ratio2",
+    "own_light",
     "frame_stats",
     "measure_frame",
     "phase_sigma",

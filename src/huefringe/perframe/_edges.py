@@ -16,14 +16,69 @@ from ._stats import _median_keys
 # --------------------------------------------------------------------------- masks
 
 
-def shadow_mask(white: NDArray[np.floating], fraction: float) -> NDArray[np.bool_]:
+#: Richardson-Lucy iterations of the pixels' own light (:func:`own_light`): the white image's
+#: shadow borders and texture edges are resolved to their pixel by 20 (the tuning reliefs' and
+#: gauge blocks' spill-lit shadow pixels), with no artefact on uniform areas (docs/uncertainty.md,
+#: "Shadow spill").
+OWN_LIGHT_ITERATIONS = 20
+
+
+def own_light(level: NDArray[np.floating], blur_px2: float,
+              iterations: int = OWN_LIGHT_ITERATIONS) -> NDArray[np.float64]:
+    """Each pixel's own light: an image level with the camera's lens blur taken out.
+
+    The lens spreads each surface point's light over its neighbours (a Gaussian of variance
+    ``blur_px2``, px^2: the texture correction's estimate, ``calib/planes.json`` ``texture_blur``),
+    so a dark pixel beside a bright one receives part of the bright one's light, and with it the
+    bright one's fringe. The blur is undone by Richardson-Lucy deconvolution
+    (``skimage.restoration.richardson_lucy``, ``iterations`` steps: few enough that the image's
+    noise is not amplified), the image mirrored at its border first (a border would ring).
+
+    Parameters
+    ----------
+    level : ndarray (H, W)
+        A non-negative image, e.g. the white image's intensity.
+    blur_px2 : float
+        Variance of the lens blur (px^2); 0 returns ``level`` unchanged (float64).
+    iterations : int
+        Richardson-Lucy iterations.
+
+    Returns
+    -------
+    ndarray of float64 (H, W)
+    """
+    from skimage.restoration import richardson_lucy  # a session's white image, once: the import stays out of the frames' path
+
+    lv = np.asarray(level, np.float64)
+    if blur_px2 <= 0:
+        return lv.copy()
+    sigma = float(np.sqrt(blur_px2))
+    r = max(1, int(np.ceil(4.0 * sigma)))
+    t = np.arange(-r, r + 1, dtype=np.float64)
+    g = np.exp(-0.5 * t * t / blur_px2)
+    psf = np.outer(g, g)
+    psf /= psf.sum()
+    pad = 4 * r  # the ringing a border starts travels about a kernel radius per few iterations
+    img = np.pad(np.maximum(lv, 1e-6), pad, mode="symmetric")
+    return np.asarray(richardson_lucy(img, psf, num_iter=int(iterations), clip=False)[pad:-pad, pad:-pad], np.float64)
+
+
+def shadow_mask(white: NDArray[np.floating], fraction: float, blur_px2: float = 0.0) -> NDArray[np.bool_]:
     """Pixels whose white-image intensity is below ``fraction`` of the image's 99th percentile.
 
     Shadowed pixels receive only ambient light when the projector shows white, so they carry no
-    fringe; they are invalid in every frame of the session.
+    fringe; they are invalid in every frame of the session. With ``blur_px2`` > 0 (the camera's
+    lens blur, px^2) a pixel is also shadowed when its own light (:func:`own_light`) is below
+    that level: a shadowed or dark pixel beside a bright surface receives the bright one's light
+    through the blur, and with it the bright one's fringe and height (on a gauge block's cast
+    shadow, the block's top, 4 mm off), while the white image read as it is counts it as lit.
     """
     level = intensity(white)
-    return level < fraction * float(np.percentile(level, 99))
+    floor = fraction * float(np.percentile(level, 99))
+    out = level < floor
+    if blur_px2 > 0:
+        out |= own_light(level, blur_px2) < floor
+    return out
 
 
 def step_edge_mask(height: NDArray[np.floating], jump_mm: float, noise: NDArray[np.floating] | None = None,
@@ -270,7 +325,7 @@ def _finite_keys(z, keys):  # pragma: no cover - numba
 def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: Sequence[NDArray[np.float32] | None] = (),
                       zero_maps: Sequence[NDArray[np.float32] | None] = (), test: str = "pair",
                       tol_mm: float = 0.1, noise: NDArray[np.floating] | None = None,
-                      noise_k: float = 0.0) -> tuple[Any, ...]:
+                      noise_k: float = 0.0, drop: NDArray[np.bool_] | None = None) -> tuple[Any, ...]:
     """Invalidate the mixed pixels of step edges in a height map and the maps that go with it, in
     compiled passes: what ``measurement.edge_jump_mm`` / ``edge_test`` / ``edge_plane_tol_mm`` do
     per frame.
@@ -286,6 +341,10 @@ def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: 
     new heights, None when none is left), equal to ``np.where(step_edge_mask(...), ...)`` (or
     ``plane_edge_mask``) and ``np.nanmedian`` value for value (tested) at about a quarter of
     their cost (1.8 against 7.1 ms on a 640 x 480 frame, pair test).
+
+    ``drop`` (True = invalidate) adds pixels invalidated after the tests, which still hold their
+    neighbours against them (the pixels shadowed by their own light, :func:`shadow_mask`;
+    ``edge_fraction`` counts the tests' pixels alone).
     """
     if test not in EDGE_TESTS:
         raise ValueError(f"edge test must be one of {EDGE_TESTS}, got {test!r}")
@@ -299,6 +358,11 @@ def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: 
     else:  # as step_edge_mask: 0 switches it off
         edge[...] = False
         n_edge = 0
+    if drop is not None:
+        d = np.asarray(drop, bool)
+        if d.shape != h.shape:
+            raise ValueError(f"drop mask {d.shape} differs from the height map {h.shape}")
+        edge |= d
 
     def masked(x: NDArray[np.float32] | None, fill: float) -> NDArray[np.float32] | None:
         if x is None:
