@@ -16,10 +16,10 @@ from ._stats import _median_keys
 # --------------------------------------------------------------------------- masks
 
 
-#: Richardson-Lucy iterations of the pixels' own light (:func:`own_light`): the white image's
-#: shadow borders and texture edges are resolved to their pixel by 20 (the tuning reliefs' and
-#: gauge blocks' spill-lit shadow pixels), with no artefact on uniform areas (docs/uncertainty.md,
-#: "Shadow spill").
+#: Richardson-Lucy iterations of the pixels' own light (:func:`own_light`). 20 find the shadow pixels
+#: the tuning reliefs and gauge blocks light through the blur; fewer leave more of them lit, more
+#: shadow dark but lit pixels at texture edges by the deconvolution's ringing (docs/uncertainty.md,
+#: "Shadow spill", Known limits).
 OWN_LIGHT_ITERATIONS = 20
 
 
@@ -28,7 +28,7 @@ def own_light(level: NDArray[np.floating], blur_px2: float,
     """Each pixel's own light: an image level with the camera's lens blur taken out.
 
     The lens spreads each surface point's light over its neighbours (a Gaussian of variance
-    ``blur_px2``, px^2: the texture correction's estimate, ``calib/planes.json`` ``texture_blur``),
+    ``blur_px2``, px^2: the calibration's estimate, ``calib/planes.json`` ``lens_blur``),
     so a dark pixel beside a bright one receives part of the bright one's light, and with it the
     bright one's fringe. The blur is undone by Richardson-Lucy deconvolution
     (``skimage.restoration.richardson_lucy``, ``iterations`` steps: few enough that the image's
