@@ -387,8 +387,9 @@ def noise_cases(args: argparse.Namespace) -> None:
                 shape = tifffile.imread(paths["heights"][0]).shape
                 region = photo_region(case["cfg"], shape)
                 with np.load(next(tables.glob("*/table_object.maps.npz"))) as z:
-                    lit = z["valid"] & ~shadow_mask(read_rgb(paths["session"].object_white),
-                                                           _config(VARIANTS[vname])["measurement"]["shadow_fraction"])
+                    m_cfg = _config(VARIANTS[vname])["measurement"]
+                    lit = z["valid"] & ~shadow_mask(read_rgb(paths["session"].object_white), m_cfg["shadow_fraction"],
+                                                    own_light=bool(m_cfg["shadow_own_light"]))
                 for field, reg in (("whole", None), ("photo region", region)):
                     if field != "whole" and (reg is None or reg.all()):
                         continue

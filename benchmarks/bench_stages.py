@@ -117,11 +117,11 @@ def chain(rig: KernelCase, work: Path, box_chi_z: float | None = None) -> dict[s
     png = work / "frame.png"
     cv2.imwrite(str(png), cv2.cvtColor(rig.frame, cv2.COLOR_RGB2BGR))
     shadow = perframe.shadow_mask(rig.white, m_cfg["shadow_fraction"])
-    # the pixels shadowed by their own light, dropped after the edge test (measurement.shadow_own_light;
+    # the pixels on a shadow's side of its edge, dropped after the edge test (measurement.shadow_own_light;
     # an older tree without it times the edge test alone)
     drop: dict[str, Any] = {}
     if m_cfg.get("shadow_own_light") and "drop" in inspect.signature(perframe.remove_step_edges).parameters:
-        spill = perframe.shadow_mask(rig.white, m_cfg["shadow_fraction"], blur_px2=BLUR_PX2) & ~shadow
+        spill = perframe.shadow_mask(rig.white, m_cfg["shadow_fraction"], own_light=True) & ~shadow
         drop = {"drop": spill} if spill.any() else {}
     prep = kernel.prepare(rig.table, rig.cal, rig.white, hue_model="hexcone", min_saturation=m_cfg["min_saturation"],
                           shadow=shadow, bit_depth=8)

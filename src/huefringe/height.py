@@ -61,11 +61,6 @@ class PlaneCalibration:
     texture_blur_u_px2: float | None = None
     """Its standard uncertainty (px^2, :func:`huefringe.texture.blur_uncertainty`), which the
     per-pixel texture term of the uncertainty propagates, or None (unknown: no term)."""
-    lens_blur_px2: float | None = None
-    """The camera's lens blur (px^2) the object's shadow test takes out of its white image
-    (:func:`huefringe.perframe.own_light`): the texture-edge correction's blur, or where that is
-    off the white image's sharpest edges (:func:`huefringe.pipeline.session_lens_blur`); 0 when
-    neither is known, None in a model file written without it."""
     projector_off: NDArray[np.float32] | None = None
     """The light the object sends the camera with the projector's code at 0 (H, W, 3; ambient light,
     stray light, the projector's black level; :func:`huefringe.texture.projector_off_light`), which
@@ -95,8 +90,6 @@ class PlaneCalibration:
                     extra["texture_blur_px2"] = np.float64(self.texture_blur_px2)
                 if self.texture_blur_u_px2 is not None:
                     extra["texture_blur_u_px2"] = np.float64(self.texture_blur_u_px2)
-                if self.lens_blur_px2 is not None:
-                    extra["lens_blur_px2"] = np.float64(self.lens_blur_px2)
                 if self.projector_off is not None:
                     extra["projector_off"] = np.asarray(self.projector_off, np.float32)
                 np.savez(f, phi_ref=self.phi_ref, a=self.a, b=self.b, planes_mm=np.asarray(self.planes_mm), **extra)
@@ -109,9 +102,8 @@ class PlaneCalibration:
             blur = float(z["texture_blur_px2"]) if "texture_blur_px2" in z.files else None
             blur_u = float(z["texture_blur_u_px2"]) if "texture_blur_u_px2" in z.files else None
             off = z["projector_off"] if "projector_off" in z.files else None
-            lens = float(z["lens_blur_px2"]) if "lens_blur_px2" in z.files else None
             return cls(z["phi_ref"], z["a"], z["b"], [float(v) for v in z["planes_mm"]], phase_error=pe, budget=budget,
-                       texture_blur_px2=blur, texture_blur_u_px2=blur_u, lens_blur_px2=lens, projector_off=off)
+                       texture_blur_px2=blur, texture_blur_u_px2=blur_u, projector_off=off)
 
 
 def _design(shape: tuple[int, int], degree: int, uu: NDArray, vv: NDArray) -> NDArray[np.float64]:

@@ -250,9 +250,6 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
     cal.texture_blur_u_px2 = texture.blur_uncertainty(info)  # the per-pixel texture term (docs/uncertainty.md)
     info = {**info, "u_px2": cal.texture_blur_u_px2}
     cal.stats["texture_blur"] = info
-    lens = session_lens_blur(s, cal.texture_blur_px2, reader)
-    cal.lens_blur_px2 = float(lens["sigma2_px2"])
-    cal.stats["lens_blur"] = lens
     if lut is not None:  # its residual on the planes (reported; not added to u: docs/uncertainty.md)
         cal.stats.setdefault("uncertainty", {})["phase_error_residual_u_rad"] = phase_error_residual_rad(lut.stats)
     cal.stats["row_banding"] = plane_row_banding(s, decoded, valid, cal,
@@ -422,27 +419,6 @@ def session_projector_off(s: Session, calibration: Mapping[str, Any],
     return texture.projector_off_light((read(p), codes[i]) for i in sorted(chosen) for p in s.object_bands[i])
 
 
-def session_lens_blur(s: Session, texture_blur_px2: float, reader: CaptureReader | None = None) -> dict[str, Any]:
-    """The camera's lens blur (px^2) the object's shadow test takes out of its white image
-    (``measurement.shadow_own_light``, :func:`~huefringe.perframe.own_light`), with the record kept
-    in ``calib/planes.json`` (``lens_blur``).
-
-    The texture-edge correction's blur where it has one (``texture_blur_px2`` > 0). Otherwise the
-    white image's sharp edges (:func:`huefringe.texture.blur_from_white`) without their spread
-    test: a photograph's soft edges make them disagree, which refuses them for the correction
-    (whose lean they must predict), but the sharpest ones, the estimate's lower quartile, still
-    bound the lens from above, which is what the shadow test needs (an edge's width is never
-    below the lens's). 0 when neither is known (no sharp edges: a flat plate).
-    """
-    if texture_blur_px2 > 0:
-        return {"sigma2_px2": float(texture_blur_px2), "source": "the texture-edge correction's blur"}
-    edges = texture.blur_from_white((reader or CaptureReader()).rgb(s.object_white), max_spread=np.inf)
-    ok = edges["sigma2_px2"] > 0
-    return {"sigma2_px2": float(edges["sigma2_px2"]), "white_edges": edges,
-            "source": ("the white image's sharp edges (their lower quartile)" if ok
-                       else "none: no white-image estimate (see white_edges); the shadow test reads the white image as it is")}
-
-
 def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str,
                          calibration: Mapping[str, Any], *, reader: CaptureReader | None = None) -> dict[str, Any]:
     """The camera's blur variance (px^2) for the texture-edge correction, from the session's first
@@ -565,9 +541,9 @@ class FramePipeline:
     shadow_fraction: float = 0.0
     budget: PixelBudget | None = None
     spill: NDArray[np.bool_] | None = None
-    """Pixels lit by the white image as read but shadowed by their own light
-    (``measurement.shadow_own_light``): invalidated after the step-edge test, which still holds
-    their neighbours against them; None when there are none."""
+    """Pixels lit by the white image as read whose centre lies on a shadow's side of its edge
+    (``measurement.shadow_own_light``, :func:`~huefringe.perframe.shadow_side`): invalidated after
+    the step-edge test, which still holds their neighbours against them; None when there are none."""
     spill_fraction: float = 0.0
     """The share of the frame's pixels in :attr:`spill`."""
 
@@ -575,17 +551,6 @@ class FramePipeline:
     def fast(self) -> bool:
         """Frames go through the fused kernel."""
         return self.prep is not None
-
-
-def own_light_blur(cal: PlaneCalibration, measurement: Mapping[str, Any]) -> float:
-    """The lens blur (px^2) the object's shadow test takes out of the white image
-    (``measurement.shadow_own_light``, :func:`~huefringe.perframe.shadow_mask`): the calibration's
-    :attr:`~huefringe.height.PlaneCalibration.lens_blur_px2` (:func:`session_lens_blur`; a model
-    file without it: the texture-edge correction's blur), 0 without one or with the key off."""
-    if not measurement["shadow_own_light"]:
-        return 0.0
-    blur = cal.lens_blur_px2 if cal.lens_blur_px2 is not None else cal.texture_blur_px2  # a model file without it
-    return float(blur or 0.0)
 
 
 def prepare_frames(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str, measurement: Mapping[str, Any], *,
@@ -599,8 +564,8 @@ def prepare_frames(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: st
     reader = reader or CaptureReader()
     white = reader.rgb(s.object_white)
     shadow = shadow_mask(white, measurement["shadow_fraction"])
-    blur_own = own_light_blur(cal, measurement)
-    spill = shadow_mask(white, measurement["shadow_fraction"], blur_px2=blur_own) & ~shadow if blur_own > 0 else None
+    spill = (shadow_mask(white, measurement["shadow_fraction"], own_light=True) & ~shadow
+             if measurement["shadow_own_light"] else None)
     blur_u = float(cal.texture_blur_u_px2 or 0.0) if want_uncertainty and measurement["texture_uncertainty"] else 0.0
     fp = FramePipeline(session=s, calibration=cal, hue_model=hue_model, measurement=measurement, reader=reader,
                        white=white, shadow=shadow, adaptive=noise_aware_adaptive(measurement["denoise_adaptive"], t),

@@ -14,9 +14,8 @@ from ._measure import (  # noqa: F401
     measure_frame,
 )
 from ._edges import (  # noqa: F401
-    OWN_LIGHT_ITERATIONS,
-    own_light,
     shadow_mask,
+    shadow_side,
     step_edge_mask,
     _noise_map,
     _pair_jump,
@@ -63,7 +62,6 @@ __all__ = [
     "frame_hue_noise",
     "height_noise",
     "noise_ratio2",
-    "own_light",
     "frame_stats",
     "measure_frame",
     "phase_sigma",
@@ -72,6 +70,7 @@ __all__ = [
     "remove_step_edges",
     "sensor_model",
     "shadow_mask",
+    "shadow_side",
     "sigma_from_slope",
     "step_edge_mask",
 ]

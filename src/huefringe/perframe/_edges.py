@@ -16,69 +16,54 @@ from ._stats import _median_keys
 # --------------------------------------------------------------------------- masks
 
 
-#: Richardson-Lucy iterations of the pixels' own light (:func:`own_light`). 20 find the shadow pixels
-#: the tuning reliefs and gauge blocks light through the bench's 0.9 px lens blur (not through 1.1 px:
-#: the deconvolution converges slowly at such edges); fewer leave more of them lit, more shadow dark
-#: but lit pixels at texture edges by the deconvolution's ringing (docs/uncertainty.md, "Shadow
-#: spill", Known limits).
-OWN_LIGHT_ITERATIONS = 20
+def shadow_side(level: NDArray[np.floating], floor: float) -> NDArray[np.bool_]:
+    """Pixels at or above ``floor`` whose centre lies on the shadow's side of an edge into a shadow.
 
-
-def own_light(level: NDArray[np.floating], blur_px2: float,
-              iterations: int = OWN_LIGHT_ITERATIONS) -> NDArray[np.float64]:
-    """Each pixel's own light: an image level with the camera's lens blur taken out.
-
-    The lens spreads each surface point's light over its neighbours (a Gaussian of variance
-    ``blur_px2``, px^2: the calibration's estimate, ``calib/planes.json`` ``lens_blur``),
-    so a dark pixel beside a bright one receives part of the bright one's light, and with it the
-    bright one's fringe. The blur is undone by Richardson-Lucy deconvolution
-    (``skimage.restoration.richardson_lucy``, ``iterations`` steps: few enough that the image's
-    noise is not amplified), the image mirrored at its border first (a border would ring).
+    The lens spreads each surface point's light over its neighbours, so a shadowed (or black) pixel
+    beside a bright one receives part of the bright one's light, and with it the bright one's fringe
+    and height (beside a gauge block, the block's top, 4 mm off): through a blur of 0.9-1.1 px the
+    first row of a shadow reads about a third of its lit neighbour's level, well above the shadow
+    threshold. A symmetric blur leaves the middle of a step's two levels at the step, so a pixel
+    darker than the middle of its 3 x 3 neighbourhood's range, ``2 level < min + max``, lies on the
+    dark side of the edge there; with a pixel of that neighbourhood below ``floor`` (shadowed as
+    read) that side is the shadow, and the pixel's light is mostly its lit neighbour's. It needs no
+    estimate of the blur.
 
     Parameters
     ----------
     level : ndarray (H, W)
-        A non-negative image, e.g. the white image's intensity.
-    blur_px2 : float
-        Variance of the lens blur (px^2); 0 returns ``level`` unchanged (float64).
-    iterations : int
-        Richardson-Lucy iterations.
+        An image level, e.g. the white image's intensity.
+    floor : float
+        The shadow threshold, in ``level``'s units.
 
     Returns
     -------
-    ndarray of float64 (H, W)
+    ndarray of bool (H, W)
+        True where a pixel at or above ``floor`` has a 3 x 3 neighbour below it and is darker than
+        the middle of its 3 x 3 neighbourhood's range (the image's border replicated).
     """
-    from skimage.restoration import richardson_lucy  # a session's white image, once: the import stays out of the frames' path
+    from scipy import ndimage
 
     lv = np.asarray(level, np.float64)
-    if blur_px2 <= 0:
-        return lv.copy()
-    sigma = float(np.sqrt(blur_px2))
-    r = max(1, int(np.ceil(4.0 * sigma)))
-    t = np.arange(-r, r + 1, dtype=np.float64)
-    g = np.exp(-0.5 * t * t / blur_px2)
-    psf = np.outer(g, g)
-    psf /= psf.sum()
-    pad = 4 * r  # the ringing a border starts travels about a kernel radius per few iterations
-    img = np.pad(np.maximum(lv, 1e-6), pad, mode="symmetric")
-    return np.asarray(richardson_lucy(img, psf, num_iter=int(iterations), clip=False)[pad:-pad, pad:-pad], np.float64)
+    lo = ndimage.minimum_filter(lv, size=3, mode="nearest")
+    hi = ndimage.maximum_filter(lv, size=3, mode="nearest")
+    return (lv >= floor) & (lo < floor) & (2.0 * lv < lo + hi)
 
 
-def shadow_mask(white: NDArray[np.floating], fraction: float, blur_px2: float = 0.0) -> NDArray[np.bool_]:
+def shadow_mask(white: NDArray[np.floating], fraction: float, own_light: bool = False) -> NDArray[np.bool_]:
     """Pixels whose white-image intensity is below ``fraction`` of the image's 99th percentile.
 
     Shadowed pixels receive only ambient light when the projector shows white, so they carry no
-    fringe; they are invalid in every frame of the session. With ``blur_px2`` > 0 (the camera's
-    lens blur, px^2) a pixel is also shadowed when its own light (:func:`own_light`) is below
-    that level: a shadowed or dark pixel beside a bright surface receives the bright one's light
-    through the blur, and with it the bright one's fringe and height (on a gauge block's cast
-    shadow, the block's top, 4 mm off), while the white image read as it is counts it as lit.
+    fringe; they are invalid in every frame of the session. With ``own_light`` a pixel is also
+    shadowed when its centre lies on the shadow's side of the edge beside a shadowed pixel
+    (:func:`shadow_side`): the light it reads is the lit neighbour's, through the lens blur, with
+    that neighbour's fringe and height, while the white image read as it is counts it as lit.
     """
     level = intensity(white)
     floor = fraction * float(np.percentile(level, 99))
     out = level < floor
-    if blur_px2 > 0:
-        out |= own_light(level, blur_px2) < floor
+    if own_light:
+        out |= shadow_side(level, floor)
     return out
 
 
@@ -344,7 +329,7 @@ def remove_step_edges(height: NDArray[np.float32], jump_mm: float, *, nan_maps: 
     their cost (1.8 against 7.1 ms on a 640 x 480 frame, pair test).
 
     ``drop`` (True = invalidate) adds pixels invalidated after the tests, which still hold their
-    neighbours against them (the pixels shadowed by their own light, :func:`shadow_mask`;
+    neighbours against them (the pixels on a shadow's side of its edge, :func:`shadow_side`;
     ``edge_fraction`` counts the tests' pixels alone).
     """
     if test not in EDGE_TESTS:

@@ -19,7 +19,7 @@ from huefringe.huetable import HueTable
 from huefringe.io import read_tiff, write_json, write_tiff
 from huefringe.perframe import shadow_mask
 from huefringe.phase import three_step_phase, unwrap, wrap
-from huefringe.pipeline import frame_results, own_light_blur, session_corrections
+from huefringe.pipeline import frame_results, session_corrections
 from huefringe.render import reliability_figure
 from huefringe.session import Session, load_session
 from huefringe.settings import software_identity
@@ -179,7 +179,7 @@ def baseline_frames(session: str, frames: Sequence[int], model: str, object_tabl
     cal = PlaneCalibration.load(model)
     reader = session_corrections(s, camera_json)[1]
     white = reader.rgb(s.object_white)
-    shadow = shadow_mask(white, measurement["shadow_fraction"], blur_px2=own_light_blur(cal, measurement))
+    shadow = shadow_mask(white, measurement["shadow_fraction"], own_light=bool(measurement["shadow_own_light"]))
     for i, n in enumerate(frames):
         imgs = [intensity(reader.rgb(p)) for p in s.phase_shift[n]]
         phi, mod = three_step_phase(*imgs)
@@ -207,7 +207,8 @@ def accuracy_report(session: str, heights: Sequence[str], baseline: Sequence[str
     """
     s = load_session(session)
     lens, reader = session_corrections(s, camera_json)
-    lit = ~shadow_mask(reader.rgb(s.object_white), measurement["shadow_fraction"])
+    lit = ~shadow_mask(reader.rgb(s.object_white), measurement["shadow_fraction"],
+                       own_light=bool(measurement["shadow_own_light"]))  # the pixels the chains may measure
 
     def block(paths: Sequence[str], frames: Sequence[int]) -> dict[str, Any]:
         per = []
