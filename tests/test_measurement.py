@@ -335,7 +335,7 @@ def _dark_block_and_its_shadow() -> "tuple[np.ndarray, np.ndarray]":
 def test_shadow_side_finds_the_shadow_pixels_the_blur_lights() -> None:
     """The white image as read counts the shadow's column beside the block as lit (the block's light
     reaches it through the blur: 0.119 against a floor of 0.108), and the first column beside the
-    board too (0.29); the shadow-side test puts both in the shadow, and no lit pixel joins them.
+    board too (0.284); the shadow-side test puts both in the shadow, and no lit pixel joins them.
     Without it the mask is the white image's."""
     from huefringe.perframe import shadow_mask
 
@@ -347,7 +347,6 @@ def test_shadow_side_finds_the_shadow_pixels_the_blur_lights() -> None:
     assert not (read & ~true).any() and not (own & ~true).any()  # no lit pixel is shadowed
     for col in (24, 29):  # the columns beside the board and beside the block (corners aside)
         assert not read[16:44, col].any() and own[16:44, col].all(), col
-    assert np.array_equal(own & ~read, own & ~read & true)
 
 
 @pytest.mark.parametrize("sigma", [0.6, 0.9, 1.1, 1.5])
