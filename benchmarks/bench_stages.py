@@ -21,7 +21,7 @@ correction and the adaptive filter have edges to work on) it runs one frame thro
 ``uncertainty``  the uncertainty map (with minus without),
 ``texture u``    the texture term of the uncertainty (``frame_maps``'s ``texture_rgb`` where the library
                  has it, otherwise the second corrected capture through the filtered chain),
-``flags``        the frame statistics, the step-edge mask (with the pixels shadowed by their own light)
+``flags``        the frame statistics, the step-edge mask (with the shadow-side pixels dropped after it)
                  and the lateral term,
 ``write``        the height, uncertainty and support TIFFs,
 

@@ -77,8 +77,8 @@ def measure(name: str, root: Path, own: bool) -> dict[str, Any]:
     e = h - t
     ok = np.isfinite(e)
     refl, rest = cb.true_maps(case["cfg"])
-    white = np.zeros(refl.shape)  # the white level is not binned here
-    step = cb.pixel_kinds(white + 1.0, refl, np.where(np.isfinite(t[0]), rest, np.nan))["distance to step edge"]
+    # the white level is not binned here (ones)
+    step = cb.pixel_kinds(np.ones(refl.shape), refl, np.where(np.isfinite(t[0]), rest, np.nan))["distance to step edge"]
     near = np.broadcast_to(step < 1.0, e.shape)
     gross = ok & (np.abs(e) > GROSS_MM)
     ae, ue = np.abs(e[ok]), u[ok]

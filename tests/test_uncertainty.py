@@ -807,7 +807,7 @@ def test_bench_gauge_coverage_per_zone_and_steps_within_u(tmp_path: Path) -> Non
         cov = float(np.mean(np.abs(e[ok]) <= 2 * uu[ok]))
         # measured all 0.958, edge 0.978, texture 0.980, rest 0.955. The texture zone's bound is
         # 0.985: the dark coatings' rims, lit by their neighbours through the blur and covered 0.70,
-        # are shadowed by their own light (measurement.shadow_own_light), and the lateral term's
+        # are dropped by the shadow-side test (measurement.shadow_own_light), and the lateral term's
         # step part, sized with them, leaves the rest a little over-covered (docs/uncertainty.md,
         # Known limits)
         assert 0.92 <= cov <= (0.985 if name == "texture" else 0.98), (name, cov)

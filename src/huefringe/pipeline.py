@@ -659,11 +659,11 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
         tex_u, weight, grown = res.texture_u, res.weight, res.bias2
         noise_h = res.noise
     if jump > 0 or fp.spill is not None:  # mixed pixels at step edges, after either chain (the kernel's buffers are
-        # not touched); then the pixels shadowed by their own light, which the edge test holds their neighbours against
+        # not touched); then the shadow-side pixels (fp.spill), which the edge test holds their neighbours against
         height, (phase, u_map), (support,), changed = remove_step_edges(
             height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(m["edge_test"]),
             tol_mm=float(m["edge_plane_tol_mm"]), noise=noise_h, noise_k=noise_k, drop=fp.spill)
-        if fp.spill is not None:  # the session's shadow: the white image's and its own light's
+        if fp.spill is not None:  # the session's shadow: the white image's and its shadow-side pixels
             changed["shadow_fraction"] = float(stats["shadow_fraction"]) + fp.spill_fraction
         if jump <= 0:
             del changed["edge_fraction"]
