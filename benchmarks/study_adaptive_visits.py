@@ -42,7 +42,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _kernel_case import make_case  # noqa: E402
 
 from huefringe import kernel, perframe, texture  # noqa: E402
-from huefringe.phase import _adaptive_pass, _denoise_kernel, adaptive_kwargs  # noqa: E402
+from huefringe.phase import _adaptive_pass, adaptive_kwargs, first_pass  # noqa: E402
 from huefringe.settings import defaults  # noqa: E402
 
 
@@ -82,7 +82,7 @@ def main(argv: list[str] | None = None) -> int:
     ad = adaptive_kwargs(m["denoise_adaptive"])
     k2 = np.float32(9.0)
     first, wfirst = np.empty_like(dz), np.empty_like(dz)
-    _denoise_kernel(dz, s2, inv, radius, k2, first, wfirst)
+    first_pass(dz, s2, inv, radius, k2, first, wfirst)
     tw, rw = np.float32(1 / ad["target_sigma"] ** 2), np.float32(1 / ad["reject_sigma"] ** 2)
     out, wout, rad = (np.empty_like(dz) for _ in range(3))
     none32 = np.empty((1, 1), np.float32)

@@ -39,7 +39,7 @@ from bench_workflow import bench_config  # noqa: E402
 from study_adaptive_visits import filter_inputs  # noqa: E402
 
 from huefringe import bench  # noqa: E402
-from huefringe.phase import _denoise, _denoise_kernel, adaptive_kwargs, band_floor  # noqa: E402
+from huefringe.phase import _denoise, adaptive_kwargs, band_floor, first_pass  # noqa: E402
 from huefringe.settings import defaults  # noqa: E402
 
 CODES = ("no box tried", "box", "band", "scatter", "mean")
@@ -71,7 +71,7 @@ def study(name: str, dz: np.ndarray, s2: np.ndarray, inv: np.ndarray, chi_zs: li
     big = int(ad["max_radius"])
     k2 = np.float32(9.0)
     first, wfirst = np.empty_like(dz), np.empty_like(dz)
-    _denoise_kernel(dz, s2, inv, radius, k2, first, wfirst)
+    first_pass(dz, s2, inv, radius, k2, first, wfirst)
     tw, rw = np.float32(1 / ad["target_sigma"] ** 2), np.float32(1 / ad["reject_sigma"] ** 2)
     none = np.empty((1, 1), np.float32)
     grown = (inv > 0) & (wfirst < tw)

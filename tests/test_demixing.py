@@ -69,9 +69,10 @@ def test_reader_keeps_clipped_pixels(tmp_path: Path) -> None:
 
 @pytest.fixture(scope="module")
 def demo_small(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """The demo's rig and blocks (green 3, blue 1, red 4 mm) at 240 x 180 px, one frame at rest."""
+    """The demo's rig and blocks (green 3, blue 1, red 4 mm) at 400 x 300 px, one frame at rest
+    (smaller, the blocks' tops are so few pixels that one frame's noise hides the crosstalk's bias)."""
     cfg = copy.deepcopy(bench.load_bench_config(bench.preset_path("demo")))
-    cfg["session"].update(width=240, height=180, frames=1)
+    cfg["session"].update(width=400, height=300, frames=1)
     cfg["phase_shift"]["enabled"] = False
     cfg["vibration"]["amplitude_mm"] = 0.0
     return bench.write_session(cfg, tmp_path_factory.mktemp("demix") / "s")
@@ -91,7 +92,8 @@ def test_demixing_removes_the_red_step_bias(demo_small: Path, tmp_path: Path) ->
     off = _steps(demo_small, tmp_path / "off", False)
     on = _steps(demo_small, tmp_path / "on", "auto")
     print("step errors um, demixing off", off, "on", on)
-    # measured: red +9.0 -> +4.4 um; green +1.1 -> +2.0, blue -7.9 -> -7.9 um (the blue's is not crosstalk)
-    assert off["red"] > 7.0  # the old chain's bias on the red coating
-    assert abs(on["red"]) < 5.5
-    assert abs(on["green"] - off["green"]) < 1.5 and abs(on["blue"] - off["blue"]) < 1.5
+    # measured: red +12.9 -> +5.4 um; green +1.6 -> +3.9, blue +2.2 -> +4.8 um (one frame's step
+    # means, U about 20 um: the demixed frame's noise is another draw)
+    assert off["red"] > 9.0  # the crosstalk's bias on the red coating
+    assert abs(on["red"]) < 7.5
+    assert abs(on["green"] - off["green"]) < 3.5 and abs(on["blue"] - off["blue"]) < 3.5

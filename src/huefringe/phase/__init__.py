@@ -31,6 +31,8 @@ from ._passes import (  # noqa: F401
     _denoise_row,
     _denoise_kernel,
     _denoise_kernel_carry,
+    _own_row,
+    _own_side,
     _window_sums,
     _box_sums,
     window_sums,
@@ -47,6 +49,7 @@ from ._denoise import (  # noqa: F401
     denoise_weighted,
     adaptive_kwargs,
     band_floor,
+    first_pass,
 )
 
 __all__ = [
@@ -58,6 +61,7 @@ __all__ = [
     "denoise_weight",
     "denoise_weight_sums",
     "denoise_weighted",
+    "first_pass",
     "three_step_phase",
     "unwrap",
     "unwrap_rows",

@@ -8,7 +8,7 @@ from numpy.typing import NDArray
 
 from huefringe.settings import defaults
 
-from ._passes import _adaptive_pass, _denoise_kernel, _denoise_kernel_carry, _denoise_weights, window_sums
+from ._passes import _adaptive_pass, _denoise_kernel, _denoise_kernel_carry, _denoise_weights, _own_side, window_sums
 
 
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
@@ -21,9 +21,10 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
                   bias2: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
     """Edge-preserving, uncertainty-weighted local mean of a phase map.
 
-    Each valid pixel becomes the inverse-variance weighted mean of the valid pixels in its
-    ``(2 radius + 1)^2`` window whose phase agrees with it within ``k`` combined standard
-    deviations (a bilateral filter whose range term is the known per-pixel uncertainty).
+    Each valid pixel becomes the inverse-variance weighted mean of itself and the valid pixels
+    in its ``(2 radius + 1)^2`` window whose phase agrees within ``k`` combined standard
+    deviations with an estimate of the pixel's own side of any step (:func:`first_pass`; a
+    bilateral filter whose range term is the known per-pixel uncertainty).
     Differences are taken modulo 2 pi, so wrapped maps are fine. Steps taller than ``k`` sigma
     (a 1 mm step is tens of sigma) are not blurred; flat regions gain up to
     ``2 radius + 1`` in precision. Pixels where the hue hardly changes with the code phase
@@ -174,9 +175,9 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
         if c.shape != out.shape:
             raise ValueError(f"carry has shape {c.shape}, the phase {out.shape}")
         cfirst = np.empty(out.shape, np.float32)
-        _denoise_kernel_carry(arrays[0], arrays[1], arrays[2], c, int(radius), k2, out, wsum, cfirst)
+        first_pass(*arrays, int(radius), k2, out, wsum, c, cfirst)
     else:
-        _denoise_kernel(*arrays, int(radius), k2, out, wsum)
+        first_pass(*arrays, int(radius), k2, out, wsum)
     if (max_radius > radius and target_sigma > 0) or reject_sigma > 0:
         final = np.empty_like(out)
         wfinal = weight_sum if weight_sum is not None else np.empty_like(wsum)
@@ -205,6 +206,31 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
             if dst is not None:
                 dst[...] = src
     return out
+
+
+def first_pass(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDArray[np.float32], radius: int,
+               k2: np.float32, out: NDArray[np.float32], wout: NDArray[np.float32],
+               carry: NDArray[np.float32] | None = None, carry_out: NDArray[np.float32] | None = None) -> None:
+    """The fixed window's pass on prepared inputs (:func:`denoise_weighted`), into ``out`` (the
+    filtered phase) and ``wout`` (its weight sums); with ``carry``, ``carry_out`` receives the
+    carried map's mean over the same neighbours.
+
+    Two passes over the ``(2 radius + 1)^2`` window. The first (``_own_side``) estimates each
+    pixel's own side of any step: the weighted mean of the neighbours within ``k`` sigma of the
+    pixel by the less noisy of the two, ``wrap(d_j - d_i)^2 <= 2 k2 min(s_i^2, s_j^2)`` (a noisy
+    pixel beside a step does not take the precise far side its own noise cannot tell apart), with
+    variance ``1 / sum w``. The second keeps the pixel itself and each neighbour that agrees with
+    that estimate, ``(wrap(d_j - d_i) - off_i)^2 <= k2 (s_j^2 + var_i)``, and averages them with
+    weights ``1 / s_j^2``. Against an estimate of the pixel's side rather than its single value,
+    the accepted set hardly follows the pixel's own noise, so that ``1 / sum w`` stays the
+    filtered variance on textured sigma too (``benchmarks/coverage_bins.py --filter-check``).
+    """
+    off, var = np.empty(out.shape, np.float32), np.empty(out.shape, np.float32)
+    _own_side(dz, s2, inv, int(radius), k2, off, var)
+    if carry is None:
+        _denoise_kernel(dz, s2, inv, off, var, int(radius), k2, out, wout)
+    else:
+        _denoise_kernel_carry(dz, s2, inv, off, var, carry, int(radius), k2, out, wout, carry_out)
 
 
 def band_floor(s2: NDArray[np.float32], max_radius: int) -> NDArray[np.float32]:

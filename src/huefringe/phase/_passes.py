@@ -31,8 +31,9 @@ def _denoise_weights(d, sigma, valid, dz, s2, inv):  # pragma: no cover - compil
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _denoise_row(dj, di, sj2, si2, inv, k2, acc, wsum):  # pragma: no cover - compiled
-    """One window offset for one row: ``acc += w diff``, ``wsum += w`` where the neighbour agrees.
+def _denoise_row(dj, di, sj2, off, add, inv, k2, acc, wsum):  # pragma: no cover - compiled
+    """One window offset for one row: ``acc += w diff``, ``wsum += w`` where the neighbour agrees
+    with the pixel's own-side estimate (:func:`_own_side`), ``(diff - off)^2 <= k2 (s_j^2 + add)``.
 
     Branch-free and on 1-D float32 rows, so that LLVM vectorises it (SIMD over ``u``).
     """
@@ -43,14 +44,58 @@ def _denoise_row(dj, di, sj2, si2, inv, k2, acc, wsum):  # pragma: no cover - co
     for u in range(dj.size):
         diff = dj[u] - di[u]
         diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)  # to [-pi, pi)
-        keep = diff * diff <= k2 * (si2[u] + sj2[u])
+        e = diff - off[u]
+        keep = e * e <= k2 * (add[u] + sj2[u])
+        wj = inv[u] if keep else zero
+        acc[u] += wj * diff
+        wsum[u] += wj
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _own_row(dj, di, sj2, si2, inv, k2, acc, wsum):  # pragma: no cover - compiled
+    """One window offset of the own-side estimate (:func:`_own_side`) for one row: the neighbour
+    counts where ``diff^2 <= 2 k2 min(s_i^2, s_j^2)``, i.e. where the less noisy of the two places
+    it (a noisy pixel does not take a precise neighbour its own noise cannot tell apart)."""
+    two_pi = np.float32(2.0 * np.pi)
+    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
+    pi = np.float32(np.pi)
+    zero = np.float32(0.0)
+    two = np.float32(2.0)
+    for u in range(dj.size):
+        diff = dj[u] - di[u]
+        diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)  # to [-pi, pi)
+        keep = diff * diff <= two * k2 * min(si2[u], sj2[u])
         wj = inv[u] if keep else zero
         acc[u] += wj * diff
         wsum[u] += wj
 
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
-def _denoise_kernel(d, s2, inv, radius, k2, out, wout):  # pragma: no cover - compiled
+def _own_side(d, s2, inv, radius, k2, off, add):  # pragma: no cover - compiled
+    """Each valid pixel's estimate of its own side of any step, the weighted mean of the window's
+    neighbours that :func:`_own_row` keeps (itself always): ``off`` receives its offset from the
+    pixel (rad), ``add`` its variance ``1 / sum w``; 0 and 0 where not valid."""
+    h, w = d.shape
+    for v in prange(h):
+        acc = np.zeros(w, np.float32)
+        wsum = np.zeros(w, np.float32)
+        for dv in range(-radius, radius + 1):
+            vv = v + dv
+            if vv < 0 or vv >= h:
+                continue
+            for du in range(-radius, radius + 1):
+                u0 = max(0, -du)
+                u1 = min(w, w - du)
+                _own_row(d[vv, u0 + du : u1 + du], d[v, u0:u1], s2[vv, u0 + du : u1 + du], s2[v, u0:u1],
+                         inv[vv, u0 + du : u1 + du], k2, acc[u0:u1], wsum[u0:u1])
+        for u in range(w):
+            ok = inv[v, u] > 0
+            off[v, u] = acc[u] / wsum[u] if ok else np.float32(0.0)
+            add[v, u] = np.float32(1.0) / wsum[u] if ok else np.float32(0.0)
+
+
+@njit(cache=True, nogil=True, error_model="numpy", parallel=True)
+def _denoise_kernel(d, s2, inv, off, add, radius, k2, out, wout):  # pragma: no cover - compiled
     """Row by row, window offset by window offset (``dv`` then ``du``, the same order for every
     pixel); ``inv = 0`` marks invalid pixels, which then add nothing. ``wout``: each pixel's sum
     of accepted weights (its filtered variance is ``1 / wout``; 0 where not valid). Rows in
@@ -66,15 +111,18 @@ def _denoise_kernel(d, s2, inv, radius, k2, out, wout):  # pragma: no cover - co
             for du in range(-radius, radius + 1):
                 u0 = max(0, -du)
                 u1 = min(w, w - du)
-                _denoise_row(d[vv, u0 + du : u1 + du], d[v, u0:u1], s2[vv, u0 + du : u1 + du], s2[v, u0:u1],
-                             inv[vv, u0 + du : u1 + du], k2, acc[u0:u1], wsum[u0:u1])
+                if dv == 0 and du == 0:  # the pixel itself, always
+                    _own_row(d[v], d[v], s2[v], s2[v], inv[v], k2, acc, wsum)
+                    continue
+                _denoise_row(d[vv, u0 + du : u1 + du], d[v, u0:u1], s2[vv, u0 + du : u1 + du], off[v, u0:u1],
+                             add[v, u0:u1], inv[vv, u0 + du : u1 + du], k2, acc[u0:u1], wsum[u0:u1])
         for u in range(w):
             out[v, u] = d[v, u] + acc[u] / wsum[u] if inv[v, u] > 0 else np.float32(np.nan)
             wout[v, u] = wsum[u] if inv[v, u] > 0 else np.float32(0.0)
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def _denoise_row_carry(dj, di, sj2, si2, inv, cj, k2, acc, wsum, cacc):  # pragma: no cover - compiled
+def _denoise_row_carry(dj, di, sj2, off, add, inv, cj, k2, acc, wsum, cacc):  # pragma: no cover - compiled
     """:func:`_denoise_row` (the same operations on ``acc`` and ``wsum``) and ``cacc += w c`` over
     the same accepted neighbours."""
     two_pi = np.float32(2.0 * np.pi)
@@ -84,7 +132,8 @@ def _denoise_row_carry(dj, di, sj2, si2, inv, cj, k2, acc, wsum, cacc):  # pragm
     for u in range(dj.size):
         diff = dj[u] - di[u]
         diff = diff - two_pi * np.floor((diff + pi) * inv_two_pi)  # to [-pi, pi)
-        keep = diff * diff <= k2 * (si2[u] + sj2[u])
+        e = diff - off[u]
+        keep = e * e <= k2 * (add[u] + sj2[u])
         wj = inv[u] if keep else zero
         acc[u] += wj * diff
         wsum[u] += wj
@@ -92,7 +141,7 @@ def _denoise_row_carry(dj, di, sj2, si2, inv, cj, k2, acc, wsum, cacc):  # pragm
 
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
-def _denoise_kernel_carry(d, s2, inv, c, radius, k2, out, wout, cout):  # pragma: no cover - compiled
+def _denoise_kernel_carry(d, s2, inv, off, add, c, radius, k2, out, wout, cout):  # pragma: no cover - compiled
     """:func:`_denoise_kernel` (the same bits in ``out`` and ``wout``) and ``cout``, each pixel's
     weighted mean of ``c`` over the neighbours it accepted, ``sum w c / sum w`` (0 where not valid):
     the filtered change of a phase change ``c`` small enough not to move the accept decisions."""
@@ -108,9 +157,14 @@ def _denoise_kernel_carry(d, s2, inv, c, radius, k2, out, wout, cout):  # pragma
             for du in range(-radius, radius + 1):
                 u0 = max(0, -du)
                 u1 = min(w, w - du)
-                _denoise_row_carry(d[vv, u0 + du : u1 + du], d[v, u0:u1], s2[vv, u0 + du : u1 + du], s2[v, u0:u1],
-                                   inv[vv, u0 + du : u1 + du], c[vv, u0 + du : u1 + du], k2, acc[u0:u1],
-                                   wsum[u0:u1], cacc[u0:u1])
+                if dv == 0 and du == 0:  # the pixel itself, always
+                    _own_row(d[v], d[v], s2[v], s2[v], inv[v], k2, acc, wsum)
+                    for u in range(w):
+                        cacc[u] += inv[v, u] * c[v, u]
+                    continue
+                _denoise_row_carry(d[vv, u0 + du : u1 + du], d[v, u0:u1], s2[vv, u0 + du : u1 + du], off[v, u0:u1],
+                                   add[v, u0:u1], inv[vv, u0 + du : u1 + du], c[vv, u0 + du : u1 + du], k2,
+                                   acc[u0:u1], wsum[u0:u1], cacc[u0:u1])
         for u in range(w):
             out[v, u] = d[v, u] + acc[u] / wsum[u] if inv[v, u] > 0 else np.float32(np.nan)
             wout[v, u] = wsum[u] if inv[v, u] > 0 else np.float32(0.0)
