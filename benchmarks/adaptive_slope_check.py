@@ -86,8 +86,9 @@ def check(name: str, where: Path) -> list[dict]:
     original = _denoise._adaptive_pass
 
     def spy(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, *rest):
+        # the pass's last two arguments: kink2 (plane_kink_sigma squared) and the bias map
         captured.append([np.array(inv), np.array(first), np.array(wfirst), int(max_radius), float(target_w),
-                         float(rest[-1])])
+                         float(rest[-2])])
         return original(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, *rest)
 
     session, tables = am._case_dirs(where, am.CASES[name]["cfg"])

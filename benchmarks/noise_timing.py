@@ -26,7 +26,7 @@ import numpy as np  # noqa: E402
 from huefringe import pipeline, stages  # noqa: E402
 from huefringe.height import PlaneCalibration  # noqa: E402
 from huefringe.huetable import HueTable  # noqa: E402
-from huefringe.session import read_rgb  # noqa: E402
+from huefringe.session import load_session, read_rgb  # noqa: E402
 from huefringe.settings import load_config  # noqa: E402
 
 REPO = Path(__file__).resolve().parents[1]
@@ -36,7 +36,7 @@ def main() -> None:
     cv2.setNumThreads(1)
     case = Path(sys.argv[1])
     rounds = int(sys.argv[2]) if len(sys.argv) > 2 else 5
-    s = stages.load_session(case / "session")
+    s = load_session(case / "session")
     table = next((case / "tables").glob("*/table_object.json"))
     cfg = load_config(REPO / "config.yaml")
     cal = PlaneCalibration.load(str(case / "all-on" / "model.npz"))

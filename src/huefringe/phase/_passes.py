@@ -98,7 +98,9 @@ def _own_side(d, s2, inv, radius, k2, off, add):  # pragma: no cover - compiled
 def _denoise_kernel(d, s2, inv, off, add, radius, k2, out, wout):  # pragma: no cover - compiled
     """Row by row, window offset by window offset (``dv`` then ``du``, the same order for every
     pixel); ``inv = 0`` marks invalid pixels, which then add nothing. ``wout``: each pixel's sum
-    of accepted weights (its filtered variance is ``1 / wout``; 0 where not valid). Rows in
+    of accepted weights (its filtered variance is ``1 / wout``; 0 where not valid). ``off`` and
+    ``add``: each pixel's own-side estimate and its variance (:func:`_own_side`), which the
+    neighbours are tested against (:func:`_denoise_row`); the pixel itself always counts. Rows in
     parallel (``prange``)."""
     h, w = d.shape
     for v in prange(h):
