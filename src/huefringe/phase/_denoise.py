@@ -96,7 +96,7 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     Returns
     -------
     ndarray, float32
-        The filtered phase, NaN where not valid. Computed in float32 (vectorised; about 5 ms
+        The filtered phase, NaN where not valid. Computed in float32 (vectorised; about 7 ms
         for 640 x 480 at radius 2 on one core).
     """
     d = np.asarray(dphi)
@@ -224,6 +224,20 @@ def first_pass(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDArray[np
     weights ``1 / s_j^2``. Against an estimate of the pixel's side rather than its single value,
     the accepted set hardly follows the pixel's own noise, so that ``1 / sum w`` stays the
     filtered variance on textured sigma too (``benchmarks/coverage_bins.py --filter-check``).
+
+    Parameters
+    ----------
+    dz, s2, inv : float32 ndarray
+        The prepared phase, sigma squared and weight ``1 / s2`` (0 where not valid), as
+        :func:`denoise_weighted` takes them.
+    radius : int
+        The window's half side (px).
+    k2 : float32
+        The test's ``k`` squared.
+    out, wout : float32 ndarray
+        Receive the filtered phase (NaN where not valid) and each pixel's sum of accepted weights.
+    carry, carry_out : float32 ndarray, optional
+        A map to average over the same accepted neighbours, and where its mean goes.
     """
     off, var = np.empty(out.shape, np.float32), np.empty(out.shape, np.float32)
     _own_side(dz, s2, inv, int(radius), k2, off, var)
