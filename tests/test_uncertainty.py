@@ -808,7 +808,7 @@ def test_bench_gauge_coverage_per_zone_and_steps_within_u(tmp_path: Path) -> Non
         # measured all 0.964, edge 0.983, texture 0.985, rest 0.961. The edge and texture zones are
         # over-covered (bound 0.99): the dark coatings' rims, lit by their neighbours through the
         # blur, are dropped by the shadow-side test (measurement.shadow_own_light), the phase
-        # filter no longer carries the board's level into the coatings' noisy pixels by a step,
+        # filter keeps the board's level out of the coatings' noisy pixels by a step,
         # and the lateral term's step part, sized with both, is larger than what is left there
         # (docs/uncertainty.md, Known limits)
         assert 0.92 <= cov <= (0.99 if name in ("edge", "texture") else 0.98), (name, cov)
