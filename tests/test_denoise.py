@@ -561,9 +561,9 @@ def test_first_pass_sums_are_the_exact_sums_where_nothing_was_rejected() -> None
 def _carried_by_pixel(d, s2, inv, c, first, wfirst, out, radius, max_radius, k2, target_w):
     """Each pixel's ``sum w c / sum w`` over the neighbours its final window accepted, by the
     filter's definition (float32 decisions, float64 sums): the fixed window's test against the
-    pixel itself, the grown window's (rings in order, stopping at the target) against the local
-    plane through its first-pass estimate; the first pass's where the grown window found less support.
-    The fixed window tests against the compiled own-side estimate (``phase._own_side``)."""
+    pixel's own side (the compiled estimate, ``phase._own_side``), the grown window's (rings in
+    order, stopping at the target) against the local plane through its first-pass estimate; the
+    first pass's where the grown window found less support."""
     from huefringe.phase import _own_side
 
     f32 = np.float32
