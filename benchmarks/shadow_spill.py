@@ -35,7 +35,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import accuracy_matrix as am  # noqa: E402
 import coverage_bins as cb  # noqa: E402
 
-from huefringe.perframe import shadow_mask  # noqa: E402
+from huefringe.perframe import shadow_masks  # noqa: E402
 from huefringe.settings import defaults as load_defaults  # noqa: E402
 
 #: tuning cases of this study's own: other photographs, periods and seeds on the same bench
@@ -128,8 +128,7 @@ def real_white() -> str:
         return f"real capture: {REAL_WHITE} not found"
     level = cv2.imread(str(REAL_WHITE), cv2.IMREAD_GRAYSCALE).astype(np.float64) / 255.0
     rgb = np.repeat(level[..., None], 3, axis=-1)
-    read = shadow_mask(rgb, SHADOW_FRACTION)
-    side = shadow_mask(rgb, SHADOW_FRACTION, own_light=True) & ~read
+    read, side = shadow_masks(rgb, SHADOW_FRACTION)
     top = float(np.max(level[side]) / np.percentile(level, 99)) if side.any() else float("nan")
     return (f"real capture ({REAL_WHITE.parent.parent.name}/{REAL_WHITE.parent.name}, white image "
             f"{level.shape[1]} x {level.shape[0]}): shadowed as read {read.mean():.2%}, the shadow-side test adds "

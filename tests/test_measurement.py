@@ -336,8 +336,8 @@ def test_shadow_side_finds_the_shadow_pixels_the_blur_lights() -> None:
     """The white image as read counts the shadow's column beside the block as lit (the block's light
     reaches it through the blur: 0.119 against a floor of 0.108), and the first column beside the
     board too (0.284); the shadow-side test puts both in the shadow, and no lit pixel joins them.
-    Without it the mask is the white image's."""
-    from huefringe.perframe import shadow_mask
+    Without it the mask is the white image's; ``shadow_masks`` gives the two parts in one pass."""
+    from huefringe.perframe import shadow_mask, shadow_masks
 
     r, w = _dark_block_and_its_shadow()
     rgb = np.repeat(w[..., None], 3, axis=-1)
@@ -345,6 +345,8 @@ def test_shadow_side_finds_the_shadow_pixels_the_blur_lights() -> None:
     read = shadow_mask(rgb, 0.12)
     own = shadow_mask(rgb, 0.12, own_light=True)
     assert not (read & ~true).any() and not (own & ~true).any()  # no lit pixel is shadowed
+    as_read, side = shadow_masks(rgb, 0.12)
+    assert np.array_equal(as_read, read) and np.array_equal(side, own & ~read) and not (side & read).any()
     for col in (24, 29):  # the columns beside the board and beside the block (corners aside)
         assert not read[16:44, col].any() and own[16:44, col].all(), col
 

@@ -29,7 +29,8 @@ from huefringe.colour import hue as hue_of
 from huefringe.colour import balanced_hue, white_balance, white_gains
 from huefringe.height import PlaneCalibration, PlaneCalibrationError, calibrate_planes
 from huefringe.huetable import HueTable, HueTableError, build_table, white_balance_floor
-from huefringe.perframe import FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges, shadow_mask
+from huefringe.perframe import (FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges,
+                                shadow_mask, shadow_masks)
 from huefringe.session import Session
 from huefringe.uncertainty import PixelBudget, add_lateral, noise_correlation, phase_error_residual_rad, pixel_budget
 
@@ -563,9 +564,8 @@ def prepare_frames(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: st
     """
     reader = reader or CaptureReader()
     white = reader.rgb(s.object_white)
-    shadow = shadow_mask(white, measurement["shadow_fraction"])
-    spill = (shadow_mask(white, measurement["shadow_fraction"], own_light=True) & ~shadow
-             if measurement["shadow_own_light"] else None)
+    shadow, spill = (shadow_masks(white, measurement["shadow_fraction"]) if measurement["shadow_own_light"]
+                     else (shadow_mask(white, measurement["shadow_fraction"]), None))
     blur_u = float(cal.texture_blur_u_px2 or 0.0) if want_uncertainty and measurement["texture_uncertainty"] else 0.0
     fp = FramePipeline(session=s, calibration=cal, hue_model=hue_model, measurement=measurement, reader=reader,
                        white=white, shadow=shadow, adaptive=noise_aware_adaptive(measurement["denoise_adaptive"], t),

@@ -15,6 +15,7 @@ from ._measure import (  # noqa: F401
 )
 from ._edges import (  # noqa: F401
     shadow_mask,
+    shadow_masks,
     shadow_side,
     step_edge_mask,
     _noise_map,
@@ -70,6 +71,7 @@ __all__ = [
     "remove_step_edges",
     "sensor_model",
     "shadow_mask",
+    "shadow_masks",
     "shadow_side",
     "sigma_from_slope",
     "step_edge_mask",

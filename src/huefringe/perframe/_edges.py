@@ -59,12 +59,23 @@ def shadow_mask(white: NDArray[np.floating], fraction: float, own_light: bool = 
     (:func:`shadow_side`): the light it reads is the lit neighbour's, through the lens blur, with
     that neighbour's fringe and height, while the white image read as it is counts it as lit.
     """
+    level, floor = _shadow_level(white, fraction)
+    return (level < floor) | shadow_side(level, floor) if own_light else level < floor
+
+
+def shadow_masks(white: NDArray[np.floating], fraction: float) -> tuple[NDArray[np.bool_], NDArray[np.bool_]]:
+    """:func:`shadow_mask`'s two parts from one pass over the white image: the pixels shadowed as
+    read (``shadow_mask(white, fraction)``) and the pixels on a shadow's side of its edge
+    (:func:`shadow_side`, none of them shadowed as read; the union of the two is
+    ``shadow_mask(white, fraction, own_light=True)``)."""
+    level, floor = _shadow_level(white, fraction)
+    return level < floor, shadow_side(level, floor)
+
+
+def _shadow_level(white: NDArray[np.floating], fraction: float) -> tuple[NDArray[np.floating], float]:
+    """The white image's intensity and the shadow threshold, ``fraction`` of its 99th percentile."""
     level = intensity(white)
-    floor = fraction * float(np.percentile(level, 99))
-    out = level < floor
-    if own_light:
-        out |= shadow_side(level, floor)
-    return out
+    return level, fraction * float(np.percentile(level, 99))
 
 
 def step_edge_mask(height: NDArray[np.floating], jump_mm: float, noise: NDArray[np.floating] | None = None,
