@@ -8,20 +8,24 @@ import pytest
 from huefringe.phase import denoise_phase, wrap
 
 
+def _window(d: np.ndarray, valid: np.ndarray, v: int, u: int, radius: int):
+    """The valid pixels of pixel ``(v, u)``'s window, itself included: their position and
+    ``wrap(d_j - d_i)`` (float64)."""
+    h, w = d.shape
+    for vv in range(max(0, v - radius), min(h, v + radius + 1)):
+        for uu in range(max(0, u - radius), min(w, u + radius + 1)):
+            if valid[vv, uu]:
+                yield vv, uu, float(wrap(np.float64(d[vv, uu]) - d[v, u]))
+
+
 def _own_side_by_pixel(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, v: int, u: int, radius: int,
                        k: float) -> tuple[float, float]:
     """A pixel's own-side estimate by its definition (float64): the offset from the pixel of the
     weighted mean of the window's valid neighbours with ``wrap(d_j - d_i)^2 <= 2 k^2 min(s_i^2,
     s_j^2)`` (itself included), and its variance ``1 / sum w``."""
-    h, w = d.shape
     acc = wsum = 0.0
-    for vv in range(max(0, v - radius), min(h, v + radius + 1)):
-        for uu in range(max(0, u - radius), min(w, u + radius + 1)):
-            if not valid[vv, uu]:
-                continue
-            diff = float(wrap(np.float64(d[vv, uu]) - d[v, u]))
-            if diff**2 > 2 * k**2 * min(sigma[v, u] ** 2, sigma[vv, uu] ** 2):
-                continue
+    for vv, uu, diff in _window(d, valid, v, u, radius):
+        if diff**2 <= 2 * k**2 * min(sigma[v, u] ** 2, sigma[vv, uu] ** 2):
             acc += diff / sigma[vv, uu] ** 2
             wsum += 1.0 / sigma[vv, uu] ** 2
     return acc / wsum, 1.0 / wsum
@@ -30,24 +34,15 @@ def _own_side_by_pixel(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, v: i
 def _brute(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, radius: int, k: float) -> np.ndarray:
     """The filter's definition, pixel by pixel in float64 (slow, small maps only): the pixel and
     the neighbours that agree with its own-side estimate within ``k`` combined sigma."""
-    h, w = d.shape
-    out = np.full((h, w), np.nan)
-    for v in range(h):
-        for u in range(w):
-            if not valid[v, u]:
-                continue
-            off, var = _own_side_by_pixel(d, sigma, valid, v, u, radius, k)
-            acc = wsum = 0.0
-            for vv in range(max(0, v - radius), min(h, v + radius + 1)):
-                for uu in range(max(0, u - radius), min(w, u + radius + 1)):
-                    if not valid[vv, uu]:
-                        continue
-                    diff = float(wrap(np.float64(d[vv, uu]) - d[v, u]))
-                    if (vv, uu) != (v, u) and (diff - off) ** 2 > k**2 * (var + sigma[vv, uu] ** 2):
-                        continue
-                    acc += diff / sigma[vv, uu] ** 2
-                    wsum += 1.0 / sigma[vv, uu] ** 2
-            out[v, u] = d[v, u] + acc / wsum
+    out = np.full(d.shape, np.nan)
+    for v, u in zip(*np.nonzero(valid), strict=True):
+        off, var = _own_side_by_pixel(d, sigma, valid, v, u, radius, k)
+        acc = wsum = 0.0
+        for vv, uu, diff in _window(d, valid, v, u, radius):
+            if (vv, uu) == (v, u) or (diff - off) ** 2 <= k**2 * (var + sigma[vv, uu] ** 2):
+                acc += diff / sigma[vv, uu] ** 2
+                wsum += 1.0 / sigma[vv, uu] ** 2
+        out[v, u] = d[v, u] + acc / wsum
     return out
 
 
