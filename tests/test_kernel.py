@@ -204,6 +204,39 @@ def test_prepared_layout(rig: dict) -> None:
     assert m.counts["guess_far"] < 0.2 * m.counts["guess_missed"]  # misses are mostly one line off
 
 
+@pytest.mark.parametrize("n_bands", [6, 28, 29, 30, 31, 32, 33, 100, 520])
+def test_prepared_layout_of_every_pixel(n_bands: int) -> None:
+    """The layout's definition on every pixel of random rotated tables (any N, columns ending
+    at or across a line's end): line j holds sorted entries 29 j - 1 .. 29 j + 30 (entry -1 as 0,
+    past the end 65535), the heads are the lines' entries 29 j (65535 for padding lines); a pixel
+    not usable has columns 0 and heads 65535."""
+    rng = np.random.default_rng(100 + n_bands)
+    h, w = 7, 45
+    cols = np.sort(rng.integers(0, 65536, (h, w, n_bands)), axis=2)
+    start = rng.integers(0, n_bands, (h, w))
+    idx = (start[..., None] + np.arange(n_bands)) % n_bands
+    tab = np.empty((n_bands, h, w), np.uint16)
+    np.put_along_axis(tab, np.moveaxis(idx, 2, 0), np.moveaxis(cols, 2, 0).astype(np.uint16), axis=0)
+    valid = rng.random((h, w)) > 0.15
+    table = HueTable("hexcone", n_bands, tab, valid, start.astype(np.uint16), np.zeros((h, w), np.uint8),
+                     np.full((h, w), 0.01, np.float32), {"repeats": 1})
+    cal = PlaneCalibration(np.zeros((h, w), np.float32), np.ones((h, w), np.float32), np.zeros((h, w), np.float32),
+                           [0.0, 1.0])
+    prep = kernel.prepare(table, cal, np.ones((h, w, 3), np.float32), min_saturation=0.0)
+    nl = prep.nlines
+    assert nl == -(-n_bands // 29)
+    padded = np.concatenate([np.zeros((h, w, 1), np.int64), cols,
+                             np.full((h, w, 29 * nl + 2 - n_bands), 65535)], axis=2)  # entries -1 .. 29 nl + 1
+    want = np.stack([padded[..., 29 * j : 29 * j + 32] for j in range(nl)], axis=2).reshape(h, w, 32 * nl)
+    heads = np.full(prep.heads.shape, 65535, np.int64)
+    heads[..., :nl] = want[..., 1::32]
+    ok = prep.ok
+    assert ok.sum() > 0.7 * h * w and (~ok).sum() > 0
+    np.testing.assert_array_equal(prep.cols[ok], want[ok])
+    np.testing.assert_array_equal(prep.heads[ok], heads[ok])
+    assert np.all(prep.cols[~ok] == 0) and np.all(prep.heads[~ok] == 65535)
+
+
 @pytest.mark.parametrize("n_bands", [6, 31, 32, 33, 100, 520])
 def test_lookup_matches_table_to_phase(n_bands: int) -> None:
     """Random sorted columns (rotated, with ties, any N): the kernel's phase is to_phase(hue)."""

@@ -437,6 +437,107 @@ def test_interpolation_bins_pick_the_local_error() -> None:
     assert e[6] > 1e-4 and e[0] < 1e-5 and e[3] < 1e-5  # bin 6 = [pi, 7 pi / 6): the curved stretch
 
 
+def _interp_rad_numpy(t: np.ndarray, valid: np.ndarray) -> np.ndarray:
+    """The interpolation error's definition in NumPy (band axis first): ``|D2| / D1 * step /
+    sqrt(120)`` per interval, capped at one step, rms over the bands."""
+    n = t.shape[0]
+    step = 2.0 * np.pi / n
+    c = t.astype(np.int32)
+    d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768
+    d2 = np.roll(d1, -1, axis=0) - d1
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.where(d1 > 0, np.abs(d2) / d1, 0.0) * step / np.sqrt(120.0)
+    out = np.sqrt(np.mean(np.minimum(e, step) ** 2, axis=0)).astype(np.float32)
+    return np.where(valid, out, 0.0).astype(np.float32)
+
+
+def _interp_bins_numpy(t: np.ndarray, valid: np.ndarray, bins: int) -> np.ndarray:
+    """The binned interpolation error's definition in NumPy: the curvature of interval ``k`` the
+    mean of the second differences at entries ``k`` and ``k + 1``, a bin the rms over its
+    intervals."""
+    n = t.shape[0]
+    step = 2.0 * np.pi / n
+    which = (np.arange(n) * bins) // n
+    c = t.astype(np.int32)
+    d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768
+    d2 = np.roll(d1, -1, axis=0) - d1
+    curv = 0.5 * (np.roll(d2, 1, axis=0) + d2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        e = np.minimum(np.where(d1 > 0, np.abs(curv) / d1, 0.0) * step / np.sqrt(120.0), step)
+    out = np.zeros((*t.shape[1:], bins), np.float32)
+    for j in range(bins):
+        out[..., j] = np.sqrt(np.mean(e[which == j] ** 2, axis=0))
+    return np.where(valid[..., None], out, 0.0).astype(np.float32)
+
+
+@pytest.mark.parametrize("n_bands", [12, 48, 64, 97])
+def test_interpolation_errors_match_their_numpy_definitions_bit_for_bit(n_bands: int) -> None:
+    """The compiled pass gives the NumPy definitions' float32 bits: tables of rising hue counts
+    that wrap at 65536 (a pixel whose start is anywhere), with flat and falling intervals (D1 <= 0
+    counts 0), curved stretches, the cap at one step and invalid pixels (0); band counts that do
+    not divide into the 12 bins too."""
+    rng = np.random.default_rng(n_bands)
+    h, w = 9, 37
+    steps = rng.gamma(2.0, 1.0, (n_bands, h, w))
+    steps[rng.random(steps.shape) < 0.05] = 0.0  # flat intervals
+    steps[rng.random(steps.shape) < 0.02] = -0.3  # a falling one
+    steps *= 65536 / np.maximum(steps.sum(axis=0), 1e-9)
+    counts = (rng.integers(0, 65536, (1, h, w)) + np.cumsum(steps, axis=0)).astype(np.int64) % 65536
+    tab = counts.astype(np.uint16)
+    valid = rng.random((h, w)) > 0.1
+    table = HueTable(model="hexcone", n_bands=n_bands, table=tab, valid=valid,
+                     start=np.zeros((h, w), np.uint16), reason=np.zeros((h, w), np.uint8),
+                     noise_rad=np.full((h, w), 0.01, np.float32), stats={"repeats": 1})
+    ref_rad = _interp_rad_numpy(tab, valid)
+    ref_bins = _interp_bins_numpy(tab, valid, 12)
+    d1 = np.mod(np.roll(tab.astype(np.int32), -1, axis=0) - tab + 32768, 65536) - 32768
+    assert np.any(d1 == 0) and np.any(d1 < 0)  # the flat and falling intervals are there
+    assert np.all(ref_rad[valid] > 0) and np.any(ref_bins > 1e-3) and np.all(ref_rad[~valid] == 0)
+    np.testing.assert_array_equal(uncertainty.table_interpolation_rad(table), ref_rad)
+    np.testing.assert_array_equal(uncertainty.interpolation_bins(table, bins=12), ref_bins)
+    np.testing.assert_array_equal(uncertainty.interpolation_bins(table, bins=5), _interp_bins_numpy(tab, valid, 5))
+
+
+def test_interpolation_bins_with_fewer_bands_than_bins_hold_the_covering_interval() -> None:
+    """Six bands, twelve bins: interval k starts in bin 2 k (its own error, the definition's bits)
+    and also covers bin 2 k + 1, which no interval starts in: that bin holds the same error (not
+    0, which the mean of no interval would leave as a term of nothing)."""
+    rng = np.random.default_rng(6)
+    h, w, n = 5, 11, 6
+    counts = (rng.integers(0, 65536, (1, h, w)) + np.cumsum(rng.gamma(3.0, 1.0, (n, h, w)), axis=0)
+              * 65536 / 20).astype(np.int64) % 65536
+    tab = counts.astype(np.uint16)
+    valid = np.ones((h, w), bool)
+    table = HueTable(model="hexcone", n_bands=n, table=tab, valid=valid, start=np.zeros((h, w), np.uint16),
+                     reason=np.zeros((h, w), np.uint8), noise_rad=np.full((h, w), 0.01, np.float32),
+                     stats={"repeats": 1})
+    e = uncertainty.interpolation_bins(table, bins=12)
+    with np.errstate(invalid="ignore"), pytest.warns(RuntimeWarning):
+        ref = _interp_bins_numpy(tab, valid, 12)
+    np.testing.assert_array_equal(e[..., ::2], ref[..., ::2])
+    assert np.all(np.isnan(ref[..., 1::2]))
+    np.testing.assert_array_equal(e[..., 1::2], e[..., ::2])
+    assert np.mean(e[..., 1::2] > 0) > 0.8  # not the 0 a mean over no interval would leave
+
+
+def test_interpolation_errors_match_their_numpy_definitions_on_a_bench_table(tmp_path: Path) -> None:
+    """The same bits on a table built from a bench session's captured bands (gamma, crosstalk,
+    noise), and the session budget's codes are those of the definition."""
+    from bench_helpers import bench_config, write
+
+    from huefringe.huetable import build_table
+    from huefringe.session import read_rgb
+
+    cfg = bench_config("flat", width=96, height=60, hue_bands=32, repeats=1, frames=1, bit_depth=8, id="board",
+                       planes_mm=[0.0, 3.0])
+    s = load_session(write(cfg, tmp_path))
+    table = build_table(s.object_bands, read_rgb(s.object_white), model="hexcone")
+    tab, valid = np.asarray(table.table), np.asarray(table.valid, bool)
+    assert valid.mean() > 0.5
+    np.testing.assert_array_equal(uncertainty.table_interpolation_rad(table), _interp_rad_numpy(tab, valid))
+    np.testing.assert_array_equal(uncertainty.interpolation_bins(table), _interp_bins_numpy(tab, valid, 12))
+
+
 def test_filter_variance_with_ratio_is_ratio_sum_over_weight_sum_squared() -> None:
     """Pixels weighted by one sigma but noisier (or quieter) by a factor r: the filtered phase's
     variance over 400 draws is sum(w r) / (sum w)^2 (``ratio_sum``), not 1 / sum w; with the

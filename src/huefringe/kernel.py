@@ -321,29 +321,28 @@ def _pixel_major(table, start, ok, cols, heads):  # pragma: no cover - numba
     Line ``j`` position ``i`` holds entry ``k = 29 j - 1 + i`` of the sorted column; entry -1
     (line 0, position 0) is stored as 0 and entries past the column as 65535, so that counting
     entries <= a hue stays right; the arithmetic reads those two through :func:`_line_entry`.
+    Pixel by pixel: its sorted column gathered (the row's ``N`` table rows stay in cache), then
+    its lines written slot by slot.
     """
     n, h, w = table.shape
     nl = cols.shape[2] // 32
+    col = np.empty(n, np.uint16)
     for v in range(h):
         for u in range(w):
             if not ok[v, u]:
                 cols[v, u, :] = 0
                 heads[v, u, :] = 65535
-            else:
-                cols[v, u, :] = 65535
-                cols[v, u, 0] = 0
-        for i in range(n):  # one contiguous row of the band-major table at a time
-            for u in range(w):
-                if ok[v, u]:
-                    k = i - np.int64(start[v, u])
-                    if k < 0:
-                        k += n
-                    for j in range(max(0, (k - 2) // 29), min(nl - 1, (k + 1) // 29) + 1):
-                        cols[v, u, 32 * j + k - 29 * j + 1] = table[i, v, u]
-        for u in range(w):
-            if ok[v, u]:
-                for line in range(heads.shape[2]):
-                    heads[v, u, line] = cols[v, u, 32 * line + 1] if line < nl else 65535
+                continue
+            s0 = np.int64(start[v, u])
+            for k in range(n):  # sorted entry k is band (k + start) mod n
+                i = k + s0
+                col[k] = table[i - n if i >= n else i, v, u]
+            for j in range(nl):
+                for p in range(32):
+                    k = 29 * j + p - 1
+                    cols[v, u, 32 * j + p] = 0 if k < 0 else (col[k] if k < n else 65535)
+            for line in range(heads.shape[2]):
+                heads[v, u, line] = col[29 * line] if line < nl and 29 * line < n else 65535  # slot 1 of the line
 
 
 @numba.njit(cache=True, nogil=True)

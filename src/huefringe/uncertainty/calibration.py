@@ -10,7 +10,9 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numba
 import numpy as np
+from numba import prange
 from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter
 
@@ -114,50 +116,100 @@ def table_variance_factor(n_bands: int, window: int, order: int, repeats: int) -
     return g / max(int(repeats), 1)
 
 
-def table_interpolation_rad(table: Any, *, rows: int = 64) -> NDArray[np.float32]:
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _interval_errors(t, i, n, v, u, step, s120):  # pragma: no cover - compiled
+    """Interval ``i``'s (entries ``i``, ``i + 1``, circular) two chord errors at one pixel: with
+    the second difference at entry ``i + 1`` and with the mean of those at its two entries, each
+    ``|D2| / D1 * step / sqrt(120)`` (0 where ``D1 <= 0``), capped at one step."""
+    c0 = np.int64(t[(i - 1) % n, v, u])
+    c1 = np.int64(t[i, v, u])
+    c2 = np.int64(t[(i + 1) % n, v, u])
+    c3 = np.int64(t[(i + 2) % n, v, u])
+    dm = (c1 - c0 + 32768) % 65536 - 32768  # the interval before
+    d1 = (c2 - c1 + 32768) % 65536 - 32768  # hue counts of interval i
+    dp = (c3 - c2 + 32768) % 65536 - 32768  # the interval after
+    d2 = dp - d1  # the second difference at entry i + 1
+    curv = 0.5 * ((d1 - dm) + d2)  # the mean of the second differences at entries i, i + 1
+    e = min((abs(d2) / d1 if d1 > 0 else 0.0) * step / s120, step)
+    eb = min((abs(curv) / d1 if d1 > 0 else 0.0) * step / s120, step)
+    return e, eb
+
+
+@numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _interp_kernel(t, which, counts, cover, want_bins, out_rad, out_bins):  # pragma: no cover - compiled
+    """:func:`table_interpolation_rad` (``out_rad``) and, with ``want_bins``,
+    :func:`interpolation_bins` (``out_bins``) in one pass over the band-major table ``t``
+    ``(N, H, W)`` uint16: per row, the bands in order and the row's pixels inner (contiguous),
+    each pixel's squares summed in float64 in band order (NumPy's order of a reduction over the
+    first axis), then ``sqrt(sum / count)`` rounded to float32. A bin that no interval starts in
+    (``counts`` 0: fewer bands than bins) takes the interval ``cover`` holds for it."""
+    n, h, w = t.shape
+    nb = counts.shape[0]
+    step = 2.0 * np.pi / n
+    s120 = math.sqrt(120.0)
+    for v in prange(h):
+        acc = np.zeros(w)
+        accb = np.zeros((nb, w))
+        for i in range(n):
+            j = which[i]
+            for u in range(w):
+                e, eb = _interval_errors(t, i, n, v, u, step, s120)
+                acc[u] += e * e
+                if want_bins:
+                    accb[j, u] += eb * eb
+        for u in range(w):
+            out_rad[v, u] = np.float32(np.sqrt(acc[u] / n))
+            if want_bins:
+                for b in range(nb):
+                    if counts[b] > 0:
+                        out_bins[v, u, b] = np.float32(np.sqrt(accb[b, u] / counts[b]))
+                    else:
+                        out_bins[v, u, b] = np.float32(_interval_errors(t, cover[b], n, v, u, step, s120)[1])
+
+
+def _interp_errors(table: Any, bins: int) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+    """Both interpolation errors of ``table`` from one compiled pass (``bins`` 0: the rms alone),
+    0 where the table is not valid."""
+    t = np.ascontiguousarray(np.asarray(table.table), np.uint16)
+    n, h, w = t.shape
+    nb = max(int(bins), 1)
+    which = ((np.arange(n) * nb) // n).astype(np.int64)  # interval k's bin: the one its start lies in
+    counts = np.bincount(which, minlength=nb).astype(np.float64)
+    cover = (np.arange(nb) * n // nb).astype(np.int64)  # the interval that holds each bin's start
+    out_rad = np.empty((h, w), np.float32)
+    out_bins = np.empty((h, w, bins) if bins > 0 else (1, 1, 1), np.float32)
+    _interp_kernel(t, which, counts, cover, bins > 0, out_rad, out_bins)
+    valid = np.asarray(table.valid, bool)
+    out_rad[~valid] = 0.0
+    if bins == 0:
+        return out_rad, None
+    out_bins[~valid] = 0.0
+    return out_rad, out_bins
+
+
+def table_interpolation_rad(table: Any) -> NDArray[np.float32]:
     """Per-pixel rms error (rad) of interpolating the hue table linearly between bands.
 
     Between two bands, a curved hue curve departs from its chord by ``f (1 - f) D2 / 2`` (``f``
     the fraction of the band width, ``D2`` the second difference of the entries); over a uniform
     ``f`` that has rms ``D2 / sqrt(120)``, which in code phase is ``D2 / D1 * step / sqrt(120)``
-    (``D1`` the first difference: hue counts per band). The rms over the pixel's bands.
+    (``D1`` the first difference: hue counts per band, circular; an interval with ``D1 <= 0``
+    counts 0), each interval's error capped at one band step. The rms over the pixel's bands, 0
+    where the table is not valid.
     """
-    t = np.asarray(table.table)
-    n = t.shape[0]
-    step = 2.0 * np.pi / n
-    out = np.zeros(t.shape[1:], np.float32)
-    for v0 in range(0, t.shape[1], rows):
-        c = t[:, v0 : v0 + rows].astype(np.int32)
-        d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768  # counts per band, circular
-        d2 = np.roll(d1, -1, axis=0) - d1
-        with np.errstate(divide="ignore", invalid="ignore"):
-            e = np.where(d1 > 0, np.abs(d2) / d1, 0.0) * step / math.sqrt(120.0)
-        out[v0 : v0 + rows] = np.sqrt(np.mean(np.minimum(e, step) ** 2, axis=0))
-    return np.where(np.asarray(table.valid, bool), out, 0.0).astype(np.float32)
+    return _interp_errors(table, 0)[0]
 
 
-def interpolation_bins(table: Any, *, bins: int = INTERP_BINS, rows: int = 64) -> NDArray[np.float32]:
+def interpolation_bins(table: Any, *, bins: int = INTERP_BINS) -> NDArray[np.float32]:
     """Per-pixel rms linear-interpolation error (rad) in each of ``bins`` equal code-phase bins,
     ``(H, W, bins)``: the error of interval ``k`` (between entries ``k`` and ``k + 1``) is
     ``|D2| / D1 * step / sqrt(120)`` with ``D2`` the mean of the second differences at its two
-    entries (see :func:`table_interpolation_rad`), and a bin holds the rms over its intervals.
+    entries (see :func:`table_interpolation_rad`), and a bin holds the rms over its intervals
+    (interval ``k`` in bin ``k bins // N``, the bin its start lies in); with fewer bands than bins,
+    a bin that no interval starts in holds the interval its own start lies in.
     A pixel's term is then the value of the bin its phase falls in, not the rms over its whole
     table (where a few flattened bands near the sextant starts would dominate)."""
-    t = np.asarray(table.table)
-    n = t.shape[0]
-    step = 2.0 * np.pi / n
-    which = (np.arange(n) * bins) // n
-    out = np.zeros((*t.shape[1:], bins), np.float32)
-    for v0 in range(0, t.shape[1], rows):
-        c = t[:, v0 : v0 + rows].astype(np.int32)
-        d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768  # interval k: entries k, k + 1
-        d2 = np.roll(d1, -1, axis=0) - d1  # at entry k + 1
-        curv = 0.5 * (np.roll(d2, 1, axis=0) + d2)  # at the interval's two entries
-        with np.errstate(divide="ignore", invalid="ignore"):
-            e = np.minimum(np.where(d1 > 0, np.abs(curv) / d1, 0.0) * step / math.sqrt(120.0), step)
-        for j in range(bins):
-            out[v0 : v0 + rows, :, j] = np.sqrt(np.mean(e[which == j] ** 2, axis=0))
-    return np.where(np.asarray(table.valid, bool)[..., None], out, 0.0).astype(np.float32)
+    return _interp_errors(table, int(bins))[1]
 
 
 def _encode_interp(e: NDArray[np.floating]) -> NDArray[np.uint8]:
@@ -222,8 +274,8 @@ def pixel_budget(table: Any, cal: Any) -> PixelBudget:
     for k, name in enumerate(("u_ref_rad", "cov_aa", "cov_ab", "cov_bb")):
         if name in bud:
             terms[k] = np.nan_to_num(np.asarray(bud[name], np.float32))
-    terms[4] = table_interpolation_rad(table)
-    bins = _encode_interp(interpolation_bins(table))
+    terms[4], interp = _interp_errors(table, INTERP_BINS)
+    bins = _encode_interp(interp)
     st = table.stats or {}
     opts = st.get("params", {}) if isinstance(st.get("params"), dict) else {}
     window = int(opts.get("smooth_window", 15))
