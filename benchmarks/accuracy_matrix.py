@@ -3,6 +3,7 @@
 Usage: ./run python benchmarks/accuracy_matrix.py [--cases NAME ...] [--tuning | --holdout] [--texture] [--variants NAME ...] [--keep DIR]
        ./run python benchmarks/accuracy_matrix.py --cameras [--keep DIR]   (the camera cases, docs/accuracy-cameras.md)
        ./run python benchmarks/accuracy_matrix.py --noise [--tuning | --holdout] [--keep DIR]   (the noise cases, docs/noise.md)
+       ./run python benchmarks/accuracy_matrix.py --sources --variants "all on" [--keep DIR]   (the tuning gauge with a quieter sensor, docs/accuracy.md)
 
 Each case is a bench preset plus overrides (plain and pre-distorted projection, periods 20-64 px,
 defocus 0.5-2 camera px, 64/96/256 bands x 1-3 repeats, per-channel gamma 1.8-2.5, crosstalk,
@@ -128,6 +129,18 @@ NOISE_CASES = {
                                             camera={"read_noise_e": 2, "full_well_e": 20000}, scene={"image": "rocket"}),
     "sensor rocket 2e 20ke p56 72x2": _case("photo_sensor", True, session={"seed": 63, "repeats": 2},
                                             camera={"read_noise_e": 2, "full_well_e": 20000}, scene={"image": "rocket"}),
+}
+
+#: the tuning gauge session with a quieter sensor, then without ambient and stray light as well,
+#: and with no sensor noise at all (``--sources``, docs/accuracy.md "Gauge steps")
+_QUIET = {"full_well_e": 1e6, "read_noise_dn": 0.08}
+SOURCE_CASES = {
+    "gauge plain p48 96x2 16bit": _case("plain_gauge"),
+    "gauge plain p48 96x2 16bit, quiet sensor (1e6 e-, 0.08 DN)": _case("plain_gauge", camera=_QUIET),
+    "gauge plain p48 96x2 16bit, quiet sensor, no ambient or stray light": _case(
+        "plain_gauge", camera=_QUIET, light={"ambient": [0.0, 0.0, 0.0], "stray": [0.0, 0.0, 0.0]}),
+    "gauge plain p48 96x2 16bit, no sensor noise (16-bit codes only)": _case(
+        "plain_gauge", camera={"full_well_e": 1e9, "read_noise_dn": 0.0}),
 }
 
 _REG = ("registration off", "registration on")
@@ -487,6 +500,8 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="write sessions and results here, reuse sessions found there")
     ap.add_argument("--cameras", action="store_true", help="the camera cases instead of the method's")
     ap.add_argument("--noise", action="store_true", help="the noise cases instead of the method's")
+    ap.add_argument("--sources", action="store_true",
+                    help="the tuning gauge session with a quieter sensor, without ambient and stray light, without noise")
     args = ap.parse_args()
     if args.noise:
         noise_cases(args)
@@ -494,8 +509,10 @@ def main() -> None:
     if args.cameras:
         cameras(args)
         return
-    cases = [c for c in args.cases if not (args.tuning and CASES[c]["holdout"])
-             and not (args.holdout and not CASES[c]["holdout"]) and not (args.texture and not c.startswith("tex "))]
+    pool = SOURCE_CASES if args.sources else CASES
+    names = list(pool) if args.sources and args.cases == list(CASES) else args.cases
+    cases = [c for c in names if not (args.tuning and pool[c]["holdout"])
+             and not (args.holdout and not pool[c]["holdout"]) and not (args.texture and not c.startswith("tex "))]
     t0 = time.perf_counter()
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
@@ -503,7 +520,7 @@ def main() -> None:
               "| 2u all | 2u edge | 2u texture | 2u rest |")
         print("| --- | --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
         for name in cases:
-            case = CASES[name]
+            case = pool[name]
             slug = _slug(name)
             session, tables = _case_dirs(root / slug, case["cfg"])
             for vname in args.variants:
