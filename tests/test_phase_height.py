@@ -154,3 +154,38 @@ def test_wrap_edge_flags_exactly_the_pixels_on_both_sides_of_a_jump() -> None:
     want[5, 5] = False
     assert np.array_equal(f, want), np.argwhere(f != want)
     assert unwrap(d[:, :4], valid[:, :4], "reference").flags["wrap_edge"].sum() == 0
+
+
+def _design_reference(shape: tuple[int, int], degree: int, uu: np.ndarray, vv: np.ndarray) -> np.ndarray:
+    """The polynomial's design matrix at pixel coordinates ``uu``, ``vv``: ``x^i y^j``, ``x``, ``y``
+    the coordinates scaled to [-1, 1] over the image."""
+    h, w = shape
+    x = (uu / max(w - 1, 1)) * 2.0 - 1.0
+    y = (vv / max(h - 1, 1)) * 2.0 - 1.0
+    return np.stack([x**i * y**j for i in range(degree + 1) for j in range(degree + 1 - i)], axis=-1)
+
+
+@pytest.mark.parametrize("shape", [(480, 640), (300, 400), (241, 319), (7, 5), (1, 9)])
+@pytest.mark.parametrize("step", [1, 2, 3])
+def test_polynomial_design_on_the_grid_is_the_pointwise_one(shape: tuple[int, int], step: int) -> None:
+    """The grid's design (powers per row and column, broadcast) holds the pointwise definition's
+    values bit for bit, at every step-th pixel and every degree, and so does the fit it
+    evaluates."""
+    from huefringe.height import _design_grid, fit_poly2d
+
+    vv, uu = np.mgrid[0 : shape[0] : step, 0 : shape[1] : step]
+    for degree in (1, 2, 3, 4):
+        ref = _design_reference(shape, degree, uu.astype(np.float64), vv.astype(np.float64))
+        np.testing.assert_array_equal(_design_grid(shape, degree, step), ref)
+    if min(shape) > 20:
+        rng = np.random.default_rng(step)
+        v, u = np.mgrid[0 : shape[0], 0 : shape[1]]
+        values = 0.3 + 1e-3 * u - 2e-3 * v + 1e-6 * u * v + rng.normal(0, 0.01, shape)
+        valid = rng.random(shape) > 0.2
+        fit = fit_poly2d(values, valid, 3, step=step)
+        sub = valid[::step, ::step]
+        A = _design_reference(shape, 3, uu[sub].astype(np.float64), vv[sub].astype(np.float64))
+        coef, *_ = np.linalg.lstsq(A, values[::step, ::step][sub], rcond=None)
+        full = _design_reference(shape, 3, u.astype(np.float64), v.astype(np.float64))
+        assert np.abs(fit - full @ coef).max() < 1e-3  # the robust fit: a few samples clipped at most
+        assert np.abs(fit - (0.3 + 1e-3 * u - 2e-3 * v + 1e-6 * u * v)).max() < 0.01

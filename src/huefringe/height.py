@@ -106,14 +106,6 @@ class PlaneCalibration:
                        texture_blur_px2=blur, texture_blur_u_px2=blur_u, projector_off=off)
 
 
-def _design(shape: tuple[int, int], degree: int, uu: NDArray, vv: NDArray) -> NDArray[np.float64]:
-    h, w = shape
-    x = (uu / max(w - 1, 1)) * 2.0 - 1.0
-    y = (vv / max(h - 1, 1)) * 2.0 - 1.0
-    cols = [x**i * y**j for i in range(degree + 1) for j in range(degree + 1 - i)]
-    return np.stack(cols, axis=-1)
-
-
 def fit_poly2d(values: NDArray[np.floating], valid: NDArray[np.bool_], degree: int = 3,
                *, step: int = 2, clip_sigma: float = 3.0, iterations: int = 3) -> NDArray[np.float64]:
     """Robust least-squares fit of a 2-D polynomial of total degree ``degree``; evaluated everywhere.
@@ -121,13 +113,12 @@ def fit_poly2d(values: NDArray[np.floating], valid: NDArray[np.bool_], degree: i
     Outliers beyond ``clip_sigma`` robust standard deviations are dropped and the fit repeated.
     """
     shape = values.shape
-    vv, uu = np.mgrid[0 : shape[0] : step, 0 : shape[1] : step]
     sub_vals = values[::step, ::step]
     keep = valid[::step, ::step] & np.isfinite(sub_vals)
     n_terms = (degree + 1) * (degree + 2) // 2
     if keep.sum() < 4 * n_terms:
         raise PlaneCalibrationError(f"only {int(keep.sum())} valid samples for a degree-{degree} fit")
-    A = _design(shape, degree, uu[keep].astype(np.float64), vv[keep].astype(np.float64))
+    A = _design_grid(shape, degree, step)[keep]
     y = sub_vals[keep].astype(np.float64)
     use = np.ones(y.shape, bool)
     coef = np.zeros(n_terms)
@@ -141,9 +132,20 @@ def fit_poly2d(values: NDArray[np.floating], valid: NDArray[np.bool_], degree: i
         if new.sum() < 4 * n_terms or np.array_equal(new, use):
             break
         use = new
-    V, U = np.mgrid[0 : shape[0], 0 : shape[1]]
-    full = _design(shape, degree, U.astype(np.float64), V.astype(np.float64))
-    return full @ coef
+    return _design_grid(shape, degree) @ coef
+
+
+def _design_grid(shape: tuple[int, int], degree: int, step: int = 1) -> NDArray[np.float64]:
+    """:func:`_design` at every ``step``-th row and column of the grid (shape ``(ceil(H / step),
+    ceil(W / step), terms)``), the same values: each power of a column's ``x`` and a row's ``y``
+    taken once per column and row, their products broadcast."""
+    h, w = shape
+    x = (np.arange(0, w, step).astype(np.float64) / max(w - 1, 1)) * 2.0 - 1.0
+    y = (np.arange(0, h, step).astype(np.float64) / max(h - 1, 1)) * 2.0 - 1.0
+    terms = [(i, j) for i in range(degree + 1) for j in range(degree + 1 - i)]
+    xp = np.stack([x**i for i, _ in terms], axis=-1)  # (columns, terms)
+    yp = np.stack([y**j for _, j in terms], axis=-1)  # (rows, terms)
+    return yp[:, None, :] * xp[None, :, :]
 
 
 def _row_unwrap(phi: NDArray[np.float64], valid: NDArray[np.bool_]) -> NDArray[np.float64]:
