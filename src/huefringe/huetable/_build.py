@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -19,7 +20,8 @@ from ._store import HueTable, NOISE_SOURCES, REASONS, _R_LOW_SAT, _R_LOW_SIGNAL,
 
 
 def band_smoothing_matrix(n_bands: int, window: int, order: int = 2) -> NDArray[np.float64]:
-    """Coefficients of the along-band local-polynomial smoother, one row per band.
+    """Coefficients of the along-band local-polynomial smoother, one row per band (a new array;
+    the coefficients are computed once per ``(n_bands, window, order)`` in a process).
 
     Row ``i`` holds the weights of bands ``i - m .. i + m`` (``m = window // 2``) that
     evaluate at band ``i`` a least-squares polynomial of degree ``order`` (Savitzky-Golay). The
@@ -28,6 +30,12 @@ def band_smoothing_matrix(n_bands: int, window: int, order: int = 2) -> NDArray[
     slope jump there); near a boundary the window is one-sided instead (c = 0 is a boundary, so no
     window wraps round). ``window <= 1`` gives the identity.
     """
+    return _band_smoothing(int(n_bands), int(window), int(order)).copy()
+
+
+@functools.lru_cache(maxsize=16)
+def _band_smoothing(n_bands: int, window: int, order: int) -> NDArray[np.float64]:
+    """:func:`band_smoothing_matrix`, computed (a per-session constant that frames ask for)."""
     m = max(0, int(window) // 2)
     if window > 1 and window % 2 == 0:
         raise ValueError("smooth_window must be odd")
