@@ -542,10 +542,19 @@ def _jackknife_at(frame: RigFrame, jackknife: list[tuple[str, RigCalibration]], 
     d = frame.decoded
     use = {"u": frame.mode in ("u", "both"), "v": frame.mode in ("v", "both")}
     pts = []
-    for _, c in jackknife:
-        t = triangulate(c, d["u"] if use["u"] else None, d["v"] if use["v"] else None,
-                        valid=where, mode=frame.mode)  # type: ignore[arg-type]
-        pts.append(t.xyz[where])
+    if 4 * int(where.sum()) < where.size:  # a sparse set: its pixels as vectors (the rays triangulate's grid path takes)
+        rows, cols = np.nonzero(where)
+        pix = np.column_stack([cols, rows]).astype(np.float64)
+        for _, c in jackknife:
+            t = triangulate(c, np.asarray(d["u"], np.float64)[where] if use["u"] else None,
+                            np.asarray(d["v"], np.float64)[where] if use["v"] else None, pixels=pix,
+                            mode=frame.mode)  # type: ignore[arg-type]
+            pts.append(t.xyz)
+    else:
+        for _, c in jackknife:
+            t = triangulate(c, d["u"] if use["u"] else None, d["v"] if use["v"] else None,
+                            valid=where, mode=frame.mode)  # type: ignore[arg-type]
+            pts.append(t.xyz[where])
     p = np.stack(pts)
     dev = p - p.mean(axis=0)
     ray = frame.xyz[where] / np.linalg.norm(frame.xyz[where], axis=-1, keepdims=True)
