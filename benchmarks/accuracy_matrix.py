@@ -225,6 +225,8 @@ VARIANTS.update({
     # the uncertainty's lateral term (docs/uncertainty.md): heights identical, u without it
     "lateral term off": {"measurement": {"lateral_uncertainty_px": 0.0, "lateral_step_px": 0.0}},
     "lateral 1.75 px, no step part": {"measurement": {"lateral_uncertainty_px": 1.75, "lateral_step_px": 0.0}},
+    # the lateral term's step part (measurement.lateral_step_px, 2.0 by default) on a grid
+    **{f"lateral step {r} px": {"measurement": {"lateral_step_px": r}} for r in (0.0, 1.0, 1.5)},
     "texture term off": {"measurement": {"texture_uncertainty": False}},
 })
 VARIANTS.update({

@@ -16,16 +16,21 @@ test asserts it.
 
 from __future__ import annotations
 
-import argparse
-import tempfile
-import time
-from pathlib import Path
+import os
 
-import cv2
-import numpy as np
+for _var in ("NUMBA_NUM_THREADS", "OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ[_var] = "1"  # one core, BLAS included (before NumPy loads it)
 
-from huefringe.bench import load_sl_bench_config, write_sl_session
-from huefringe.rig.measure import (
+import argparse  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from huefringe.bench import load_sl_bench_config, write_sl_session  # noqa: E402
+from huefringe.rig.measure import (  # noqa: E402
     calibrate_sl_session,
     calibration_spread,
     decode_frame,
@@ -33,10 +38,10 @@ from huefringe.rig.measure import (
     plane_grid,
     triangulate_frame,
 )
-from huefringe.rig.metrology import base_plane, feature_values
-from huefringe.rig.triangulation import triangulate
-from huefringe.session import load_sl_session
-from huefringe.settings import load_config
+from huefringe.rig.metrology import base_plane, feature_values  # noqa: E402
+from huefringe.rig.triangulation import triangulate  # noqa: E402
+from huefringe.session import load_sl_session  # noqa: E402
+from huefringe.settings import load_config  # noqa: E402
 
 
 def main() -> None:
