@@ -136,9 +136,11 @@ def fit_poly2d(values: NDArray[np.floating], valid: NDArray[np.bool_], degree: i
 
 
 def _design_grid(shape: tuple[int, int], degree: int, step: int = 1) -> NDArray[np.float64]:
-    """:func:`_design` at every ``step``-th row and column of the grid (shape ``(ceil(H / step),
-    ceil(W / step), terms)``), the same values: each power of a column's ``x`` and a row's ``y``
-    taken once per column and row, their products broadcast."""
+    """The polynomial's design at every ``step``-th row and column of an ``(H, W)`` grid, shape
+    ``(ceil(H / step), ceil(W / step), terms)``: ``x^i y^j`` for ``i + j <= degree`` (``i``
+    outer), ``x`` and ``y`` the column and row scaled to [-1, 1] over the grid. Each power of a
+    column's ``x`` and a row's ``y`` is taken once, their products broadcast: the values of the
+    pointwise products, bit for bit (tests/test_phase_height.py)."""
     h, w = shape
     x = (np.arange(0, w, step).astype(np.float64) / max(w - 1, 1)) * 2.0 - 1.0
     y = (np.arange(0, h, step).astype(np.float64) / max(h - 1, 1)) * 2.0 - 1.0

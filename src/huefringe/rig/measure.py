@@ -542,7 +542,7 @@ def _jackknife_at(frame: RigFrame, jackknife: list[tuple[str, RigCalibration]], 
     d = frame.decoded
     use = {"u": frame.mode in ("u", "both"), "v": frame.mode in ("v", "both")}
     pts = []
-    if 4 * int(where.sum()) < where.size:  # a sparse set: its pixels as vectors (the rays triangulate's grid path takes)
+    if 4 * int(where.sum()) < where.size:  # a sparse set as pixel vectors: the rays triangulate's grid path takes
         rows, cols = np.nonzero(where)
         pix = np.column_stack([cols, rows]).astype(np.float64)
         for _, c in jackknife:

@@ -209,7 +209,12 @@ def interpolation_bins(table: Any, *, bins: int = INTERP_BINS) -> NDArray[np.flo
     a bin that no interval starts in holds the interval its own start lies in.
     A pixel's term is then the value of the bin its phase falls in, not the rms over its whole
     table (where a few flattened bands near the sextant starts would dominate)."""
-    return _interp_errors(table, int(bins))[1]
+    if int(bins) < 1:
+        raise ValueError(f"interpolation bins must be at least 1, got {bins}")
+    out = _interp_errors(table, int(bins))[1]
+    if out is None:  # pragma: no cover - bins >= 1 always gives the bins
+        raise RuntimeError("no interpolation bins")
+    return out
 
 
 def _encode_interp(e: NDArray[np.floating]) -> NDArray[np.uint8]:
