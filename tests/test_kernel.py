@@ -204,6 +204,21 @@ def test_prepared_layout(rig: dict) -> None:
     assert m.counts["guess_far"] < 0.2 * m.counts["guess_missed"]  # misses are mostly one line off
 
 
+def _rotated_table(cols: np.ndarray, start: np.ndarray,
+                   valid: np.ndarray) -> tuple[HueTable, PlaneCalibration, kernel.Prepared]:
+    """A hue table whose pixel columns, rotated to ``start``, are the sorted ``cols`` ``(H, W, N)``,
+    a flat calibration, and the kernel prepared on them (white image 1)."""
+    h, w, n_bands = cols.shape
+    idx = (start[..., None] + np.arange(n_bands)) % n_bands
+    tab = np.empty((n_bands, h, w), np.uint16)
+    np.put_along_axis(tab, np.moveaxis(idx, 2, 0), np.moveaxis(cols, 2, 0).astype(np.uint16), axis=0)
+    table = HueTable("hexcone", n_bands, tab, valid, start.astype(np.uint16), np.zeros((h, w), np.uint8),
+                     np.full((h, w), 0.01, np.float32), {"repeats": 1})
+    cal = PlaneCalibration(np.zeros((h, w), np.float32), np.ones((h, w), np.float32), np.zeros((h, w), np.float32),
+                           [0.0, 1.0])
+    return table, cal, kernel.prepare(table, cal, np.ones((h, w, 3), np.float32), min_saturation=0.0)
+
+
 @pytest.mark.parametrize("n_bands", [6, 28, 29, 30, 31, 32, 33, 100, 520])
 def test_prepared_layout_of_every_pixel(n_bands: int) -> None:
     """The layout's definition on every pixel of random rotated tables (any N, columns ending
@@ -213,16 +228,7 @@ def test_prepared_layout_of_every_pixel(n_bands: int) -> None:
     rng = np.random.default_rng(100 + n_bands)
     h, w = 7, 45
     cols = np.sort(rng.integers(0, 65536, (h, w, n_bands)), axis=2)
-    start = rng.integers(0, n_bands, (h, w))
-    idx = (start[..., None] + np.arange(n_bands)) % n_bands
-    tab = np.empty((n_bands, h, w), np.uint16)
-    np.put_along_axis(tab, np.moveaxis(idx, 2, 0), np.moveaxis(cols, 2, 0).astype(np.uint16), axis=0)
-    valid = rng.random((h, w)) > 0.15
-    table = HueTable("hexcone", n_bands, tab, valid, start.astype(np.uint16), np.zeros((h, w), np.uint8),
-                     np.full((h, w), 0.01, np.float32), {"repeats": 1})
-    cal = PlaneCalibration(np.zeros((h, w), np.float32), np.ones((h, w), np.float32), np.zeros((h, w), np.float32),
-                           [0.0, 1.0])
-    prep = kernel.prepare(table, cal, np.ones((h, w, 3), np.float32), min_saturation=0.0)
+    _, _, prep = _rotated_table(cols, rng.integers(0, n_bands, (h, w)), rng.random((h, w)) > 0.15)
     nl = prep.nlines
     assert nl == -(-n_bands // 29)
     padded = np.concatenate([np.zeros((h, w, 1), np.int64), cols,
@@ -246,15 +252,8 @@ def test_lookup_matches_table_to_phase(n_bands: int) -> None:
     cols[:, :5, 1:3] = cols[:, :5, :1]  # ties
     cols[:3] = np.sort(rng.integers(0, 6000, (3, w, n_bands)), axis=2)  # unlike their tile: far misses
     start = rng.integers(0, n_bands, (h, w))
-    idx = (start[..., None] + np.arange(n_bands)) % n_bands
-    tab = np.empty((n_bands, h, w), np.uint16)
-    np.put_along_axis(tab, np.moveaxis(idx, 2, 0), np.moveaxis(cols, 2, 0).astype(np.uint16), axis=0)
     valid = rng.random((h, w)) > 0.1
-    table = HueTable("hexcone", n_bands, tab, valid, start.astype(np.uint16), np.zeros((h, w), np.uint8),
-                     np.full((h, w), 0.01, np.float32), {"repeats": 1})
-    cal = PlaneCalibration(np.zeros((h, w), np.float32), np.ones((h, w), np.float32), np.zeros((h, w), np.float32),
-                           [0.0, 1.0])
-    prep = kernel.prepare(table, cal, np.ones((h, w, 3), np.float32), min_saturation=0.0)
+    table, cal, prep = _rotated_table(cols, start, valid)
     for _ in range(3):
         frame = rng.integers(0, 255, (h, w, 3), dtype=np.uint8)
         m = kernel.frame_maps(prep, frame, want_maps=True)
