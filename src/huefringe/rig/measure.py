@@ -541,20 +541,19 @@ def _jackknife_at(frame: RigFrame, jackknife: list[tuple[str, RigCalibration]], 
     and whether every leave-one-out calibration triangulated them."""
     d = frame.decoded
     use = {"u": frame.mode in ("u", "both"), "v": frame.mode in ("v", "both")}
-    pts = []
-    if 4 * int(where.sum()) < where.size:  # a sparse set as pixel vectors: the rays triangulate's grid path takes
+    # a sparse set as pixel vectors (the rays triangulate's grid path takes for it, without the
+    # full camera maps), a dense one as maps masked to it (its cached grid rays)
+    sparse = 4 * int(where.sum()) < where.size
+    coords = {k: (np.asarray(d[k], np.float64)[where] if sparse else d[k]) if use[k] else None for k in use}
+    if sparse:
         rows, cols = np.nonzero(where)
-        pix = np.column_stack([cols, rows]).astype(np.float64)
-        for _, c in jackknife:
-            t = triangulate(c, np.asarray(d["u"], np.float64)[where] if use["u"] else None,
-                            np.asarray(d["v"], np.float64)[where] if use["v"] else None, pixels=pix,
-                            mode=frame.mode)  # type: ignore[arg-type]
-            pts.append(t.xyz)
+        at: dict[str, Any] = {"pixels": np.column_stack([cols, rows]).astype(np.float64)}
     else:
-        for _, c in jackknife:
-            t = triangulate(c, d["u"] if use["u"] else None, d["v"] if use["v"] else None,
-                            valid=where, mode=frame.mode)  # type: ignore[arg-type]
-            pts.append(t.xyz[where])
+        at = {"valid": where}
+    pts = []
+    for _, c in jackknife:
+        t = triangulate(c, coords["u"], coords["v"], mode=frame.mode, **at)  # type: ignore[arg-type]
+        pts.append(t.xyz if sparse else t.xyz[where])
     p = np.stack(pts)
     dev = p - p.mean(axis=0)
     ray = frame.xyz[where] / np.linalg.norm(frame.xyz[where], axis=-1, keepdims=True)

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, cast
 
 import numba
 import numpy as np
@@ -211,10 +211,7 @@ def interpolation_bins(table: Any, *, bins: int = INTERP_BINS) -> NDArray[np.flo
     table (where a few flattened bands near the sextant starts would dominate)."""
     if int(bins) < 1:
         raise ValueError(f"interpolation bins must be at least 1, got {bins}")
-    out = _interp_errors(table, int(bins))[1]
-    if out is None:  # pragma: no cover - bins >= 1 always gives the bins
-        raise RuntimeError("no interpolation bins")
-    return out
+    return cast(NDArray[np.float32], _interp_errors(table, int(bins))[1])  # bins >= 1: the bins
 
 
 def _encode_interp(e: NDArray[np.floating]) -> NDArray[np.uint8]:
