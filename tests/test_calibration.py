@@ -545,3 +545,30 @@ def test_plate_transfer_of_an_ideal_rig_is_the_identity():
     code, dist = compensation.plate_transfer(tab)
     assert np.allclose(code, TWO_PI * np.arange(64) / 64)
     assert np.max(np.abs(dist)) < 0.01  # only 8-bit projector rounding
+
+
+@pytest.mark.parametrize("n_bands", [7, 10, 14])
+def test_fewer_bands_than_the_smoothing_window_take_the_widest_window_they_hold(n_bands: int) -> None:
+    """A session of 7-14 bands (the spec allows 6) with the default 15-band window: the table is
+    built with the largest odd window <= N, which its stats record, and the uncertainty's table
+    factor uses the same; an even window is still refused."""
+    from huefringe.huetable import band_smoothing_matrix
+    from huefringe.uncertainty import table_variance_factor
+
+    h, w = 6, 8
+    white = np.full((h, w, 3), 0.8, np.float32)
+    rng = np.random.default_rng(n_bands)
+    imgs = {}
+    for i in range(n_bands):
+        code = 2 * np.pi * i / n_bands
+        rgb = np.clip(0.5 + 0.35 * np.cos(code - np.array([0.0, 2.1, 4.2])), 0.05, 0.95)
+        imgs[i] = (np.broadcast_to(rgb, (h, w, 3)) * 0.8 + rng.normal(0, 0.002, (h, w, 3))).astype(np.float32)
+    tab = cal.build_table([[i] for i in range(n_bands)], white, read=lambda i: imgs[i])
+    used = n_bands - (1 - n_bands % 2)
+    assert tab.stats["params"]["smooth_window"] == used
+    assert tab.valid.mean() > 0.9
+    coef = band_smoothing_matrix(n_bands, used, 2)
+    g = float(np.mean(np.sum(coef**2, axis=1)))
+    assert table_variance_factor(n_bands, 15, 2, 1) == pytest.approx(g)
+    with pytest.raises(ValueError, match="odd"):
+        cal.build_table([[i] for i in range(n_bands)], white, read=lambda i: imgs[i], smooth_window=16)

@@ -295,7 +295,9 @@ def build_table(
         :func:`white_balance_floor` of ``min_intensity`` (``min_intensity / 2``).
     smooth_window, smooth_order : int
         Local-polynomial window (odd, in bands) and degree along the band axis, not crossing the
-        code's sextant boundaries (:func:`band_smoothing_matrix`); window <= 1 disables.
+        code's sextant boundaries (:func:`band_smoothing_matrix`); window <= 1 disables. A window
+        wider than the table's ``N`` bands takes the largest odd number <= N (the one the stats
+        record, and the one :func:`huefringe.uncertainty.table_variance_factor` assumes).
     max_noise_steps : float
         Mask ``noise`` when the standard error of a band mean (from the repeats, or with one
         repeat from the third difference along the bands) exceeds this many band steps.
@@ -397,6 +399,8 @@ def build_table(
         sigma = np.empty((h, w), np.float64)
         _band_noise_kernel(tab, reason, BAND_DIFFERENCE_ORDER, sigma)
     step = TWO_PI / n
+    if smooth_window % 2 == 1 and smooth_window > n:  # fewer bands than the window (an even one is refused below)
+        smooth_window = n - (1 - n % 2)
     coef = band_smoothing_matrix(n, smooth_window, smooth_order)
     start = np.zeros((h, w), dtype=np.uint16)
     _finalise_kernel(tab, sigma, reason, start, coef, float(max_noise_steps * step), float(max_gap),
