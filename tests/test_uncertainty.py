@@ -692,6 +692,27 @@ def test_lateral_term_is_dx_times_slope() -> None:
     assert np.median(uncertainty.lateral_term(flat)) < 0.01
 
 
+def test_lateral_slope_never_reaches_across_a_hole() -> None:
+    """Two planes of one slope with a 1 mm step between them, the step's two columns masked (the
+    edge mask's hole) and a shadow-like block of NaN: every valid pixel's slope is its own side's,
+    so the term is ``LATERAL_PX * |g|`` at every valid pixel, beside the hole too, and the step
+    part is 0 (a normalised average of the levels would read the 1 mm across the hole as a slope
+    there, and its coarse one out to 20 px)."""
+    vv, uu = np.mgrid[:60, :90].astype(np.float64)
+    h = (0.003 * uu - 0.004 * vv + np.where(uu >= 45, 1.0, 0.0)).astype(np.float32)
+    h[:, 44:46] = np.nan
+    h[10:20, 60:70] = np.nan
+    ok = np.isfinite(h)
+    lat = uncertainty.lateral_term(h, step_px=uncertainty.LATERAL_STEP_PX)
+    assert np.array_equal(np.isfinite(lat), ok)
+    np.testing.assert_allclose(lat[ok], uncertainty.LATERAL_PX * 0.005, rtol=1e-3)
+    step_only = uncertainty.lateral_term(h, lateral_px=0.0, step_px=uncertainty.LATERAL_STEP_PX)
+    assert np.nanmax(step_only) < 1e-5
+    # the pixels beside the hole with a pair of their own on one side: the side's slope alone
+    with_u = uncertainty.lateral_term(h, np.full(h.shape, 1e-4, np.float32))
+    np.testing.assert_allclose(with_u[:, [43, 46]], uncertainty.LATERAL_PX * 0.005, rtol=0.02)
+
+
 def test_filter_on_a_textured_ramp_errs_by_slope_times_weight_centroid() -> None:
     """The phase filter's inverse-variance mean of a noise-free ramp ``a x + b y`` with textured
     weights (lognormal sigma, a dark column band of 4 x the sigma) is the ramp at the weights'
@@ -727,17 +748,28 @@ def _lateral_numpy(height, u=None, *, lateral_px=0.5, smooth_px=1.5, step_px=0.0
     from huefringe.uncertainty.frame import _gaussian_kernel, _sep
 
     def slope(h, ok, px):
+        """The slopes along a row and down a column from the valid pairs' smoothed differences, and
+        their pair weights."""
         g = _gaussian_kernel(px)[1:-1]
-        num = _sep(np.where(ok, h, np.float32(0.0)), g, g)
-        den = _sep(ok.astype(np.float32), g, g)
-        with np.errstate(invalid="ignore", divide="ignore"):
-            hm = np.where(den > 1e-3, num / np.maximum(den, np.float32(1e-3)), np.float32(np.nan))
-        gy, gx = np.gradient(hm)
-        return np.nan_to_num(gx), np.nan_to_num(gy), den
+        pairs = np.zeros(h.shape + (4,), np.float32)
+        okx, oky = ok[:, :-1] & ok[:, 1:], ok[:-1] & ok[1:]
+        with np.errstate(invalid="ignore", over="ignore"):
+            pairs[:, :-1, 0] = np.where(okx, h[:, 1:] - h[:, :-1], np.float32(0.0))
+            pairs[:-1, :, 2] = np.where(oky, h[1:] - h[:-1], np.float32(0.0))
+        pairs[:, :-1, 1], pairs[:-1, :, 3] = okx, oky
+        f = _sep(pairs, g, g)
+        out = []
+        for n, d, before in ((f[..., 0], f[..., 1], lambda a: np.pad(a[:, :-1], ((0, 0), (1, 0)))),
+                             (f[..., 2], f[..., 3], lambda a: np.pad(a[:-1], ((1, 0), (0, 0))))):
+            w = before(d) + d
+            with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
+                gs = np.where(w > np.float32(2e-3), (before(n) + n) / w, np.float32(0.0))
+            out += [np.nan_to_num(gs), w / np.float32(2.0)]
+        return out
 
     h = np.asarray(height, np.float32)
     ok = np.isfinite(h)
-    gx, gy, den = slope(h, ok, smooth_px)
+    gx, mx, gy, my = slope(h, ok, smooth_px)
     slope2 = gx**2 + gy**2
     if u is not None:
         g_ext = _gaussian_kernel(smooth_px)
@@ -745,7 +777,8 @@ def _lateral_numpy(height, u=None, *, lateral_px=0.5, smooth_px=1.5, step_px=0.0
         g2 = g_ext[1:-1] ** 2
         with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
             u2 = np.where(ok, np.nan_to_num(np.asarray(u, np.float32)) ** 2, np.float32(0.0))
-            var = (_sep(u2, d2, g2) + _sep(u2, g2, d2)) / np.maximum(den, np.float32(1e-3)) ** 2
+            ax, ay = np.maximum(mx, np.float32(1e-3)), np.maximum(my, np.float32(1e-3))
+            var = _sep(u2, d2, g2) / (ax * ax) + _sep(u2, g2, d2) / (ay * ay)
             slope2 = np.maximum(slope2 - var, np.float32(0.0))
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         lat2 = np.float32(lateral_px) ** 2 * slope2
@@ -755,7 +788,7 @@ def _lateral_numpy(height, u=None, *, lateral_px=0.5, smooth_px=1.5, step_px=0.0
             raw2 = gx * gx + gy * gy
             lat2 = lat2 + shift * np.where(raw2 > 0, slope2 / np.where(raw2 > 0, raw2, 1), np.float32(0.0))
         if step_px > 0:
-            cx, cy, _ = slope(h, ok, coarse_px)
+            cx, _, cy, _ = slope(h, ok, coarse_px)
             lat2 = lat2 + np.float32(step_px) ** 2 * np.minimum((gx - cx) ** 2 + (gy - cy) ** 2, slope2)
         return np.where(ok, np.sqrt(lat2), np.nan).astype(np.float32)
 
