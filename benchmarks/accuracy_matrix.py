@@ -225,7 +225,7 @@ VARIANTS.update({
     # the uncertainty's lateral term (docs/uncertainty.md): heights identical, u without it
     "lateral term off": {"measurement": {"lateral_uncertainty_px": 0.0, "lateral_step_px": 0.0}},
     "lateral 1.75 px, no step part": {"measurement": {"lateral_uncertainty_px": 1.75, "lateral_step_px": 0.0}},
-    # the lateral term (measurement.lateral_uncertainty_px 0.5 and lateral_step_px 3.0 by default) on a grid
+    # the lateral term (measurement.lateral_uncertainty_px 0.5 and lateral_step_px 2.0 by default) on a grid
     "lateral step 0.0 px": {"measurement": {"lateral_step_px": 0.0}},
     **{f"lateral {d} px, step {r} px": {"measurement": {"lateral_uncertainty_px": d, "lateral_step_px": r}}
        for d in (0.5, 0.75, 1.0) for r in (2.0, 3.0, 4.0)},

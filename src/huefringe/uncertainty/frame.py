@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from huefringe import _threads  # noqa: F401  (numba's threading layer, before any parallel launch)
 from huefringe.uncertainty.calibration import PixelBudget, TERMS, _INTERP_LUT, _encode_interp
 
-__all__ = ["add_lateral", "edge_floor", "filter_centroid", "height_uncertainty", "lateral_term", "split_terms",
+__all__ = ["add_edge_neighbours", "add_lateral", "edge_floor", "filter_centroid", "height_uncertainty", "lateral_term", "split_terms",
            "texture_delta", "texture_term", "texture_term_phase"]
 
 
@@ -316,7 +316,7 @@ LATERAL_PX = 0.5
 #: nonlinear in the heights) follows the slope that the blur leaves. Times
 #: ``|grad h~ - grad h~_coarse|`` (:func:`lateral_term`). The grid point of the tuning cases'
 #: zones (docs/uncertainty.md, "Lateral term").
-LATERAL_STEP_PX = 3.0
+LATERAL_STEP_PX = 2.0
 #: Gaussian scale (px) of the normalised average of the valid pairs' differences: the slope.
 LATERAL_SMOOTH_PX = 1.5
 #: Gaussian scale (px) of the coarse slope: what a locally linear surface keeps over the footprint's
@@ -507,6 +507,28 @@ def _lateral(height: NDArray[np.floating], u: NDArray[np.floating] | None, later
     _lateral_kernel(h, fine, coarse, va, vb, has_u, step, np.float32(lateral_px) ** 2, np.float32(step_px) ** 2,
                     ua, add, centroid, ox, oy, out)
     return out
+
+
+def add_edge_neighbours(u: NDArray[np.floating], removed: NDArray[np.bool_], tol_mm: float) -> NDArray[np.float32]:
+    """``u`` with ``tol_mm / sqrt(3)`` added in quadrature on the pixels next to (8-neighbours of)
+    a pixel the step-edge test ``removed`` (a new float32 map; NaN stays NaN).
+
+    The edge test keeps a pixel beside a step when its height lies within ``tol_mm`` of a side's
+    (the plane test's ``edge_plane_tol_mm``; the pair test keeps differences below its
+    ``edge_jump_mm``), so a mixed pixel it keeps can err by anything up to that bound: a
+    rectangular distribution of half-width ``tol_mm`` (GUM 4.3.7). Its neighbours that the test
+    removed mark where such pixels are.
+    """
+    uf = np.array(u, np.float32)
+    rm = np.asarray(removed, bool)
+    if rm.shape != uf.shape:
+        raise ValueError(f"removed-pixel mask {rm.shape} differs from the uncertainty map {uf.shape}")
+    if tol_mm <= 0 or not rm.any():
+        return uf
+    near = cv2.dilate(rm.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool) & ~rm
+    t2 = np.float64(tol_mm) ** 2 / 3.0
+    uf[near] = np.sqrt(uf[near].astype(np.float64) ** 2 + t2).astype(np.float32)
+    return uf
 
 
 def filter_centroid(weight: NDArray[np.floating], radius: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
