@@ -224,6 +224,7 @@ VARIANTS.update({
     "texture correction off": {"calibration": {"texture_blur_px2": 0}},
     # the uncertainty's lateral term (docs/uncertainty.md): heights identical, u without it
     "lateral term off": {"measurement": {"lateral_uncertainty_px": 0.0, "lateral_step_px": 0.0}},
+    "edge tolerance off": {"measurement": {"edge_tolerance_uncertainty": False}},
     "lateral 1.75 px, no step part": {"measurement": {"lateral_uncertainty_px": 1.75, "lateral_step_px": 0.0}},
     # the lateral term (measurement.lateral_uncertainty_px 0.5 and lateral_step_px 2.0 by default) on a grid
     "lateral step 0.0 px": {"measurement": {"lateral_step_px": 0.0}},

@@ -680,7 +680,8 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
     if u_map is not None and (lateral > 0 or step > 0):  # the lateral term on the heights as delivered (after the edge mask)
         u_map = add_lateral(height, u_map, lateral_px=lateral, step_px=step, weight=weight,
                             filter_radius=int(m["denoise_radius"] or 0), grown=grown)
-    if u_map is not None and removed is not None:  # the mixed pixels the edge test keeps: up to its tolerance
+    if u_map is not None and removed is not None and m.get("edge_tolerance_uncertainty", True):
+        # the mixed pixels the edge test keeps: up to its tolerance
         u_map = add_edge_neighbours(u_map, removed, float(m["edge_plane_tol_mm"]) if str(m["edge_test"]) == "plane"
                                     else jump)
     _refuse_bad_frame(path, stats, m)
