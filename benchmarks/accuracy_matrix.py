@@ -229,7 +229,7 @@ VARIANTS.update({
     # the lateral term (measurement.lateral_uncertainty_px 0.5 and lateral_step_px 2.0 by default) on a grid
     "lateral step 0.0 px": {"measurement": {"lateral_step_px": 0.0}},
     **{f"lateral {d} px, step {r} px": {"measurement": {"lateral_uncertainty_px": d, "lateral_step_px": r}}
-       for d in (0.5, 0.75, 1.0) for r in (2.0, 3.0, 4.0)},
+       for d, r in ((0.5, 1.0), (0.5, 1.5), (0.5, 3.0), (0.75, 2.0), (1.0, 2.0))},
     "texture term off": {"measurement": {"texture_uncertainty": False}},
 })
 VARIANTS.update({
