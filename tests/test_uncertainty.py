@@ -783,7 +783,7 @@ def _lateral_numpy(height, u=None, *, lateral_px=0.5, smooth_px=1.5, step_px=0.0
             pairs[:, :-1, 0] = np.where(okx, h[:, 1:] - h[:, :-1], np.float32(0.0))
             pairs[:-1, :, 2] = np.where(oky, h[1:] - h[:-1], np.float32(0.0))
         pairs[:, :-1, 1], pairs[:-1, :, 3] = okx, oky
-        f = _sep(pairs, g, g)
+        f = np.stack([_sep(np.ascontiguousarray(pairs[..., k]), g, g) for k in range(4)], axis=-1)
         out = []
         for n, d, before in ((f[..., 0], f[..., 1], lambda a: np.pad(a[:, :-1], ((0, 0), (1, 0)))),
                              (f[..., 2], f[..., 3], lambda a: np.pad(a[:-1], ((1, 0), (0, 0))))):

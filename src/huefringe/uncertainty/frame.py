@@ -351,11 +351,11 @@ def _finite_or_big(g):  # pragma: no cover - compiled
 
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def _lateral_inputs(h, u, has_u, pairs, u2):  # pragma: no cover - compiled
-    """The lateral term's filter inputs: ``pairs[..., 0]`` the difference ``h[v, x + 1] - h[v, x]``
-    where both heights are finite (else 0), ``pairs[..., 1]`` 1.0 there (else 0), ``pairs[..., 2:4]``
-    the same down a column (``h[v + 1, x] - h[v, x]``); the last column's (row's) pair is outside
-    the map: 0. With ``has_u``, ``u2`` their squared uncertainty (NumPy's ``nan_to_num``: NaN 0,
-    +-inf the largest float32), 0 where the height is not finite."""
+    """The lateral term's filter inputs, four planar maps ``pairs`` ``(4, H, W)``: ``pairs[0]`` the
+    difference ``h[v, x + 1] - h[v, x]`` where both heights are finite (else 0), ``pairs[1]`` 1.0
+    there (else 0), ``pairs[2:4]`` the same down a column (``h[v + 1, x] - h[v, x]``); the last
+    column's (row's) pair is outside the map: 0. With ``has_u``, ``u2`` their squared uncertainty
+    (NumPy's ``nan_to_num``: NaN 0, +-inf the largest float32), 0 where the height is not finite."""
     rows, cols = h.shape
     zero = np.float32(0.0)
     one = np.float32(1.0)
@@ -368,10 +368,10 @@ def _lateral_inputs(h, u, has_u, pairs, u2):  # pragma: no cover - compiled
             okr = (x + 1 < cols) and (zr - zr == 0)
             zd = h[v + 1, x] if below else z
             okd = below and (zd - zd == 0)
-            pairs[v, x, 0] = zr - z if ok and okr else zero
-            pairs[v, x, 1] = one if ok and okr else zero
-            pairs[v, x, 2] = zd - z if ok and okd else zero
-            pairs[v, x, 3] = one if ok and okd else zero
+            pairs[0, v, x] = zr - z if ok and okr else zero
+            pairs[1, v, x] = one if ok and okr else zero
+            pairs[2, v, x] = zd - z if ok and okd else zero
+            pairs[3, v, x] = one if ok and okd else zero
             if has_u:
                 q = _finite_or_big(u[v, x])
                 u2[v, x] = q * q if ok else zero
@@ -422,38 +422,48 @@ def _lateral_pixel(z, gx, gy, cx, cy, va, vb, mx, my, uu, has_u, step, c_lat, c_
     return lat if z - z == 0 else np.float32(np.nan)
 
 
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _row_slopes(n0, d0, n1, d1, x0, g, m):  # pragma: no cover - compiled
+    """One row's slopes (:func:`_pair_slope`) from the pair sums on the two sides of each pixel:
+    ``n0[x - x0]``, ``d0[x - x0]`` before it (none where ``x - x0 < 0``), ``n1[x]``, ``d1[x]``
+    after it. A loop of its own, branch-free (SIMD)."""
+    zero = np.float32(0.0)
+    for x in range(x0):
+        g[x], m[x] = _pair_slope(zero, n1[x], zero, d1[x])
+    for x in range(x0, g.shape[0]):
+        g[x], m[x] = _pair_slope(n0[x - x0], n1[x], d0[x - x0], d1[x])
+
+
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
 def _lateral_kernel(h, fine, coarse, va, vb, has_u, step, c_lat, c_step, u, add, centroid, ox, oy,
                     out):  # pragma: no cover
     """:func:`lateral_term` per pixel from the Gaussian sums of the valid pairs' differences and
-    weights, ``fine`` and (with ``step``) ``coarse`` (:func:`_lateral_inputs`' four channels
-    filtered): a pixel's slope along a row from the pairs at its left and right half-pixel
-    positions (:func:`_pair_slope`), down a column from those above and below; the slope noise's
-    separable sums ``va``, ``vb`` (with ``has_u``) over the squared pair weights; ``c_lat =
+    weights, ``fine`` and (with ``step``) ``coarse`` (:func:`_lateral_inputs`' four planar maps
+    filtered, ``(4, H, W)``): a pixel's slope along a row from the pairs at its left and right
+    half-pixel positions (:func:`_pair_slope`), down a column from those above and below; the slope
+    noise's separable sums ``va``, ``vb`` (with ``has_u``) over the squared pair weights; ``c_lat =
     lateral_px^2``, ``c_step = step_px^2``. With ``add``, ``out`` is ``float32(sqrt(float64(u)^2 +
-    float64(term)^2))`` (:func:`add_lateral`), else the term; NaN where the height is not finite."""
+    float64(term)^2))`` (:func:`add_lateral`), else the term; NaN where the height is not finite.
+    Each row's slopes in loops of their own, then the pixels in a branch-free loop (SIMD)."""
     rows, cols = h.shape
     zero = np.float32(0.0)
     for v in numba.prange(rows):
+        gx = np.empty(cols, np.float32)
+        mx = np.empty(cols, np.float32)
+        gy = np.empty(cols, np.float32)
+        my = np.empty(cols, np.float32)
+        cx = np.zeros(cols, np.float32)
+        cy = np.zeros(cols, np.float32)
+        _row_slopes(fine[0, v], fine[1, v], fine[0, v], fine[1, v], 1, gx, mx)
+        up = max(v - 1, 0)
+        _row_slopes(fine[2, up], fine[3, up], fine[2, v], fine[3, v], cols if v == 0 else 0, gy, my)
+        if step:
+            mc = np.empty(cols, np.float32)  # the coarse pairs' weights: not used
+            _row_slopes(coarse[0, v], coarse[1, v], coarse[0, v], coarse[1, v], 1, cx, mc)
+            _row_slopes(coarse[2, up], coarse[3, up], coarse[2, v], coarse[3, v], cols if v == 0 else 0, cy, mc)
         for x in range(cols):
-            f = fine[v, x]
-            fl0 = fine[v, x - 1, 0] if x > 0 else zero
-            fl1 = fine[v, x - 1, 1] if x > 0 else zero
-            fu2 = fine[v - 1, x, 2] if v > 0 else zero
-            fu3 = fine[v - 1, x, 3] if v > 0 else zero
-            gx, mx = _pair_slope(fl0, f[0], fl1, f[1])
-            gy, my = _pair_slope(fu2, f[2], fu3, f[3])
-            cx = cy = zero
-            if step:
-                c = coarse[v, x]
-                cl0 = coarse[v, x - 1, 0] if x > 0 else zero
-                cl1 = coarse[v, x - 1, 1] if x > 0 else zero
-                cu2 = coarse[v - 1, x, 2] if v > 0 else zero
-                cu3 = coarse[v - 1, x, 3] if v > 0 else zero
-                cx, _ = _pair_slope(cl0, c[0], cl1, c[1])
-                cy, _ = _pair_slope(cu2, c[2], cu3, c[3])
-            out[v, x] = _lateral_pixel(h[v, x], gx, gy, cx, cy, va[v, x] if has_u else zero,
-                                       vb[v, x] if has_u else zero, mx, my, u[v, x] if add else zero, has_u,
+            out[v, x] = _lateral_pixel(h[v, x], gx[x], gy[x], cx[x], cy[x], va[v, x] if has_u else zero,
+                                       vb[v, x] if has_u else zero, mx[x], my[x], u[v, x] if add else zero, has_u,
                                        step, c_lat, c_step, add, centroid, ox[v, x] if centroid else zero,
                                        oy[v, x] if centroid else zero)
 
@@ -462,8 +472,8 @@ def _lateral(height: NDArray[np.floating], u: NDArray[np.floating] | None, later
              step_px: float, coarse_px: float, add: bool, weight: NDArray[np.floating] | None = None,
              filter_radius: int = 0, grown: NDArray[np.floating] | None = None) -> NDArray[np.float32]:
     """:func:`lateral_term` (``add`` False) or :func:`add_lateral` (``add`` True): the valid pairs'
-    differences in a compiled pass, their Gaussian sums by OpenCV (four channels in one call per
-    scale), the rest per pixel in one compiled pass."""
+    differences in a compiled pass (four planar maps), their Gaussian sums by OpenCV, the rest per
+    pixel in one compiled pass."""
     h = np.ascontiguousarray(height, np.float32)
     if h.ndim != 2 or min(h.shape) < 2:
         raise ValueError(f"the lateral term needs a 2-D height map of at least 2 x 2 pixels, got {h.shape}")
@@ -471,22 +481,22 @@ def _lateral(height: NDArray[np.floating], u: NDArray[np.floating] | None, later
     uf = np.ascontiguousarray(u, np.float32) if has_u else np.empty((1, 1), np.float32)
     if has_u and uf.shape != h.shape:
         raise ValueError(f"uncertainty map {uf.shape} differs from the height map {h.shape}")
-    pairs = np.empty(h.shape + (4,), np.float32)
+    step = step_px > 0
+    pairs = np.empty((4,) + h.shape, np.float32)
     u2 = np.empty_like(h) if has_u else np.empty((1, 1), np.float32)
     _lateral_inputs(h, uf, has_u, pairs, u2)
     g = _gaussian_kernel(smooth_px)[1:-1]
-    fine = _sep(pairs, g, g)
+    fine = np.stack([_sep(pairs[k], g, g) for k in range(4)])
     va = vb = np.empty((1, 1), np.float32)
     if has_u:  # the noise of the slope itself: sum K^2 u^2 of the separable kernels
         g_ext = _gaussian_kernel(smooth_px)
         d2 = (0.5 * (g_ext[:-2] - g_ext[2:])) ** 2  # central difference of the smoothed map
         g2 = g_ext[1:-1] ** 2
         va, vb = _sep(u2, d2, g2), _sep(u2, g2, d2)
-    step = step_px > 0
-    coarse = np.empty((1, 1, 4), np.float32)
+    coarse = np.empty((1, 1, 1), np.float32)
     if step:
         gc = _gaussian_kernel(coarse_px)[1:-1]
-        coarse = _sep(pairs, gc, gc)
+        coarse = np.stack([_sep(pairs[k], gc, gc) for k in range(4)])
     out = np.empty_like(h)
     # the sum with u in float64 from u as given (a float64 map is not rounded to float32 first)
     ua = uf if not add or np.asarray(u).dtype == np.float32 else np.ascontiguousarray(u, np.float64)
