@@ -224,12 +224,9 @@ VARIANTS.update({
     "texture correction off": {"calibration": {"texture_blur_px2": 0}},
     # the uncertainty's lateral term (docs/uncertainty.md): heights identical, u without it
     "lateral term off": {"measurement": {"lateral_uncertainty_px": 0.0, "lateral_step_px": 0.0}},
-    "edge tolerance off": {"measurement": {"edge_tolerance_uncertainty": False}},
     "lateral 1.75 px, no step part": {"measurement": {"lateral_uncertainty_px": 1.75, "lateral_step_px": 0.0}},
-    # the lateral term (measurement.lateral_uncertainty_px 0.5 and lateral_step_px 2.0 by default) on a grid
-    "lateral step 0.0 px": {"measurement": {"lateral_step_px": 0.0}},
-    **{f"lateral {d} px, step {r} px": {"measurement": {"lateral_uncertainty_px": d, "lateral_step_px": r}}
-       for d, r in ((0.5, 1.0), (0.5, 1.5), (0.5, 3.0), (0.75, 2.0), (1.0, 2.0))},
+    # the lateral term's step part (measurement.lateral_step_px, 2.0 by default) on a grid
+    **{f"lateral step {r} px": {"measurement": {"lateral_step_px": r}} for r in (0.0, 1.0, 1.5)},
     "texture term off": {"measurement": {"texture_uncertainty": False}},
 })
 VARIANTS.update({

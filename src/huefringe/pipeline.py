@@ -32,7 +32,7 @@ from huefringe.huetable import HueTable, HueTableError, build_table, white_balan
 from huefringe.perframe import (FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges,
                                 shadow_mask, shadow_masks)
 from huefringe.session import Session
-from huefringe.uncertainty import PixelBudget, add_edge_neighbours, add_lateral, noise_correlation, phase_error_residual_rad, pixel_budget
+from huefringe.uncertainty import PixelBudget, add_lateral, noise_correlation, phase_error_residual_rad, pixel_budget
 
 __all__ = ["Calibrated", "FramePipeline", "FrameResult", "bayer_noise_correlation", "frame_results", "measure_one",
            "noise_aware_adaptive", "prepare_frames", "prepare_session", "session_camera_record",
@@ -658,10 +658,8 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
         height, phase, hue, stats, u_map, support = res.height, res.phase, res.hue, res.stats, res.uncertainty, res.support
         tex_u, weight, grown = res.texture_u, res.weight, res.bias2
         noise_h = res.noise
-    removed = None  # the pixels the step-edge test takes (their neighbours' u gains its tolerance)
     if jump > 0 or fp.spill is not None:  # mixed pixels at step edges, after either chain (the kernel's buffers are
         # not touched); then the shadow-side pixels (fp.spill), which the edge test holds their neighbours against
-        before = np.isfinite(height)
         height, (phase, u_map), (support,), changed = remove_step_edges(
             height, jump, nan_maps=(phase, u_map), zero_maps=(support,), test=str(m["edge_test"]),
             tol_mm=float(m["edge_plane_tol_mm"]), noise=noise_h, noise_k=noise_k, drop=fp.spill)
@@ -669,10 +667,6 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
             changed["shadow_fraction"] = float(stats["shadow_fraction"]) + fp.spill_fraction
         if jump <= 0:
             del changed["edge_fraction"]
-        else:
-            removed = before & ~np.isfinite(height)
-            if fp.spill is not None:
-                removed &= ~fp.spill
         stats = {**stats, **changed}
     if u_map is not None and moved is not None:  # the texture term, in quadrature (NaN where the height is)
         u_map = np.hypot(u_map, tex_u).astype(np.float32)
@@ -680,10 +674,6 @@ def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameRe
     if u_map is not None and (lateral > 0 or step > 0):  # the lateral term on the heights as delivered (after the edge mask)
         u_map = add_lateral(height, u_map, lateral_px=lateral, step_px=step, weight=weight,
                             filter_radius=int(m["denoise_radius"] or 0), grown=grown)
-    if u_map is not None and removed is not None and m.get("edge_tolerance_uncertainty", True):
-        # the mixed pixels the edge test keeps: up to its tolerance
-        u_map = add_edge_neighbours(u_map, removed, float(m["edge_plane_tol_mm"]) if str(m["edge_test"]) == "plane"
-                                    else jump)
     _refuse_bad_frame(path, stats, m)
     return FrameResult(frame=n, height=height, stats=stats, phase=phase, hue=hue, uncertainty=u_map, support=support)
 

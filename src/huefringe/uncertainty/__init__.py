@@ -49,7 +49,7 @@ from huefringe.uncertainty.calibration import (
     table_variance_factor,
 )
 from huefringe.uncertainty.frame import (
-    EDGE_SIGNIFICANCE, LATERAL_COARSE_PX, LATERAL_PX, LATERAL_SMOOTH_PX, LATERAL_STEP_PX, add_edge_neighbours, add_lateral,
+    EDGE_SIGNIFICANCE, LATERAL_COARSE_PX, LATERAL_PX, LATERAL_SMOOTH_PX, LATERAL_STEP_PX, add_lateral,
     edge_floor, filter_centroid, height_uncertainty, lateral_term, split_terms, texture_delta, texture_term,
     texture_term_phase,
 )

@@ -16,7 +16,7 @@ from numpy.typing import NDArray
 from huefringe import _threads  # noqa: F401  (numba's threading layer, before any parallel launch)
 from huefringe.uncertainty.calibration import PixelBudget, TERMS, _INTERP_LUT, _encode_interp
 
-__all__ = ["add_edge_neighbours", "add_lateral", "edge_floor", "filter_centroid", "height_uncertainty", "lateral_term", "split_terms",
+__all__ = ["add_lateral", "edge_floor", "filter_centroid", "height_uncertainty", "lateral_term", "split_terms",
            "texture_delta", "texture_term", "texture_term_phase"]
 
 
@@ -314,10 +314,9 @@ LATERAL_PX = 0.5
 #: mask, a shadow border, a sharp bend): the camera blur (sigma 0.6-0.9 px on the bench) plus the
 #: phase filter's radius (2 px); there the mixed pixels' error (hue mixing of two surfaces,
 #: nonlinear in the heights) follows the slope that the blur leaves. Times
-#: ``|grad h~ - grad h~_coarse|`` (:func:`lateral_term`). The grid point of the tuning cases'
-#: zones (docs/uncertainty.md, "Lateral term").
+#: ``|grad h~ - grad h~_coarse|`` (:func:`lateral_term`).
 LATERAL_STEP_PX = 2.0
-#: Gaussian scale (px) of the normalised average of the valid pairs' differences: the slope.
+#: Gaussian scale (px) of the normalised average of the valid heights whose gradient is the slope.
 LATERAL_SMOOTH_PX = 1.5
 #: Gaussian scale (px) of the coarse slope: what a locally linear surface keeps over the footprint's
 #: reach (a step's slope is spread over it, a smooth flank's is not).
@@ -339,6 +338,14 @@ def _sep(img: NDArray[np.float32], kx: NDArray[np.floating], ky: NDArray[np.floa
                            borderType=cv2.BORDER_REPLICATE)
 
 
+def _smoothed_sums(x0: NDArray[np.float32], okf: NDArray[np.float32],
+                   smooth_px: float) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """The Gaussian sums of the valid heights (``x0``: the heights, 0 where not valid) and of the
+    valid pixels (``okf``: 1 or 0): the numerator and weight sum of their normalised average."""
+    g = _gaussian_kernel(smooth_px)[1:-1]
+    return _sep(x0, g, g), _sep(okf, g, g)
+
+
 _F32_MAX = np.float32(np.finfo(np.float32).max)
 
 
@@ -350,57 +357,48 @@ def _finite_or_big(g):  # pragma: no cover - compiled
 
 
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _lateral_inputs(h, u, has_u, pairs, u2):  # pragma: no cover - compiled
-    """The lateral term's filter inputs, four planar maps ``pairs`` ``(4, H, W)``: ``pairs[0]`` the
-    difference ``h[v, x + 1] - h[v, x]`` where both heights are finite (else 0), ``pairs[1]`` 1.0
-    there (else 0), ``pairs[2:4]`` the same down a column (``h[v + 1, x] - h[v, x]``); the last
-    column's (row's) pair is outside the map: 0. With ``has_u``, ``u2`` their squared uncertainty
-    (NumPy's ``nan_to_num``: NaN 0, +-inf the largest float32), 0 where the height is not finite."""
+def _lateral_inputs(h, u, has_u, x0, okf, u2):  # pragma: no cover - compiled
+    """The lateral term's filter inputs: ``x0`` the heights, 0 where not finite, ``okf`` the finite
+    ones as 1.0, and (``has_u``) ``u2`` their squared uncertainty (NumPy's ``nan_to_num``: NaN 0,
+    +-inf the largest float32), 0 where the height is not finite."""
     rows, cols = h.shape
     zero = np.float32(0.0)
     one = np.float32(1.0)
     for v in numba.prange(rows):
-        below = v + 1 < rows
         for x in range(cols):
             z = h[v, x]
             ok = z - z == 0
-            zr = h[v, x + 1] if x + 1 < cols else z
-            okr = (x + 1 < cols) and (zr - zr == 0)
-            zd = h[v + 1, x] if below else z
-            okd = below and (zd - zd == 0)
-            pairs[0, v, x] = zr - z if ok and okr else zero
-            pairs[1, v, x] = one if ok and okr else zero
-            pairs[2, v, x] = zd - z if ok and okd else zero
-            pairs[3, v, x] = one if ok and okd else zero
+            x0[v, x] = z if ok else zero
+            okf[v, x] = one if ok else zero
             if has_u:
                 q = _finite_or_big(u[v, x])
                 u2[v, x] = q * q if ok else zero
 
 
-@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _pair_slope(n0, n1, d0, d1):  # pragma: no cover - compiled
-    """A slope at a pixel from the smoothed differences of the valid pairs at its two half-pixel
-    positions: ``(n0 + n1) / (d0 + d1)`` where their weight ``d0 + d1`` exceeds 2e-3, else 0; and
-    that weight over 2 (1 with every pair valid)."""
-    d = d0 + d1
-    lo = np.float32(2e-3)
-    g = (n0 + n1) / d if d > lo else np.float32(0.0)
-    return _finite_or_big(g), d / np.float32(2.0)
+@numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
+def _normalised(num, den, hm):  # pragma: no cover - compiled
+    """``hm = den > 1e-3 ? num / max(den, 1e-3) : NaN`` (float32): the normalised average (``hm``
+    may be ``num``)."""
+    rows, cols = num.shape
+    lo = np.float32(1e-3)
+    nan = np.float32(np.nan)
+    for v in numba.prange(rows):
+        for x in range(cols):
+            d = den[v, x]
+            hm[v, x] = num[v, x] / max(d, lo) if d > lo else nan
 
 
 @numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _lateral_pixel(z, gx, gy, cx, cy, va, vb, mx, my, uu, has_u, step, c_lat, c_step, add,
+def _lateral_pixel(z, gx, gy, cx, cy, va, vb, den, uu, has_u, step, c_lat, c_step, add,
                    centroid, ox, oy):  # pragma: no cover
-    """One pixel of :func:`_lateral_kernel` from its fine and coarse slopes, the slopes' pair
-    weights ``mx``, ``my`` and (with ``centroid``) the filter's centroid offset ``ox, oy``."""
+    """One pixel of :func:`_lateral_kernel` from its (``nan_to_num``-ed) fine and coarse slopes and
+    (with ``centroid``) the filter's centroid offset ``ox, oy``."""
     zero = np.float32(0.0)
     raw2 = gx * gx + gy * gy
     s2 = raw2
     if has_u:
-        lo = np.float32(1e-3)
-        ax = max(mx, lo)
-        ay = max(my, lo)
-        t = s2 - (va / (ax * ax) + vb / (ay * ay))
+        m = max(den, np.float32(1e-3))
+        t = s2 - (va + vb) / (m * m)
         s2 = t if (t > zero or t != t) else zero
     lat2 = c_lat * s2
     if centroid:  # (g . c)^2 on the share of the slope that is not its noise
@@ -422,57 +420,61 @@ def _lateral_pixel(z, gx, gy, cx, cy, va, vb, mx, my, uu, has_u, step, c_lat, c_
     return lat if z - z == 0 else np.float32(np.nan)
 
 
-@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
-def _row_slopes(n0, d0, n1, d1, x0, g, m):  # pragma: no cover - compiled
-    """One row's slopes (:func:`_pair_slope`) from the pair sums on the two sides of each pixel:
-    ``n0[x - x0]``, ``d0[x - x0]`` before it (none where ``x - x0 < 0``), ``n1[x]``, ``d1[x]``
-    after it. A loop of its own, branch-free (SIMD)."""
-    zero = np.float32(0.0)
-    for x in range(x0):
-        g[x], m[x] = _pair_slope(zero, n1[x], zero, d1[x])
-    for x in range(x0, g.shape[0]):
-        g[x], m[x] = _pair_slope(n0[x - x0], n1[x], d0[x - x0], d1[x])
-
-
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _lateral_kernel(h, fine, coarse, va, vb, has_u, step, c_lat, c_step, u, add, centroid, ox, oy,
+def _lateral_kernel(h, hm, hmc, va, vb, den, has_u, step, c_lat, c_step, u, add, centroid, ox, oy,
                     out):  # pragma: no cover
-    """:func:`lateral_term` per pixel from the Gaussian sums of the valid pairs' differences and
-    weights, ``fine`` and (with ``step``) ``coarse`` (:func:`_lateral_inputs`' four planar maps
-    filtered, ``(4, H, W)``): a pixel's slope along a row from the pairs at its left and right
-    half-pixel positions (:func:`_pair_slope`), down a column from those above and below; the slope
-    noise's separable sums ``va``, ``vb`` (with ``has_u``) over the squared pair weights; ``c_lat =
-    lateral_px^2``, ``c_step = step_px^2``. With ``add``, ``out`` is ``float32(sqrt(float64(u)^2 +
-    float64(term)^2))`` (:func:`add_lateral`), else the term; NaN where the height is not finite.
-    Each row's slopes in loops of their own, then the pixels in a branch-free loop (SIMD)."""
+    """:func:`lateral_term` per pixel from the normalised averages ``hm`` (fine) and ``hmc``
+    (coarse, with ``step``), the slope noise's two separable sums ``va + vb`` over ``max(den,
+    1e-3)^2`` (with ``has_u``), ``c_lat = lateral_px^2``, ``c_step = step_px^2``: float32, in
+    NumPy's order of operations (``np.gradient``'s central differences over 2, one-sided at the
+    borders, through ``nan_to_num``; NaN-propagating ``maximum`` / ``minimum``). With ``add``,
+    ``out`` is ``float32(sqrt(float64(u)^2 + float64(term)^2))`` (:func:`add_lateral`), else the
+    term; NaN where the height is not finite. The inner columns in a branch-free loop (SIMD)."""
     rows, cols = h.shape
+    two = np.float32(2.0)
+    one = np.float32(1.0)
     zero = np.float32(0.0)
     for v in numba.prange(rows):
-        gx = np.empty(cols, np.float32)
-        mx = np.empty(cols, np.float32)
-        gy = np.empty(cols, np.float32)
-        my = np.empty(cols, np.float32)
-        cx = np.zeros(cols, np.float32)
-        cy = np.zeros(cols, np.float32)
-        _row_slopes(fine[0, v], fine[1, v], fine[0, v], fine[1, v], 1, gx, mx)
-        up = max(v - 1, 0)
-        _row_slopes(fine[2, up], fine[3, up], fine[2, v], fine[3, v], cols if v == 0 else 0, gy, my)
-        if step:
-            mc = np.empty(cols, np.float32)  # the coarse pairs' weights: not used
-            _row_slopes(coarse[0, v], coarse[1, v], coarse[0, v], coarse[1, v], 1, cx, mc)
-            _row_slopes(coarse[2, up], coarse[3, up], coarse[2, v], coarse[3, v], cols if v == 0 else 0, cy, mc)
-        for x in range(cols):
-            out[v, x] = _lateral_pixel(h[v, x], gx[x], gy[x], cx[x], cy[x], va[v, x] if has_u else zero,
-                                       vb[v, x] if has_u else zero, mx[x], my[x], u[v, x] if add else zero, has_u,
-                                       step, c_lat, c_step, add, centroid, ox[v, x] if centroid else zero,
+        vm = max(v - 1, 0)
+        vp = min(v + 1, rows - 1)
+        ydiv = two if 0 < v < rows - 1 else one
+        for x in (0, cols - 1):  # the border columns: one-sided differences along u
+            xm = max(x - 1, 0)
+            xp = min(x + 1, cols - 1)
+            gx = _finite_or_big(hm[v, xp] - hm[v, xm])
+            gy = _finite_or_big((hm[vp, x] - hm[vm, x]) / ydiv)
+            cx = cy = zero
+            if step:
+                cx = _finite_or_big(hmc[v, xp] - hmc[v, xm])
+                cy = _finite_or_big((hmc[vp, x] - hmc[vm, x]) / ydiv)
+            out[v, x] = _lateral_pixel(h[v, x], gx, gy, cx, cy, va[v, x] if has_u else zero,
+                                       vb[v, x] if has_u else zero, den[v, x], u[v, x] if add else zero, has_u, step,
+                                       c_lat, c_step, add, centroid, ox[v, x] if centroid else zero,
+                                       oy[v, x] if centroid else zero)
+        hr = hm[v]
+        hu = hm[vp]
+        hd = hm[vm]
+        cr = hmc[v] if step else hmc[0]
+        cu = hmc[vp] if step else hmc[0]
+        cd = hmc[vm] if step else hmc[0]
+        for x in range(1, cols - 1):
+            gx = _finite_or_big((hr[x + 1] - hr[x - 1]) / two)
+            gy = _finite_or_big((hu[x] - hd[x]) / ydiv)
+            cx = cy = zero
+            if step:
+                cx = _finite_or_big((cr[x + 1] - cr[x - 1]) / two)
+                cy = _finite_or_big((cu[x] - cd[x]) / ydiv)
+            out[v, x] = _lateral_pixel(h[v, x], gx, gy, cx, cy, va[v, x] if has_u else zero,
+                                       vb[v, x] if has_u else zero, den[v, x], u[v, x] if add else zero, has_u, step,
+                                       c_lat, c_step, add, centroid, ox[v, x] if centroid else zero,
                                        oy[v, x] if centroid else zero)
 
 
 def _lateral(height: NDArray[np.floating], u: NDArray[np.floating] | None, lateral_px: float, smooth_px: float,
              step_px: float, coarse_px: float, add: bool, weight: NDArray[np.floating] | None = None,
              filter_radius: int = 0, grown: NDArray[np.floating] | None = None) -> NDArray[np.float32]:
-    """:func:`lateral_term` (``add`` False) or :func:`add_lateral` (``add`` True): the valid pairs'
-    differences in a compiled pass (four planar maps), their Gaussian sums by OpenCV, the rest per
+    """:func:`lateral_term` (``add`` False) or :func:`add_lateral` (``add`` True): the filter inputs
+    and the normalised averages in compiled passes, the Gaussian sums by OpenCV, the rest per
     pixel in one compiled pass."""
     h = np.ascontiguousarray(height, np.float32)
     if h.ndim != 2 or min(h.shape) < 2:
@@ -481,22 +483,22 @@ def _lateral(height: NDArray[np.floating], u: NDArray[np.floating] | None, later
     uf = np.ascontiguousarray(u, np.float32) if has_u else np.empty((1, 1), np.float32)
     if has_u and uf.shape != h.shape:
         raise ValueError(f"uncertainty map {uf.shape} differs from the height map {h.shape}")
-    step = step_px > 0
-    pairs = np.empty((4,) + h.shape, np.float32)
+    x0, okf = np.empty_like(h), np.empty_like(h)
     u2 = np.empty_like(h) if has_u else np.empty((1, 1), np.float32)
-    _lateral_inputs(h, uf, has_u, pairs, u2)
-    g = _gaussian_kernel(smooth_px)[1:-1]
-    fine = np.stack([_sep(pairs[k], g, g) for k in range(4)])
+    _lateral_inputs(h, uf, has_u, x0, okf, u2)
+    hm, den = _smoothed_sums(x0, okf, smooth_px)
+    _normalised(hm, den, hm)  # in place
     va = vb = np.empty((1, 1), np.float32)
     if has_u:  # the noise of the slope itself: sum K^2 u^2 of the separable kernels
         g_ext = _gaussian_kernel(smooth_px)
         d2 = (0.5 * (g_ext[:-2] - g_ext[2:])) ** 2  # central difference of the smoothed map
         g2 = g_ext[1:-1] ** 2
         va, vb = _sep(u2, d2, g2), _sep(u2, g2, d2)
-    coarse = np.empty((1, 1, 1), np.float32)
+    step = step_px > 0
+    hmc = np.empty((1, 1), np.float32)
     if step:
-        gc = _gaussian_kernel(coarse_px)[1:-1]
-        coarse = np.stack([_sep(pairs[k], gc, gc) for k in range(4)])
+        hmc, denc = _smoothed_sums(x0, okf, coarse_px)
+        _normalised(hmc, denc, hmc)
     out = np.empty_like(h)
     # the sum with u in float64 from u as given (a float64 map is not rounded to float32 first)
     ua = uf if not add or np.asarray(u).dtype == np.float32 else np.ascontiguousarray(u, np.float64)
@@ -506,39 +508,17 @@ def _lateral(height: NDArray[np.floating], u: NDArray[np.floating] | None, later
         if ox.shape != h.shape:
             raise ValueError(f"filter weights {ox.shape} differ from the height map {h.shape}")
         if grown is not None:  # the grown windows carry their own bias (the filter's bias2), not this one
-            g2m = np.asarray(grown)
-            if g2m.shape != h.shape:
-                raise ValueError(f"grown-window map {g2m.shape} differs from the height map {h.shape}")
-            own = np.isfinite(g2m)
+            g2 = np.asarray(grown)
+            if g2.shape != h.shape:
+                raise ValueError(f"grown-window map {g2.shape} differs from the height map {h.shape}")
+            own = np.isfinite(g2)
             ox = np.where(own, np.float32(0.0), ox)
             oy = np.where(own, np.float32(0.0), oy)
     else:
         ox = oy = np.empty((1, 1), np.float32)
-    _lateral_kernel(h, fine, coarse, va, vb, has_u, step, np.float32(lateral_px) ** 2, np.float32(step_px) ** 2,
+    _lateral_kernel(h, hm, hmc, va, vb, den, has_u, step, np.float32(lateral_px) ** 2, np.float32(step_px) ** 2,
                     ua, add, centroid, ox, oy, out)
     return out
-
-
-def add_edge_neighbours(u: NDArray[np.floating], removed: NDArray[np.bool_], tol_mm: float) -> NDArray[np.float32]:
-    """``u`` with ``tol_mm / sqrt(3)`` added in quadrature on the pixels next to (8-neighbours of)
-    a pixel the step-edge test ``removed`` (a new float32 map; NaN stays NaN).
-
-    The edge test keeps a pixel beside a step when its height lies within ``tol_mm`` of a side's
-    (the plane test's ``edge_plane_tol_mm``; the pair test keeps differences below its
-    ``edge_jump_mm``), so a mixed pixel it keeps can err by anything up to that bound: a
-    rectangular distribution of half-width ``tol_mm`` (GUM 4.3.7). Its neighbours that the test
-    removed mark where such pixels are.
-    """
-    uf = np.array(u, np.float32)
-    rm = np.asarray(removed, bool)
-    if rm.shape != uf.shape:
-        raise ValueError(f"removed-pixel mask {rm.shape} differs from the uncertainty map {uf.shape}")
-    if tol_mm <= 0 or not rm.any():
-        return uf
-    near = cv2.dilate(rm.view(np.uint8), np.ones((3, 3), np.uint8)).view(bool) & ~rm
-    t2 = np.float64(tol_mm) ** 2 / 3.0
-    uf[near] = np.sqrt(uf[near].astype(np.float64) ** 2 + t2).astype(np.float32)
-    return uf
 
 
 def filter_centroid(weight: NDArray[np.floating], radius: int) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
@@ -591,22 +571,15 @@ def lateral_term(height: NDArray[np.floating], u: NDArray[np.floating] | None = 
     one (``coarse_px``), which a smooth flank keeps and a step spreads, times ``step_px`` (the
     reach: blur plus filter radius). ``step_px = 0`` (the default) gives the first term alone.
 
-    The slopes are those of the measured heights, from the differences of 4-neighbour pairs whose
-    two heights are both valid, never across an invalid pixel (the edge mask's holes, a shadow):
-    each pair's difference sits at its half-pixel position, their normalised Gaussian average
-    (``smooth_px``, or ``coarse_px``) is taken there, and a pixel's slope along a row is the
-    weighted mean of those at its two sides (down a column, above and below), in mm per px. Where
-    every pixel is valid this is the central difference of the Gaussian-smoothed heights; beside a
-    hole a pixel keeps its own side's slope, where an average of the levels reaching across the
-    hole would read the step as a slope of the pixel's own. With ``u`` (the
+    The slopes are those of the measured heights, normalised-Gaussian averaged over the valid
+    pixels (NaN pixels carry no weight), by central differences in mm per px. With ``u`` (the
     per-pixel uncertainty without this term) the fine slope's own noise is removed in
     quadrature: the smoothed central difference is a linear filter ``K`` of the heights, so its
     variance from pixel errors of standard uncertainty ``u`` is ``sum K^2 u^2`` (taken
     independent: on unfiltered heights exact, on filtered ones it removes a little more than the
-    noise holds), over the share of the pairs that are valid squared; the step part never exceeds
-    that noise-free slope (on a noisy flat top both are ~0). NaN where the height is NaN. Compiled
-    passes around OpenCV's separable filters, float32 (tests compare them with the NumPy form bit
-    for bit).
+    noise holds); the step part never exceeds that noise-free slope (on a noisy flat top both
+    are ~0). NaN where the height is NaN. Compiled passes around OpenCV's separable filters,
+    float32 in the order of operations the NumPy form has (tests compare them bit for bit).
     """
     return _lateral(height, u, lateral_px, smooth_px, step_px, coarse_px, add=False, weight=weight,
                     filter_radius=filter_radius, grown=grown)
