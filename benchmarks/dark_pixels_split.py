@@ -117,7 +117,8 @@ def main() -> None:
             w = np.where(np.isfinite(h[f]) & np.isfinite(sig), 1.0 / sig**2, 0.0).astype(np.float32)
             hf, uf = h[f].astype(np.float32), uc[f].astype(np.float32)
             cen.append(uncertainty.lateral_term(hf, uf, lateral_px=0.0, weight=w, filter_radius=fc.RADIUS))
-            lat.append(uncertainty.lateral_term(hf, uf, lateral_px=0.5, step_px=2.0, weight=w, filter_radius=fc.RADIUS))
+            lat.append(uncertainty.lateral_term(hf, uf, lateral_px=uncertainty.LATERAL_PX, step_px=uncertainty.LATERAL_STEP_PX,
+                                                weight=w, filter_radius=fc.RADIUS))
         lat, cen = np.asarray(lat, np.float64), np.asarray(cen, np.float64)
         tex2 = np.maximum(u**2 - uc**2 - lat**2, 0.0)
         valid = np.all(np.isfinite(e) & np.isfinite(u) & np.isfinite(uc), axis=0)

@@ -667,6 +667,16 @@ def test_step_budget_crops_and_threads_change_nothing(base_roi: list | None) -> 
         assert got > 0, term
 
 
+def test_lateral_constants_are_the_configs_defaults() -> None:
+    """The lateral term's module defaults (used by benchmarks and by callers without a config) are
+    the workflow's: one value each, not two that can drift apart."""
+    from huefringe.settings import defaults
+
+    m = defaults()["measurement"]
+    assert uncertainty.LATERAL_PX == m["lateral_uncertainty_px"]
+    assert uncertainty.LATERAL_STEP_PX == m["lateral_step_px"]
+
+
 def test_lateral_term_is_dx_times_slope() -> None:
     """On a plane of slope (gx, gy) mm/px the lateral term is LATERAL_PX * |g| wherever the Gaussian
     average sees only valid pixels (a linear map is its own normalised average), NaN where the height
