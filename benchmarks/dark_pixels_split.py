@@ -22,7 +22,9 @@ level (the object white's channel mean over its 99th percentile), as in ``covera
 2. The frame-to-frame part over the noise term (median per pixel) for ``raw``, ``fixed`` and
    ``core`` (its noise term with the grown windows' bias): which stage of the chain the excess
    comes from.
-3. The phase filter alone on the relief: the true phase difference (from the bench's truth) plus
+3. The share of the pixels by their true phase slope over their own noise (per pixel), per white
+   level: where ``benchmarks/filter_slope_sweep.py`` finds the filter's spread above ``1 / sum w``.
+4. The phase filter alone on the relief: the true phase difference (from the bench's truth) plus
    Gaussian noise of each pixel's own sigma (the raw run's noise term over the height
    sensitivity), ``--draws`` draws, through ``phase.denoise_phase`` (the defaults: radius 2,
    sigma-adaptive to 0.002 rad up to radius 6, k = 3; the same with the plane kept up to a 10 sigma
@@ -174,6 +176,19 @@ def main() -> None:
         gsens = np.abs(a) / (a + bb * d0) ** 2
         sig = uncertainty.split_terms(raw_u[0], raw_h[0], cal.a, cal.b, bud)["noise"] / gsens
         sig = np.where(ok, np.minimum(sig, np.nanpercentile(sig[ok], 99)), 1.0).astype(np.float32)
+        # the true phase slope per pixel in units of the pixel's own noise (benchmarks/filter_slope_sweep.py)
+        gy, gx = np.gradient(np.where(ok, d_true, np.nan))
+        ratio = np.hypot(gx, gy) / sig
+        print("\nshare of the pixels by the true phase slope over the pixel's noise (per pixel):\n")
+        spans = ((0.0, 1.0), (1.0, 2.0), (2.0, 8.0), (8.0, np.inf))
+        print("| white level | < 1 | 1-2 | 2-8 | >= 8 |")
+        print("| --- |" + " ---: |" * len(spans))
+        for lo, hi in (*BINS, (0.0, np.inf)):
+            b = ok & np.isfinite(ratio) & (level >= lo) & (level < hi)
+            if b.sum() < 200:
+                continue
+            cells = [f"{np.mean((ratio[b] >= a) & (ratio[b] < z)):.3f}" for a, z in spans]
+            print(f"| {'all' if lo == 0.0 and not np.isfinite(hi) else _label(lo, hi)} | " + " | ".join(cells) + " |")
         rng = np.random.default_rng(0)
         draws = [(d_true + sig * rng.standard_normal(sig.shape)).astype(np.float32) for _ in range(args.draws)]
         print(f"\nthe phase filter alone on the relief ({args.draws} draws of each pixel's own noise): spread over "
