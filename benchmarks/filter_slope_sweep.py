@@ -1,6 +1,6 @@
 """Study: the phase filter's spread against its predicted ``1 / sqrt(sum w)`` over the phase's slope per pixel in units of its noise.
 
-Usage: ./run python benchmarks/filter_slope_sweep.py [--draws 40] [--sigma 0.03]
+Usage: ./run python benchmarks/filter_slope_sweep.py [--draws 40] [--sigma 0.03] [--step]
 
 Synthetic phase maps (80 x 60 px): a ramp of ``s`` rad per pixel along the rows (and the same
 along the diagonal) plus Gaussian noise of one sigma, through ``phase.denoise_phase`` at the
@@ -14,7 +14,10 @@ offset into the mean. The last column is a sketch of the alternative, not the li
 the 5 x 5 window's neighbours carried back along a plane fitted to the window by least squares
 (unweighted, through the pixel) and tested by their residual, ``r^2 <= k^2 (2 sigma^2 +
 var(plane))`` (NumPy, one sigma, no step handling); with it the median window's weight sum
-(``sum w sigma^2``, the neighbours taken) is printed too. About a minute on one core.
+(``sum w sigma^2``, the neighbours taken) is printed too. ``--step`` adds ramps with a step
+inside the window (per column near it, the two sketches beside the library's filters: the plane
+fitted to the whole window, and refitted to the neighbours its residual test keeps). About a
+minute on one core (two with ``--step``).
 """
 
 from __future__ import annotations
@@ -28,10 +31,14 @@ from huefringe.phase import adaptive_kwargs, denoise_phase
 from huefringe.settings import defaults
 
 
-def plane_sketch(d: np.ndarray, sigma: float, radius: int, k: float) -> tuple[np.ndarray, np.ndarray]:
+def plane_sketch(d: np.ndarray, sigma: float, radius: int, k: float,
+                 iterations: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """The filtered phase and weight sum of the sketch: each neighbour of the window less the
     least-squares plane through the pixel (``g_u = sum o_u r / sum o_u^2``, the same along ``v``,
-    over the window's neighbours inside the map), kept where its residual passes the k-sigma test."""
+    over the window's neighbours inside the map), kept where its residual passes the k-sigma test.
+    With ``iterations`` > 0 the plane is fitted to the neighbours the level test keeps
+    (``r^2 <= 2 k^2 sigma^2``, the filter's own-side test) and refitted that many times to those
+    its residual test keeps (a plane a step inside the window pulls less)."""
     h, w = d.shape
     offs = [(dv, du) for dv in range(-radius, radius + 1) for du in range(-radius, radius + 1)]
     pad = np.pad(d.astype(np.float64), radius, constant_values=np.nan)
@@ -41,19 +48,62 @@ def plane_sketch(d: np.ndarray, sigma: float, radius: int, k: float) -> tuple[np
     diff = nb - d[None]
     ok = np.isfinite(diff)
     r0 = np.where(ok, diff, 0.0)
-    su, sv = (ou**2 * ok).sum(0), (ov**2 * ok).sum(0)
-    plane = (r0 * ou).sum(0) / su * ou + (r0 * ov).sum(0) / sv * ov
-    var_plane = sigma**2 * (ou**2 / su + ov**2 / sv)
-    res = diff - plane
-    keep = ok & (res**2 <= k * k * (2.0 * sigma**2 + var_plane))
-    wk = keep / sigma**2
-    return d + (np.where(keep, res, 0.0) * wk).sum(0) / wk.sum(0), wk.sum(0)
+    fit = ok & (diff**2 <= 2.0 * k * k * sigma**2) if iterations > 0 else ok
+    for _ in range(max(iterations, 1)):
+        su, sv = (ou**2 * fit).sum(0), (ov**2 * fit).sum(0)
+        su, sv = np.where(su > 0, su, np.inf), np.where(sv > 0, sv, np.inf)
+        plane = (r0 * ou * fit).sum(0) / su * ou + (r0 * ov * fit).sum(0) / sv * ov
+        var_plane = sigma**2 * (ou**2 / su + ov**2 / sv)
+        res = diff - plane
+        fit = ok & (res**2 <= k * k * (2.0 * sigma**2 + var_plane))
+    wk = fit / sigma**2
+    return d + (np.where(fit, res, 0.0) * wk).sum(0) / wk.sum(0), wk.sum(0)
+
+
+def step_table(draws: int, sigma: float, radius: int, k: float, filters: dict) -> None:
+    """``--step``: a ramp with a step at column 40 (80 x 40 px), per column near it the filtered
+    spread over its prediction and the draws' mean error in sigma, for the library's filters and
+    the two sketches."""
+    rng = np.random.default_rng(3)
+    h, w = 40, 80
+    uu = np.mgrid[:h, :w][1].astype(np.float64)
+    sig = np.full((h, w), sigma, np.float32)
+    ok = np.ones((h, w), bool)
+    cols = (36, 37, 38, 39, 40, 41, 42, 43, 60)
+    runs = {**{n: (lambda d, kw=kw: _library(d, sig, ok, radius, kw)) for n, kw in filters.items()},
+            "local plane (sketch)": lambda d: plane_sketch(d, sigma, radius, k),
+            "local plane, refitted (sketch)": lambda d: plane_sketch(d, sigma, radius, k, iterations=3)}
+    for slope, step in ((0.0, 20.0), (3.0, 20.0), (0.5, 6.0)):
+        truth = slope * sigma * uu + np.where(uu >= 40, step * sigma, 0.0)
+        print(f"\nslope {slope:g} sigma per px, a step of {step:g} sigma at column 40: spread / predicted "
+              "(mean error in sigma)\n")
+        print("| filter | " + " | ".join(f"column {c}" for c in cols) + " |")
+        print("| --- |" + " ---: |" * len(cols))
+        for name, run in runs.items():
+            outs, sums = [], []
+            for _ in range(draws):
+                o1, sw = run((truth + sigma * rng.standard_normal((h, w))).astype(np.float32))
+                outs.append(o1)
+                sums.append(sw)
+            o = np.asarray(outs, np.float64)[:, 8:-8]
+            sw = np.asarray(sums, np.float64)[:, 8:-8]
+            pred = np.sqrt(np.mean(1.0 / sw, axis=0))
+            ratio = o.std(axis=0, ddof=1) / pred
+            bias = (o.mean(axis=0) - truth[8:-8]) / sigma
+            print(f"| {name} | " + " | ".join(f"{np.median(ratio[:, c]):.2f} ({np.median(bias[:, c]):+.2f})"
+                                             for c in cols) + " |", flush=True)
+
+
+def _library(d: np.ndarray, sig: np.ndarray, ok: np.ndarray, radius: int, kw: dict) -> tuple[np.ndarray, np.ndarray]:
+    sw = np.zeros(d.shape, np.float32)
+    return denoise_phase(d, sig, ok, radius=radius, weight_sum=sw, **kw), sw
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--draws", type=int, default=40)
     ap.add_argument("--sigma", type=float, default=0.03)
+    ap.add_argument("--step", action="store_true", help="also a ramp with a step: per column near it")
     a = ap.parse_args()
     m = defaults()["measurement"]
     radius = int(m["denoise_radius"])
@@ -93,6 +143,8 @@ def main() -> None:
                     cell += f", {np.median(np.mean(sw, axis=0)) * a.sigma**2:.0f} taken"
                 cells.append(cell)
             print(f"| {ratio:g} | {dname} | " + " | ".join(cells) + " |", flush=True)
+    if a.step:
+        step_table(a.draws, a.sigma, radius, k, filters)
 
 
 if __name__ == "__main__":
