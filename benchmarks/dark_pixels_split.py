@@ -34,6 +34,9 @@ level (the object white's channel mean over its 99th percentile), as in ``covera
    in mm through the height sensitivity, and the grown windows' bias term the filter reports
    (``bias2``, rms over the draws and pixels, in mm) with its correlation with the size of the
    shared error per pixel.
+5. The same draws through the defaults, the fixed window and a sketch of another filter (a local
+   linear fit, :func:`local_linear_sketch`): spread over each one's prediction, the shared error
+   and the frame-to-frame spread in mm.
 
 About 1 min on one core with ``--keep`` holding the session (2 min without).
 """
@@ -71,6 +74,44 @@ FILTERS = {"adaptive, k = 3 (defaults)": {"k": 3.0, "max_radius": 6, "target_sig
                                               "plane_kink_sigma": 10.0},
            "adaptive, k = 100": {"k": 100.0, "max_radius": 6, "target_sigma": 0.002, "reject_sigma": 0.03},
            "fixed 5 x 5, k = 3": {"k": 3.0}}
+
+
+def local_linear_sketch(d: np.ndarray, sig: np.ndarray, ok: np.ndarray, radius: int = 2, k: float = 3.0,
+                        iterations: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """A sketch of another filter, not the library's: each pixel's value from a weighted least-squares
+    plane (intercept and slope, weights ``1 / sigma^2``) fitted to its ``2 radius + 1`` window, the
+    neighbours first taken by the level test (``r^2 <= 2 k^2 min(s_i^2, s_j^2)``, the filter's
+    own-side test) and then by their residual from the plane (``<= k^2 (s_j^2 + var(intercept))``),
+    refitted ``iterations - 1`` times; returns the filtered phase (the intercept) and
+    ``1 / var(intercept)`` (``[(A^T W A)^-1]_00``), the weight sum's counterpart."""
+    h, w = d.shape
+    offs = [(dv, du) for dv in range(-radius, radius + 1) for du in range(-radius, radius + 1)]
+    dd = np.where(ok, d.astype(np.float64), np.nan)
+    pad = np.pad(dd, radius, constant_values=np.nan)
+    ps = np.pad(np.where(ok, sig.astype(np.float64), np.nan), radius, constant_values=np.nan)
+    nb = np.stack([pad[radius + dv:radius + dv + h, radius + du:radius + du + w] for dv, du in offs])
+    s2 = np.stack([ps[radius + dv:radius + dv + h, radius + du:radius + du + w] for dv, du in offs]) ** 2
+    ou = np.broadcast_to(np.array([du for _, du in offs], np.float64)[:, None, None], nb.shape)
+    ov = np.broadcast_to(np.array([dv for dv, _ in offs], np.float64)[:, None, None], nb.shape)
+    with np.errstate(invalid="ignore"):
+        diff = nb - dd[None]
+    valid = np.isfinite(diff)
+    r0 = np.where(valid, diff, 0.0)
+    s2 = np.where(valid, s2, 1.0)
+    si2 = np.where(ok, sig.astype(np.float64), 1.0)[None] ** 2
+    take = valid & (r0**2 <= 2.0 * k * k * np.minimum(si2, s2))
+    a = np.stack([np.ones_like(ou), ou, ov])
+    for it in range(iterations):
+        wt = np.where(take, 1.0 / s2, 0.0)
+        m = np.einsum("anhw,bnhw,nhw->hwab", a, a, wt)
+        good = np.abs(np.linalg.det(m)) > 1e-12
+        mi = np.linalg.inv(np.where(good[..., None, None], m, np.eye(3)))
+        coef = np.einsum("hwab,hwb->hwa", mi, np.einsum("anhw,nhw->hwa", a, wt * r0))
+        var0 = np.where(good, mi[..., 0, 0], np.inf)
+        if it < iterations - 1:
+            res = r0 - (coef[..., 0][None] + coef[..., 1][None] * ou + coef[..., 2][None] * ov)
+            take = valid & (res**2 <= k * k * (s2 + var0[None]))
+    return np.where(ok & good, dd + coef[..., 0], np.nan), np.where(ok & good, 1.0 / var0, 0.0)
 
 
 def _label(lo: float, hi: float) -> str:
@@ -225,7 +266,44 @@ def main() -> None:
             print("| | shared error mm | " + " | ".join(c2) + " |")
             print("| | grown windows' bias term mm | " + " | ".join(c3) + " |")
             print("| | its correlation with the shared error's size | " + " | ".join(c4) + " |")
+        # a sketch of a local linear fit beside the library's filters (not the library's filter)
+        print("\nthe library's filters and a local linear fit (a sketch) on the same draws: spread over its "
+              "prediction, the error the draws share and the frame-to-frame spread, mm rms:\n")
+        print("| filter | quantity | " + " | ".join(_label(lo, hi) for lo, hi in BINS) + " | all |")
+        print("| --- | --- |" + " ---: |" * (len(BINS) + 1))
+        runs = {"adaptive, k = 3 (defaults)": lambda d: _library(d, sig, ok, FILTERS["adaptive, k = 3 (defaults)"]),
+                "fixed 5 x 5, k = 3": lambda d: _library(d, sig, ok, FILTERS["fixed 5 x 5, k = 3"]),
+                "local linear fit, 5 x 5 (sketch)": lambda d: local_linear_sketch(d, sig, ok, radius=fc.RADIUS)}
+        for name, run in runs.items():
+            res = [run(d) for d in draws]
+            o = np.asarray([r[0] for r in res], np.float64)
+            swa = np.asarray([r[1] for r in res], np.float64)
+            with np.errstate(divide="ignore", invalid="ignore"):
+                spread = np.std(o, axis=0, ddof=1)
+                pred = np.sqrt(np.mean(1.0 / swa, axis=0))
+                bias = o.mean(axis=0) - d_true
+            fine = ok & np.all(np.isfinite(o), axis=0) & np.all(swa > 0, axis=0)
+            c1, c2, c3 = [], [], []
+            for lo, hi in (*BINS, (0.0, np.inf)):
+                b = fine & (level >= lo) & (level < hi)
+                if b.sum() < 200:
+                    for c in (c1, c2, c3):
+                        c.append("-")
+                    continue
+                c1.append(f"{np.median(spread[b] / pred[b]):.2f}")
+                v = np.mean((bias[b] * gsens[b]) ** 2) - np.mean((spread[b] * gsens[b]) ** 2) / args.draws
+                c2.append(f"{np.sqrt(max(v, 0.0)):.4f}")
+                c3.append(f"{np.sqrt(np.mean((spread[b] * gsens[b]) ** 2)):.4f}")
+            print(f"| {name} | spread / predicted | " + " | ".join(c1) + " |")
+            print("| | shared error mm | " + " | ".join(c2) + " |")
+            print("| | frame-to-frame mm | " + " | ".join(c3) + " |")
         print(f"\n({time.perf_counter() - t0:.0f} s)")
+
+
+def _library(d: np.ndarray, sig: np.ndarray, ok: np.ndarray, kw: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The library's filter with its weight sum."""
+    sw = np.zeros(d.shape, np.float32)
+    return denoise_phase(d, sig, ok, radius=fc.RADIUS, weight_sum=sw, **kw), sw
 
 
 if __name__ == "__main__":
