@@ -245,23 +245,12 @@ def main() -> None:
                 b2s.append(np.nan_to_num(b2))
             o, swa = np.asarray(outs, np.float64), np.asarray(sws, np.float64)
             term = np.sqrt(np.mean(np.asarray(b2s, np.float64), axis=0))  # the grown windows' bias term, rad
-            with np.errstate(divide="ignore", invalid="ignore"):
-                spread = np.std(o, axis=0, ddof=1)
-                pred = np.sqrt(np.mean(1.0 / swa, axis=0))
-                bias = o.mean(axis=0) - d_true
-            fine = ok & np.all(np.isfinite(o), axis=0) & np.all(swa > 0, axis=0)
-            c1, c2, c3, c4 = [], [], [], []
-            for lo, hi in (*BINS, (0.0, np.inf)):
-                b = fine & (level >= lo) & (level < hi)
-                if b.sum() < 200:
-                    for c in (c1, c2, c3, c4):
-                        c.append("-")
-                    continue
-                c1.append(f"{np.median(spread[b] / pred[b]):.2f}")
-                v = np.mean((bias[b] * gsens[b]) ** 2) - np.mean((spread[b] * gsens[b]) ** 2) / args.draws
-                c2.append(f"{np.sqrt(max(v, 0.0)):.4f}")
-                c3.append(f"{np.sqrt(np.mean((term[b] * gsens[b]) ** 2)):.4f}")
-                c4.append(f"{np.corrcoef(np.abs(bias[b]), term[b])[0, 1]:.2f}" if term[b].any() else "-")
+            spread, pred, bias, fine = _draw_stats(o, swa, d_true, ok)
+            c1, c2, c3, c4 = _per_bin(fine, level, (
+                lambda b: f"{np.median(spread[b] / pred[b]):.2f}",
+                lambda b: _shared(bias, spread, gsens, b, args.draws),
+                lambda b: f"{np.sqrt(np.mean((term[b] * gsens[b]) ** 2)):.4f}",
+                lambda b: f"{np.corrcoef(np.abs(bias[b]), term[b])[0, 1]:.2f}" if term[b].any() else "-"))
             print(f"| {name} | spread / predicted | " + " | ".join(c1) + " |")
             print("| | shared error mm | " + " | ".join(c2) + " |")
             print("| | grown windows' bias term mm | " + " | ".join(c3) + " |")
@@ -278,26 +267,42 @@ def main() -> None:
             res = [run(d) for d in draws]
             o = np.asarray([r[0] for r in res], np.float64)
             swa = np.asarray([r[1] for r in res], np.float64)
-            with np.errstate(divide="ignore", invalid="ignore"):
-                spread = np.std(o, axis=0, ddof=1)
-                pred = np.sqrt(np.mean(1.0 / swa, axis=0))
-                bias = o.mean(axis=0) - d_true
-            fine = ok & np.all(np.isfinite(o), axis=0) & np.all(swa > 0, axis=0)
-            c1, c2, c3 = [], [], []
-            for lo, hi in (*BINS, (0.0, np.inf)):
-                b = fine & (level >= lo) & (level < hi)
-                if b.sum() < 200:
-                    for c in (c1, c2, c3):
-                        c.append("-")
-                    continue
-                c1.append(f"{np.median(spread[b] / pred[b]):.2f}")
-                v = np.mean((bias[b] * gsens[b]) ** 2) - np.mean((spread[b] * gsens[b]) ** 2) / args.draws
-                c2.append(f"{np.sqrt(max(v, 0.0)):.4f}")
-                c3.append(f"{np.sqrt(np.mean((spread[b] * gsens[b]) ** 2)):.4f}")
+            spread, pred, bias, fine = _draw_stats(o, swa, d_true, ok)
+            c1, c2, c3 = _per_bin(fine, level, (
+                lambda b: f"{np.median(spread[b] / pred[b]):.2f}",
+                lambda b: _shared(bias, spread, gsens, b, args.draws),
+                lambda b: f"{np.sqrt(np.mean((spread[b] * gsens[b]) ** 2)):.4f}"))
             print(f"| {name} | spread / predicted | " + " | ".join(c1) + " |")
             print("| | shared error mm | " + " | ".join(c2) + " |")
             print("| | frame-to-frame mm | " + " | ".join(c3) + " |")
         print(f"\n({time.perf_counter() - t0:.0f} s)")
+
+
+def _draw_stats(o: np.ndarray, swa: np.ndarray, d_true: np.ndarray,
+                ok: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Per pixel over the draws: the filtered phase's spread, its prediction ``sqrt(mean(1 / sum w))``,
+    the draws' mean error, and the pixels filtered in every draw."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spread = np.std(o, axis=0, ddof=1)
+        pred = np.sqrt(np.mean(1.0 / swa, axis=0))
+        bias = o.mean(axis=0) - d_true
+    return spread, pred, bias, ok & np.all(np.isfinite(o), axis=0) & np.all(swa > 0, axis=0)
+
+
+def _shared(bias: np.ndarray, spread: np.ndarray, gsens: np.ndarray, b: np.ndarray, draws: int) -> str:
+    """The error the draws share on the pixels ``b`` (mm rms), its noise part removed."""
+    v = np.mean((bias[b] * gsens[b]) ** 2) - np.mean((spread[b] * gsens[b]) ** 2) / draws
+    return f"{np.sqrt(max(v, 0.0)):.4f}"
+
+
+def _per_bin(fine: np.ndarray, level: np.ndarray, fns: tuple) -> list[list[str]]:
+    """One column of cells per function: each white-level bin (and all) of at least 200 pixels."""
+    cols: list[list[str]] = [[] for _ in fns]
+    for lo, hi in (*BINS, (0.0, np.inf)):
+        b = fine & (level >= lo) & (level < hi)
+        for col, f in zip(cols, fns, strict=True):
+            col.append(f(b) if b.sum() >= 200 else "-")
+    return cols
 
 
 def _library(d: np.ndarray, sig: np.ndarray, ok: np.ndarray, kw: dict) -> tuple[np.ndarray, np.ndarray]:
