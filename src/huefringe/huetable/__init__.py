@@ -102,6 +102,7 @@ from ._build import (  # noqa: F401
     _accumulate_kernel,
     _finalise_kernel,
     build_table,
+    smoothing_window,
     white_balance_floor,
 )
 
@@ -116,6 +117,7 @@ __all__ = [
     "build_table",
     "fit_sensor_noise",
     "hue_band_paths",
+    "smoothing_window",
     "table_nbytes",
     "white_balance_floor",
 ]

@@ -33,6 +33,14 @@ def band_smoothing_matrix(n_bands: int, window: int, order: int = 2) -> NDArray[
     return _band_smoothing(int(n_bands), int(window), int(order)).copy()
 
 
+def smoothing_window(n_bands: int, window: int) -> int:
+    """The along-band smoothing window a table of ``n_bands`` bands takes for a requested
+    ``window``: at most the largest odd number <= ``n_bands`` (a session may hold fewer bands
+    than the default window). :func:`build_table` smooths with it and records it;
+    :func:`huefringe.uncertainty.table_variance_factor` assumes it."""
+    return min(int(window), int(n_bands) - (1 - int(n_bands) % 2))
+
+
 @functools.lru_cache(maxsize=16)
 def _band_smoothing(n_bands: int, window: int, order: int) -> NDArray[np.float64]:
     """:func:`band_smoothing_matrix`, computed (a per-session constant that frames ask for)."""
@@ -296,8 +304,8 @@ def build_table(
     smooth_window, smooth_order : int
         Local-polynomial window (odd, in bands) and degree along the band axis, not crossing the
         code's sextant boundaries (:func:`band_smoothing_matrix`); window <= 1 disables. A window
-        wider than the table's ``N`` bands takes the largest odd number <= N (the one the stats
-        record, and the one :func:`huefringe.uncertainty.table_variance_factor` assumes).
+        wider than the table's ``N`` bands takes the largest odd number <= N
+        (:func:`smoothing_window`, which the stats record).
     max_noise_steps : float
         Mask ``noise`` when the standard error of a band mean (from the repeats, or with one
         repeat from the third difference along the bands) exceeds this many band steps.
@@ -399,8 +407,8 @@ def build_table(
         sigma = np.empty((h, w), np.float64)
         _band_noise_kernel(tab, reason, BAND_DIFFERENCE_ORDER, sigma)
     step = TWO_PI / n
-    if smooth_window % 2 == 1 and smooth_window > n:  # fewer bands than the window (an even one is refused below)
-        smooth_window = n - (1 - n % 2)
+    if smooth_window % 2 == 1:  # fewer bands than the window (an even one is refused below)
+        smooth_window = smoothing_window(n, smooth_window)
     coef = band_smoothing_matrix(n, smooth_window, smooth_order)
     start = np.zeros((h, w), dtype=np.uint16)
     _finalise_kernel(tab, sigma, reason, start, coef, float(max_noise_steps * step), float(max_gap),

@@ -16,7 +16,7 @@ from numba import prange
 from numpy.typing import NDArray
 from scipy.ndimage import uniform_filter
 
-from huefringe.huetable import band_smoothing_matrix
+from huefringe.huetable import band_smoothing_matrix, smoothing_window
 
 __all__ = ["PixelBudget", "TERMS", "calibration_terms", "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "table_interpolation_rad", "table_variance_factor"]
 
@@ -107,7 +107,7 @@ def table_variance_factor(n_bands: int, window: int, order: int, repeats: int) -
     boundaries). Interpolating between two neighbouring entries, whose smoothing windows share
     almost all bands, keeps that variance.
     """
-    window = min(int(window), int(n_bands) - (1 - int(n_bands) % 2))  # the smoother never exceeds N
+    window = smoothing_window(n_bands, window)  # the window the table was smoothed with
     if window > 1:
         coef = band_smoothing_matrix(int(n_bands), int(window), int(order))
         g = float(np.mean(np.sum(coef**2, axis=1)))
