@@ -236,6 +236,7 @@ def main() -> None:
               "sqrt(1 / sum w), median per pixel; the error the draws share, mm rms:\n")
         print("| filter | quantity | " + " | ".join(_label(lo, hi) for lo, hi in BINS) + " | all |")
         print("| --- | --- |" + " ---: |" * (len(BINS) + 1))
+        filtered: dict[str, tuple[np.ndarray, np.ndarray]] = {}  # each filter's phases and weight sums over the draws
         for name, kw in FILTERS.items():
             outs, sws, b2s = [], [], []
             for d in draws:
@@ -244,6 +245,7 @@ def main() -> None:
                 sws.append(sw)
                 b2s.append(np.nan_to_num(b2))
             o, swa = np.asarray(outs, np.float64), np.asarray(sws, np.float64)
+            filtered[name] = o, swa
             term = np.sqrt(np.mean(np.asarray(b2s, np.float64), axis=0))  # the grown windows' bias term, rad
             spread, pred, bias, fine = _draw_stats(o, swa, d_true, ok)
             c1, c2, c3, c4 = _per_bin(fine, level, (
@@ -260,13 +262,11 @@ def main() -> None:
               "prediction, the error the draws share and the frame-to-frame spread, mm rms:\n")
         print("| filter | quantity | " + " | ".join(_label(lo, hi) for lo, hi in BINS) + " | all |")
         print("| --- | --- |" + " ---: |" * (len(BINS) + 1))
-        runs = {"adaptive, k = 3 (defaults)": lambda d: _library(d, sig, ok, FILTERS["adaptive, k = 3 (defaults)"]),
-                "fixed 5 x 5, k = 3": lambda d: _library(d, sig, ok, FILTERS["fixed 5 x 5, k = 3"]),
-                "local linear fit, 5 x 5 (sketch)": lambda d: local_linear_sketch(d, sig, ok, radius=fc.RADIUS)}
-        for name, run in runs.items():
-            res = [run(d) for d in draws]
-            o = np.asarray([r[0] for r in res], np.float64)
-            swa = np.asarray([r[1] for r in res], np.float64)
+        sketch = [local_linear_sketch(d, sig, ok, radius=fc.RADIUS) for d in draws]
+        filtered["local linear fit, 5 x 5 (sketch)"] = (np.asarray([r[0] for r in sketch], np.float64),
+                                                        np.asarray([r[1] for r in sketch], np.float64))
+        for name in ("adaptive, k = 3 (defaults)", "fixed 5 x 5, k = 3", "local linear fit, 5 x 5 (sketch)"):
+            o, swa = filtered[name]
             spread, pred, bias, fine = _draw_stats(o, swa, d_true, ok)
             c1, c2, c3 = _per_bin(fine, level, (
                 lambda b: f"{np.median(spread[b] / pred[b]):.2f}",
@@ -303,12 +303,6 @@ def _per_bin(fine: np.ndarray, level: np.ndarray, fns: tuple) -> list[list[str]]
         for col, f in zip(cols, fns, strict=True):
             col.append(f(b) if b.sum() >= 200 else "-")
     return cols
-
-
-def _library(d: np.ndarray, sig: np.ndarray, ok: np.ndarray, kw: dict) -> tuple[np.ndarray, np.ndarray]:
-    """The library's filter with its weight sum."""
-    sw = np.zeros(d.shape, np.float32)
-    return denoise_phase(d, sig, ok, radius=fc.RADIUS, weight_sum=sw, **kw), sw
 
 
 if __name__ == "__main__":

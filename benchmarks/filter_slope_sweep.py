@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import inspect
+from collections.abc import Callable
 
 import numpy as np
 
@@ -80,13 +81,8 @@ def step_table(draws: int, sigma: float, radius: int, k: float, filters: dict) -
         print("| filter | " + " | ".join(f"column {c}" for c in cols) + " |")
         print("| --- |" + " ---: |" * len(cols))
         for name, run in runs.items():
-            outs, sums = [], []
-            for _ in range(draws):
-                o1, sw = run((truth + sigma * rng.standard_normal((h, w))).astype(np.float32))
-                outs.append(o1)
-                sums.append(sw)
-            o = np.asarray(outs, np.float64)[:, 8:-8]
-            sw = np.asarray(sums, np.float64)[:, 8:-8]
+            o, sw = _draws(run, truth, sigma, draws, rng)
+            o, sw = o[:, 8:-8], sw[:, 8:-8]
             pred = np.sqrt(np.mean(1.0 / sw, axis=0))
             ratio = o.std(axis=0, ddof=1) / pred
             bias = (o.mean(axis=0) - truth[8:-8]) / sigma
@@ -95,8 +91,21 @@ def step_table(draws: int, sigma: float, radius: int, k: float, filters: dict) -
 
 
 def _library(d: np.ndarray, sig: np.ndarray, ok: np.ndarray, radius: int, kw: dict) -> tuple[np.ndarray, np.ndarray]:
+    """The library's filter with its weight sum."""
     sw = np.zeros(d.shape, np.float32)
     return denoise_phase(d, sig, ok, radius=radius, weight_sum=sw, **kw), sw
+
+
+def _draws(run: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]], truth: np.ndarray, sigma: float, draws: int,
+           rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    """``run`` on ``draws`` noisy copies of ``truth`` (Gaussian, ``sigma``): the filtered phases and
+    weight sums, stacked (float64)."""
+    outs, sums = [], []
+    for _ in range(draws):
+        o1, sw = run((truth + sigma * rng.standard_normal(truth.shape)).astype(np.float32))
+        outs.append(o1)
+        sums.append(sw)
+    return np.asarray(outs, np.float64), np.asarray(sums, np.float64)
 
 
 def main() -> None:
@@ -115,6 +124,8 @@ def main() -> None:
     sig = np.full((h, w), a.sigma, np.float32)
     ok = np.ones((h, w), bool)
     inner = (slice(8, -8), slice(8, -8))
+    runs = {**{n: (lambda d, kw=kw: _library(d, sig, ok, radius, kw)) for n, kw in filters.items()},
+            "sketch": lambda d: plane_sketch(d, a.sigma, radius, k)}
     print(f"sigma {a.sigma} rad, {a.draws} draws; spread / predicted (mean error rms / predicted)\n")
     print("| slope / sigma per px | direction | " + " | ".join(filters) + " | local plane (sketch) |")
     print("| ---: | --- |" + " ---: |" * (len(filters) + 1))
@@ -122,19 +133,9 @@ def main() -> None:
         for dname, ramp in (("row", uu), ("diagonal", (uu + vv) / np.sqrt(2.0))):
             truth = ratio * a.sigma * ramp
             cells = []
-            for name in (*filters, "sketch"):
-                outs, sums = [], []
-                for _ in range(a.draws):
-                    d = (truth + a.sigma * rng.standard_normal((h, w))).astype(np.float32)
-                    if name == "sketch":
-                        o1, sw = plane_sketch(d, a.sigma, radius, k)
-                    else:
-                        sw = np.zeros((h, w), np.float32)
-                        o1 = denoise_phase(d, sig, ok, radius=radius, weight_sum=sw, **filters[name])
-                    outs.append(o1)
-                    sums.append(sw)
-                o = np.asarray(outs, np.float64)[(slice(None), *inner)]
-                sw = np.asarray(sums, np.float64)[(slice(None), *inner)]
+            for name, run in runs.items():
+                o, sw = _draws(run, truth, a.sigma, a.draws, rng)
+                o, sw = o[(slice(None), *inner)], sw[(slice(None), *inner)]
                 pred = np.sqrt(np.mean(1.0 / sw, axis=0))
                 spread = o.std(axis=0, ddof=1)
                 bias = o.mean(axis=0) - truth[inner]
