@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import math
 from typing import Any
 
 import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from huefringe.colour import _hue_noise_kernel  # noqa: F401  (the fused kernel and the table's noise fit call it too)
 from huefringe.huetable import HueTable, HueTableError
 
 
@@ -178,52 +178,3 @@ def frame_hue_noise(table: HueTable, rgb: NDArray[Any], gains: NDArray[np.float3
     _hue_noise_kernel(np.ascontiguousarray(rgb), np.float32(scale), np.ascontiguousarray(gains, np.float32),
                       hue_model == "hsi", model, fallback, out)
     return out
-
-
-@numba.njit(cache=True, nogil=True, error_model="numpy")
-def _hue_noise_kernel(rgb, scale, gains, hsi, model, fallback, out):  # pragma: no cover - compiled
-    """:func:`frame_hue_noise`'s loop; branch-free rows (selects), so that LLVM vectorises them."""
-    h, w, _ = rgb.shape
-    k0, k1, k2 = model[0, 0], model[0, 1], model[0, 2]
-    r0, r1, r2 = model[1, 0], model[1, 1], model[1, 2]
-    k3 = np.float32(math.sqrt(3.0) / 2.0)
-    half = np.float32(0.5)
-    zero = np.float32(0.0)
-    third2 = np.float32((np.pi / 3.0) ** 2)
-    for v in range(h):
-        px = rgb[v].reshape(-1)
-        gn = gains[v].reshape(-1)
-        fb = fallback[v]
-        ov = out[v]
-        for u in range(w):
-            f0 = np.float32(px[3 * u]) * scale
-            f1 = np.float32(px[3 * u + 1]) * scale
-            f2 = np.float32(px[3 * u + 2]) * scale
-            g0, g1, g2 = gn[3 * u], gn[3 * u + 1], gn[3 * u + 2]
-            r = f0 * g0
-            g = f1 * g1
-            bl = f2 * g2
-            vr = (k0 * f0 + r0) * (g0 * g0)
-            vg = (k1 * f1 + r1) * (g1 * g1)
-            vb = (k2 * f2 + r2) * (g2 * g2)
-            if hsi:
-                xx = r - half * (g + bl)
-                yy = k3 * (g - bl)
-                q = xx * xx + yy * yy
-                dg = xx * k3 + half * yy
-                db = half * yy - xx * k3
-                var = (yy * yy * vr + dg * dg * vg + db * db * vb) / (q * q)
-            else:
-                mx = max(max(r, g), bl)
-                mn = min(min(r, g), bl)
-                c = mx - mn
-                mid = ((r + g) + bl) - mx - mn
-                hi2 = (mid - mn) * (mid - mn)  # weight of the maximum's variance
-                lo2 = (mx - mid) * (mx - mid)  # of the minimum's
-                c2 = c * c
-                wr = hi2 if r == mx else (lo2 if r == mn else c2)
-                wg = hi2 if g == mx else (lo2 if g == mn else c2)
-                wb = hi2 if bl == mx else (lo2 if bl == mn else c2)
-                var = third2 * (wr * vr + wg * vg + wb * vb) / (c2 * c2)
-            s = np.sqrt(np.float64(var))
-            ov[u] = s if (s - s == 0) & (var > zero) else fb[u]
