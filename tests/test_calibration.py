@@ -362,7 +362,10 @@ def test_build_streams_images_one_band_at_a_time():
     table_bytes = cal.table_nbytes(N_BANDS, h, w)
     all_images = N_BANDS * REPEATS * h * w * 3 * 4
     print(f"peak {peak / 1e6:.2f} MB, table {table_bytes / 1e6:.2f} MB, all images {all_images / 1e6:.1f} MB")
-    assert peak < table_bytes + 60 * h * w * 4 + 500_000
+    # the sensor-noise fit keeps 56 bytes per sample (every third pixel each way, every band) and
+    # about three times that while fitting
+    fit_bytes = 3 * 56 * N_BANDS * (-(-h // 3)) * (-(-w // 3))
+    assert peak < table_bytes + 60 * h * w * 4 + fit_bytes + 500_000
     assert peak < all_images / 4
     assert tab.stats["valid_fraction"] == 1.0
 

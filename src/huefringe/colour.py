@@ -410,7 +410,7 @@ def _hue_noise_kernel(rgb, scale, gains, hsi, model, fallback, out):  # pragma: 
     ``model[0, c] * signal_c + model[1, c]`` (shot + read, full scale 1; ``rgb`` codes times ``scale``)
     times the white-balance gain squared, through the hue formula's first derivatives; ``fallback``
     where that is not finite and positive. :func:`huefringe.perframe.frame_hue_noise`'s loop (the
-    fused kernel and the hue table's one-repeat noise fit call it too); branch-free rows (selects), so
+    fused kernel and the hue table's sensor-noise fit call it too); branch-free rows (selects), so
     that LLVM vectorises them."""
     h, w, _ = rgb.shape
     k0, k1, k2 = model[0, 0], model[0, 1], model[0, 2]

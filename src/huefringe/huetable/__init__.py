@@ -64,6 +64,12 @@ which removes the captured-hue curve's level, slope and curvature and leaves ``2
 within 0.94-0.98 of six repeats' figure in every white-level bin of the bench's ``photo_sensor``
 (docs/noise.md).
 
+``stats["sensor_noise"]`` is the sensor's shot + read model ``var_c = gain_c * signal_c + read_c``
+that each frame's own hue noise is propagated through (:func:`huefringe.perframe.frame_hue_noise`),
+fitted on the bands' captured hue (:func:`fit_hue_noise`, :data:`SENSOR_SOURCES`): the repeats'
+hue spread, or with one repeat the hue's third differences along the bands; None with fewer than
+four bands of one repeat in a sextant.
+
 The Fig. 6 compensation of the projected pattern and the calibration QA figures are in
 :mod:`huefringe.compensation`, built on these tables.
 """
@@ -93,9 +99,9 @@ from ._noise import (  # noqa: F401
     BAND_DIFFERENCE_ORDER,
     _band_noise_kernel,
     _NOISE_STRIDE,
-    _NOISE_BINS,
-    _RepeatStats,
-    fit_sensor_noise,
+    _HueNoiseStats,
+    SENSOR_SOURCES,
+    fit_hue_noise,
 )
 from ._build import (  # noqa: F401
     band_smoothing_matrix,
@@ -111,11 +117,12 @@ __all__ = [
     "HueTableError",
     "RAD_PER_COUNT",
     "NOISE_SOURCES",
+    "SENSOR_SOURCES",
     "REASONS",
     "HueTable",
     "band_smoothing_matrix",
     "build_table",
-    "fit_sensor_noise",
+    "fit_hue_noise",
     "hue_band_paths",
     "smoothing_window",
     "table_nbytes",

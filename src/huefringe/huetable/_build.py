@@ -15,7 +15,7 @@ from numpy.typing import NDArray
 from .. import colour
 from ..patterns import TWO_PI
 from ..session import read_rgb
-from ._noise import BAND_DIFFERENCE_ORDER, _RepeatStats, _band_noise_kernel
+from ._noise import BAND_DIFFERENCE_ORDER, _HueNoiseStats, _band_noise_kernel
 from ._store import HueTable, NOISE_SOURCES, REASONS, _R_LOW_SAT, _R_LOW_SIGNAL, _Reader
 
 
@@ -343,8 +343,10 @@ def build_table(
     -----
     Images are read one at a time and reduced at once to a hue plane; only one band's ``R`` hue
     planes are alive at a time. Memory is the table (``2 N H W`` bytes) plus
-    ``~ (4 R + 70) H W`` bytes of work planes. The per-band mean is the mean direction of the
-    repeats (see ``_accumulate_kernel``: equal to the circular mean to third order in the spread).
+    ``~ (4 R + 70) H W`` bytes of work planes and the sensor-noise fit's samples (56 bytes for each
+    of at most ``N ceil(H / 3) ceil(W / 3)`` and 400,000, about three times that while fitting: at
+    most 90 MB). The per-band mean is the mean direction of the repeats (see
+    ``_accumulate_kernel``: equal to the circular mean to third order in the spread).
     """
     n = len(band_paths)
     if n < 6:
@@ -381,7 +383,7 @@ def build_table(
         from tqdm import tqdm
 
         bands = tqdm(bands, desc="hue bands", unit="band")
-    repeat_stats = _RepeatStats(h, w, n_rep)
+    noise_stats = _HueNoiseStats(h, w, n, n_rep, gains, model)  # the sensor's shot + read model, on the hue
     with _Reader(read, band_paths, prefetch) as reader:
         for i in bands:
             for r, path in enumerate(band_paths[i]):
@@ -391,12 +393,12 @@ def build_table(
                 colour.balanced_hue(img, gains, model, min_saturation=min_saturation, out=hues[r])
                 if on_hue is not None:
                     on_hue(i, r, hues[r])
-                repeat_stats.add(img)
+                noise_stats.add(img, hues[r])
                 if on_image is not None:
                     on_image(i, r, img)
                 del img
             _accumulate_kernel(hues, tab[i], var_sum, dof_map, missing)
-            repeat_stats.end_band()
+            noise_stats.end_band()
     del hues
 
     reason[(reason == 0) & missing] = _R_LOW_SAT
@@ -431,7 +433,7 @@ def build_table(
             "p95": float(np.percentile(sv, 95)) if sv.size else None,
             "source": NOISE_SOURCES[0] if n_rep >= 2 else NOISE_SOURCES[1],
         },
-        "sensor_noise": repeat_stats.fit(),
+        "sensor_noise": noise_stats.fit(),
         "table_bytes": int(table.nbytes),
         "params": {
             "min_saturation": float(min_saturation),

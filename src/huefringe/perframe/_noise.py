@@ -8,7 +8,7 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
-from huefringe.colour import _hue_noise_kernel  # noqa: F401  (the fused kernel and the table's noise fit call it too)
+from huefringe.colour import _hue_noise_kernel  # noqa: F401  (the fused kernel imports it from here)
 from huefringe.huetable import HueTable, HueTableError
 
 
@@ -150,8 +150,10 @@ def _ratio2_kernel(own, pooled, lo, hi, trusted, out):  # pragma: no cover - com
 def sensor_model(table: HueTable) -> NDArray[np.float32] | None:
     """The table's shot + read noise model as float32 ``(2, 3)``: per channel ``gain`` (row 0)
     and ``read`` (row 1) of ``variance = gain * signal + read`` (full scale 1), fitted on the
-    hue bands' repeats (:func:`huefringe.huetable.fit_sensor_noise`); None when the table has
-    none (one repeat, or a table built before the model existed)."""
+    hue bands' captured hue when the table was built (:func:`huefringe.huetable.fit_hue_noise`:
+    the repeats' hue spread, or with one repeat the hue's third differences along the bands);
+    None when the table has none (too few bands of one repeat for a run of four in a sextant, or
+    a table built before the model existed)."""
     m = (table.stats or {}).get("sensor_noise")
     if not m:
         return None

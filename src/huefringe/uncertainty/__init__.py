@@ -29,7 +29,8 @@ sensitivities ``J = (dh/da, dh/db) = -(dphi, dphi^2) / (a + b dphi)^2``::
     u_model = sqrt(J C J^T)            C = covariance of (a, b) from the planes' errors
 
 The frame's hue noise (behind ``r``) comes from its own RGB signal through a shot + read noise
-model fitted on the hue bands' repeats (:func:`huefringe.perframe.frame_hue_noise`); the weights
+model fitted on the hue bands' captured hue (:func:`huefringe.perframe.frame_hue_noise`,
+:func:`huefringe.huetable.fit_hue_noise`); the weights
 stay the table's pooled noise, so that the heights do not depend on it. After the
 root sum of squares, :func:`edge_floor` raises mixed pixels (steps, shadow borders) to the local
 scatter of the heights about their 3 x 3 plane.
