@@ -1,6 +1,6 @@
 """Does the predicted height uncertainty hold? Coverage and step ratios on bench presets.
 
-Usage: ./run python benchmarks/uncertainty_validation.py [--frames 5] [--presets demo flat dental ...] [--lateral-px 0]
+Usage: ./run python benchmarks/uncertainty_validation.py [--frames 5] [--presets demo flat dental ...] [--lateral-px 0] [--terms]
 
 For each preset the bench writes a session, the whole chain measures it (the uncertainty maps
 from the kernel's pass), and against the bench's ground truth it prints: the fraction of the
@@ -8,6 +8,12 @@ valid pixels with |error| <= 2u (target 0.95 +- 0.03), the rms error and rms u, 
 sessions with a specimen, each step's std over the frames against the predicted independent
 part of one frame's u (target ratio 0.7-1.4; with few frames the std is itself uncertain:
 its relative standard error is about 1 / sqrt(2 (frames - 1))).
+
+``--terms`` also measures each session with the lateral term off (u as it stands before it) and
+prints, on the first frame's valid pixels, the median and 95th percentile of each term split from
+that u by ``uncertainty.split_terms`` (the split gives the remainder, the edge floor's and the
+texture term's part among it, to the noise term) and of the combined u (docs/uncertainty.md,
+"Terms per pixel").
 """
 
 from __future__ import annotations
@@ -36,6 +42,7 @@ def main() -> None:
     ap.add_argument("--presets", nargs="+", default=["demo", "flat", "dental", "plain_gauge", "photo_relief"])
     ap.add_argument("--lateral-px", type=float, default=None,
                     help="measurement.lateral_uncertainty_px (default: config.yaml's; 0 = the lateral term off)")
+    ap.add_argument("--terms", action="store_true", help="also each term's median / p95 on the first frame, before the lateral term")
     ap.add_argument("--lateral-step-px", type=float, default=None,
                     help="measurement.lateral_step_px (default: config.yaml's; 0 = the lateral term's step part off)")
     args = ap.parse_args()
@@ -96,6 +103,28 @@ def main() -> None:
                                  f"(error {st['error_mm']:+.4f}, U {st['U_mm']:.4f}, {st['conformance']})")
                 line += "  " + "; ".join(parts)
             print(line, flush=True)
+            if args.terms:
+                print("  " + _terms(session, Path(tmp) / f"{preset}-terms", cfg), flush=True)
+
+
+def _terms(session: Path, out: Path, cfg: dict) -> str:
+    """Each term's median / p95 (mm) on the first frame, split from u before the lateral term."""
+    c = copy.deepcopy(cfg)
+    c["measurement"]["lateral_uncertainty_px"] = 0.0
+    c["measurement"]["lateral_step_px"] = 0.0
+    p = stages.measure_session(session, out, c)
+    h = tifffile.imread(p["heights"][0]).astype(np.float64)
+    u = tifffile.imread(p["uncertainties"][0]).astype(np.float64)
+    cal = PlaneCalibration.load(str(out / "model.npz"))
+    terms = uncertainty.split_terms(u, h, cal.a, cal.b,
+                                    uncertainty.pixel_budget(HueTable.load(out / "table_object.json"), cal))
+    ok = np.isfinite(u) & np.isfinite(h)
+    cells = []
+    for name, v in [*terms.items(), ("combined", u)]:
+        x = np.asarray(v, np.float64)[ok]
+        x = x[np.isfinite(x)]
+        cells.append(f"{name} {np.median(x):.4f} / {np.percentile(x, 95):.4f}")
+    return "terms, first frame, before the lateral term (median / p95 mm): " + "; ".join(cells)
 
 
 if __name__ == "__main__":
