@@ -215,7 +215,7 @@ def fit_hue_noise(x: NDArray[np.floating], y: NDArray[np.floating], repeats: int
     squared), :data:`_FIT_PASSES` times. Only samples whose predicted hue noise of one capture
     (``E[y]`` over ``R - 1``, or over 20 with one repeat) is at most :data:`FIT_MAX_HUE_SIGMA_RAD`
     count: beyond it the first-order propagation the model is used through no longer holds (a hue
-    of small chroma, whose derivatives diverge; {doc}`uncertainty`, "The noise ratio"). The first
+    of small chroma, whose derivatives diverge; docs/uncertainty.md, "The noise ratio"). The first
     pass takes the samples whose propagation per unit channel variance is within 100 x its median,
     each later one those the previous fit predicts inside the bound. ``rel_rms`` per channel: the
     relative misfit of the mean ``y`` against the mean prediction in ten equal-count bins of the
