@@ -111,8 +111,8 @@ def measure_frame(
         Each pixel's phase sigma from this frame's own signal through the table's shot + read
         noise model (:func:`frame_hue_noise`) instead of the table's pooled per-pixel noise
         (``measurement.own_noise``; off by default: weighting the filter by it biases the
-        heights where the noise varies with the phase, Table 1 at 100 px: mean error 0.93 ->
-        1.59 %).
+        heights where the noise varies with the phase, Table 1 at 100 px: mean error 0.65 ->
+        1.09 %).
     budget : PixelBudget, optional
         Session inputs of the height uncertainty (:func:`huefringe.uncertainty.pixel_budget`,
         computed when not given); the result's ``uncertainty`` is the kernel's, bit for bit.
