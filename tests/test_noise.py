@@ -254,8 +254,8 @@ def test_sensor_noise_fitted_on_the_hue_recovers_the_shot_and_read_terms(repeats
     bands, ``source: band_difference``) recovers the gain and the read term of every channel within
     15 % (72 bands, 60 x 120 px; measured 0.86-1.13 with one repeat over three seeds, 0.94-1.06 with
     two and three repeats), and a projector brightness that changes by 1 % from capture to capture
-    does not move it beyond 2 % (the hue is the same at any brightness; a fit on the channels' spread
-    between repeats read that flicker as 1.7 x the gain)."""
+    does not move it beyond 2 % (the hue is the same at any brightness, while the channels' spread
+    between repeats would take that flicker for noise)."""
     g, r = 6.7e-5, 6.8e-6
     fits = []
     for flicker in (0.0, 0.01):
