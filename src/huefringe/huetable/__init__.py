@@ -67,8 +67,8 @@ within 0.94-0.98 of six repeats' figure in every white-level bin of the bench's 
 ``stats["sensor_noise"]`` is the sensor's shot + read model ``var_c = gain_c * signal_c + read_c``
 that each frame's own hue noise is propagated through (:func:`huefringe.perframe.frame_hue_noise`),
 fitted on the bands' captured hue (:func:`fit_hue_noise`, :data:`SENSOR_SOURCES`): the repeats'
-hue spread, or with one repeat the hue's third differences along the bands; None with fewer than
-four bands of one repeat in a sextant.
+hue spread, or with one repeat the hue's third differences along the bands; None with one repeat
+and fewer than four bands in every sextant, or with fewer than 1,000 usable samples.
 
 The Fig. 6 compensation of the projected pattern and the calibration QA figures are in
 :mod:`huefringe.compensation`, built on these tables.

@@ -152,8 +152,8 @@ def sensor_model(table: HueTable) -> NDArray[np.float32] | None:
     and ``read`` (row 1) of ``variance = gain * signal + read`` (full scale 1), fitted on the
     hue bands' captured hue when the table was built (:func:`huefringe.huetable.fit_hue_noise`:
     the repeats' hue spread, or with one repeat the hue's third differences along the bands);
-    None when the table has none (too few bands of one repeat for a run of four in a sextant, or
-    a table built before the model existed)."""
+    None when the table has none (one repeat and no run of four bands in a sextant, fewer than 1,000
+    usable samples, or a table built before the model existed)."""
     m = (table.stats or {}).get("sensor_noise")
     if not m:
         return None
