@@ -9,6 +9,8 @@ import numba
 import numpy as np
 from numpy.typing import NDArray
 
+from ..colour import _hue_noise_kernel, wrap_pi
+
 
 #: Order of the difference along the bands that the one-repeat noise estimate takes
 #: (:func:`_band_noise_kernel`): the third removes the hue curve's level, slope and curvature.
@@ -112,9 +114,6 @@ class _HueNoiseStats:
     (56 bytes each: 22 MB, and about three times that while fitting) are kept for the fit."""
 
     def __init__(self, h: int, w: int, n_bands: int, repeats: int, gains: NDArray[np.floating], model: str) -> None:
-        from huefringe.colour import _hue_noise_kernel
-
-        self._kernel = _hue_noise_kernel
         self.n = int(n_bands)
         self.repeats = int(repeats)
         self.hsi = model == "hsi"
@@ -142,7 +141,7 @@ class _HueNoiseStats:
         """Each parameter's share of the hue variance at signal ``x``, ``(6, h, w)``."""
         reg = np.empty((6, *x.shape[:2]))
         for k, b in enumerate(self.basis):
-            self._kernel(x, np.float32(1.0), self.gains, self.hsi, b, self.nan, self.out)
+            _hue_noise_kernel(x, np.float32(1.0), self.gains, self.hsi, b, self.nan, self.out)
             reg[k] = np.nan_to_num(self.out * self.out, nan=0.0)
         return reg
 
@@ -164,7 +163,7 @@ class _HueNoiseStats:
         if self.repeats >= 2:
             z = np.mean([np.exp(1j * h) for h in hues], axis=0)
             mean = np.angle(z)
-            y = sum((np.mod(h - mean + np.pi, 2.0 * np.pi) - np.pi) ** 2 for h in hues)
+            y = sum(wrap_pi(h - mean) ** 2 for h in hues)
             ok = np.logical_and.reduce(unclipped) & np.all(np.isfinite(hues), axis=0)
             sig = np.mean(imgs, axis=0).astype(np.float32)
             self._keep((len(hues) - 1.0) * self._terms(sig), y, ok)
@@ -177,7 +176,7 @@ class _HueNoiseStats:
         if len(self.ring) < 4 or (6 * first) // self.n != (6 * self.band - 6) // self.n:
             return  # fewer than four bands yet, or the run crosses a sextant boundary
         hs = [r[1] for r in self.ring]
-        steps = [np.mod(hs[j + 1] - hs[j] + np.pi, 2.0 * np.pi) - np.pi for j in range(3)]
+        steps = [wrap_pi(hs[j + 1] - hs[j]) for j in range(3)]
         d = steps[2] - 2.0 * steps[1] + steps[0]
         xr = sum(c2 * r[2] for c2, r in zip(_D3_WEIGHTS2, self.ring, strict=True))
         self._keep(xr, d * d, self.ring[0][3] & self.ring[1][3] & self.ring[2][3] & self.ring[3][3])
