@@ -9,7 +9,7 @@ demixing among them): the library's (``huetable.fit_hue_noise``) from every repe
 spread between repeats) and from the first repeat of each band alone (the hue's third differences
 along the bands), and, for comparison, a fit on the channels' own spread between the repeats
 (:func:`channel_fit`: each channel's temporal variance against its signal, 64 bins, weighted least
-squares, as the library fitted it before it fitted the hue). Each model predicts the per-pixel hue
+squares). Each model predicts the per-pixel hue
 noise of the session's first two frames from their own signal (``perframe.frame_hue_noise``); the
 truth is the frames' hue difference over sqrt 2 (the frames of these cases differ only by noise).
 Printed per model: the fitted gains and read terms, and the rms of the difference over the
