@@ -552,9 +552,10 @@ def test_plate_transfer_of_an_ideal_rig_is_the_identity():
 
 @pytest.mark.parametrize("n_bands", [7, 10, 14])
 def test_fewer_bands_than_the_smoothing_window_take_the_widest_window_they_hold(n_bands: int) -> None:
-    """A session of 7-14 bands (the spec allows 6) with the default 15-band window: the table is
-    built with the largest odd window <= N, which its stats record, and the uncertainty's table
-    factor uses the same; an even window is still refused."""
+    """A session of 7-14 bands captured twice (the spec allows 6; captured once, fewer than 19 are
+    refused) with the default 15-band window: the table is built with the largest odd window <= N,
+    which its stats record, and the uncertainty's table factor uses the same; an even window is
+    still refused."""
     from huefringe.huetable import band_smoothing_matrix
     from huefringe.uncertainty import table_variance_factor
 
@@ -565,13 +566,15 @@ def test_fewer_bands_than_the_smoothing_window_take_the_widest_window_they_hold(
     for i in range(n_bands):
         code = 2 * np.pi * i / n_bands
         rgb = np.clip(0.5 + 0.35 * np.cos(code - np.array([0.0, 2.1, 4.2])), 0.05, 0.95)
-        imgs[i] = (np.broadcast_to(rgb, (h, w, 3)) * 0.8 + rng.normal(0, 0.002, (h, w, 3))).astype(np.float32)
-    tab = cal.build_table([[i] for i in range(n_bands)], white, read=lambda i: imgs[i])
+        for r in range(2):
+            imgs[i, r] = (np.broadcast_to(rgb, (h, w, 3)) * 0.8 + rng.normal(0, 0.002, (h, w, 3))).astype(np.float32)
+    paths = [[(i, 0), (i, 1)] for i in range(n_bands)]
+    tab = cal.build_table(paths, white, read=lambda k: imgs[k])
     used = n_bands - (1 - n_bands % 2)
     assert tab.stats["params"]["smooth_window"] == used
     assert tab.valid.mean() > 0.9
     coef = band_smoothing_matrix(n_bands, used, 2)
     g = float(np.mean(np.sum(coef**2, axis=1)))
-    assert table_variance_factor(n_bands, 15, 2, 1) == pytest.approx(g)
+    assert table_variance_factor(n_bands, 15, 2, 2) == pytest.approx(g / 2)
     with pytest.raises(ValueError, match="odd"):
-        cal.build_table([[i] for i in range(n_bands)], white, read=lambda i: imgs[i], smooth_window=16)
+        cal.build_table(paths, white, read=lambda k: imgs[k], smooth_window=16)

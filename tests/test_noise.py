@@ -270,13 +270,24 @@ def test_sensor_noise_fitted_on_the_hue_recovers_the_shot_and_read_terms(repeats
     np.testing.assert_allclose(fits[1], fits[0], rtol=0.02)  # flicker: the same fit
 
 
-def test_sensor_noise_from_one_repeat_needs_runs_inside_a_sextant() -> None:
-    """Twelve bands hold two bands per sextant of the code, no run of four: no model (the table's
-    pooled figure stands alone, as before the fit existed); the repeats' fit is unchanged."""
+def test_one_repeat_needs_runs_of_four_bands_inside_a_sextant() -> None:
+    """Twelve bands hold two bands per sextant of the code, no run of four: captured once they give
+    neither a per-pixel noise figure nor a sensor model, and the build refuses them naming the
+    count and the remedies (not a table whose every u would be unknown); captured twice they have
+    both. Nineteen bands hold one run of four (sextant 0): a per-pixel figure, a model from too few
+    samples (None)."""
+    assert [patterns.band_difference_runs(n) for n in (6, 12, 18, 19, 24, 64)] == [0, 0, 0, 1, 6, 46]
     paths, read, white = _shot_read_bands(12, 1, 3, 0.0, 6.7e-5, 6.8e-6)
-    assert build_table(paths, white, read=read, min_intensity=0.01).stats["sensor_noise"] is None
+    with pytest.raises(ValueError, match=r"12 hue bands captured once give no noise figure: .* at most 2 a sextant; "
+                                         r"capture each band at least twice \(repeats >= 2\) or use at least 19 bands"):
+        build_table(paths, white, read=read, min_intensity=0.01)
+    assert patterns.single_repeat_problem(12, 2) is None and patterns.single_repeat_problem(19, 1) is None
     paths, read, white = _shot_read_bands(12, 2, 3, 0.0, 6.7e-5, 6.8e-6)
     assert build_table(paths, white, read=read, min_intensity=0.01).stats["sensor_noise"]["repeats"] == 2
+    paths, read, white = _shot_read_bands(19, 1, 3, 0.0, 6.7e-5, 6.8e-6)
+    t = build_table(paths, white, read=read, min_intensity=0.01)
+    assert np.isfinite(t.noise_rad[t.valid]).all() and t.stats["noise_rad"]["source"] == "band_difference"
+    assert t.stats["sensor_noise"] is None  # one run of 40 x 20 sampled pixels: under the fit's 1,000 samples
 
 
 def test_one_repeat_sensor_fit_predicts_a_frames_hue_noise_as_the_repeats_fit_does(tmp_path) -> None:

@@ -292,3 +292,44 @@ def test_workflow_plan_names_every_refused_session_at_once(tmp_path: Path) -> No
     assert msg.startswith("2 of 3 sessions refused:")
     assert f"{bad1 / 'session.yaml'}: is empty" in msg and f"{bad2 / 'session.yaml'}: at id" in msg
     assert str(good) not in msg
+
+
+def test_workflow_plan_refuses_hue_bands_captured_once_too_few_for_a_noise_figure(tmp_path: Path) -> None:
+    """Twelve hue bands captured once hold no run of four bands in a sextant of the code, so the
+    hue table cannot estimate any pixel's noise: the plan refuses such a session folder, a bench
+    YAML that would write one and a one-shot rig sequence alike, naming each file, before any work
+    (the format itself allows them: the folder loads, and 24 bands once or 12 twice are planned)."""
+    import json as jsonlib
+
+    from bench_helpers import CONFIG
+
+    from huefringe import bench
+    from huefringe.plan import PlanError, plan_sessions
+
+    folder = make_session(tmp_path / "once", bands=12, repeats=1)
+    load_session(folder)
+    fine = [make_session(tmp_path / "n24", bands=24, repeats=1), make_session(tmp_path / "twice", bands=12, repeats=2)]
+    _edit_yaml(fine[1], lambda m: m.update(id="twice"))
+    demo = yaml.safe_load(bench.preset_path("demo").read_text())
+    demo["session"].update(hue_bands=12, repeats=1)
+    (tmp_path / "demo12.yaml").write_text(yaml.safe_dump(demo))
+    rig = yaml.safe_load(bench.preset_path("rig-oneshot").read_text())
+    rig["sequence"]["blocks"] = [{"hue_bands": {"n": 12, "repeats": 1}} if isinstance(b, dict) and "hue_bands" in b else b
+                                 for b in rig["sequence"]["blocks"]]
+    rig.pop("calibration_session")
+    (tmp_path / "rig12.yaml").write_text(yaml.safe_dump(rig))
+    cfg = jsonlib.loads(jsonlib.dumps(CONFIG))
+    cfg["sessions"] = [str(folder), *map(str, fine), "sessions/demo12", "sessions/rig12"]
+    cfg["bench_sessions"] = {"sessions/demo12": "demo12.yaml", "sessions/rig12": "rig12.yaml"}
+    with pytest.raises(PlanError) as exc:
+        plan_sessions(cfg, base=tmp_path)
+    msg = str(exc.value)
+    assert msg.startswith("3 of 5 sessions refused:"), msg
+    why = "cannot be measured: 12 hue bands captured once give no noise figure"
+    assert f"{folder / 'session.yaml'}: at pattern: {why}" in msg
+    assert f"{tmp_path / 'demo12.yaml'}: at session: {why}" in msg
+    assert f"{tmp_path / 'rig12.yaml'}: at sequence.blocks' hue_bands: {why}" in msg
+    assert msg.count("capture each band at least twice (repeats >= 2) or use at least 19 bands") == 3
+    assert not any(str(p) in msg for p in fine)
+    cfg["sessions"] = list(map(str, fine))
+    assert len(plan_sessions(cfg, base=tmp_path)) == 2

@@ -60,6 +60,42 @@ def band_rgb(i: int, n_bands: int) -> NDArray[np.float64]:
     return trapezoid_rgb(band_phase(i, n_bands))
 
 
+#: Order of the difference along the bands from which a one-repeat hue table estimates each
+#: pixel's noise (:mod:`huefringe.huetable`): the third, over four consecutive bands of one sextant.
+BAND_DIFFERENCE_ORDER = 3
+
+
+def band_sextants(n_bands: int) -> NDArray[np.int64]:
+    """Sextant ``k`` (0..5, eq. 3's ramp of one channel) of each band's code phase: ``(6 i) // N``."""
+    return (6 * np.arange(int(n_bands), dtype=np.int64)) // int(n_bands)
+
+
+def band_difference_runs(n_bands: int, order: int = BAND_DIFFERENCE_ORDER) -> int:
+    """How many runs of ``order + 1`` consecutive bands (band 0 first, no wrap) lie within one
+    sextant: the differences from which a one-repeat hue table estimates its noise. 0 for
+    ``N <= 18`` at the third order (at most three bands a sextant)."""
+    seg = band_sextants(n_bands)
+    return int(np.count_nonzero(seg[: max(0, n_bands - order)] == seg[order:]))
+
+
+def single_repeat_problem(n_bands: int, repeats: int) -> str | None:
+    """Why ``n_bands`` hue bands captured ``repeats`` times cannot give a hue table its noise
+    figure, or None where they can.
+
+    With two or more repeats the noise is the repeats' spread. With one it is the third difference
+    of four consecutive bands within a sextant of the code (:data:`BAND_DIFFERENCE_ORDER`), which
+    needs at least one such run: 19 bands or more. Without it every pixel's u would be unknown, so
+    the session is refused before any work rather than at its first frame.
+    """
+    if int(repeats) >= 2 or band_difference_runs(n_bands) > 0:
+        return None
+    least = next(n for n in range(int(n_bands) + 1, 64) if band_difference_runs(n) > 0)
+    return (f"{n_bands} hue bands captured once give no noise figure: with a single repeat the hue table "
+            f"estimates each pixel's noise from four consecutive bands within one sextant of the code, and "
+            f"{n_bands} bands give at most {int(np.bincount(band_sextants(n_bands)).max())} a sextant; capture "
+            f"each band at least twice (repeats >= 2) or use at least {least} bands (24 give four in every sextant)")
+
+
 def phase_shift_steps() -> NDArray[np.float64]:
     """Phase steps ``delta_s = 2 pi (s - 1) / 3`` for ``s = 0, 1, 2``, as the spec writes them."""
     return TWO_PI * (np.arange(3) - 1.0) / 3.0

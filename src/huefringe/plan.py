@@ -13,6 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from huefringe import bench
+from huefringe.codecs.sequence import HueBandsBlock
+from huefringe.patterns import single_repeat_problem
 from huefringe.rig.decoded import relative_axes_problems
 from huefringe.session import SL_FORMAT, SessionError, load_session, load_sl_session, session_format
 
@@ -95,8 +97,19 @@ class SessionPlan:
         return list(sel)
 
 
+def _unmeasurable_bands(n_bands: int, repeats: int, where: str) -> str | None:
+    """Why the hue bands of a session cannot be measured (:func:`huefringe.patterns.single_repeat_problem`),
+    prefixed with where they are declared; None where they can."""
+    too_few = single_repeat_problem(n_bands, repeats)
+    return None if too_few is None else f"at {where}: cannot be measured: {too_few}"
+
+
 def _from_sl_session(path: Path) -> SessionPlan:
     s = load_sl_session(path)
+    hue = next((b for b in s.spec.blocks if isinstance(b, HueBandsBlock)), None)
+    bad = None if hue is None or not s.spec.oneshot_frames else _unmeasurable_bands(hue.n, hue.repeats, "the sequence's hue_bands")
+    if bad:
+        raise SessionError.at(path / "session.yaml", bad)
     cal = s.meta.get("calibration", {})
     return SessionPlan(
         path=path,
@@ -133,6 +146,9 @@ def _from_session(path: Path) -> SessionPlan:
     if session_format(path) == SL_FORMAT:
         return _from_sl_session(path)
     s = load_session(path)
+    bad = _unmeasurable_bands(s.hue_bands, s.repeats, "pattern")
+    if bad:
+        raise SessionError.at(path / "session.yaml", bad)
     return SessionPlan(
         path=path,
         id=s.id,
@@ -157,6 +173,9 @@ def bench_config_for(bench_ref: str, base: str | Path = ".", period_px: float | 
 
 
 def _from_bench(path: Path, cfg: dict[str, Any], cfg_path: Path, period_px: float | None = None) -> SessionPlan:
+    bad = _unmeasurable_bands(int(cfg["session"]["hue_bands"]), int(cfg["session"]["repeats"]), "session")
+    if bad:
+        raise bench.BenchConfigError(cfg_path, bad)
     frames = list(range(int(cfg["session"]["frames"])))
     return SessionPlan(
         path=path,
@@ -278,6 +297,10 @@ def _plan_folder(path: Path, base: Path, bench_sessions: dict[str, str]) -> Sess
 
 def _from_sl_bench(path: Path, cfg_path: Path) -> SessionPlan:
     info = bench.sl_session_plan(bench.load_sl_bench_config(cfg_path))
+    bad = None if info["hue_bands"] is None or not info["oneshot_frames"] else _unmeasurable_bands(
+        *info["hue_bands"], "sequence.blocks' hue_bands")
+    if bad:
+        raise bench.BenchConfigError(cfg_path, bad)
     cal, ref = info["calibration_session"], info["oneshot_reference"]
     return SessionPlan(path=path, id=str(info["id"]), frames=[0], phase_shift=[], ground_truth=bool(info["ground_truth"]),
                        specimen=bool(info["features"]), bench=str(cfg_path), kind="structured-light",

@@ -201,9 +201,10 @@ def sl_session_plan(cfg: dict[str, Any]) -> dict[str, Any]:
         (bool: ``features.yaml``); ``ground_truth`` (bool); ``frames`` (captures per sequence);
         ``format`` (``structured-light-session/1``); ``oneshot_frames``; ``oneshot_axis`` (the
         trapezoid blocks' axis or None); ``absolute_axes`` (``{"x": bool, "y": bool}``: the
-        sequence decodes absolutely along the axis).
+        sequence decodes absolutely along the axis); ``hue_bands`` (``(n, repeats)`` of the
+        sequence's hue-band block, or None).
     """
-    from huefringe.codecs.sequence import TrapezoidBlock, axis_is_absolute
+    from huefringe.codecs.sequence import HueBandsBlock, TrapezoidBlock, axis_is_absolute
 
     cfg = validate_sl_bench_config(cfg)
     poses = "poses" in cfg
@@ -222,6 +223,7 @@ def sl_session_plan(cfg: dict[str, Any]) -> dict[str, Any]:
         "oneshot_frames": _oneshot_frames(_spec(cfg)),
         "oneshot_axis": next((b.axis for b in spec.blocks if isinstance(b, TrapezoidBlock)), None),
         "absolute_axes": {a: bool(axis_is_absolute(spec, a)) for a in ("x", "y")},
+        "hue_bands": next(((b.n, b.repeats) for b in spec.blocks if isinstance(b, HueBandsBlock)), None),
     }
 
 

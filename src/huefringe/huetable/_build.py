@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from .. import colour
-from ..patterns import TWO_PI
+from ..patterns import TWO_PI, band_sextants, single_repeat_problem
 from ..session import read_rgb
 from ._noise import BAND_DIFFERENCE_ORDER, _HueNoiseStats, _band_noise_kernel
 from ._store import HueTable, NOISE_SOURCES, REASONS, _R_LOW_SAT, _R_LOW_SIGNAL, _Reader
@@ -53,7 +53,7 @@ def _band_smoothing(n_bands: int, window: int, order: int) -> NDArray[np.float64
     if m == 0:
         coef[:, 0] = 1.0
         return coef
-    seg = (6 * np.arange(n_bands)) // n_bands  # sextant of each band's code phase
+    seg = band_sextants(n_bands)
     for i in range(n_bands):
         left = 0
         while left < m and i - left - 1 >= 0 and seg[i - left - 1] == seg[i]:
@@ -355,6 +355,9 @@ def build_table(
     if len(reps) != 1 or 0 in reps:
         raise ValueError(f"every band needs the same number (>= 1) of repeats, got {sorted(reps)}")
     n_rep = reps.pop()
+    too_few = single_repeat_problem(n, n_rep)
+    if too_few:
+        raise ValueError(too_few)
     if model not in colour.HUE_MODELS:
         raise ValueError(f"unknown hue model {model!r}")
     white = np.asarray(white, dtype=np.float32)

@@ -10,11 +10,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from ..colour import _hue_noise_kernel, wrap_pi
+from ..patterns import BAND_DIFFERENCE_ORDER
 
 
-#: Order of the difference along the bands that the one-repeat noise estimate takes
-#: (:func:`_band_noise_kernel`): the third removes the hue curve's level, slope and curvature.
-BAND_DIFFERENCE_ORDER = 3
 
 
 @numba.njit(cache=True, nogil=True)
