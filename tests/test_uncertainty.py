@@ -160,9 +160,13 @@ def still(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 @pytest.fixture(scope="module")
 def still_filtered(still: dict) -> dict:
-    """The same still session through the default (radius 2, sigma-adaptive) phase filter."""
+    """The same still session through the default (radius 2, sigma-adaptive) phase filter and
+    every default term but the lateral one (frame-fixed, from the filtered heights' slope: see
+    :func:`test_filtered_noise_term_matches_frame_to_frame_spread`)."""
     cfg = copy.deepcopy(CONFIG)
     cfg["measurement"]["own_noise"] = True  # the own-signal noise model, as in `still`
+    cfg["measurement"]["lateral_uncertainty_px"] = 0.0
+    cfg["measurement"]["lateral_step_px"] = 0.0
     paths = stages.measure_session(still["session"], still["root"] / "out-filtered", cfg)
     return {"paths": paths}
 
@@ -254,15 +258,19 @@ def test_frame_noise_term_matches_frame_to_frame_spread(still: dict) -> None:
 
 
 def test_filtered_noise_term_matches_frame_to_frame_spread(still: dict, still_filtered: dict) -> None:
-    """With the default filter (radius 2, sigma-adaptive) and every default term, away from the
-    steps (pixels 6 px or more from any change of the true height: ground truth only selects
-    them): median ratio within 15 % (measured 0.949). ``split_terms`` gives the noise term all
-    but the calibration terms, so the frame-fixed texture term is in it: carried over the
-    neighbours the filter accepted it is 0.0009 rad there (median; the same frame's change
-    through the filter 0.0011 rad); the mean over the whole window took in the texture edges'
-    changes the filter rejects (0.0024 rad, ratio 0.797). Without the texture term 1.107. Near
-    the steps the filter's accept/reject decisions change from frame to frame, which
-    ``1 / sum w`` does not hold (measured median 1.29 within 4 px; docs/uncertainty.md)."""
+    """With the default filter (radius 2, sigma-adaptive) and every default term but the lateral
+    one, away from the steps (pixels 6 px or more from any change of the true height: ground
+    truth only selects them): median ratio within 15 % (measured 0.946). ``split_terms`` gives
+    the noise term all but the calibration terms, so the frame-fixed texture term is in it:
+    carried over the neighbours the filter accepted it is 0.0009 rad there (median; the same
+    frame's change through the filter 0.0011 rad); the mean over the whole window took in the
+    texture edges' changes the filter rejects (0.0024 rad, ratio 0.797). Without the texture term
+    1.107. The lateral term is left out: on this rig's 15 px period the code-locked error pattern
+    gives the filtered heights a slope where the surface has none, and the term reads 0.012 mm
+    rms (median 0.005 mm) on these flat pixels, beside a noise term of 0.009 mm
+    (docs/uncertainty.md, Known limits). Near the steps the filter's
+    accept/reject decisions change from frame to frame, which ``1 / sum w`` does not hold
+    (measured median 1.29 within 4 px; docs/uncertainty.md)."""
     from scipy import ndimage
 
     std, noise, ok = _noise_ratio(still_filtered["paths"])
@@ -537,6 +545,96 @@ def test_interpolation_errors_match_their_numpy_definitions_on_a_bench_table(tmp
     assert valid.mean() > 0.5
     np.testing.assert_array_equal(uncertainty.table_interpolation_rad(table), _interp_rad_numpy(tab, valid))
     np.testing.assert_array_equal(uncertainty.interpolation_bins(table), _interp_bins_numpy(tab, valid, 12))
+
+
+def _noise_free_bins_numpy(t: np.ndarray, valid: np.ndarray, noise_rad: np.ndarray, bins: int, vcurv: np.ndarray,
+                           common: np.ndarray, resid: np.ndarray) -> np.ndarray:
+    """The budget's binned interpolation error in NumPy: per interval ``max((curv / D1 - common)^2 -
+    vcurv sigma^2 / D1^2, 0)`` (hue counts), its root times ``step / sqrt(120)`` capped at one step,
+    squared, plus the common part's residual squared; ``resid^2`` alone where ``D1 <= 0``; rms per bin."""
+    n = t.shape[0]
+    step = 2.0 * np.pi / n
+    which = (np.arange(n) * bins) // n
+    c = t.astype(np.int64)
+    d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768
+    curv = 0.5 * ((d1 - np.roll(d1, 1, axis=0)) + (np.roll(d1, -1, axis=0) - d1))
+    sig2 = (np.nan_to_num(noise_rad.astype(np.float64)) * 65536 / (2 * np.pi)) ** 2
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = np.where(d1 > 0, curv / d1, 0.0) - common[:, None, None]
+        s2 = np.maximum(x**2 - vcurv[:, None, None] * sig2[None] / np.where(d1 > 0, d1.astype(np.float64) ** 2, 1.0), 0.0)
+        e = np.minimum(np.sqrt(s2) * step / np.sqrt(120.0), step)
+    e2 = np.where(d1 > 0, e**2 + resid[:, None, None] ** 2, resid[:, None, None] ** 2)
+    out = np.zeros((*t.shape[1:], bins), np.float32)
+    for j in range(bins):
+        out[..., j] = np.sqrt(np.mean(e2[which == j], axis=0))
+    return np.where(valid[..., None], out, 0.0).astype(np.float32)
+
+
+def test_budget_interpolation_bins_leave_out_the_tables_noise_and_the_shared_curvature() -> None:
+    """The budget's interpolation bins (``noise_free``): (1) a straight hue curve plus the noise of
+    its band means, smoothed as the build smooths it: the raw chord errors of that noise read
+    well above zero, the noise-free ones keep the positive part of each interval's excess over
+    the noise (the table term holds that noise);
+    (2) one shared curved stretch on every pixel, taken out as the plate's common part
+    (:func:`uncertainty.common_interpolation`): only the phase-error table's smoothing residual is
+    left, and with no common part given the full chord error stays; (3) the compiled pass gives
+    the NumPy definition's float32 bits."""
+    from huefringe.uncertainty.calibration import _interp_errors
+
+    n, h, w = 48, 20, 30
+    rng = np.random.default_rng(3)
+    code = 2 * np.pi * np.arange(n) / n
+    coef = band_smoothing_matrix(n, 15, 2)
+    m = coef.shape[1] // 2
+    sigma = 0.004
+    raw = code[:, None, None] + rng.normal(0.0, sigma, (n, h, w))
+    smooth = np.array([sum(coef[i, m + j] * raw[i + j] for j in range(-m, m + 1) if 0 <= i + j < n) for i in range(n)])
+    counts = np.round(np.mod(smooth, 2 * np.pi) * 65536 / (2 * np.pi)).astype(np.int64) % 65536
+
+    def table_of(c: np.ndarray) -> HueTable:
+        return HueTable(model="hexcone", n_bands=n, table=c.astype(np.uint16), valid=np.ones((h, w), bool),
+                        start=np.zeros((h, w), np.uint16), reason=np.zeros((h, w), np.uint8),
+                        noise_rad=np.full((h, w), sigma, np.float32),
+                        stats={"repeats": 1, "params": {"smooth_window": 15, "smooth_order": 2}})
+
+    noisy = table_of(counts)
+    raw_bins = uncertainty.interpolation_bins(noisy)
+    _, free = _interp_errors(noisy, 12, noise_free=True)
+    rms = lambda x: float(np.sqrt(np.mean(x.astype(np.float64) ** 2)))  # noqa: E731
+    assert np.median(raw_bins) > 5e-5
+    # each interval keeps the positive part of its excess over the noise (a conservative estimate):
+    # about half of the noise's variance in expectation, the median a fifth of the raw one's
+    assert np.median(free) < 0.3 * np.median(raw_bins) and 0.5 * rms(raw_bins) < rms(free) < 0.75 * rms(raw_bins)
+    # (2) a curved stretch shared by every pixel (no noise)
+    bent = code + 0.05 * np.sin(6 * np.clip(code - np.pi, 0, np.pi / 6) * np.pi / (np.pi / 6) / 6)
+    shared = table_of(np.repeat(np.repeat(np.round(np.mod(bent, 2 * np.pi) * 65536 / (2 * np.pi)).astype(np.int64)[:, None, None],
+                                          h, axis=1), w, axis=2) % 65536)
+    shared.noise_rad[:] = 0.0
+    com = uncertainty.common_interpolation(shared, 8 * 2 * np.pi / 512)
+    _, full = _interp_errors(shared, 12, noise_free=True)
+    _, left = _interp_errors(shared, 12, noise_free=True, common=com["interp_common"],
+                             common_resid=com["interp_common_resid_rad"])
+    assert full[0, 0, 6] > 1e-3 and left[0, 0, 6] < 0.7 * full[0, 0, 6] and full[0, 0, 3] < 1e-5
+    np.testing.assert_allclose(left[0, 0], np.sqrt([np.mean(com["interp_common_resid_rad"][(np.arange(n) * 12) // n == j] ** 2)
+                                                    for j in range(12)]), rtol=1e-5, atol=1e-9)
+    # (3) bit for bit against NumPy, with a common part and its residual
+    vcurv = uncertainty.curvature_noise_factors(n, 15, 2)
+    cm, cr = rng.normal(0.0, 0.05, n), np.abs(rng.normal(0.0, 1e-4, n))
+    _, got = _interp_errors(noisy, 12, noise_free=True, common=cm, common_resid=cr)
+    np.testing.assert_array_equal(got, _noise_free_bins_numpy(counts, np.ones((h, w), bool), noisy.noise_rad, 12, vcurv, cm, cr))
+
+
+def test_curvature_noise_factors_match_a_monte_carlo_of_the_smoothed_noise() -> None:
+    """Each interval's curvature variance over a band mean's: 20,000 noise draws through the
+    smoother, within 5 %, at a sextant boundary as in a sextant's middle."""
+    n = 48
+    rng = np.random.default_rng(1)
+    coef = band_smoothing_matrix(n, 15, 2)
+    m = coef.shape[1] // 2
+    x = rng.normal(size=(n, 20000))
+    sm = np.array([sum(coef[i, m + j] * x[i + j] for j in range(-m, m + 1) if 0 <= i + j < n) for i in range(n)])
+    curv = 0.5 * (np.roll(sm, -2, axis=0) - np.roll(sm, -1, axis=0) - sm + np.roll(sm, 1, axis=0))
+    np.testing.assert_allclose(uncertainty.curvature_noise_factors(n, 15, 2), np.var(curv, axis=1), rtol=0.05)
 
 
 def test_filter_variance_with_ratio_is_ratio_sum_over_weight_sum_squared() -> None:

@@ -32,7 +32,8 @@ from huefringe.huetable import HueTable, HueTableError, build_table, white_balan
 from huefringe.perframe import (FrameError, clipped_mask, measure_frame, reference_frame_stats, remove_step_edges,
                                 shadow_mask, shadow_masks)
 from huefringe.session import Session
-from huefringe.uncertainty import PixelBudget, add_lateral, noise_correlation, phase_error_residual_rad, pixel_budget
+from huefringe.uncertainty import (PixelBudget, add_lateral, common_interpolation, noise_correlation,
+                                   phase_error_residual_rad, pixel_budget)
 
 __all__ = ["Calibrated", "FramePipeline", "FrameResult", "bayer_noise_correlation", "frame_results", "measure_one",
            "noise_aware_adaptive", "prepare_frames", "prepare_session", "session_camera_record",
@@ -239,6 +240,9 @@ def session_plane_calibration(s: Session, t: HueTable, hue_model: str, calibrati
         ) from exc
     cal.phase_error = None if lut is None else lut.error
     cal.stats["phase_error"] = None if lut is None else lut.stats
+    if lut is not None:  # the plate's shared chord error goes with the table (the interpolation term's bins)
+        smoothing = float(lut.stats["smooth_bins"]) * 2.0 * np.pi / float(lut.stats["bins"])
+        cal.budget = {**(cal.budget or {}), **common_interpolation(t, smoothing)}
     blur = calibration["texture_blur_px2"]
     if blur == "auto" or float(blur or 0.0) > 0:  # the light without fringe the correction takes out first
         cal.projector_off = session_projector_off(s, calibration, reader)

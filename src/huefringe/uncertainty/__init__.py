@@ -24,7 +24,9 @@ sensitivities ``J = (dh/da, dh/db) = -(dphi, dphi^2) / (a + b dphi)^2``::
                                        noise), r = own-signal / pooled noise variance
     u_table = u_noise sqrt(f_table)    f_table = smoothed entry variance / one capture's
     u_interp = G u_interp_rad          rms linear-interpolation error of the pixel's table in
-                                       the code-phase bin of its own phase (12 bins)
+                                       the code-phase bin of its own phase (12 bins), from the
+                                       curvature its noise does not explain, less the plate's
+                                       shared curvature where a phase-error table takes it out
     u_ref = G u_ref_rad                smoothed-reference error (fit noise + unmodelled misfit)
     u_model = sqrt(J C J^T)            C = covariance of (a, b) from the planes' errors
 
@@ -45,8 +47,8 @@ importable from here.
 from __future__ import annotations
 
 from huefringe.uncertainty.calibration import (
-    GROUPS, INTERP_BINS, PixelBudget, RESIDUAL_BOX_PX, TERMS, calibration_terms, interpolation_bins,
-    noise_correlation, phase_error_residual_rad, pixel_budget, systematic_rms, table_interpolation_rad,
+    GROUPS, INTERP_BINS, PixelBudget, RESIDUAL_BOX_PX, TERMS, calibration_terms, common_interpolation,
+    curvature_noise_factors, interpolation_bins, noise_correlation, phase_error_residual_rad, pixel_budget, systematic_rms, table_interpolation_rad,
     table_variance_factor,
 )
 from huefringe.uncertainty.frame import (

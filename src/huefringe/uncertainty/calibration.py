@@ -18,7 +18,7 @@ from scipy.ndimage import uniform_filter
 
 from huefringe.huetable import band_smoothing_matrix, smoothing_window
 
-__all__ = ["PixelBudget", "TERMS", "calibration_terms", "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "table_interpolation_rad", "table_variance_factor"]
+__all__ = ["PixelBudget", "TERMS", "calibration_terms", "common_interpolation", "curvature_noise_factors", "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "table_interpolation_rad", "table_variance_factor"]
 
 
 TERMS = ("noise", "table", "interpolation", "reference", "model")
@@ -120,7 +120,8 @@ def table_variance_factor(n_bands: int, window: int, order: int, repeats: int) -
 def _interval_errors(t, i, n, v, u, step, s120):  # pragma: no cover - compiled
     """Interval ``i``'s (entries ``i``, ``i + 1``, circular) two chord errors at one pixel: with
     the second difference at entry ``i + 1`` and with the mean of those at its two entries, each
-    ``|D2| / D1 * step / sqrt(120)`` (0 where ``D1 <= 0``), capped at one step."""
+    ``|D2| / D1 * step / sqrt(120)`` (0 where ``D1 <= 0``), capped at one step; and ``D1`` and
+    the mean second difference (hue counts) for :func:`_interval_signal2`."""
     c0 = np.int64(t[(i - 1) % n, v, u])
     c1 = np.int64(t[i, v, u])
     c2 = np.int64(t[(i + 1) % n, v, u])
@@ -132,17 +133,36 @@ def _interval_errors(t, i, n, v, u, step, s120):  # pragma: no cover - compiled
     curv = 0.5 * ((d1 - dm) + d2)  # the mean of the second differences at entries i, i + 1
     e = min((abs(d2) / d1 if d1 > 0 else 0.0) * step / s120, step)
     eb = min((abs(curv) / d1 if d1 > 0 else 0.0) * step / s120, step)
-    return e, eb
+    return e, eb, d1, curv
+
+
+@numba.njit(cache=True, nogil=True, inline="always", error_model="numpy")
+def _interval_signal2(d1, curv, i, step, s120, vcurv, sig2, common, cresid2):  # pragma: no cover - compiled
+    """Interval ``i``'s squared chord error (rad^2) from the part of its curvature the table's noise
+    does not explain and the phase-error table does not remove: with ``r = curv / D1`` (the mean
+    of the second differences at its two entries over its first difference, hue counts,
+    :func:`_interval_errors`), ``max((r - common_i)^2 - vcurv_i sig2 / D1^2, 0) (step /
+    sqrt(120))^2``, the root capped at one step, plus ``cresid2_i``; ``cresid2_i`` alone where
+    ``D1 <= 0``."""
+    if d1 <= 0:
+        return cresid2[i]
+    x = curv / d1 - common[i]
+    s2 = max(x * x - vcurv[i] * sig2 / (np.float64(d1) * d1), 0.0)
+    e = min(math.sqrt(s2) * step / s120, step)
+    return e * e + cresid2[i]
 
 
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
-def _interp_kernel(t, which, counts, cover, want_bins, out_rad, out_bins):  # pragma: no cover - compiled
+def _interp_kernel(t, which, counts, cover, want_bins, out_rad, out_bins, noise_free, vcurv, sig, common,
+                   cresid2):  # pragma: no cover - compiled
     """:func:`table_interpolation_rad` (``out_rad``) and, with ``want_bins``,
     :func:`interpolation_bins` (``out_bins``) in one pass over the band-major table ``t``
     ``(N, H, W)`` uint16: per row, the bands in order and the row's pixels inner (contiguous),
     each pixel's squares summed in float64 in band order (NumPy's order of a reduction over the
     first axis), then ``sqrt(sum / count)`` rounded to float32. A bin that no interval starts in
-    (``counts`` 0: fewer bands than bins) takes the interval ``cover`` holds for it."""
+    (``counts`` 0: fewer bands than bins) takes the interval ``cover`` holds for it. With
+    ``noise_free`` the bins hold :func:`_interval_signal2` instead (``sig``: the pixel's band-mean
+    noise in hue counts)."""
     n, h, w = t.shape
     nb = counts.shape[0]
     step = 2.0 * np.pi / n
@@ -153,23 +173,89 @@ def _interp_kernel(t, which, counts, cover, want_bins, out_rad, out_bins):  # pr
         for i in range(n):
             j = which[i]
             for u in range(w):
-                e, eb = _interval_errors(t, i, n, v, u, step, s120)
+                e, eb, d1, curv = _interval_errors(t, i, n, v, u, step, s120)
                 acc[u] += e * e
                 if want_bins:
-                    accb[j, u] += eb * eb
+                    if noise_free:
+                        sg = sig[v, u]
+                        accb[j, u] += _interval_signal2(d1, curv, i, step, s120, vcurv, sg * sg, common, cresid2)
+                    else:
+                        accb[j, u] += eb * eb
         for u in range(w):
             out_rad[v, u] = np.float32(np.sqrt(acc[u] / n))
             if want_bins:
                 for b in range(nb):
                     if counts[b] > 0:
                         out_bins[v, u, b] = np.float32(np.sqrt(accb[b, u] / counts[b]))
+                    elif noise_free:
+                        sg = sig[v, u]
+                        _, _, d1, curv = _interval_errors(t, cover[b], n, v, u, step, s120)
+                        out_bins[v, u, b] = np.float32(np.sqrt(_interval_signal2(d1, curv, cover[b], step, s120, vcurv,
+                                                                                 sg * sg, common, cresid2)))
                     else:
                         out_bins[v, u, b] = np.float32(_interval_errors(t, cover[b], n, v, u, step, s120)[1])
 
 
-def _interp_errors(table: Any, bins: int) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
+def curvature_noise_factors(n_bands: int, window: int, order: int) -> NDArray[np.float64]:
+    """Variance of each interval's curvature (the mean of the second differences at its two
+    entries, :func:`interpolation_bins`) over the variance of one band mean, for a table smoothed
+    along the bands (:func:`huefringe.huetable.band_smoothing_matrix` with the window the table
+    took): ``sum_j (C M)_kj^2``, ``M`` the smoother, ``C`` the curvature of interval ``k``
+    (``(t[k+2] - t[k+1] - t[k] + t[k-1]) / 2``, circular)."""
+    n = int(n_bands)
+    coef = band_smoothing_matrix(n, smoothing_window(n, int(window)), int(order))
+    m = coef.shape[1] // 2
+    rows = np.arange(n)[:, None] + np.arange(-m, m + 1)[None, :]
+    smooth = np.zeros((n, n))
+    np.add.at(smooth, (np.repeat(np.arange(n), 2 * m + 1), np.mod(rows, n).ravel()), coef.ravel())
+    curv = np.zeros((n, n))
+    k = np.arange(n)
+    for off, c in ((2, 0.5), (1, -0.5), (0, -0.5), (-1, 0.5)):
+        np.add.at(curv, (k, (k + off) % n), c)
+    return np.sum((curv @ smooth) ** 2, axis=1)
+
+
+def common_interpolation(table: Any, smoothing_rad: float, samples: int = 16) -> dict[str, NDArray[np.float64]]:
+    """The interpolation error the phase-error table takes out, from the reference plate's table.
+
+    The phase-error table (:mod:`huefringe.phase_error`) is the planes' median error per decoded
+    phase, smoothed by a Gaussian of ``smoothing_rad``: the part of the chord error that every
+    pixel of the plate shares (projector gamma, the same for every pixel) goes with it. Per
+    interval ``k``: ``interp_common`` the median over the plate's valid pixels of its curvature
+    ratio ``r = curv / D1`` (:func:`interpolation_bins`; intervals with ``D1 <= 0`` left out), and
+    ``interp_common_resid_rad`` the rms over the interval of what the table's smoothing leaves of
+    that shared chord error ``-f (1 - f) r step / 2`` (``samples`` points an interval, the Gaussian
+    periodic in code phase). :func:`pixel_budget` subtracts the first from each pixel's ratio and
+    adds the second."""
+    from scipy.ndimage import gaussian_filter1d
+
+    t = np.asarray(table.table).astype(np.int64)
+    n = t.shape[0]
+    valid = np.asarray(table.valid, bool)
+    tv = t[:, valid]
+    d1 = np.mod(np.roll(tv, -1, axis=0) - tv + 32768, 65536) - 32768
+    curv = 0.5 * ((d1 - np.roll(d1, 1, axis=0)) + (np.roll(d1, -1, axis=0) - d1))
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.where(d1 > 0, curv / d1, np.nan)
+    common = np.zeros(n)
+    for k in range(n):
+        rk = r[k][np.isfinite(r[k])]
+        common[k] = float(np.median(rk)) if rk.size else 0.0
+    step = 2.0 * np.pi / n
+    f = (np.arange(samples) + 0.5) / samples
+    chord = (-(f * (1.0 - f) / 2.0)[None, :] * common[:, None] * step).ravel()
+    left = chord - gaussian_filter1d(chord, float(smoothing_rad) / (step / samples), mode="wrap") if smoothing_rad > 0 else chord
+    return {"interp_common": common, "interp_common_resid_rad": np.sqrt(np.mean(left.reshape(n, samples) ** 2, axis=1))}
+
+
+def _interp_errors(table: Any, bins: int, *, noise_free: bool = False,
+                   common: NDArray[np.floating] | None = None,
+                   common_resid: NDArray[np.floating] | None = None) -> tuple[NDArray[np.float32], NDArray[np.float32] | None]:
     """Both interpolation errors of ``table`` from one compiled pass (``bins`` 0: the rms alone),
-    0 where the table is not valid."""
+    0 where the table is not valid. ``noise_free``: the bins from :func:`_interval_signal2`, the
+    table's noise (its per-pixel ``noise_rad``, its smoothing) taken out of each interval's
+    curvature and ``common`` (per interval, default 0) out of its ratio, ``common_resid`` (rad,
+    default 0) added (:func:`pixel_budget`)."""
     t = np.ascontiguousarray(np.asarray(table.table), np.uint16)
     n, h, w = t.shape
     nb = max(int(bins), 1)
@@ -178,7 +264,16 @@ def _interp_errors(table: Any, bins: int) -> tuple[NDArray[np.float32], NDArray[
     cover = (np.arange(nb) * n // nb).astype(np.int64)  # the interval that holds each bin's start
     out_rad = np.empty((h, w), np.float32)
     out_bins = np.empty((h, w, bins) if bins > 0 else (1, 1, 1), np.float32)
-    _interp_kernel(t, which, counts, cover, bins > 0, out_rad, out_bins)
+    if noise_free:
+        st = table.stats or {}
+        p = st.get("params", {}) if isinstance(st.get("params"), dict) else {}
+        vcurv = curvature_noise_factors(n, int(p.get("smooth_window", 15)), int(p.get("smooth_order", 2)))
+        sig = np.ascontiguousarray(np.nan_to_num(np.asarray(table.noise_rad, np.float64)) * (65536.0 / (2.0 * np.pi)))
+        cm = np.zeros(n) if common is None else np.ascontiguousarray(common, np.float64)
+        cr2 = np.zeros(n) if common_resid is None else np.ascontiguousarray(common_resid, np.float64) ** 2
+    else:
+        vcurv, sig, cm, cr2 = np.zeros(1), np.zeros((1, 1)), np.zeros(1), np.zeros(1)
+    _interp_kernel(t, which, counts, cover, bins > 0, out_rad, out_bins, bool(noise_free), vcurv, sig, cm, cr2)
     valid = np.asarray(table.valid, bool)
     out_rad[~valid] = 0.0
     if bins == 0:
@@ -269,6 +364,12 @@ def pixel_budget(table: Any, cal: Any) -> PixelBudget:
 
     ``cal.budget`` (written by :func:`huefringe.height.calibrate_planes`) gives the reference and
     model terms; a calibration without it (an older model file) gives zeros for them.
+
+    The interpolation term's bins are the chord errors of the curvature that is not the table's
+    noise (:func:`curvature_noise_factors` and the pixel's ``noise_rad``: the table term holds
+    that) and, where the calibration applied a phase-error table, not the plate's shared curvature
+    that the table takes out (``cal.budget``'s ``interp_common`` and ``interp_common_resid_rad``,
+    :func:`common_interpolation`); ``terms[4]`` is their rms over the intervals.
     """
     h, w = table.shape
     terms = np.zeros((5, h, w), np.float32)
@@ -276,7 +377,13 @@ def pixel_budget(table: Any, cal: Any) -> PixelBudget:
     for k, name in enumerate(("u_ref_rad", "cov_aa", "cov_ab", "cov_bb")):
         if name in bud:
             terms[k] = np.nan_to_num(np.asarray(bud[name], np.float32))
-    terms[4], interp = _interp_errors(table, INTERP_BINS)
+    n = int(table.n_bands)
+    common = {k: np.asarray(bud[k], np.float64) for k in ("interp_common", "interp_common_resid_rad")
+              if k in bud and np.size(bud[k]) == n}
+    _, interp = _interp_errors(table, INTERP_BINS, noise_free=True, common=common.get("interp_common"),
+                               common_resid=common.get("interp_common_resid_rad"))
+    share = np.bincount((np.arange(n) * INTERP_BINS) // n, minlength=INTERP_BINS) / n  # intervals per bin
+    terms[4] = np.sqrt(np.tensordot(interp.astype(np.float64) ** 2, share, axes=([2], [0])))  # rms over the intervals
     bins = _encode_interp(interp)
     st = table.stats or {}
     opts = st.get("params", {}) if isinstance(st.get("params"), dict) else {}
