@@ -265,7 +265,7 @@ def test_filtered_noise_term_matches_frame_to_frame_spread(still: dict, still_fi
     carried over the neighbours the filter accepted it is 0.0009 rad there (median; the same
     frame's change through the filter 0.0011 rad); the mean over the whole window took in the
     texture edges' changes the filter rejects (0.0024 rad, ratio 0.797). Without the texture term
-    1.107. The lateral term is left out: on this rig's 15 px period the code-locked error pattern
+    1.113. The lateral term is left out: on this rig's 15 px period the code-locked error pattern
     gives the filtered heights a slope where the surface has none, and the term reads 0.012 mm
     rms (median 0.005 mm) on these flat pixels, beside a noise term of 0.009 mm
     (docs/uncertainty.md, Known limits). Near the steps the filter's

@@ -18,7 +18,9 @@ from scipy.ndimage import uniform_filter
 
 from huefringe.huetable import band_smoothing_matrix, smoothing_window
 
-__all__ = ["PixelBudget", "TERMS", "calibration_terms", "common_interpolation", "curvature_noise_factors", "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "table_interpolation_rad", "table_variance_factor"]
+__all__ = ["PixelBudget", "TERMS", "calibration_terms", "common_interpolation", "curvature_noise_factors",
+           "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "table_interpolation_rad",
+           "table_variance_factor"]
 
 
 TERMS = ("noise", "table", "interpolation", "reference", "model")
@@ -244,7 +246,9 @@ def common_interpolation(table: Any, smoothing_rad: float, samples: int = 16) ->
     step = 2.0 * np.pi / n
     f = (np.arange(samples) + 0.5) / samples
     chord = (-(f * (1.0 - f) / 2.0)[None, :] * common[:, None] * step).ravel()
-    left = chord - gaussian_filter1d(chord, float(smoothing_rad) / (step / samples), mode="wrap") if smoothing_rad > 0 else chord
+    left = chord
+    if smoothing_rad > 0:
+        left = chord - gaussian_filter1d(chord, float(smoothing_rad) / (step / samples), mode="wrap")
     return {"interp_common": common, "interp_common_resid_rad": np.sqrt(np.mean(left.reshape(n, samples) ** 2, axis=1))}
 
 
