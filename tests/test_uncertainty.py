@@ -549,9 +549,9 @@ def test_interpolation_errors_match_their_numpy_definitions_on_a_bench_table(tmp
 
 def _noise_free_bins_numpy(t: np.ndarray, valid: np.ndarray, noise_rad: np.ndarray, bins: int, vcurv: np.ndarray,
                            common: np.ndarray, resid: np.ndarray) -> np.ndarray:
-    """The budget's binned interpolation error in NumPy: per interval ``max((curv / D1 - common)^2 -
-    vcurv sigma^2 / D1^2, 0)`` (hue counts), its root times ``step / sqrt(120)`` capped at one step,
-    squared, plus the common part's residual squared; ``resid^2`` alone where ``D1 <= 0``; rms per bin."""
+    """The budget's binned interpolation error in NumPy: per interval ``max((curv - common D1)^2 -
+    vcurv sigma^2, 0) / D1^2 (step / sqrt(120))^2`` (hue counts), at most one step squared, plus the
+    common part's residual squared; ``resid^2`` alone where ``D1 <= 0``; rms per bin."""
     n = t.shape[0]
     step = 2.0 * np.pi / n
     which = (np.arange(n) * bins) // n
@@ -559,11 +559,12 @@ def _noise_free_bins_numpy(t: np.ndarray, valid: np.ndarray, noise_rad: np.ndarr
     d1 = np.mod(np.roll(c, -1, axis=0) - c + 32768, 65536) - 32768
     curv = 0.5 * ((d1 - np.roll(d1, 1, axis=0)) + (np.roll(d1, -1, axis=0) - d1))
     sig2 = (np.nan_to_num(noise_rad.astype(np.float64)) * 65536 / (2 * np.pi)) ** 2
+    d = d1.astype(np.float64)
+    x = curv - common[:, None, None] * d
+    kk = (step / np.sqrt(120.0)) * (step / np.sqrt(120.0))
     with np.errstate(divide="ignore", invalid="ignore"):
-        x = np.where(d1 > 0, curv / d1, 0.0) - common[:, None, None]
-        s2 = np.maximum(x**2 - vcurv[:, None, None] * sig2[None] / np.where(d1 > 0, d1.astype(np.float64) ** 2, 1.0), 0.0)
-        e = np.minimum(np.sqrt(s2) * step / np.sqrt(120.0), step)
-    e2 = np.where(d1 > 0, e**2 + resid[:, None, None] ** 2, resid[:, None, None] ** 2)
+        e2 = np.minimum(np.maximum(x * x - vcurv[:, None, None] * sig2[None], 0.0) / (d * d) * kk, step * step)
+    e2 = np.where(d1 > 0, e2 + resid[:, None, None] ** 2, resid[:, None, None] ** 2)
     out = np.zeros((*t.shape[1:], bins), np.float32)
     for j in range(bins):
         out[..., j] = np.sqrt(np.mean(e2[which == j], axis=0))

@@ -144,14 +144,14 @@ def _interval_signal2(d1, curv, i, step, s120, vcurv, sig2, common, cresid2):  #
     does not explain and the phase-error table does not remove: with ``r = curv / D1`` (the mean
     of the second differences at its two entries over its first difference, hue counts,
     :func:`_interval_errors`), ``max((r - common_i)^2 - vcurv_i sig2 / D1^2, 0) (step /
-    sqrt(120))^2``, the root capped at one step, plus ``cresid2_i``; ``cresid2_i`` alone where
-    ``D1 <= 0``."""
+    sqrt(120))^2`` (formed as ``max((curv - common_i D1)^2 - vcurv_i sig2, 0) / D1^2``), at most one
+    step squared, plus ``cresid2_i``; ``cresid2_i`` alone where ``D1 <= 0``."""
     if d1 <= 0:
         return cresid2[i]
-    x = curv / d1 - common[i]
-    s2 = max(x * x - vcurv[i] * sig2 / (np.float64(d1) * d1), 0.0)
-    e = min(math.sqrt(s2) * step / s120, step)
-    return e * e + cresid2[i]
+    d = np.float64(d1)
+    x = curv - common[i] * d  # (r - common) D1: one division below, no root
+    kk = (step / s120) * (step / s120)
+    return min(max(x * x - vcurv[i] * sig2, 0.0) / (d * d) * kk, step * step) + cresid2[i]
 
 
 @numba.njit(cache=True, nogil=True, parallel=True, error_model="numpy")
@@ -174,15 +174,21 @@ def _interp_kernel(t, which, counts, cover, want_bins, out_rad, out_bins, noise_
         accb = np.zeros((nb, w))
         for i in range(n):
             j = which[i]
-            for u in range(w):
-                e, eb, d1, curv = _interval_errors(t, i, n, v, u, step, s120)
-                acc[u] += e * e
-                if want_bins:
-                    if noise_free:
-                        sg = sig[v, u]
-                        accb[j, u] += _interval_signal2(d1, curv, i, step, s120, vcurv, sg * sg, common, cresid2)
-                    else:
-                        accb[j, u] += eb * eb
+            if want_bins and noise_free:  # (each case its own loop, so that the rows stay branch-light)
+                for u in range(w):
+                    e, eb, d1, curv = _interval_errors(t, i, n, v, u, step, s120)
+                    acc[u] += e * e
+                    sg = sig[v, u]
+                    accb[j, u] += _interval_signal2(d1, curv, i, step, s120, vcurv, sg * sg, common, cresid2)
+            elif want_bins:
+                for u in range(w):
+                    e, eb, d1, curv = _interval_errors(t, i, n, v, u, step, s120)
+                    acc[u] += e * e
+                    accb[j, u] += eb * eb
+            else:
+                for u in range(w):
+                    e, eb, d1, curv = _interval_errors(t, i, n, v, u, step, s120)
+                    acc[u] += e * e
         for u in range(w):
             out_rad[v, u] = np.float32(np.sqrt(acc[u] / n))
             if want_bins:
@@ -387,7 +393,7 @@ def pixel_budget(table: Any, cal: Any) -> PixelBudget:
     _, interp = _interp_errors(table, INTERP_BINS, noise_free=True, common=common.get("interp_common"),
                                common_resid=common.get("interp_common_resid_rad"))
     share = np.bincount((np.arange(n) * INTERP_BINS) // n, minlength=INTERP_BINS) / n  # intervals per bin
-    terms[4] = np.sqrt(np.tensordot(interp.astype(np.float64) ** 2, share, axes=([2], [0])))  # rms over the intervals
+    terms[4] = np.sqrt(np.einsum("hwb,b->hw", interp.astype(np.float64) ** 2, share))  # rms over the intervals
     bins = _encode_interp(interp)
     st = table.stats or {}
     opts = st.get("params", {}) if isinstance(st.get("params"), dict) else {}
