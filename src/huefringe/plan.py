@@ -107,7 +107,8 @@ def _unmeasurable_bands(n_bands: int, repeats: int, where: str) -> str | None:
 def _from_sl_session(path: Path) -> SessionPlan:
     s = load_sl_session(path)
     hue = next((b for b in s.spec.blocks if isinstance(b, HueBandsBlock)), None)
-    bad = None if hue is None or not s.spec.oneshot_frames else _unmeasurable_bands(hue.n, hue.repeats, "the sequence's hue_bands")
+    bad = (None if hue is None or not s.spec.oneshot_frames
+           else _unmeasurable_bands(hue.n, hue.repeats, "the sequence's hue_bands"))
     if bad:
         raise SessionError.at(path / "session.yaml", bad)
     cal = s.meta.get("calibration", {})

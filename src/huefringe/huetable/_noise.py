@@ -13,8 +13,6 @@ from ..colour import _hue_noise_kernel, wrap_pi
 from ..patterns import BAND_DIFFERENCE_ORDER
 
 
-
-
 @numba.njit(cache=True, nogil=True)
 def _band_noise_kernel(table, reason, order, out):  # pragma: no cover - numba
     """Hue noise (rad) of one band mean per pixel from a difference of ``order`` along the bands.
