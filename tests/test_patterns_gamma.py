@@ -142,6 +142,13 @@ def test_a_table_that_cannot_give_the_response_is_refused(tmp_path: Path, capsys
     assert cli.main(["patterns", str(tmp_path / "p"), "--width", "240", "--height", "4", "--period-px", "40",
                      "--bands", "12", "--repeats", "1", "--compensated", str(calib), "--no-phase-shift"]) == 0
     assert (tmp_path / "p" / "predistortion.csv").is_file()
+    # 12 bands captured once: written (the format allows it), with a warning that the workflow refuses the session
+    err = capsys.readouterr().err
+    assert err.startswith("WARNING: --bands 12 --repeats 1: 12 hue bands captured once give no noise figure")
+    assert "repeats >= 2" in err and "at least 19 bands" in err and err.rstrip().endswith("the workflow refuses such a session")
+    assert cli.main(["patterns", str(tmp_path / "q"), "--width", "240", "--height", "4", "--period-px", "40",
+                     "--bands", "12", "--repeats", "2", "--compensated", str(calib), "--no-phase-shift"]) == 0
+    assert "WARNING" not in capsys.readouterr().err
 
 
 def test_projector_gamma_refuses_bad_input() -> None:

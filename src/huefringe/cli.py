@@ -154,6 +154,7 @@ def _cmd_archive(args: argparse.Namespace) -> int:
 
 
 def _cmd_patterns(args: argparse.Namespace) -> int:
+    from huefringe.patterns import single_repeat_problem
     from huefringe.projection import PatternsError, write_patterns
 
     try:
@@ -181,6 +182,10 @@ def _cmd_patterns(args: argparse.Namespace) -> int:
         extra += " and phase_shift_levels.csv (phase shifts pre-compensated for the projector gamma)"
     print(f"wrote {n_img} projector images ({args.width} x {args.height}, {args.bit_depth}-bit), a manifest "
           f"of {n_cap} captures{extra} to {out}")
+    too_few = single_repeat_problem(args.bands, args.repeats)
+    if too_few:  # a plan the format allows but the workflow will refuse: say so before anything is captured
+        print(f"WARNING: --bands {args.bands} --repeats {args.repeats}: {too_few}; the workflow refuses such a "
+              "session", file=sys.stderr)
     return 0
 
 
