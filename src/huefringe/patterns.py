@@ -89,7 +89,7 @@ def single_repeat_problem(n_bands: int, repeats: int) -> str | None:
     """
     if int(repeats) >= 2 or band_difference_runs(n_bands) > 0:
         return None
-    least = next(n for n in range(int(n_bands) + 1, 64) if band_difference_runs(n) > 0)
+    least = 6 * BAND_DIFFERENCE_ORDER + 1  # sextant 0 holds ceil(N / 6) bands: order + 1 of them from here
     return (f"{n_bands} hue bands captured once give no noise figure: with a single repeat the hue table "
             f"estimates each pixel's noise from four consecutive bands within one sextant of the code, and "
             f"{n_bands} bands give at most {int(np.bincount(band_sextants(n_bands)).max())} a sextant; capture "

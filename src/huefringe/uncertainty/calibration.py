@@ -6,6 +6,7 @@ noise correlation of re-demosaiced captures.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, cast
@@ -19,8 +20,8 @@ from scipy.ndimage import uniform_filter
 from huefringe.huetable import band_smoothing_matrix, smoothing_window
 
 __all__ = ["PixelBudget", "TERMS", "calibration_terms", "common_interpolation", "curvature_noise_factors",
-           "interpolation_bins", "phase_error_residual_rad", "pixel_budget", "table_interpolation_rad",
-           "table_variance_factor"]
+           "interpolation_bins", "interval_curvature", "phase_error_residual_rad", "pixel_budget",
+           "table_interpolation_rad", "table_variance_factor"]
 
 
 TERMS = ("noise", "table", "interpolation", "reference", "model")
@@ -223,6 +224,16 @@ def curvature_noise_factors(n_bands: int, window: int, order: int) -> NDArray[np
     return np.sum((curv @ smooth) ** 2, axis=1)
 
 
+def interval_curvature(counts: NDArray[np.integer]) -> tuple[NDArray[np.int64], NDArray[np.float64]]:
+    """Each band interval's first difference ``D1`` and the mean ``curv`` of the second differences
+    at its two entries (hue counts, circular, wrapped at 65536), of a band-major table ``(N, ...)``:
+    the NumPy form of what :func:`interpolation_bins` takes per interval (``curv / D1`` its
+    curvature ratio)."""
+    t = np.asarray(counts).astype(np.int64)
+    d1 = np.mod(np.roll(t, -1, axis=0) - t + 32768, 65536) - 32768
+    return d1, 0.5 * ((d1 - np.roll(d1, 1, axis=0)) + (np.roll(d1, -1, axis=0) - d1))
+
+
 def common_interpolation(table: Any, smoothing_rad: float, samples: int = 16) -> dict[str, NDArray[np.float64]]:
     """The interpolation error the phase-error table takes out, from the reference plate's table.
 
@@ -237,18 +248,11 @@ def common_interpolation(table: Any, smoothing_rad: float, samples: int = 16) ->
     adds the second."""
     from scipy.ndimage import gaussian_filter1d
 
-    t = np.asarray(table.table).astype(np.int64)
-    n = t.shape[0]
-    valid = np.asarray(table.valid, bool)
-    tv = t[:, valid]
-    d1 = np.mod(np.roll(tv, -1, axis=0) - tv + 32768, 65536) - 32768
-    curv = 0.5 * ((d1 - np.roll(d1, 1, axis=0)) + (np.roll(d1, -1, axis=0) - d1))
-    with np.errstate(divide="ignore", invalid="ignore"):
-        r = np.where(d1 > 0, curv / d1, np.nan)
-    common = np.zeros(n)
-    for k in range(n):
-        rk = r[k][np.isfinite(r[k])]
-        common[k] = float(np.median(rk)) if rk.size else 0.0
+    d1, curv = interval_curvature(np.asarray(table.table)[:, np.asarray(table.valid, bool)])
+    n = d1.shape[0]
+    with np.errstate(divide="ignore", invalid="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # an interval with no D1 > 0 anywhere: 0 below
+        common = np.nan_to_num(np.nanmedian(np.where(d1 > 0, curv / d1, np.nan), axis=1))
     step = 2.0 * np.pi / n
     f = (np.arange(samples) + 0.5) / samples
     chord = (-(f * (1.0 - f) / 2.0)[None, :] * common[:, None] * step).ravel()
