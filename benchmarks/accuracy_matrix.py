@@ -397,11 +397,11 @@ def noise_cases(args: argparse.Namespace) -> None:
             session, tables = _case_dirs(root / slug, case["cfg"])
             for vname in args.variants if args.variants != list(VARIANTS) else ["all on"]:
                 paths = measure(session, tables, root / slug / _slug(vname), _config(VARIANTS[vname]))
-                st = json.loads(next(tables.glob("*/table_object.json")).read_text())["stats"]["noise_rad"]
+                st = json.loads((paths["tables"] / "table_object.json").read_text())["stats"]["noise_rad"]
                 src = f"{st.get('source', 'none (fallback 0.01)' if st.get('median') is None else 'repeats')}"
                 shape = tifffile.imread(paths["heights"][0]).shape
                 region = photo_region(case["cfg"], shape)
-                with np.load(next(tables.glob("*/table_object.maps.npz"))) as z:
+                with np.load(paths["tables"] / "table_object.maps.npz") as z:
                     m_cfg = _config(VARIANTS[vname])["measurement"]
                     lit = z["valid"] & ~shadow_mask(read_rgb(paths["session"].object_white), m_cfg["shadow_fraction"],
                                                     own_light=bool(m_cfg["shadow_own_light"]))
@@ -448,19 +448,27 @@ def score(paths: dict) -> dict:
     return out
 
 
+def tables_dir(tables: Path, config: dict) -> Path:
+    """The folder under a case's ``tables`` that holds the hue tables :func:`measure` reads for
+    ``config``: they depend on the camera corrections they are read through (channel registration,
+    colour demixing), one set per setting (tables of demixed bands decode raw frames 0.3-0.5 mm off
+    at p95), so a case measured with several settings has several."""
+    demix = config["camera"].get("colour_demixing", False)
+    return tables / (f"registration-{config['camera']['chromatic_registration']}"
+                     + ("" if demix is False or demix == "false" else f"-demixing-{demix}"))
+
+
 def measure(session: Path, tables: Path, out: Path, config: dict) -> dict:
-    """``stages.measure_session`` with the hue tables of ``tables`` (built once per case: the variants
-    change only the plane calibration and the per-frame chain)."""
+    """``stages.measure_session`` with the hue tables of ``tables`` (built once per case and camera
+    setting, :func:`tables_dir`: the variants change only the plane calibration and the per-frame
+    chain). Returns the session, the height and uncertainty maps, the camera record and the tables'
+    folder."""
     out.mkdir(parents=True, exist_ok=True)
     s = load_session(session)
     model, cal = config["hue_model"], config["calibration"]
     cam = str(out / "camera.json")
     stages.camera_calibration(str(session), config["camera"], cal, record=cam)
-    # the tables depend on the camera corrections they are read through (channel registration, colour
-    # demixing): one set per setting (tables of demixed bands decode raw frames 0.3-0.5 mm off at p95)
-    demix = config["camera"].get("colour_demixing", False)
-    tables = tables / (f"registration-{config['camera']['chromatic_registration']}"
-                       + ("" if demix is False or demix == "false" else f"-demixing-{demix}"))
+    tables = tables_dir(tables, config)
     tables.mkdir(parents=True, exist_ok=True)
     for which in ("reference", "object"):
         if not (tables / f"table_{which}.json").exists():
@@ -475,7 +483,7 @@ def measure(session: Path, tables: Path, out: Path, config: dict) -> dict:
     stages.measure_frames(str(session), s.frame_ids, str(tables / "table_object.json"), str(out / "model.npz"), model,
                           config["measurement"], cal, heights=heights, qa=[h.replace(".tiff", ".json") for h in heights],
                           map_frames=[], camera_json=cam, uncertainties=us)
-    return {"session": s, "heights": heights, "camera": cam, "uncertainties": us}
+    return {"session": s, "heights": heights, "camera": cam, "uncertainties": us, "tables": tables}
 
 
 def _slug(name: str) -> str:

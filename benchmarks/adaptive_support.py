@@ -34,7 +34,7 @@ def support_row(where: Path) -> list[str]:
     s = load_session(where / "session")
     cfg = am._config({})
     out = where / "all-on"
-    table = sorted((where / "tables").glob("*/table_object.json"))[0]
+    table = am.tables_dir(where / "tables", cfg) / "table_object.json"
     cells = []
     for t in TARGETS:
         m = copy.deepcopy(cfg["measurement"])

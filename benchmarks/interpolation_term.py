@@ -50,7 +50,7 @@ def row(case: str, root: Path) -> str:
     out = root / "defaults"
     paths = am.measure(session, tables, out, am._config({}))
     s = load_session(session)
-    table = HueTable.load(next(tables.glob("*/table_object.json")))
+    table = HueTable.load(paths["tables"] / "table_object.json")
     cal = PlaneCalibration.load(str(out / "model.npz"))
     hs = [tifffile.imread(p).astype(np.float64) for p in paths["heights"][:2]]
     us = [tifffile.imread(p).astype(np.float64) for p in paths["uncertainties"][:2]]
@@ -71,9 +71,7 @@ def row(case: str, root: Path) -> str:
     # each pixel's own signed chord error at its phase
     n = table.n_bands
     step = 2 * np.pi / n
-    t = np.asarray(table.table).astype(np.int64)
-    d1 = np.mod(np.roll(t, -1, axis=0) - t + 32768, 65536) - 32768
-    curv = 0.5 * ((d1 - np.roll(d1, 1, axis=0)) + (np.roll(d1, -1, axis=0) - d1))
+    d1, curv = uncertainty.interval_curvature(table.table)
     with np.errstate(invalid="ignore", divide="ignore"):
         ratio = np.where(d1 > 0, curv / d1, 0.0)
     x = code / step

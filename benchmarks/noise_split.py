@@ -56,7 +56,7 @@ def row(case: str, root: Path) -> str:
     ok = np.isfinite(errs[0]) & np.isfinite(errs[1])
     ok[:BORDER_PX] = ok[-BORDER_PX:] = False
     ok[:, :BORDER_PX] = ok[:, -BORDER_PX:] = False
-    table = HueTable.load(next(tables.glob("*/table_object.json")))
+    table = HueTable.load(paths["tables"] / "table_object.json")
     cal = PlaneCalibration.load(str(out / "model.npz"))
     terms = uncertainty.split_terms(us[0], heights[0], cal.a, cal.b, uncertainty.pixel_budget(table, cal))
     noise = _rms((errs[0] - errs[1])[ok] / np.sqrt(2.0))

@@ -3,9 +3,9 @@
 Usage: ./run python benchmarks/noise_timing.py DIR/noise-sensor-astronaut-25e-10ke-p56-72x1 [ROUNDS]
 
 Times ``pipeline.frame_results`` (the fused kernel, the phase filter, the uncertainty with its
-texture term, the step-edge test) over the case's frames, with the case's own hue table and plane
-calibration (``tables/*/table_object.json``, ``all-on/model.npz``), against ``cv2.cvtColor``
-(RGB to HSV) of the same frame in interleaved rounds: one thread (``NUMBA_NUM_THREADS=1``,
+texture term, the step-edge test) over the case's frames, with the case's own hue table (the
+default settings', ``accuracy_matrix.tables_dir``) and plane calibration (``all-on/model.npz``),
+against ``cv2.cvtColor`` (RGB to HSV) of the same frame in interleaved rounds: one thread (``NUMBA_NUM_THREADS=1``,
 ``cv2.setNumThreads(1)``), thread CPU time, medians over the rounds after one warm-up round.
 Prints ms per frame and the ratio to ``cvtColor`` (docs/noise.md, Time).
 """
@@ -23,6 +23,9 @@ os.environ["NUMBA_NUM_THREADS"] = "1"
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import accuracy_matrix as am  # noqa: E402
+
 from huefringe import pipeline, stages  # noqa: E402
 from huefringe.height import PlaneCalibration  # noqa: E402
 from huefringe.huetable import HueTable  # noqa: E402
@@ -37,8 +40,8 @@ def main() -> None:
     case = Path(sys.argv[1])
     rounds = int(sys.argv[2]) if len(sys.argv) > 2 else 5
     s = load_session(case / "session")
-    table = next((case / "tables").glob("*/table_object.json"))
     cfg = load_config(REPO / "config.yaml")
+    table = am.tables_dir(case / "tables", cfg) / "table_object.json"
     cal = PlaneCalibration.load(str(case / "all-on" / "model.npz"))
     frames = list(s.frame_ids)
     rgb = (read_rgb(s.frames[frames[0]]) * 255).astype(np.uint8)
