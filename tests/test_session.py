@@ -294,7 +294,8 @@ def test_workflow_plan_names_every_refused_session_at_once(tmp_path: Path) -> No
     assert str(good) not in msg
 
 
-def test_workflow_plan_refuses_hue_bands_captured_once_too_few_for_a_noise_figure(tmp_path: Path) -> None:
+def test_workflow_plan_refuses_hue_bands_captured_once_too_few_for_a_noise_figure(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Twelve hue bands captured once hold no run of four bands in a sextant of the code, so the
     hue table cannot estimate any pixel's noise: the plan refuses such a session folder, a bench
     YAML that would write one and a one-shot rig sequence alike, naming each file, before any work
@@ -308,6 +309,10 @@ def test_workflow_plan_refuses_hue_bands_captured_once_too_few_for_a_noise_figur
 
     folder = make_session(tmp_path / "once", bands=12, repeats=1)
     load_session(folder)
+    assert main(["check", str(folder)]) == 0  # the format's check passes it, and says the run will not
+    out = capsys.readouterr().out
+    assert out.startswith("OK: session") and "\nWARNING: 12 hue bands captured once give no noise figure" in out
+    assert out.rstrip().endswith("the workflow refuses to measure this session")
     fine = [make_session(tmp_path / "n24", bands=24, repeats=1), make_session(tmp_path / "twice", bands=12, repeats=2)]
     _edit_yaml(fine[1], lambda m: m.update(id="twice"))
     demo = yaml.safe_load(bench.preset_path("demo").read_text())
@@ -333,3 +338,4 @@ def test_workflow_plan_refuses_hue_bands_captured_once_too_few_for_a_noise_figur
     assert not any(str(p) in msg for p in fine)
     cfg["sessions"] = list(map(str, fine))
     assert len(plan_sessions(cfg, base=tmp_path)) == 2
+    assert main(["check", str(fine[0])]) == 0 and "WARNING" not in capsys.readouterr().out

@@ -34,6 +34,9 @@ def _cmd_check_sl(args: argparse.Namespace) -> int:
     print(f"OK: structured-light session '{s.id}' at {s.root}: {s.width} x {s.height} px, {s.bit_depth}-bit, "
           f"projector {s.spec.projector_width} x {s.spec.projector_height}, {len(s.captures)} captures ({blocks})"
           + ("; " + ", ".join(extras) if extras else ""))
+    hue = next((b for b in s.spec.blocks if isinstance(b, HueBandsBlock)), None)
+    if hue is not None and s.spec.oneshot_frames:
+        _warn_unmeasurable_bands(hue.n, hue.repeats)
     return 0
 
 
@@ -75,7 +78,17 @@ def _cmd_check(args: argparse.Namespace) -> int:
         f"pitch {s.pixel_pitch_mm} mm, period {s.period_px:g} px, {s.hue_bands} bands x {s.repeats} repeats, "
         f"{len(s.planes)} planes, {len(s.frames)} frames" + ("; " + ", ".join(extras) if extras else "")
     )
+    _warn_unmeasurable_bands(s.hue_bands, s.repeats)
     return 0
+
+
+def _warn_unmeasurable_bands(n_bands: int, repeats: int) -> None:
+    """A session the format accepts but the workflow refuses to measure: say so beside its OK."""
+    from huefringe.patterns import single_repeat_problem
+
+    too_few = single_repeat_problem(n_bands, repeats)
+    if too_few:
+        print(f"WARNING: {too_few}; the workflow refuses to measure this session")
 
 
 def _cmd_bench(args: argparse.Namespace) -> int:
