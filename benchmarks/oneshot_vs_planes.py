@@ -112,11 +112,11 @@ def heights_over_base(xyz: np.ndarray, base: np.ndarray, towards: np.ndarray) ->
     return (xyz - c0) @ nf, nf
 
 
-def rig_heights(res: Any, jack: Any, base: np.ndarray, towards: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Heights over the base's least-squares plane and their u: the points' noise along the plane's
-    normal, and the calibration's term of the height itself (each leave-one-pose-out calibration
-    triangulates and fits the base again, jackknife, t-scaled; a shared move of the base and the
-    point cancels in the height, as it does in every figure)."""
+def rig_heights(res: Any, jack: Any, base: np.ndarray, towards: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Heights over the base's least-squares plane, their u and its calibration part: the points'
+    noise along the plane's normal, and the calibration's term of the height itself (each
+    leave-one-pose-out calibration triangulates and fits the base again, jackknife, t-scaled; a
+    shared move of the base and the point cancels in the height, as it does in every figure)."""
     h, nf = heights_over_base(res.xyz, base & res.valid, towards)
     rays = res.xyz / np.linalg.norm(res.xyz, axis=-1, keepdims=True)
     u_noise = res.sigma_ray * np.abs(rays @ nf)
@@ -127,7 +127,7 @@ def rig_heights(res: Any, jack: Any, base: np.ndarray, towards: np.ndarray) -> t
     J = len(hs)
     hs_a = np.stack(hs)
     u_cal = np.sqrt((J - 1) / J * np.sum((hs_a - hs_a.mean(axis=0)) ** 2, axis=0) * (J - 1) / (J - 3))
-    return h, np.sqrt(u_noise**2 + u_cal**2)
+    return h, np.sqrt(u_noise**2 + u_cal**2), u_cal
 
 
 def scores(height: np.ndarray, u: np.ndarray, truth_h: np.ndarray, mask: np.ndarray, faces: dict[int, np.ndarray]) -> dict[str, Any]:
@@ -173,10 +173,10 @@ def main() -> None:
     table_r = hue_table_from_frames(cap.white, cap.bands, cap.bands_block, model=cfg["hue_model"])
     ref = oneshot_reference(cap.reference, cal, cap.block)
     res = measure_oneshot(cap.frames[0], cap.white, table_r, cap.block, cal, ref)
-    h_rig, u_rig = rig_heights(res, jack, faces[0], n)
+    h_rig, u_rig, ucal_rig = rig_heights(res, jack, faces[0], n)
     res_f = measure_oneshot(cap.frames[0], cap.white, table_r, cap.block, cal, ref, denoise_radius=int(m["denoise_radius"]),
                             denoise_adaptive=m["denoise_adaptive"])
-    h_rig_f, u_rig_f = rig_heights(res_f, jack, faces[0], n)
+    h_rig_f, u_rig_f, ucal_rig_f = rig_heights(res_f, jack, faces[0], n)
     true_cal = RIGS["holdout-wide"].calibration
     res_t = measure_oneshot(cap.frames[0], cap.white, table_r, cap.block, true_cal, oneshot_reference(cap.reference, true_cal, cap.block))
     h_true_cal, nf_t = heights_over_base(res_t.xyz, faces[0] & res_t.valid, n)
@@ -203,6 +203,8 @@ def main() -> None:
     rows = {"rig": scores(h_rig, u_rig, truth_h, both, faces)}
     rows["rig"]["steps_U_mm"] = {GAUGE[k]: s["U_mm"] for k, s in zip(GAUGE, st.values(), strict=True)}
     rows["rig filtered"] = scores(h_rig_f, u_rig_f, truth_h, both, faces)
+    for name, uc in (("rig", ucal_rig), ("rig filtered", ucal_rig_f)):
+        rows[name]["median_u_calibration_mm"] = float(np.median(uc[both]))
     rows["rig, true calibration"] = scores(h_true_cal, u_true_cal, truth_h, both, faces)
     for (deg, name), (fr, pcal, lut) in planes_out.items():
         rows[f"planes degree {deg} {name}"] = scores(fr.height.astype(float), fr.uncertainty.astype(float), truth_h, both, faces)
@@ -221,6 +223,8 @@ def main() -> None:
             f"{rig_med / r['median_abs_error_mm']:.2f}, filtered {rows['rig filtered']['median_abs_error_mm'] / r['median_abs_error_mm']:.2f}"
         print(f"| {name} | {1e3 * r['median_abs_error_mm']:.1f} | {1e3 * r['p95_abs_error_mm']:.1f} | {r['within_2u']:.3f} | "
               f"{1e3 * r['median_u_mm']:.1f} | {fm} | {ss} | {ratio} |")
+    print("\nmedian u of the rig rows' calibration term (jackknife): "
+          + ", ".join(f"{name} {1e3 * rows[name]['median_u_calibration_mm']:.1f} um" for name in ("rig", "rig filtered")))
     if a.json:
         a.json.write_text(json.dumps({"seed": a.seed, "poses": a.poses, "planes_mm": planes, "rows": rows}, indent=2))
 

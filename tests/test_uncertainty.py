@@ -432,8 +432,8 @@ def test_edge_floor_matches_brute_force(seed: int, garbage: bool) -> None:
 
 def test_interpolation_bins_pick_the_local_error() -> None:
     """A table whose hue curve is straight except one curved stretch: the pixel's bins hold
-    the chord error there and zero elsewhere, and the uncertainty pass picks the bin of the
-    pixel's phase."""
+    the chord error there and zero elsewhere, :func:`uncertainty.interpolation_at` picks the bin of
+    the pixel's code phase."""
     n = 48
     code = 2 * np.pi * np.arange(n) / n
     hue = code + 0.05 * np.sin(6 * np.clip(code - np.pi, 0, np.pi / 6) * np.pi / (np.pi / 6) / 6)
@@ -442,8 +442,19 @@ def test_interpolation_bins_pick_the_local_error() -> None:
     table = HueTable(model="hexcone", n_bands=n, table=tab, valid=np.ones((1, 2), bool),
                      start=np.zeros((1, 2), np.uint16), reason=np.zeros((1, 2), np.uint8),
                      noise_rad=np.full((1, 2), 0.01, np.float32), stats={"repeats": 1})
-    e = uncertainty.interpolation_bins(table, bins=12)[0, 0]
+    bins = uncertainty.interpolation_bins(table, bins=12)
+    e = bins[0, 0]
     assert e[6] > 1e-4 and e[0] < 1e-5 and e[3] < 1e-5  # bin 6 = [pi, 7 pi / 6): the curved stretch
+    # a pixel's value is that of the bin its code phase falls in: [pi, 7 pi / 6) the curved one, a
+    # phase a period off or below zero wraps, an undefined phase gives 0
+    phase = np.array([[np.pi + 0.1, np.pi - 0.1], [np.pi + 0.1 - 4 * np.pi, np.nan]])
+    got = uncertainty.interpolation_at(np.repeat(bins, 2, axis=0), phase)
+    np.testing.assert_array_equal(got, [[e[6], e[5]], [e[6], 0.0]])
+    assert uncertainty.interpolation_at(bins, np.array([[2 * np.pi - 1e-12, 0.0]]))[0, 0] == e[11]
+    # without the table's noise (0.01 rad in each band mean, far above this stretch's curvature's
+    # share of it) less is left, and still the most in the curved bin
+    free = uncertainty.interpolation_bins(table, bins=12, noise_free=True)[0, 0]
+    assert np.all(free <= e + 1e-9) and np.argmax(free) == 6
 
 
 def _interp_rad_numpy(t: np.ndarray, valid: np.ndarray) -> np.ndarray:

@@ -513,8 +513,10 @@ def filter_against_reference(phase: OneShotPhase, reference: OneShotReference, b
     ``1 / sqrt(sum w)`` (the capture's and the hue table's noise, independent between pixels,
     averaged), the reference's own sigma (which the offset carries and putting it back restores),
     and ``systematic_rad``, an error that neighbours share and averaging does not reduce (the
-    table's interpolation between bands, :func:`huefringe.uncertainty.table_interpolation_rad`, as
-    the plane route adds it), in quadrature.
+    table's interpolation between bands in the code-phase bin of the pixel's phase, from the
+    curvature its noise does not explain, as the plane route adds it:
+    :func:`huefringe.uncertainty.interpolation_bins` with ``noise_free``,
+    :func:`huefringe.uncertainty.interpolation_at`), in quadrature.
 
     Parameters
     ----------
@@ -586,18 +588,23 @@ class OneShotResult:
 def measure_oneshot(rgb: NDArray[np.floating], white: NDArray[np.floating], table: HueTable, block: TrapezoidBlock,
                     calib: RigCalibration, reference: OneShotReference, *, bit_depth: int = 8,
                     order_sigmas: float = 3.0, stands_on_reference: bool = True, behind_mm: float = 0.25,
-                    denoise_radius: int = 0, denoise_adaptive: dict[str, Any] | None = None) -> OneShotResult:
+                    denoise_radius: int = 0, denoise_adaptive: dict[str, Any] | None = None,
+                    interp_bins: NDArray[np.float32] | None = None) -> OneShotResult:
     """One trapezoid frame to X, Y, Z: :func:`trapezoid_coordinate`, :func:`absolute_from_reference`,
     :func:`~huefringe.rig.triangulate` (ray against the projector plane of the coordinate, ``sigma_u``
     the coordinate's). Pixels flagged by either step are never triangulated. ``denoise_radius`` > 0
     filters the frame's offset from the reference first, as the plane route filters its phase
-    difference (:func:`filter_against_reference`, ``denoise_adaptive`` its adaptive support)."""
+    difference (:func:`filter_against_reference`, ``denoise_adaptive`` its adaptive support), its
+    systematic term the table's interpolation error in the bin of each pixel's code phase
+    (``interp_bins``: :func:`huefringe.uncertainty.interpolation_bins` of ``table`` with
+    ``noise_free``, computed here when None; a session passes its own once)."""
     ph = trapezoid_coordinate(rgb, white, table, block, bit_depth=bit_depth)
     if denoise_radius > 0:
-        from huefringe.uncertainty import table_interpolation_rad
+        from huefringe.uncertainty import interpolation_at, interpolation_bins
 
+        bins = interpolation_bins(table, noise_free=True) if interp_bins is None else interp_bins
         ph = filter_against_reference(ph, reference, block, radius=denoise_radius, adaptive=denoise_adaptive,
-                                      systematic_rad=table_interpolation_rad(table))
+                                      systematic_rad=interpolation_at(bins, ph.code_phase))
     extent = calib.projector_size[0 if block.axis == "x" else 1] or None
     co = absolute_from_reference(ph, reference, block, order_sigmas=order_sigmas,
                                  stands_on_reference=stands_on_reference, behind_mm=behind_mm, extent=extent)
@@ -732,12 +739,17 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
     table = hue_table_from_frames(caps.white, caps.bands, caps.bands_block, model=cfg.get("hue_model", "hexcone"))
     radius = int((cfg.get("rig") or {}).get("oneshot_denoise_radius") or 0)
     adaptive = (cfg.get("measurement") or {}).get("denoise_adaptive") if radius > 0 else None
+    bins = None
+    if radius > 0:
+        from huefringe.uncertainty import interpolation_bins
+
+        bins = interpolation_bins(table, noise_free=True)
     key, other = ("u", "v") if block.axis == "x" else ("v", "u")
     frames, results = [], []
     for k in range(caps.frames.shape[0]):
         res = measure_oneshot(caps.frames[k], caps.white, table, caps.block, calib, ref, bit_depth=caps.bit_depth,
                               order_sigmas=order_sigmas, stands_on_reference=ref_root is not None,
-                              denoise_radius=radius, denoise_adaptive=adaptive)
+                              denoise_radius=radius, denoise_adaptive=adaptive, interp_bins=bins)
         if int(res.valid.sum()) < 3:
             raise RigError(f"{session.root / 'captures'}: one-shot frame {k}: {int(res.valid.sum())} pixels decoded and "
                            "triangulated; nothing to measure")

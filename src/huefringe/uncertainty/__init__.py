@@ -48,9 +48,8 @@ from __future__ import annotations
 
 from huefringe.uncertainty.calibration import (
     GROUPS, INTERP_BINS, PixelBudget, RESIDUAL_BOX_PX, TERMS, calibration_terms, common_interpolation,
-    curvature_noise_factors, interpolation_bins, interval_curvature, noise_correlation, phase_error_residual_rad,
-    pixel_budget,
-    systematic_rms, table_interpolation_rad, table_variance_factor,
+    curvature_noise_factors, interpolation_at, interpolation_bins, interval_curvature, noise_correlation,
+    phase_error_residual_rad, pixel_budget, systematic_rms, table_interpolation_rad, table_variance_factor,
 )
 from huefringe.uncertainty.frame import (
     EDGE_SIGNIFICANCE, LATERAL_COARSE_PX, LATERAL_PX, LATERAL_SMOOTH_PX, LATERAL_STEP_PX, add_lateral,

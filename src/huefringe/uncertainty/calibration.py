@@ -20,7 +20,7 @@ from scipy.ndimage import uniform_filter
 from huefringe.huetable import band_smoothing_matrix, smoothing_window
 
 __all__ = ["PixelBudget", "TERMS", "calibration_terms", "common_interpolation", "curvature_noise_factors",
-           "interpolation_bins", "interval_curvature", "phase_error_residual_rad", "pixel_budget",
+           "interpolation_at", "interpolation_bins", "interval_curvature", "phase_error_residual_rad", "pixel_budget",
            "table_interpolation_rad", "table_variance_factor"]
 
 
@@ -309,18 +309,34 @@ def table_interpolation_rad(table: Any) -> NDArray[np.float32]:
     return _interp_errors(table, 0)[0]
 
 
-def interpolation_bins(table: Any, *, bins: int = INTERP_BINS) -> NDArray[np.float32]:
+def interpolation_bins(table: Any, *, bins: int = INTERP_BINS, noise_free: bool = False) -> NDArray[np.float32]:
     """Per-pixel rms linear-interpolation error (rad) in each of ``bins`` equal code-phase bins,
     ``(H, W, bins)``: the error of interval ``k`` (between entries ``k`` and ``k + 1``) is
     ``|D2| / D1 * step / sqrt(120)`` with ``D2`` the mean of the second differences at its two
     entries (see :func:`table_interpolation_rad`), and a bin holds the rms over its intervals
     (interval ``k`` in bin ``k bins // N``, the bin its start lies in); with fewer bands than bins,
     a bin that no interval starts in holds the interval its own start lies in.
-    A pixel's term is then the value of the bin its phase falls in, not the rms over its whole
-    table (where a few flattened bands near the sextant starts would dominate)."""
+    A pixel's term is then the value of the bin its phase falls in (:func:`interpolation_at`), not
+    the rms over its whole table (where a few flattened bands near the sextant starts would
+    dominate). ``noise_free``: each interval's curvature less what the table's own noise explains
+    (the positive part of ``(D2 / D1)^2 - var(D2) / D1^2``, the pixel's ``noise_rad`` through the
+    table's smoothing: :func:`curvature_noise_factors`), as :func:`pixel_budget` takes it without
+    a phase-error table (the table term holds that noise)."""
     if int(bins) < 1:
         raise ValueError(f"interpolation bins must be at least 1, got {bins}")
-    return cast(NDArray[np.float32], _interp_errors(table, int(bins))[1])  # bins >= 1: the bins
+    return cast(NDArray[np.float32], _interp_errors(table, int(bins), noise_free=bool(noise_free))[1])
+
+
+def interpolation_at(bins: NDArray[np.floating], code_phase: NDArray[np.floating]) -> NDArray[np.float64]:
+    """Each pixel's value of :func:`interpolation_bins` in the bin its code phase (rad, the
+    table's: band ``k`` at ``2 pi k / N``) falls in, ``floor(K (phase mod 2 pi) / 2 pi)`` of ``K``
+    bins; 0 where the phase is not finite."""
+    b = np.asarray(bins)
+    k = b.shape[-1]
+    ph = np.asarray(code_phase, np.float64)
+    ok = np.isfinite(ph)
+    kb = np.minimum((np.mod(np.where(ok, ph, 0.0), 2.0 * np.pi) * (k / (2.0 * np.pi))).astype(np.int64), k - 1)
+    return np.where(ok, np.take_along_axis(b, kb[..., None], axis=-1)[..., 0].astype(np.float64), 0.0)
 
 
 def _encode_interp(e: NDArray[np.floating]) -> NDArray[np.uint8]:
