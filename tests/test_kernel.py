@@ -55,19 +55,22 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 def _reference(rig: dict, model: str, rgb: np.ndarray, shadow: np.ndarray, denoise: int,
-               pd: bool = True, own: bool = False) -> perframe.FrameResult:
+               pd: bool = True, own: bool = False, blur: float = perframe.WEIGHT_BLUR_PX) -> perframe.FrameResult:
     table, cal = rig[model]
     m = CONFIG["measurement"]
     return perframe.measure_frame(rgb, rig["white"], table, cal, hue_model=model, min_saturation=m["min_saturation"],
                                   shadow=shadow, unwrap_mode="reference", bit_depth=8, denoise_radius=denoise,
-                                  predistortion=rig["session"].predistortion if pd else None, own_noise=own)
+                                  predistortion=rig["session"].predistortion if pd else None, own_noise=own,
+                                  weight_blur_px=blur)
 
 
-def _prepare(rig: dict, model: str, shadow: np.ndarray, pd: bool = True, own: bool = False) -> kernel.Prepared:
+def _prepare(rig: dict, model: str, shadow: np.ndarray, pd: bool = True, own: bool = False,
+             blur: float = perframe.WEIGHT_BLUR_PX) -> kernel.Prepared:
     table, cal = rig[model]
     return kernel.prepare(table, cal, rig["white"], hue_model=model,
                           min_saturation=CONFIG["measurement"]["min_saturation"], shadow=shadow, bit_depth=8,
-                          predistortion=rig["session"].predistortion if pd else None, own_noise=own)
+                          predistortion=rig["session"].predistortion if pd else None, own_noise=own,
+                          weight_blur_px=blur)
 
 
 def _frame_u8(rig: dict, n: int) -> np.ndarray:
@@ -105,7 +108,9 @@ def test_kernel_matches_reference(rig: dict, model: str, pd: bool, denoise: int,
 @pytest.mark.parametrize("own", [False, True])
 def test_kernel_uncertainty_matches_reference(rig: dict, model: str, pd: bool, denoise: int, own: bool) -> None:
     """The kernel's uncertainty map is measure_frame's bit for bit, NaN exactly where the height
-    is NaN, and the heights are those without the map."""
+    is NaN, and the heights are those without the map (the weights from the smoothed signal, the
+    default, or each pixel's own)."""
+    assert perframe.sensor_model(rig[model][0]) is not None  # the weights' own-signal figure is compared
     shadow = perframe.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
     prep = _prepare(rig, model, shadow, pd, own)
     for n in rig["session"].frame_ids:
@@ -346,3 +351,17 @@ def test_texture_term_in_one_pass_matches_reference_and_the_second_pass(rig: dic
         assert 0.5 < np.median(one) / np.median(full) < 2.0
         assert np.percentile(one, 99) < np.percentile(full, 99)
     assert np.median(full) > 1e-4  # the term has something to say on this frame
+
+
+def test_kernel_with_pooled_weights_matches_reference(rig: dict) -> None:
+    """``weight_blur_px`` 0 (the table's pooled figure weights the filter): the kernel's heights
+    and uncertainty are measure_frame's bit for bit, and differ from the default weights'."""
+    shadow = perframe.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
+    prep = _prepare(rig, "hexcone", shadow, blur=0.0)
+    n = rig["session"].frame_ids[0]
+    ref = _reference(rig, "hexcone", read_rgb(rig["session"].frames[n]), shadow, 2, blur=0.0)
+    m = kernel.frame_maps(prep, _frame_u8(rig, n), denoise_radius=2, want_uncertainty=True)
+    np.testing.assert_array_equal(m.height, ref.height)
+    np.testing.assert_array_equal(m.uncertainty, ref.uncertainty)
+    default = kernel.frame_maps(_prepare(rig, "hexcone", shadow), _frame_u8(rig, n), denoise_radius=2)
+    assert np.nanmax(np.abs(default.height - m.height)) > 1e-4

@@ -74,8 +74,8 @@ from numpy.typing import NDArray
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
-from huefringe.perframe import (_hue_noise_kernel, capture_noise, height_noise, noise_ratio2, sensor_model,
-                                shadow_mask, sigma_from_slope)
+from huefringe.perframe import (WEIGHT_BLUR_PX, _hue_noise_kernel, capture_noise, height_noise, noise_ratio2,
+                                ratio_over, sensor_model, shadow_mask, sigma_from_slope, weight_noise_of)
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
@@ -156,8 +156,11 @@ class Prepared:
     each frame's own hue noise (``perframe.frame_hue_noise``) replaces ``noise`` in the denoise
     weights."""
     u_sensor: NDArray[np.float32] | None = None
-    """The same model for the uncertainty alone (without ``own_noise``): the filter then sums
-    ``w (own / pooled)^2`` beside its weights (``perframe.noise_ratio2``)."""
+    """The same model without ``own_noise``: the filter's weights from the smoothed signal
+    (``weight_blur_px``, ``perframe.weight_noise``) and the uncertainty's ratio, the frame's own
+    noise against them (the filter sums ``w r`` beside its weights, ``perframe.noise_ratio2``)."""
+    weight_blur_px: float = WEIGHT_BLUR_PX
+    """``measure_frame``'s ``weight_blur_px``."""
 
     @property
     def nbytes(self) -> int:
@@ -195,6 +198,7 @@ def prepare(
     floor_slope: float = 0.05,
     predistortion: Predistortion | None = None,
     own_noise: bool = False,
+    weight_blur_px: float = WEIGHT_BLUR_PX,
 ) -> Prepared:
     """Prepare a session's calibration for :func:`frame_to_height` (once per session).
 
@@ -223,6 +227,10 @@ def prepare(
     predistortion : Predistortion, optional
         The session's pre-distortion (``Session.predistortion``): the table then gives the
         emitted phase, decoded back to the code phase (as ``measure_frame(predistortion=...)``).
+    own_noise, weight_blur_px : bool, float
+        ``measure_frame``'s: the filter's weights from each pixel's own signal, or from the
+        signal smoothed by a Gaussian of ``weight_blur_px`` (``perframe.weight_noise``; 0: the
+        table's pooled figure).
     """
     model = table.model if hue_model is None else hue_model
     if model not in HUE_MODELS:
@@ -282,6 +290,7 @@ def prepare(
     model = sensor_model(table)
     prep.sensor = model if own_noise else None  # measure_frame's own_noise
     prep.u_sensor = None if own_noise else model
+    prep.weight_blur_px = float(weight_blur_px)
     prep.stats = {
         "table_invalid_fraction": float(np.mean(~np.asarray(table.valid, bool))),
         "shadow_fraction": float(shadow_arr.mean()),
@@ -1124,6 +1133,9 @@ def frame_maps(
     if weights is not None and prep.sensor is not None:  # this frame's own hue noise (as measure_frame)
         noise = np.empty((h, w), dtype=np.float64)
         _hue_noise_kernel(a, np.float32(scale), prep.gains, hsi, prep.sensor, prep.noise, noise)
+    r_w = None  # the weights from the smoothed signal (as measure_frame's weight_noise)
+    if int(denoise_radius) > 0 and prep.u_sensor is not None and prep.weight_blur_px > 0:
+        noise, r_w = weight_noise_of(prep.noise, prep.u_sensor, a, prep.gains, hsi, prep.weight_blur_px, scale)
     n_clip, n_undef, n_valid, n_miss, n_far = _frame_kernel(
         a, np.float32(scale), np.float32(top), float(top), prep.gains, prep.ok, prep.cols.reshape(-1),
         prep.heads.reshape(-1), prep.guess, prep.tiles_x, prep.n_bands, prep.start, prep.phi_ref, prep.a, prep.b,
@@ -1136,6 +1148,8 @@ def frame_maps(
         own = np.empty((h, w), dtype=np.float64)
         _hue_noise_kernel(a, np.float32(scale), prep.gains, hsi, prep.u_sensor, prep.noise, own)
         ratio = noise_ratio2(own, prep.noise)
+        if r_w is not None:  # the own figure against the one that weights
+            ratio = ratio_over(ratio, r_w)
     sumw = rsum = support = bias2 = None
     carried = np.empty((h, w), dtype=np.float32) if delta is not None and denoise else delta
     if denoise:

@@ -44,6 +44,11 @@ from ._noise import (  # noqa: F401
     sensor_model,
     frame_hue_noise,
     _hue_noise_kernel,
+    WEIGHT_BLUR_PX,
+    ratio_over,
+    smoothed_signal,
+    weight_noise,
+    weight_noise_of,
 )
 from ._stats import (  # noqa: F401
     frame_stats,
@@ -75,4 +80,5 @@ __all__ = [
     "shadow_side",
     "sigma_from_slope",
     "step_edge_mask",
+    "weight_noise",
 ]

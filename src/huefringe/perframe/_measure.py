@@ -18,7 +18,8 @@ from huefringe.phase import adaptive_kwargs, denoise_phase, denoise_weight_sums,
 from huefringe.session import Predistortion
 from huefringe.uncertainty import PixelBudget, edge_floor, height_uncertainty, pixel_budget, texture_delta, texture_term_phase
 from ._edges import clipped_mask
-from ._noise import capture_noise, frame_hue_noise, height_noise, noise_ratio2, phase_sigma, sensor_model
+from ._noise import (WEIGHT_BLUR_PX, capture_noise, frame_hue_noise, height_noise, noise_ratio2, phase_sigma, ratio_over,
+                     sensor_model, weight_noise)
 from ._stats import frame_stats
 
 
@@ -79,6 +80,7 @@ def measure_frame(
     budget: PixelBudget | None = None,
     own_noise: bool = False,
     texture_rgb: NDArray[np.floating] | None = None,
+    weight_blur_px: float = WEIGHT_BLUR_PX,
 ) -> FrameResult:
     """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
 
@@ -108,11 +110,16 @@ def measure_frame(
         ``measurement.denoise_adaptive`` (:func:`huefringe.phase.adaptive_kwargs`): the filter's
         sigma-adaptive support and the rejection of pixels no filter can save.
     own_noise : bool
-        Each pixel's phase sigma from this frame's own signal through the table's shot + read
-        noise model (:func:`frame_hue_noise`) instead of the table's pooled per-pixel noise
-        (``measurement.own_noise``; off by default: weighting the filter by it biases the
-        heights where the noise varies with the phase, Table 1 at 100 px: mean error 0.65 ->
-        1.09 %).
+        Each pixel's phase sigma from this frame's own signal, pixel by pixel, through the
+        table's shot + read noise model (:func:`frame_hue_noise`) (``measurement.own_noise``;
+        off by default: weights that follow each pixel's own noise bias the mean they weight,
+        docs/uncertainty.md, "The filter's weights"). Overrides ``weight_blur_px``.
+    weight_blur_px : float
+        The filter's weights: the table's pooled per-pixel noise scaled by the frame's own-signal
+        figure read from the capture smoothed by a Gaussian of this sigma (px)
+        (:func:`weight_noise`; ``measurement.weight_blur_px``), the uncertainty's ratio ``r``
+        then the unsmoothed own figure against that one; 0, or a table without a sensor model:
+        the pooled figure weights the filter.
     budget : PixelBudget, optional
         Session inputs of the height uncertainty (:func:`huefringe.uncertainty.pixel_budget`,
         computed when not given); the result's ``uncertainty`` is the kernel's, bit for bit.
@@ -141,8 +148,12 @@ def measure_frame(
     # this frame's own-signal hue noise: in the weights with own_noise, else in the uncertainty only
     own = frame_hue_noise(table, rgb, white_gains(white), hue_model) if own_noise or sensor_model(table) is not None \
         else None
-    sigma = phase_sigma(table, slope, noise=own if own_noise else None)
     ratio = noise_ratio2(own, capture_noise(table)) if own is not None and not own_noise else None
+    weighted = weight_noise(table, rgb, white_gains(white), hue_model, weight_blur_px) \
+        if ratio is not None and denoise_radius > 0 else None
+    if weighted is not None:  # the weights from the smoothed signal; u's ratio against them
+        ratio = ratio_over(ratio, weighted[1])
+    sigma = phase_sigma(table, slope, noise=own if own_noise else (weighted[0] if weighted is not None else None))
     if predistortion is not None:
         sigma = sigma * np.abs(predistortion.decode_slope(emitted))
     sumw = np.zeros(valid.shape, np.float32)

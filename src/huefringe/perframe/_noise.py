@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
+import cv2
 import numba
 import numpy as np
 from numpy.typing import NDArray
@@ -134,6 +135,13 @@ def noise_ratio2(own: NDArray[np.floating], pooled: NDArray[np.floating]) -> NDA
     return out
 
 
+def ratio_over(r: NDArray[np.float32], r_w: NDArray[np.float32]) -> NDArray[np.float32]:
+    """``r / r_w`` (float32), clipped to :data:`_RATIO2_BOUNDS`: the frame's own noise variance
+    against the one that weights the filter (:func:`weight_noise`), both as ratios to the pooled one."""
+    return np.clip(np.asarray(r, np.float32) / np.asarray(r_w, np.float32), np.float32(_RATIO2_BOUNDS[0]),
+                   np.float32(_RATIO2_BOUNDS[1])).astype(np.float32)
+
+
 @numba.njit(cache=True, nogil=True, error_model="numpy")
 def _ratio2_kernel(own, pooled, lo, hi, trusted, out):  # pragma: no cover - compiled
     """:func:`noise_ratio2`'s loop (NaN -> 1, then clipped)."""
@@ -145,6 +153,52 @@ def _ratio2_kernel(own, pooled, lo, hi, trusted, out):  # pragma: no cover - com
         r = s2 / p2
         r = r if r == r else 1.0
         out[i] = np.float32(min(max(r, lo), hi))
+
+
+#: Gaussian sigma (px) of the signal that the phase filter's weights read the frame's own noise
+#: from (``measurement.weight_blur_px``; :func:`weight_noise`).
+WEIGHT_BLUR_PX = 2.0
+
+
+def smoothed_signal(rgb: NDArray[Any], blur_px: float, scale: float = 1.0) -> NDArray[np.float32]:
+    """The capture as the filter's weights read it: float32 ``rgb`` times ``scale`` (codes as the
+    fused kernel receives them, or float in [0, 1] with ``scale`` 1: the same float32 values),
+    smoothed by a Gaussian of ``blur_px`` (OpenCV, reflected border), ``(H, W, 3)``."""
+    x = np.asarray(rgb, np.float32)
+    if float(scale) != 1.0:
+        x = x * np.float32(scale)
+    return np.ascontiguousarray(cv2.GaussianBlur(np.ascontiguousarray(x), (0, 0), float(blur_px),
+                                                 borderType=cv2.BORDER_REFLECT_101), np.float32)
+
+
+def weight_noise(table: HueTable, rgb: NDArray[Any], gains: NDArray[np.float32], hue_model: str, blur_px: float,
+                 scale: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float32]] | None:
+    """The hue noise (rad) that weights the phase filter, and its ratio to the pooled figure.
+
+    The table's pooled per-pixel figure (:func:`capture_noise`) scaled by the frame's own signal,
+    ``pooled sqrt(r_w)`` with ``r_w`` :func:`noise_ratio2` of :func:`frame_hue_noise` of the
+    capture smoothed by a Gaussian of ``blur_px`` (:func:`smoothed_signal`): a hue's noise
+    depends on its chroma and signal, which the pooled figure (one per pixel over all bands)
+    does not follow, and the smoothed signal keeps a pixel's weight from following its own
+    noise (the weights of the unsmoothed own figure correlate with the noise they weight and
+    bias the mean). Returns ``(noise, r_w)``; None where the table has no sensor model or
+    ``blur_px`` is not positive (the pooled figure weights the filter)."""
+    model = sensor_model(table)
+    if model is None or not float(blur_px) > 0:
+        return None
+    return weight_noise_of(capture_noise(table), model, rgb, gains, hue_model == "hsi", blur_px, scale)
+
+
+def weight_noise_of(pooled: NDArray[np.float64], model: NDArray[np.float32], rgb: NDArray[Any],
+                    gains: NDArray[np.float32], hsi: bool, blur_px: float,
+                    scale: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float32]]:
+    """:func:`weight_noise` from the pooled figure and the sensor model (the fused kernel's
+    prepared arrays): the same operations, so both chains weight with the same bits."""
+    own_w = np.empty(pooled.shape, np.float64)
+    _hue_noise_kernel(smoothed_signal(rgb, blur_px, scale), np.float32(1.0), np.ascontiguousarray(gains, np.float32),
+                      bool(hsi), model, pooled, own_w)
+    r_w = noise_ratio2(own_w, pooled)
+    return pooled * np.sqrt(r_w.astype(np.float64)), r_w
 
 
 def sensor_model(table: HueTable) -> NDArray[np.float32] | None:
