@@ -1,6 +1,6 @@
 """Study: a case's error split into the frames' noise and what they share, against u's terms.
 
-Usage: ./run python benchmarks/noise_split.py [--cases NAME ...] [--keep DIR]
+Usage: ./run python benchmarks/noise_split.py [--cases NAME ...] [--weights default|pooled|own] [--keep DIR]
 
 For each case of ``accuracy_matrix.py`` (two frames; default: the flat boards, tuning and
 hold-out) the session is measured at the defaults with the lateral term off (``accuracy_matrix``'s
@@ -12,8 +12,9 @@ in quadrature) against the shared terms (table, interpolation, reference, model;
 each term split from u by ``uncertainty.split_terms``; beside them the hue noise of one capture
 that the table estimated (its per-pixel figure times sqrt of the repeats) and the frames' own
 (their hue difference over sqrt 2, white-balanced hexcone hue), each as the rms over the table's
-valid pixels (docs/accuracy.md, Known limits). About a minute per case
-with its session kept.
+valid pixels (docs/accuracy.md, Known limits). ``--weights pooled`` / ``own`` measure with the
+phase filter weighted by the table's pooled figure / each pixel's own figure as captured
+(docs/uncertainty.md, "The filter's weights"). About a minute per case with its session kept.
 """
 
 from __future__ import annotations
@@ -41,11 +42,18 @@ def _rms(x: np.ndarray) -> float:
     return float(np.sqrt(np.mean(x**2)))
 
 
-def row(case: str, root: Path) -> str:
+#: ``--weights``: the phase filter's weights (docs/uncertainty.md, "The filter's weights"), each
+#: with the lateral term off
+WEIGHTS = {"default": "lateral term off", "pooled": "lateral term off, weights pooled",
+           "own": "lateral term off, weights own unsmoothed"}
+
+
+def row(case: str, root: Path, weights: str = "default") -> str:
     """The table row of one case (its session and results under ``root``)."""
     session, tables = am._case_dirs(root, am.CASES[case]["cfg"])
-    out = root / am._slug("lateral term off")
-    paths = am.measure(session, tables, out, am._config(am.VARIANTS["lateral term off"]))
+    variant = WEIGHTS[weights]
+    out = root / am._slug(variant)
+    paths = am.measure(session, tables, out, am._config(am.VARIANTS[variant]))
     s = load_session(session)
     truths = [tifffile.imread(s.ground_truth[n]).astype(np.float64) for n in s.frame_ids]
     heights = [tifffile.imread(h).astype(np.float64) for h in paths["heights"]]
@@ -81,13 +89,16 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cases", nargs="*", default=["flat p40 d1.6 96x2", "flat p20 d0.5 256x1 8bit"])
     ap.add_argument("--keep", type=Path, default=None, help="write sessions and results here, reuse sessions found there")
+    ap.add_argument("--weights", choices=sorted(WEIGHTS), default="default",
+                    help="the phase filter's weights: the default (the own-signal figure of the smoothed capture), "
+                         "the table's pooled figure, or each pixel's own figure as captured")
     a = ap.parse_args()
     print("| case | set | pixels | frame-to-frame mm | noise term mm | ratio | shared mm | shared terms mm | ratio "
           "| table's hue noise of a capture rad | frames' hue noise rad |")
     print("| --- | --- | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: | ---: |")
     with tempfile.TemporaryDirectory() as tmp:
         for case in a.cases:
-            print(row(case, (a.keep or Path(tmp)) / am._slug(case)), flush=True)
+            print(row(case, (a.keep or Path(tmp)) / am._slug(case), a.weights), flush=True)
 
 
 if __name__ == "__main__":
