@@ -285,9 +285,9 @@ def test_filtered_noise_term_matches_frame_to_frame_spread(still: dict, still_fi
 
 
 def test_smoothed_weights_at_a_short_period_overstate_the_noise(still: dict, still_filtered: dict) -> None:
-    """The default weights' 2 px Gaussian on this rig's 15 px fringe: the smoothed signal is the
-    fringe's own at lower chroma near the trapezoid's corners, so the weights' noise figure reads
-    high there (its mean ratio to the pooled figure 3.8 against the unsmoothed figure's 1.8) and
+    """The default weights' 2 px Gaussian on this rig's 15 px fringe mixes the fringe's hues and
+    reads a lower chroma than the pixel's own, so the weights' noise figure reads high (its mean
+    ratio to the pooled figure 3.8 against the unsmoothed figure's 1.8) and
     the noise term over-predicts the flat pixels' spread: median ratio 0.709 (1 px: 0.887), on the
     safe side, while the heights spread less than with 1 px (rms 0.0100 against 0.0119 mm;
     docs/uncertainty.md, Known limits)."""
