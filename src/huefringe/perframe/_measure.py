@@ -146,10 +146,10 @@ def measure_frame(
     dphi = wrap(phase.astype(np.float64) - cal.phi_ref)
     un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
     # this frame's own-signal hue noise: in the weights with own_noise, else in the uncertainty only
-    own = frame_hue_noise(table, rgb, white_gains(white), hue_model) if own_noise or sensor_model(table) is not None \
-        else None
+    gains = white_gains(white)
+    own = frame_hue_noise(table, rgb, gains, hue_model) if own_noise or sensor_model(table) is not None else None
     ratio = noise_ratio2(own, capture_noise(table)) if own is not None and not own_noise else None
-    weighted = weight_noise(table, rgb, white_gains(white), hue_model, weight_blur_px) \
+    weighted = weight_noise(table, rgb, gains, hue_model, weight_blur_px) \
         if ratio is not None and denoise_radius > 0 else None
     if weighted is not None:  # the weights from the smoothed signal; u's ratio against them
         ratio = ratio_over(ratio, weighted[1])
