@@ -229,14 +229,17 @@ VARIANTS.update({
     **{f"lateral step {r} px": {"measurement": {"lateral_step_px": r}} for r in (0.0, 1.0, 1.5)},
     "texture term off": {"measurement": {"texture_uncertainty": False}},
     # the phase filter's weights (docs/uncertainty.md, "The filter's weights"): the table's pooled
-    # noise alone, or each pixel's own signal as captured
+    # noise alone, each pixel's own signal as captured, or the signal smoothed along the fringe
     "weights pooled": {"measurement": {"weight_blur_px": 0.0}},
     "weights own unsmoothed": {"measurement": {"own_noise": True}},
+    "weights along the fringe": {"measurement": {"weight_blur_shape": "along_fringe"}},
     # the same two with the lateral term off (noise_split.py --weights)
     "lateral term off, weights pooled": {"measurement": {"lateral_uncertainty_px": 0.0, "lateral_step_px": 0.0,
                                                          "weight_blur_px": 0.0}},
     "lateral term off, weights own unsmoothed": {"measurement": {"lateral_uncertainty_px": 0.0, "lateral_step_px": 0.0,
                                                                  "own_noise": True}},
+    "lateral term off, weights along the fringe": {"measurement": {"lateral_uncertainty_px": 0.0, "lateral_step_px": 0.0,
+                                                                   "weight_blur_shape": "along_fringe"}},
 })
 VARIANTS.update({
     # the step-edge test (measurement.edge_test; docs/accuracy-texture.md, Step-edge test)

@@ -1,6 +1,6 @@
 """Study: a case's error split into the frames' noise and what they share, against u's terms.
 
-Usage: ./run python benchmarks/noise_split.py [--cases NAME ...] [--weights default|pooled|own] [--keep DIR]
+Usage: ./run python benchmarks/noise_split.py [--cases NAME ...] [--weights default|pooled|own|along] [--keep DIR]
 
 For each case of ``accuracy_matrix.py`` (two frames; default: the flat boards, tuning and
 hold-out) the session is measured at the defaults with the lateral term off (``accuracy_matrix``'s
@@ -12,9 +12,10 @@ in quadrature) against the shared terms (table, interpolation, reference, model;
 each term split from u by ``uncertainty.split_terms``; beside them the hue noise of one capture
 that the table estimated (its per-pixel figure times sqrt of the repeats) and the frames' own
 (their hue difference over sqrt 2, white-balanced hexcone hue), each as the rms over the table's
-valid pixels (docs/accuracy.md, Known limits). ``--weights pooled`` / ``own`` measure with the
-phase filter weighted by the table's pooled figure / each pixel's own figure as captured
-(docs/uncertainty.md, "The filter's weights"). About a minute per case with its session kept.
+valid pixels (docs/accuracy.md, Known limits). ``--weights pooled`` / ``own`` / ``along`` measure
+with the phase filter weighted by the table's pooled figure / each pixel's own figure as captured /
+the own figure of the capture smoothed along the fringe (docs/uncertainty.md, "The filter's
+weights"). About a minute per case with its session kept.
 """
 
 from __future__ import annotations
@@ -45,7 +46,7 @@ def _rms(x: np.ndarray) -> float:
 #: ``--weights``: the phase filter's weights (docs/uncertainty.md, "The filter's weights"), each
 #: with the lateral term off
 WEIGHTS = {"default": "lateral term off", "pooled": "lateral term off, weights pooled",
-           "own": "lateral term off, weights own unsmoothed"}
+           "own": "lateral term off, weights own unsmoothed", "along": "lateral term off, weights along the fringe"}
 
 
 def row(case: str, root: Path, weights: str = "default") -> str:
@@ -91,7 +92,8 @@ def main() -> None:
     ap.add_argument("--keep", type=Path, default=None, help="write sessions and results here, reuse sessions found there")
     ap.add_argument("--weights", choices=sorted(WEIGHTS), default="default",
                     help="the phase filter's weights: the default (the own-signal figure of the smoothed capture), "
-                         "the table's pooled figure, or each pixel's own figure as captured")
+                         "the table's pooled figure, each pixel's own figure as captured, or the own figure of the "
+                         "capture smoothed along the fringe")
     a = ap.parse_args()
     print("| case | set | pixels | frame-to-frame mm | noise term mm | ratio | shared mm | shared terms mm | ratio "
           "| table's hue noise of a capture rad | frames' hue noise rad |")

@@ -55,22 +55,23 @@ def rig(tmp_path_factory: pytest.TempPathFactory) -> dict:
 
 
 def _reference(rig: dict, model: str, rgb: np.ndarray, shadow: np.ndarray, denoise: int,
-               pd: bool = True, own: bool = False, blur: float = perframe.WEIGHT_BLUR_PX) -> perframe.FrameResult:
+               pd: bool = True, own: bool = False, blur: float = perframe.WEIGHT_BLUR_PX,
+               shape: str = perframe.WEIGHT_BLUR_SHAPE) -> perframe.FrameResult:
     table, cal = rig[model]
     m = CONFIG["measurement"]
     return perframe.measure_frame(rgb, rig["white"], table, cal, hue_model=model, min_saturation=m["min_saturation"],
                                   shadow=shadow, unwrap_mode="reference", bit_depth=8, denoise_radius=denoise,
                                   predistortion=rig["session"].predistortion if pd else None, own_noise=own,
-                                  weight_blur_px=blur)
+                                  weight_blur_px=blur, weight_blur_shape=shape)
 
 
 def _prepare(rig: dict, model: str, shadow: np.ndarray, pd: bool = True, own: bool = False,
-             blur: float = perframe.WEIGHT_BLUR_PX) -> kernel.Prepared:
+             blur: float = perframe.WEIGHT_BLUR_PX, shape: str = perframe.WEIGHT_BLUR_SHAPE) -> kernel.Prepared:
     table, cal = rig[model]
     return kernel.prepare(table, cal, rig["white"], hue_model=model,
                           min_saturation=CONFIG["measurement"]["min_saturation"], shadow=shadow, bit_depth=8,
                           predistortion=rig["session"].predistortion if pd else None, own_noise=own,
-                          weight_blur_px=blur)
+                          weight_blur_px=blur, weight_blur_shape=shape)
 
 
 def _frame_u8(rig: dict, n: int) -> np.ndarray:
@@ -360,6 +361,22 @@ def test_kernel_with_pooled_weights_matches_reference(rig: dict) -> None:
     prep = _prepare(rig, "hexcone", shadow, blur=0.0)
     n = rig["session"].frame_ids[0]
     ref = _reference(rig, "hexcone", read_rgb(rig["session"].frames[n]), shadow, 2, blur=0.0)
+    m = kernel.frame_maps(prep, _frame_u8(rig, n), denoise_radius=2, want_uncertainty=True)
+    np.testing.assert_array_equal(m.height, ref.height)
+    np.testing.assert_array_equal(m.uncertainty, ref.uncertainty)
+    default = kernel.frame_maps(_prepare(rig, "hexcone", shadow), _frame_u8(rig, n), denoise_radius=2)
+    assert np.nanmax(np.abs(default.height - m.height)) > 1e-4
+
+
+def test_kernel_with_weights_along_the_fringe_matches_reference(rig: dict) -> None:
+    """``weight_blur_shape: along_fringe`` (the weights' Gaussian along the reference phase's
+    iso-phase lines): the kernel's heights and uncertainty are measure_frame's bit for bit, and
+    differ from the default isotropic weights'."""
+    shadow = perframe.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
+    prep = _prepare(rig, "hexcone", shadow, shape="along_fringe")
+    assert prep.weight_angle is not None
+    n = rig["session"].frame_ids[0]
+    ref = _reference(rig, "hexcone", read_rgb(rig["session"].frames[n]), shadow, 2, shape="along_fringe")
     m = kernel.frame_maps(prep, _frame_u8(rig, n), denoise_radius=2, want_uncertainty=True)
     np.testing.assert_array_equal(m.height, ref.height)
     np.testing.assert_array_equal(m.uncertainty, ref.uncertainty)

@@ -74,8 +74,8 @@ from numpy.typing import NDArray
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
-from huefringe.perframe import (WEIGHT_BLUR_PX, _hue_noise_kernel, capture_noise, height_noise, noise_ratio2,
-                                ratio_over, sensor_model, shadow_mask, sigma_from_slope, weight_noise_of)
+from huefringe.perframe import (WEIGHT_BLUR_PX, WEIGHT_BLUR_SHAPE, _hue_noise_kernel, capture_noise, fringe_angle,
+                                height_noise, noise_ratio2, ratio_over, sensor_model, shadow_mask, sigma_from_slope, weight_noise_of)
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
@@ -161,6 +161,9 @@ class Prepared:
     noise against them (the filter sums ``w r`` beside its weights, ``perframe.noise_ratio2``)."""
     weight_blur_px: float = WEIGHT_BLUR_PX
     """``measure_frame``'s ``weight_blur_px``."""
+    weight_angle: float | None = None
+    """The reference phase's gradient direction (``perframe.fringe_angle``) that the weights'
+    Gaussian runs perpendicular to; None: isotropic (``measure_frame``'s ``weight_blur_shape``)."""
 
     @property
     def nbytes(self) -> int:
@@ -199,6 +202,7 @@ def prepare(
     predistortion: Predistortion | None = None,
     own_noise: bool = False,
     weight_blur_px: float = WEIGHT_BLUR_PX,
+    weight_blur_shape: str = WEIGHT_BLUR_SHAPE,
 ) -> Prepared:
     """Prepare a session's calibration for :func:`frame_to_height` (once per session).
 
@@ -227,10 +231,10 @@ def prepare(
     predistortion : Predistortion, optional
         The session's pre-distortion (``Session.predistortion``): the table then gives the
         emitted phase, decoded back to the code phase (as ``measure_frame(predistortion=...)``).
-    own_noise, weight_blur_px : bool, float
+    own_noise, weight_blur_px, weight_blur_shape : bool, float, str
         ``measure_frame``'s: the filter's weights from each pixel's own signal, or from the
         signal smoothed by a Gaussian of ``weight_blur_px`` (``perframe.weight_noise``; 0: the
-        table's pooled figure).
+        table's pooled figure), isotropic or along the fringe.
     """
     model = table.model if hue_model is None else hue_model
     if model not in HUE_MODELS:
@@ -291,6 +295,7 @@ def prepare(
     prep.sensor = model if own_noise else None  # measure_frame's own_noise
     prep.u_sensor = None if own_noise else model
     prep.weight_blur_px = float(weight_blur_px)
+    prep.weight_angle = fringe_angle(cal.phi_ref) if weight_blur_shape == "along_fringe" else None
     prep.stats = {
         "table_invalid_fraction": float(np.mean(~np.asarray(table.valid, bool))),
         "shadow_fraction": float(shadow_arr.mean()),
@@ -1135,7 +1140,8 @@ def frame_maps(
         _hue_noise_kernel(a, np.float32(scale), prep.gains, hsi, prep.sensor, prep.noise, noise)
     r_w = None  # the weights from the smoothed signal (as measure_frame's weight_noise)
     if int(denoise_radius) > 0 and prep.u_sensor is not None and prep.weight_blur_px > 0:
-        noise, r_w = weight_noise_of(prep.noise, prep.u_sensor, a, prep.gains, hsi, prep.weight_blur_px, scale)
+        noise, r_w = weight_noise_of(prep.noise, prep.u_sensor, a, prep.gains, hsi, prep.weight_blur_px, scale,
+                                     prep.weight_angle)
     n_clip, n_undef, n_valid, n_miss, n_far = _frame_kernel(
         a, np.float32(scale), np.float32(top), float(top), prep.gains, prep.ok, prep.cols.reshape(-1),
         prep.heads.reshape(-1), prep.guess, prep.tiles_x, prep.n_bands, prep.start, prep.phi_ref, prep.a, prep.b,

@@ -18,8 +18,8 @@ from huefringe.phase import adaptive_kwargs, denoise_phase, denoise_weight_sums,
 from huefringe.session import Predistortion
 from huefringe.uncertainty import PixelBudget, edge_floor, height_uncertainty, pixel_budget, texture_delta, texture_term_phase
 from ._edges import clipped_mask
-from ._noise import (WEIGHT_BLUR_PX, capture_noise, frame_hue_noise, height_noise, noise_ratio2, phase_sigma, ratio_over,
-                     sensor_model, weight_noise)
+from ._noise import (WEIGHT_BLUR_PX, WEIGHT_BLUR_SHAPE, capture_noise, frame_hue_noise, fringe_angle, height_noise,
+                     noise_ratio2, phase_sigma, ratio_over, sensor_model, weight_noise)
 from ._stats import frame_stats
 
 
@@ -81,6 +81,7 @@ def measure_frame(
     own_noise: bool = False,
     texture_rgb: NDArray[np.floating] | None = None,
     weight_blur_px: float = WEIGHT_BLUR_PX,
+    weight_blur_shape: str = WEIGHT_BLUR_SHAPE,
 ) -> FrameResult:
     """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
 
@@ -120,6 +121,9 @@ def measure_frame(
         (:func:`weight_noise`; ``measurement.weight_blur_px``), the uncertainty's ratio ``r``
         then the unsmoothed own figure against that one; 0, or a table without a sensor model:
         the pooled figure weights the filter.
+    weight_blur_shape : {"isotropic", "along_fringe"}
+        That Gaussian isotropic, or along the fringe only (perpendicular to the reference phase's
+        gradient, :func:`fringe_angle`; it keeps the pixel's hue) (``measurement.weight_blur_shape``).
     budget : PixelBudget, optional
         Session inputs of the height uncertainty (:func:`huefringe.uncertainty.pixel_budget`,
         computed when not given); the result's ``uncertainty`` is the kernel's, bit for bit.
@@ -149,7 +153,8 @@ def measure_frame(
     gains = white_gains(white)
     own = frame_hue_noise(table, rgb, gains, hue_model) if own_noise or sensor_model(table) is not None else None
     ratio = noise_ratio2(own, capture_noise(table)) if own is not None and not own_noise else None
-    weighted = weight_noise(table, rgb, gains, hue_model, weight_blur_px) \
+    angle = fringe_angle(cal.phi_ref) if weight_blur_shape == "along_fringe" else None
+    weighted = weight_noise(table, rgb, gains, hue_model, weight_blur_px, angle=angle) \
         if ratio is not None and denoise_radius > 0 else None
     if weighted is not None:  # the weights from the smoothed signal; u's ratio against them
         ratio = ratio_over(ratio, weighted[1])

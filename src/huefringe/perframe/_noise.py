@@ -158,45 +158,105 @@ def _ratio2_kernel(own, pooled, lo, hi, trusted, out):  # pragma: no cover - com
 #: Gaussian sigma (px) of the signal that the phase filter's weights read the frame's own noise
 #: from (``measurement.weight_blur_px``; :func:`weight_noise`).
 WEIGHT_BLUR_PX = 2.0
+#: The shapes of that Gaussian (``measurement.weight_blur_shape``): isotropic (the default), which
+#: mixes the hues of a fringe's neighbouring phases into the signal and reads the noise high where
+#: the fringe is short, or along the fringe only (the reference phase's iso-phase direction,
+#: :func:`fringe_angle`), which keeps the pixel's hue.
+WEIGHT_BLUR_SHAPES: tuple[str, ...] = ("isotropic", "along_fringe")
+WEIGHT_BLUR_SHAPE = "isotropic"
 
 
-def smoothed_signal(rgb: NDArray[Any], blur_px: float, scale: float = 1.0) -> NDArray[np.float32]:
+def fringe_angle(phi_ref: NDArray[np.floating]) -> float | None:
+    """The direction (rad, ``atan2(dy, dx)`` in image axes) of the reference phase's gradient:
+    the fringes run perpendicular to it.
+
+    The median of the wrapped differences of ``phi_ref`` (read as float32, as the fused kernel
+    holds it) along the rows and along the columns, over the pixels where both are finite. One
+    direction for the session: the fringes' local direction on an object departs from it by its
+    slope's deformation of the fringe. None where the reference phase has no finite difference
+    or no gradient."""
+    p = np.asarray(phi_ref, np.float32).astype(np.float64)
+    dx = np.angle(np.exp(1j * (p[:, 1:] - p[:, :-1])))
+    dy = np.angle(np.exp(1j * (p[1:] - p[:-1])))
+    dx, dy = dx[np.isfinite(dx)], dy[np.isfinite(dy)]
+    if dx.size == 0 or dy.size == 0:
+        return None
+    gx, gy = float(np.median(dx)), float(np.median(dy))
+    if gx == 0.0 and gy == 0.0:
+        return None
+    return float(np.arctan2(gy, gx))
+
+
+def fringe_kernel(blur_px: float, angle: float) -> NDArray[np.float32]:
+    """A one-dimensional Gaussian of sigma ``blur_px`` along the fringe (perpendicular to the
+    phase gradient's direction ``angle``, :func:`fringe_angle`), out to 3 sigma, drawn on the
+    pixel grid with linear interpolation across the line (``max(0, 1 - distance)``), normalised
+    to a sum of 1; rows and columns without weight trimmed (float32, odd sizes, centred). With
+    the fringes along a column it is that column's Gaussian alone."""
+    r = int(np.ceil(3.0 * float(blur_px)))
+    tx, ty = -np.sin(angle), np.cos(angle)  # along the fringe
+    rx, ry = int(np.ceil(r * abs(tx))) + 1, int(np.ceil(r * abs(ty))) + 1
+    y, x = np.mgrid[-ry:ry + 1, -rx:rx + 1].astype(np.float64)
+    along = x * tx + y * ty
+    across = np.abs(x * ty - y * tx)
+    k = np.exp(-0.5 * (along / float(blur_px)) ** 2) * np.maximum(0.0, 1.0 - across) * (np.abs(along) <= r + 0.5)
+    keep_y = np.flatnonzero(k.any(axis=1))
+    keep_x = np.flatnonzero(k.any(axis=0))
+    cy = max(ry - keep_y[0], keep_y[-1] - ry)  # symmetric trim: the kernel stays centred
+    cx = max(rx - keep_x[0], keep_x[-1] - rx)
+    k = k[ry - cy:ry + cy + 1, rx - cx:rx + cx + 1]
+    return np.ascontiguousarray(k / k.sum(), np.float32)
+
+
+def smoothed_signal(rgb: NDArray[Any], blur_px: float, scale: float = 1.0,
+                    angle: float | None = None) -> NDArray[np.float32]:
     """The capture as the filter's weights read it: float32 ``rgb`` times ``scale`` (codes as the
     fused kernel receives them, or float in [0, 1] with ``scale`` 1: the same float32 values),
-    smoothed by a Gaussian of ``blur_px`` (OpenCV, reflected border), ``(H, W, 3)``."""
+    smoothed by a Gaussian of ``blur_px`` (OpenCV, reflected border), ``(H, W, 3)``: along the
+    fringe (:func:`fringe_kernel` through ``cv2.filter2D``) when ``angle`` (the phase gradient's
+    direction, :func:`fringe_angle`) is given, else isotropic (``cv2.GaussianBlur``)."""
     x = np.asarray(rgb, np.float32)
     if float(scale) != 1.0:
         x = x * np.float32(scale)
-    return np.ascontiguousarray(cv2.GaussianBlur(np.ascontiguousarray(x), (0, 0), float(blur_px),
-                                                 borderType=cv2.BORDER_REFLECT_101), np.float32)
+    x = np.ascontiguousarray(x)
+    if angle is None:
+        out = cv2.GaussianBlur(x, (0, 0), float(blur_px), borderType=cv2.BORDER_REFLECT_101)
+    else:
+        out = cv2.filter2D(x, -1, fringe_kernel(blur_px, angle), borderType=cv2.BORDER_REFLECT_101)
+    return np.ascontiguousarray(out, np.float32)
 
 
 def weight_noise(table: HueTable, rgb: NDArray[Any], gains: NDArray[np.float32], hue_model: str, blur_px: float,
-                 scale: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float32]] | None:
+                 scale: float = 1.0,
+                 angle: float | None = None) -> tuple[NDArray[np.float64], NDArray[np.float32]] | None:
     """The hue noise (rad) that weights the phase filter, and its ratio to the pooled figure.
 
     The table's pooled per-pixel figure (:func:`capture_noise`) scaled by the frame's own signal,
     ``pooled sqrt(r_w)`` with ``r_w`` :func:`noise_ratio2` of :func:`frame_hue_noise` of the
-    capture smoothed by a Gaussian of ``blur_px`` (:func:`smoothed_signal`): a hue's noise
-    depends on its chroma and signal, which the pooled figure (one per pixel over all bands)
-    does not follow, and the smoothed signal keeps a pixel's weight from following its own
+    capture smoothed by a Gaussian of ``blur_px`` (:func:`smoothed_signal`; along the fringe when
+    ``angle``, the reference phase's gradient direction, is given: :func:`fringe_angle`): a hue's
+    noise depends on its chroma and signal, which the pooled figure (one per pixel over all
+    bands) does not follow, and the smoothed signal keeps a pixel's weight from following its own
     noise (the weights of the unsmoothed own figure correlate with the noise they weight and
-    bias the mean). Returns ``(noise, r_w)``; None where the table has no sensor model or
-    ``blur_px`` is not positive (the pooled figure weights the filter)."""
+    bias the mean). Along the fringe the smoothing keeps the pixel's hue; an isotropic Gaussian
+    mixes in the neighbouring phases' hues, whose mean has less chroma, and reads the noise high.
+    Returns ``(noise, r_w)``; None where the table has no sensor model or ``blur_px`` is not
+    positive (the pooled figure weights the filter)."""
     model = sensor_model(table)
     if model is None or not float(blur_px) > 0:
         return None
-    return weight_noise_of(capture_noise(table), model, rgb, gains, hue_model == "hsi", blur_px, scale)
+    return weight_noise_of(capture_noise(table), model, rgb, gains, hue_model == "hsi", blur_px, scale, angle)
 
 
 def weight_noise_of(pooled: NDArray[np.float64], model: NDArray[np.float32], rgb: NDArray[Any],
                     gains: NDArray[np.float32], hsi: bool, blur_px: float,
-                    scale: float = 1.0) -> tuple[NDArray[np.float64], NDArray[np.float32]]:
+                    scale: float = 1.0,
+                    angle: float | None = None) -> tuple[NDArray[np.float64], NDArray[np.float32]]:
     """:func:`weight_noise` from the pooled figure and the sensor model (the fused kernel's
     prepared arrays): the same operations, so both chains weight with the same bits."""
     own_w = np.empty(pooled.shape, np.float64)
-    _hue_noise_kernel(smoothed_signal(rgb, blur_px, scale), np.float32(1.0), np.ascontiguousarray(gains, np.float32),
-                      bool(hsi), model, pooled, own_w)
+    _hue_noise_kernel(smoothed_signal(rgb, blur_px, scale, angle), np.float32(1.0),
+                      np.ascontiguousarray(gains, np.float32), bool(hsi), model, pooled, own_w)
     r_w = noise_ratio2(own_w, pooled)
     return pooled * np.sqrt(r_w.astype(np.float64)), r_w
 
