@@ -13,8 +13,9 @@ noise, the demo camera's crosstalk), the order from the base plane's Gray code +
   each step's error (%) and U (k = 2, points and calibration jackknife); |e_ray| <= 2u over the
   valid pixels; the same with the rig's true calibration (the one-shot decoding alone);
 * a flat board 4 mm in front of the base, tilted 2 degrees against it: FLTq (noise-corrected,
-  with U) and the raw RMS of the plane residuals; FLTq again on the board's pixels inside the
-  calibrated field (huefringe.rig.calibrated_field: the poses' corner hulls) and that share;
+  with U, as the report gives it: the noise scaled to the data,
+  huefringe.rig.metrology.flatness_as_reported) and the raw RMS of the plane residuals; FLTq again
+  on the board's pixels inside the calibrated field (huefringe.rig.calibrated_field: the poses' corner hulls) and that share;
 * blocks of 6 and 15 mm: the unambiguous range in front of the base at their pixels, the share
   of their lit tops measured and flagged ORDER;
 * per-frame compute of the one-shot rig path at 640 x 480 (perf_counter, median of --frames
@@ -32,8 +33,9 @@ from huefringe.bench.oneshot import (calibrated_rig, calibrated_rig_report, face
                                      step_scores)
 from huefringe.bench.rig import RIGS, CompositeScene, PlaneScene
 from huefringe.codecs import Reason
-from huefringe.metrology import flatness_u, step_height_u
+from huefringe.metrology import step_height_u
 from huefringe.rig import field_mask
+from huefringe.rig.metrology import flatness_as_reported
 from huefringe.rig.oneshot import (absolute_from_reference, hue_table_from_frames, measure_oneshot, oneshot_reference,
                                    trapezoid_coordinate)
 from huefringe.rig.triangulation import triangulate
@@ -82,7 +84,7 @@ def main() -> None:
     bref = oneshot_reference(board.reference, truth, board.block)
     bres = measure_oneshot(board.frames[0], board.white, tables["board"], board.block, truth, bref)
     m = face_mask(board, 0) & bres.valid
-    f = flatness_u(bres.xyz[m], bres.sigma[m])
+    f = flatness_as_reported(bres.xyz, bres.sigma, m)
     print(f"  board: FLTq {1e3 * f['rms_form_mm']:.1f} um (U {2e3 * f['u_rms_form_mm']:.1f}), raw RMS "
           f"{1e3 * f['rms_mm']:.1f} um, noise {1e3 * f['rms_noise_mm']:.1f} um, {f['n']} px")
 

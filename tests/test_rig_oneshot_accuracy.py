@@ -77,11 +77,12 @@ def test_flat_board_form_is_the_distortion_extrapolated_outside_the_calibrated_f
 
 
 def test_phase_filter_on_the_offset_from_the_reference() -> None:
-    """The plane route's phase filter on a one-shot frame (its offset from the reference): with the
-    rig's true calibration the gauge's median error along the ray falls from 28.5 to 7.8 um, the
-    steps stay within 0.3 %, and sigma (with the reference's own and the table's interpolation
-    term in the bin of the pixel's code phase, without the table's noise) holds the errors, on the
-    safe side (0.984 of the pixels within 2 sigma)."""
+    """The plane route's phase filter on a one-shot frame (its offset from the reference), weighted
+    by the capture's noise read from the smoothed signal: with the rig's true calibration the
+    gauge's median error along the ray falls from 28.5 to 7.4 um, the steps stay within 0.3 %, and
+    sigma (the frame's own noise through the filter's weights, the reference's own and the table's
+    interpolation term in the bin of the pixel's code phase, without the table's noise) holds the
+    errors, on the safe side (0.954 unfiltered, 0.986 filtered of the pixels within 2 sigma)."""
     from huefringe.bench.oneshot import face_mask, gauge_scene, render_session
     from huefringe.metrology import step_height_u
     from huefringe.rig.oneshot import filter_against_reference, hue_table_from_frames, measure_oneshot, oneshot_reference
@@ -103,7 +104,7 @@ def test_phase_filter_on_the_offset_from_the_reference() -> None:
     (r0, ok0, med0, cov0), (rf, okf, medf, covf) = out[0], out[int(m["denoise_radius"])]
     assert okf.sum() >= 0.999 * ok0.sum()                       # the adaptive filter rejects next to nothing
     assert medf < 0.35 * med0 and medf < 0.010, (med0, medf)
-    assert abs(cov0 - 0.95) <= 0.03 and 0.95 <= covf <= 0.986, (cov0, covf)
+    assert abs(cov0 - 0.95) <= 0.03 and 0.95 <= covf <= 0.99, (cov0, covf)
     base = face_mask(cap, 0) & rf.valid
     for k, h0 in ((1, 3.0), (2, 1.0), (3, 4.0)):
         top = face_mask(cap, k) & rf.valid

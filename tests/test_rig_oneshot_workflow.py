@@ -149,4 +149,4 @@ def test_the_one_shot_phase_filter_key_reaches_every_frame(run: Path, tmp_path: 
         e_plain = np.median(np.linalg.norm(plain[both] - truth[both], axis=-1))
         e_filtered = np.median(np.linalg.norm(filtered[both] - truth[both], axis=-1))
         print(f"frame {k}: median |xyz error| {1e3 * e_plain:.1f} um unfiltered, {1e3 * e_filtered:.1f} um filtered")
-        assert e_filtered < 0.75 * e_plain, (e_plain, e_filtered)    # measured 24.2 against 37.0 um
+        assert e_filtered < 0.75 * e_plain, (e_plain, e_filtered)    # measured 24.0 against 37.0 um

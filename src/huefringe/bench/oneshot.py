@@ -250,19 +250,22 @@ def step_scores(cap: OneShotCapture, res: Any, jackknife: tuple[tuple[str, RigCa
 
 def flatness_scores(cap: OneShotCapture, res: Any, jackknife: tuple[tuple[str, RigCalibration], ...],
                     label: int = 0, margin_px: int = 6, within: NDArray[np.bool_] | None = None) -> dict[str, Any]:
-    """A face's flatness (:func:`huefringe.metrology.flatness_u`: FLTq noise-corrected, raw RMS)
-    with ``U = 2 sqrt(u_form^2 + u_calibration^2)``, the calibration's term the jackknife of FLTq over
-    the leave-one-pose-out calibrations (t-scaled; zero without them). ``within``: only these
-    pixels (e.g. the calibrated field, :func:`huefringe.rig.field_mask`)."""
+    """A face's flatness as the report gives it (:func:`huefringe.rig.metrology.flatness_as_reported`:
+    FLTq noise-corrected with the noise scaled to the data, raw RMS) with ``U = 2 sqrt(u_form^2 +
+    u_calibration^2)``, the calibration's term the jackknife of FLTq over the leave-one-pose-out
+    calibrations (t-scaled; zero without them). ``within``: only these pixels (e.g. the calibrated
+    field, :func:`huefringe.rig.field_mask`)."""
     from huefringe.metrology import flatness_u, jackknife_u
+    from huefringe.rig.metrology import flatness_as_reported
 
     m = face_mask(cap, label, margin_px) & res.valid
     if within is not None:
         m &= within
-    f = flatness_u(res.xyz[m], res.sigma[m])
+    f = flatness_as_reported(res.xyz, res.sigma, m)
     u_cal = 0.0
     if jackknife:
-        u_cal = jackknife_u([flatness_u(_retriangulated(res, c, m), res.sigma[m], draws=2)["rms_form_mm"]
+        sg = f["noise_scale"] * res.sigma[m]
+        u_cal = jackknife_u([flatness_u(_retriangulated(res, c, m), sg, draws=2)["rms_form_mm"]
                              for _, c in jackknife], t_scaled=True)
     return {"n": f["n"], "rms_form_mm": f["rms_form_mm"], "rms_mm": f["rms_mm"], "rms_noise_mm": f["rms_noise_mm"],
             "u_form_mm": f["u_rms_form_mm"], "u_calibration_mm": u_cal,

@@ -33,7 +33,8 @@ from huefringe.rig.oneshot import ONESHOT_GEOMETRY
 from huefringe.rig.triangulation import triangulate
 from huefringe.uncertainty import conformance
 
-__all__ = ["METHOD", "ONESHOT_METHOD", "base_plane", "feature_values", "noise_scale", "rig_report", "xyz_accuracy"]
+__all__ = ["METHOD", "ONESHOT_METHOD", "base_plane", "feature_values", "flatness_as_reported", "noise_scale", "rig_report",
+           "xyz_accuracy"]
 
 F64 = NDArray[np.float64]
 METHOD = "coded-light-triangulation"
@@ -108,6 +109,18 @@ def noise_scale(xyz: F64, sigma: F64, mask: NDArray[np.bool_], centre: F64, norm
     return float(np.sqrt(num / den)), max(NOISE_MODEL_REL_U, float(np.sqrt(2.0 / (n / 2.0)) / 2.0))
 
 
+def flatness_as_reported(xyz: F64, sigma: F64, mask: NDArray[np.bool_]) -> dict[str, Any]:
+    """A region's flatness as the report gives it: :func:`~huefringe.metrology.flatness_u` of the
+    region's points with their noise scaled to what the data show (:func:`noise_scale`: ``k``
+    times ``sigma``) and that scale's relative uncertainty in ``u_rms_form_mm`` (``noise_rel_u``),
+    so that a noise figure off by a per cent or two is not read as form; ``noise_scale`` and
+    ``noise_scale_rel_u`` beside the fit's keys."""
+    p, sg = _points(xyz, sigma, mask)
+    pl = fit_plane_u(p, sg)
+    k, rel = noise_scale(xyz, sigma, mask, pl.centroid, pl.normal)
+    return {**flatness_u(p, k * sg, noise_rel_u=rel), "noise_scale": k, "noise_scale_rel_u": rel}
+
+
 def feature_values(xyz: F64, sigma: F64, features: Any) -> dict[str, dict[str, Any]]:
     """Every figure of ``features`` on one triangulated frame: name -> the fit's result (the form
     figures with the region's noise scaled to what the data show, :func:`noise_scale`)."""
@@ -123,10 +136,7 @@ def feature_values(xyz: F64, sigma: F64, features: Any) -> dict[str, dict[str, A
                     base = fit_plane_u(*_points(xyz, sigma, masks["base"]))
                 out[f.name] = step_height_u(*_points(xyz, sigma, masks["base"]), *_points(xyz, sigma, masks[f.name]), base=base)
             elif f.kind == "plane":
-                p, sg = _points(xyz, sigma, masks[f.name])
-                pl = fit_plane_u(p, sg)
-                k, rel = noise_scale(xyz, sigma, masks[f.name], pl.centroid, pl.normal)
-                out[f.name] = {**flatness_u(p, k * sg, noise_rel_u=rel), "noise_scale": k, "noise_scale_rel_u": rel}
+                out[f.name] = flatness_as_reported(xyz, sigma, masks[f.name])
             elif f.kind == "distance":
                 b, a = f.planes or ("", "")
                 out[f.name] = plane_pair_u(*_points(xyz, sigma, masks[a]), *_points(xyz, sigma, masks[b]))

@@ -66,9 +66,10 @@ from numpy.typing import NDArray
 
 from huefringe.codecs.sequence import Decoded, FlatBlock, HueBandsBlock, Reason, SequenceError, SequenceSpec, TrapezoidBlock
 from huefringe.colour import hue as hue_of
-from huefringe.colour import white_balance
+from huefringe.colour import white_balance, white_gains
 from huefringe.huetable import HueTable, band_smoothing_matrix, build_table
-from huefringe.perframe import clipped_mask, phase_sigma
+from huefringe.perframe import (WEIGHT_BLUR_PX, capture_noise, clipped_mask, frame_hue_noise, noise_ratio2, phase_sigma,
+                                sensor_model, weight_noise)
 from huefringe.rig.model import RigCalibration
 from huefringe.rig.triangulation import project, triangulate
 
@@ -217,14 +218,19 @@ class OneShotPhase:
     wrapped : ndarray of float64
         ``(u - origin_px) mod period_px`` in ``[0, period_px)`` (projector px); NaN where not valid.
     sigma : ndarray of float64
-        Its standard uncertainty (projector px): the capture's hue noise and the table's own,
-        through the table's slope. NaN where not valid.
+        Its standard uncertainty (projector px): the capture's hue noise (from the frame's own
+        signal where the table has a sensor model) and the table's own, through the table's
+        slope. NaN where not valid.
     valid : ndarray of bool
     reasons : ndarray of uint8
         :class:`~huefringe.codecs.Reason` bits: ``LOW_SIGNAL`` (table pixel masked, or the hue
         undefined), ``SATURATED`` (a clipped channel).
     code_phase : ndarray of float32
         The table's code phase (rad), NaN where not valid.
+    sigma_weights : ndarray of float64, optional
+        The same with the capture's noise read from the smoothed signal, which weights the phase
+        filter (:func:`filter_against_reference`; the plane route's weights,
+        :func:`huefringe.perframe.weight_noise`); None: ``sigma`` weights it.
     """
 
     wrapped: F64
@@ -232,11 +238,12 @@ class OneShotPhase:
     valid: NDArray[np.bool_]
     reasons: NDArray[np.uint8]
     code_phase: NDArray[np.float32]
+    sigma_weights: F64 | None = None
 
 
 def trapezoid_coordinate(rgb: NDArray[np.floating], white: NDArray[np.floating], table: HueTable,
                          block: TrapezoidBlock, *, bit_depth: int = 8, min_saturation: float | None = None,
-                         floor_slope: float = 0.05) -> OneShotPhase:
+                         floor_slope: float = 0.05, weight_blur_px: float = 0.0) -> OneShotPhase:
     """Decode one trapezoid frame: white balance, hue, the table's inverse and slope, sigma.
 
     The capture-session route's chain (:func:`huefringe.perframe.measure_frame`'s first steps):
@@ -244,6 +251,11 @@ def trapezoid_coordinate(rgb: NDArray[np.floating], white: NDArray[np.floating],
     :func:`~huefringe.colour.hue` with the table's model,
     :meth:`~huefringe.huetable.HueTable.to_phase_and_slope`, and the phase noise
     :func:`~huefringe.perframe.phase_sigma` (capture) with :func:`table_phase_sigma` (table).
+    The capture's hue noise is, as in the plane route's uncertainty, the table's pooled
+    per-pixel figure scaled by the frame's own signal (``pooled sqrt(r)``, ``r``
+    :func:`~huefringe.perframe.noise_ratio2` of :func:`~huefringe.perframe.frame_hue_noise`)
+    where the table has a sensor model, else the pooled figure: a hue's noise follows its chroma
+    and signal, which the pooled figure (one per pixel over all bands) does not.
 
     Parameters
     ----------
@@ -258,23 +270,38 @@ def trapezoid_coordinate(rgb: NDArray[np.floating], white: NDArray[np.floating],
         Hue undefined at or below this white-balanced saturation; default the table's.
     floor_slope : float
         Smallest table slope the noise is divided by.
+    weight_blur_px : float
+        > 0 (with a sensor model): also the sigma that weights the phase filter, the capture's
+        noise read from the signal through a Gaussian of this sigma
+        (:func:`~huefringe.perframe.weight_noise`; :attr:`OneShotPhase.sigma_weights`).
     """
     p = (table.stats or {}).get("params", {})
     ms = float(p.get("min_saturation", 0.0)) if min_saturation is None else float(min_saturation)
-    bal = white_balance(rgb, white, floor=p.get("floor", 1.0 / 255.0))
+    floor = p.get("floor", 1.0 / 255.0)
+    bal = white_balance(rgb, white, floor=floor)
     h = hue_of(bal, table.model, min_saturation=ms)  # type: ignore[arg-type]
     phase, slope = table.to_phase_and_slope(h)
-    s_cap = phase_sigma(table, slope, floor_slope)
+    noise = noise_w = None
+    if sensor_model(table) is not None:  # the capture's noise from its own signal
+        gains = white_gains(white, floor=floor)
+        pooled = capture_noise(table)
+        noise = pooled * np.sqrt(noise_ratio2(frame_hue_noise(table, rgb, gains, table.model), pooled).astype(np.float64))
+        if weight_blur_px > 0:
+            noise_w = weight_noise(table, rgb, gains, table.model, weight_blur_px)[0]  # type: ignore[index]
     s_tab = table_phase_sigma(table, slope, floor_slope)
-    s_rad = np.sqrt(s_cap**2 + np.where(np.isfinite(s_tab), s_tab, 0.0) ** 2)
+    s_tab2 = np.where(np.isfinite(s_tab), s_tab, 0.0) ** 2
+    s_rad = np.sqrt(phase_sigma(table, slope, floor_slope, noise=noise) ** 2 + s_tab2)
     reasons = np.zeros(phase.shape, np.uint8)
     reasons[~np.isfinite(phase)] |= np.uint8(Reason.LOW_SIGNAL)
     reasons[clipped_mask(rgb, bit_depth)] |= np.uint8(Reason.SATURATED)
     valid = reasons == 0
     scale = block.period_px / TWO_PI
     wrapped = np.where(valid, np.mod(phase.astype(np.float64) * scale, block.period_px), np.nan)
+    s_w = None
+    if noise_w is not None:
+        s_w = np.where(valid, np.sqrt(phase_sigma(table, slope, floor_slope, noise=noise_w) ** 2 + s_tab2) * scale, np.nan)
     return OneShotPhase(wrapped, np.where(valid, s_rad * scale, np.nan), valid, reasons,
-                        np.where(valid, phase, np.nan).astype(np.float32))
+                        np.where(valid, phase, np.nan).astype(np.float32), s_w)
 
 
 @dataclass(frozen=True, eq=False)
@@ -511,8 +538,9 @@ def filter_against_reference(phase: OneShotPhase, reference: OneShotReference, b
     modulo ``2 pi``), nearly flat where the plane route's is; it is filtered with the frame's own
     sigma and put back on the reference, ``u = u_ref + filtered offset``. Its standard uncertainty:
     ``1 / sqrt(sum w)`` (the capture's and the hue table's noise, independent between pixels,
-    averaged), the reference's own sigma (which the offset carries and putting it back restores),
-    and ``systematic_rad``, an error that neighbours share and averaging does not reduce (the
+    averaged; with :attr:`OneShotPhase.sigma_weights`, which then weights the filter,
+    ``sqrt(sum w r) / sum w``, ``r`` the pixel's ``(sigma / sigma_weights)^2``), the reference's
+    own sigma (which the offset carries and putting it back restores), and ``systematic_rad``, an error that neighbours share and averaging does not reduce (the
     table's interpolation between bands in the code-phase bin of the pixel's phase, from the
     curvature its noise does not explain, as the plane route adds it:
     :func:`huefringe.uncertainty.interpolation_bins` with ``noise_free``,
@@ -541,13 +569,21 @@ def filter_against_reference(phase: OneShotPhase, reference: OneShotReference, b
     d = np.where(both, k * (phase.wrapped + block.origin_px - reference.coord), np.nan)
     d = np.angle(np.exp(1j * d))
     wsum = np.zeros(d.shape, np.float32)
-    f = denoise_phase(d, np.where(both, k * phase.sigma, np.nan), both, radius=radius, weight_sum=wsum,
-                      **adaptive_kwargs(adaptive))
+    sw = phase.sigma if phase.sigma_weights is None else phase.sigma_weights
+    ratio = rsum = None
+    if phase.sigma_weights is not None:  # weighted by the smoothed signal's figure; u by the frame's own
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ratio = np.where(both, (phase.sigma / phase.sigma_weights) ** 2, 1.0).astype(np.float32)
+        rsum = np.zeros(d.shape, np.float32)
+    f = denoise_phase(d, np.where(both, k * sw, np.nan), both, radius=radius, weight_sum=wsum, ratio=ratio,
+                      ratio_sum=rsum, **adaptive_kwargs(adaptive))
     ok = both & np.isfinite(f) & (wsum > 0)
     wrapped = np.where(ok, np.mod(reference.coord + f.astype(np.float64) / k - block.origin_px, P), np.nan)
     sys2 = 0.0 if systematic_rad is None else np.nan_to_num(np.asarray(systematic_rad, np.float64)) ** 2
     with np.errstate(divide="ignore", invalid="ignore"):
-        var = 1.0 / np.where(ok, wsum, 1.0).astype(np.float64) + sys2 + (k * np.nan_to_num(reference.sigma)) ** 2
+        w64 = np.where(ok, wsum, 1.0).astype(np.float64)
+        filt = 1.0 / w64 if rsum is None else np.where(ok, rsum, 1.0).astype(np.float64) / w64**2
+        var = filt + sys2 + (k * np.nan_to_num(reference.sigma)) ** 2
         sigma = np.where(ok, np.sqrt(var) / k, np.nan)
     reasons = phase.reasons.copy()
     reasons[both & ~ok] |= np.uint8(Reason.LOW_SIGNAL)   # rejected by the adaptive filter
@@ -589,7 +625,8 @@ def measure_oneshot(rgb: NDArray[np.floating], white: NDArray[np.floating], tabl
                     calib: RigCalibration, reference: OneShotReference, *, bit_depth: int = 8,
                     order_sigmas: float = 3.0, stands_on_reference: bool = True, behind_mm: float = 0.25,
                     denoise_radius: int = 0, denoise_adaptive: dict[str, Any] | None = None,
-                    interp_bins: NDArray[np.float32] | None = None) -> OneShotResult:
+                    interp_bins: NDArray[np.float32] | None = None,
+                    weight_blur_px: float = WEIGHT_BLUR_PX) -> OneShotResult:
     """One trapezoid frame to X, Y, Z: :func:`trapezoid_coordinate`, :func:`absolute_from_reference`,
     :func:`~huefringe.rig.triangulate` (ray against the projector plane of the coordinate, ``sigma_u``
     the coordinate's). Pixels flagged by either step are never triangulated. ``denoise_radius`` > 0
@@ -597,8 +634,11 @@ def measure_oneshot(rgb: NDArray[np.floating], white: NDArray[np.floating], tabl
     difference (:func:`filter_against_reference`, ``denoise_adaptive`` its adaptive support), its
     systematic term the table's interpolation error in the bin of each pixel's code phase
     (``interp_bins``: :func:`huefringe.uncertainty.interpolation_bins` of ``table`` with
-    ``noise_free``, computed here when None; a session passes its own once)."""
-    ph = trapezoid_coordinate(rgb, white, table, block, bit_depth=bit_depth)
+    ``noise_free``, computed here when None; a session passes its own once), its weights the
+    capture's noise read through a Gaussian of ``weight_blur_px`` (``measurement.weight_blur_px``;
+    0: the frame's own figure as captured, which u reads either way)."""
+    ph = trapezoid_coordinate(rgb, white, table, block, bit_depth=bit_depth,
+                              weight_blur_px=weight_blur_px if denoise_radius > 0 else 0.0)
     if denoise_radius > 0:
         from huefringe.uncertainty import interpolation_at, interpolation_bins
 
@@ -693,8 +733,8 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
     captured on the object's scene (the table is per pixel of the surface it sees).
 
     ``cfg['rig']['oneshot_denoise_radius']`` > 0 filters each frame's offset from the reference
-    with that radius and ``cfg['measurement']['denoise_adaptive']`` (:func:`measure_oneshot`,
-    :func:`filter_against_reference`); 0 or absent: unfiltered.
+    with that radius, ``cfg['measurement']['denoise_adaptive']`` and ``weight_blur_px``
+    (:func:`measure_oneshot`, :func:`filter_against_reference`); 0 or absent: unfiltered.
 
     Raises
     ------
@@ -739,6 +779,7 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
     table = hue_table_from_frames(caps.white, caps.bands, caps.bands_block, model=cfg.get("hue_model", "hexcone"))
     radius = int((cfg.get("rig") or {}).get("oneshot_denoise_radius") or 0)
     adaptive = (cfg.get("measurement") or {}).get("denoise_adaptive") if radius > 0 else None
+    blur = float((cfg.get("measurement") or {}).get("weight_blur_px", WEIGHT_BLUR_PX))
     bins = None
     if radius > 0:
         from huefringe.uncertainty import interpolation_bins
@@ -749,7 +790,8 @@ def measure_oneshot_session(session: Any, calib: RigCalibration, cfg: dict[str, 
     for k in range(caps.frames.shape[0]):
         res = measure_oneshot(caps.frames[k], caps.white, table, caps.block, calib, ref, bit_depth=caps.bit_depth,
                               order_sigmas=order_sigmas, stands_on_reference=ref_root is not None,
-                              denoise_radius=radius, denoise_adaptive=adaptive, interp_bins=bins)
+                              denoise_radius=radius, denoise_adaptive=adaptive, interp_bins=bins,
+                              weight_blur_px=blur)
         if int(res.valid.sum()) < 3:
             raise RigError(f"{session.root / 'captures'}: one-shot frame {k}: {int(res.valid.sum())} pixels decoded and "
                            "triangulated; nothing to measure")
