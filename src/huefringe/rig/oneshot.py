@@ -540,9 +540,10 @@ def filter_against_reference(phase: OneShotPhase, reference: OneShotReference, b
     ``1 / sqrt(sum w)`` (the capture's and the hue table's noise, independent between pixels,
     averaged; with :attr:`OneShotPhase.sigma_weights`, which then weights the filter,
     ``sqrt(sum w r) / sum w``, ``r`` the pixel's ``(sigma / sigma_weights)^2``), the reference's
-    own sigma (which the offset carries and putting it back restores), and ``systematic_rad``, an error that neighbours share and averaging does not reduce (the
-    table's interpolation between bands in the code-phase bin of the pixel's phase, from the
-    curvature its noise does not explain, as the plane route adds it:
+    own sigma (which the offset carries and putting it back restores), and ``systematic_rad``, an
+    error that neighbours share and averaging does not reduce (the table's interpolation between
+    bands in the code-phase bin of the pixel's phase, from the curvature its noise does not
+    explain, as the plane route adds it:
     :func:`huefringe.uncertainty.interpolation_bins` with ``noise_free``,
     :func:`huefringe.uncertainty.interpolation_at`), in quadrature.
 
