@@ -265,10 +265,10 @@ def test_frame_noise_term_matches_frame_to_frame_spread(still: dict) -> None:
 
 def test_filtered_noise_term_matches_frame_to_frame_spread(still: dict, still_filtered: dict) -> None:
     """With the default filter (radius 2, sigma-adaptive), its weights read along the fringe
-    (:func:`still_filtered`), and every default term but the lateral one, away from the steps (pixels 6 px or more from
-    any change of the true height: ground truth only selects them): median ratio within 15 %
-    (measured 0.940). ``split_terms`` gives the noise term all
-    but the calibration terms, so the frame-fixed texture term is in it. The lateral term is
+    (:func:`still_filtered`), and every default term but the lateral one, away from the steps
+    (pixels 6 px or more from any change of the true height: ground truth only selects them):
+    median ratio within 15 % (measured 0.940). ``split_terms`` gives the noise term all but the
+    calibration terms, so the frame-fixed texture term is in it. The lateral term is
     left out: on this rig's 15 px period the code-locked error pattern gives the filtered heights
     a slope where the surface has none (docs/uncertainty.md, Known limits). Near the steps the
     filter's accept/reject decisions change from frame to frame, which ``1 / sum w`` does not hold

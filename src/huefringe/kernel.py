@@ -75,7 +75,8 @@ from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
 from huefringe.perframe import (WEIGHT_BLUR_PX, WEIGHT_BLUR_SHAPE, _hue_noise_kernel, capture_noise, fringe_angle,
-                                height_noise, noise_ratio2, ratio_over, sensor_model, shadow_mask, sigma_from_slope, weight_noise_of)
+                                height_noise, noise_ratio2, ratio_over, sensor_model, shadow_mask, sigma_from_slope,
+                                weight_noise_of)
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
 from huefringe.session import Predistortion
