@@ -418,14 +418,17 @@ def test_fringe_angle_and_kernel() -> None:
     ignored), and the weights' Gaussian along the fringe: a column's normalised Gaussian out to 3
     sigma when the fringes run along the columns; at any angle centred, of unit sum, with the
     truncated Gaussian's variance along the fringe and at most 0.2 px^2 across it (the linear
-    interpolation's: 0.185 at 45 degrees)."""
-    from huefringe.perframe import fringe_angle, fringe_kernel
+    interpolation's: 0.185 at 45 degrees); an unknown shape of the Gaussian refused."""
+    from huefringe.perframe import fringe_angle, fringe_kernel, weight_blur_angle
 
     y, x = np.mgrid[0:60, 0:80].astype(np.float64)
     phi = np.mod(0.31 * x - 0.07 * y, 2 * np.pi) - np.pi
     phi[10:20, 30:50] = np.nan
     assert fringe_angle(phi) == pytest.approx(np.arctan2(-0.07, 0.31), abs=1e-6)
     assert fringe_angle(np.full((5, 5), np.nan)) is None and fringe_angle(np.zeros((5, 5))) is None
+    assert weight_blur_angle(phi, "along_fringe") == fringe_angle(phi) and weight_blur_angle(phi, "isotropic") is None
+    with pytest.raises(ValueError, match="along-fringe"):
+        weight_blur_angle(phi, "along-fringe")
     k = fringe_kernel(2.0, 0.0)
     g = np.exp(-0.5 * (np.arange(-6, 7) / 2.0) ** 2)
     np.testing.assert_allclose(k[:, 0], g / g.sum(), rtol=1e-6)

@@ -74,8 +74,8 @@ from numpy.typing import NDArray
 from huefringe.colour import HUE_MODELS, white_gains
 from huefringe.height import PlaneCalibration
 from huefringe.huetable import HueTable
-from huefringe.perframe import (WEIGHT_BLUR_PX, WEIGHT_BLUR_SHAPE, _hue_noise_kernel, capture_noise, fringe_angle,
-                                height_noise, noise_ratio2, ratio_over, sensor_model, shadow_mask, sigma_from_slope,
+from huefringe.perframe import (WEIGHT_BLUR_PX, WEIGHT_BLUR_SHAPE, _hue_noise_kernel, capture_noise, height_noise,
+                                noise_ratio2, ratio_over, sensor_model, shadow_mask, sigma_from_slope, weight_blur_angle,
                                 weight_noise_of)
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
 from huefringe.phase_error import correct_one
@@ -296,7 +296,7 @@ def prepare(
     prep.sensor = model if own_noise else None  # measure_frame's own_noise
     prep.u_sensor = None if own_noise else model
     prep.weight_blur_px = float(weight_blur_px)
-    prep.weight_angle = fringe_angle(cal.phi_ref) if weight_blur_shape == "along_fringe" else None
+    prep.weight_angle = weight_blur_angle(cal.phi_ref, weight_blur_shape)
     prep.stats = {
         "table_invalid_fraction": float(np.mean(~np.asarray(table.valid, bool))),
         "shadow_fraction": float(shadow_arr.mean()),

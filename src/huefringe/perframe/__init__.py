@@ -49,6 +49,7 @@ from ._noise import (  # noqa: F401
     WEIGHT_BLUR_SHAPES,
     fringe_angle,
     fringe_kernel,
+    weight_blur_angle,
     ratio_over,
     smoothed_signal,
     weight_noise,

@@ -18,8 +18,8 @@ from huefringe.phase import adaptive_kwargs, denoise_phase, denoise_weight_sums,
 from huefringe.session import Predistortion
 from huefringe.uncertainty import PixelBudget, edge_floor, height_uncertainty, pixel_budget, texture_delta, texture_term_phase
 from ._edges import clipped_mask
-from ._noise import (WEIGHT_BLUR_PX, WEIGHT_BLUR_SHAPE, capture_noise, frame_hue_noise, fringe_angle, height_noise,
-                     noise_ratio2, phase_sigma, ratio_over, sensor_model, weight_noise)
+from ._noise import (WEIGHT_BLUR_PX, WEIGHT_BLUR_SHAPE, capture_noise, frame_hue_noise, height_noise, noise_ratio2,
+                     phase_sigma, ratio_over, sensor_model, weight_blur_angle, weight_noise)
 from ._stats import frame_stats
 
 
@@ -153,8 +153,8 @@ def measure_frame(
     gains = white_gains(white)
     own = frame_hue_noise(table, rgb, gains, hue_model) if own_noise or sensor_model(table) is not None else None
     ratio = noise_ratio2(own, capture_noise(table)) if own is not None and not own_noise else None
-    angle = fringe_angle(cal.phi_ref) if weight_blur_shape == "along_fringe" else None
-    weighted = weight_noise(table, rgb, gains, hue_model, weight_blur_px, angle=angle) \
+    weighted = weight_noise(table, rgb, gains, hue_model, weight_blur_px,
+                            angle=weight_blur_angle(cal.phi_ref, weight_blur_shape)) \
         if ratio is not None and denoise_radius > 0 else None
     if weighted is not None:  # the weights from the smoothed signal; u's ratio against them
         ratio = ratio_over(ratio, weighted[1])

@@ -187,6 +187,15 @@ def fringe_angle(phi_ref: NDArray[np.floating]) -> float | None:
     return float(np.arctan2(gy, gx))
 
 
+def weight_blur_angle(phi_ref: NDArray[np.floating], shape: str) -> float | None:
+    """The direction the weights' Gaussian needs for ``shape`` (``measurement.weight_blur_shape``,
+    one of :data:`WEIGHT_BLUR_SHAPES`): :func:`fringe_angle` of ``phi_ref`` for ``along_fringe``,
+    None (isotropic) for ``isotropic``; any other shape is refused (ValueError)."""
+    if shape not in WEIGHT_BLUR_SHAPES:
+        raise ValueError(f"weight_blur_shape {shape!r}: expected one of {', '.join(WEIGHT_BLUR_SHAPES)}")
+    return fringe_angle(phi_ref) if shape == "along_fringe" else None
+
+
 def fringe_kernel(blur_px: float, angle: float) -> NDArray[np.float32]:
     """A one-dimensional Gaussian of sigma ``blur_px`` along the fringe (perpendicular to the
     phase gradient's direction ``angle``, :func:`fringe_angle`), out to 3 sigma, drawn on the

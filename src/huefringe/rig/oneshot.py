@@ -69,7 +69,7 @@ from huefringe.colour import hue as hue_of
 from huefringe.colour import white_balance, white_gains
 from huefringe.huetable import HueTable, band_smoothing_matrix, build_table
 from huefringe.perframe import (WEIGHT_BLUR_PX, capture_noise, clipped_mask, frame_hue_noise, noise_ratio2, phase_sigma,
-                                sensor_model, weight_noise)
+                                sensor_model, weight_noise_of)
 from huefringe.rig.model import RigCalibration
 from huefringe.rig.triangulation import project, triangulate
 
@@ -282,12 +282,13 @@ def trapezoid_coordinate(rgb: NDArray[np.floating], white: NDArray[np.floating],
     h = hue_of(bal, table.model, min_saturation=ms)  # type: ignore[arg-type]
     phase, slope = table.to_phase_and_slope(h)
     noise = noise_w = None
-    if sensor_model(table) is not None:  # the capture's noise from its own signal
+    model = sensor_model(table)
+    if model is not None:  # the capture's noise from its own signal
         gains = white_gains(white, floor=floor)
         pooled = capture_noise(table)
         noise = pooled * np.sqrt(noise_ratio2(frame_hue_noise(table, rgb, gains, table.model), pooled).astype(np.float64))
         if weight_blur_px > 0:
-            noise_w = weight_noise(table, rgb, gains, table.model, weight_blur_px)[0]  # type: ignore[index]
+            noise_w = weight_noise_of(pooled, model, rgb, gains, table.model == "hsi", weight_blur_px)[0]
     s_tab = table_phase_sigma(table, slope, floor_slope)
     s_tab2 = np.where(np.isfinite(s_tab), s_tab, 0.0) ** 2
     s_rad = np.sqrt(phase_sigma(table, slope, floor_slope, noise=noise) ** 2 + s_tab2)
