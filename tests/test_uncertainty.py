@@ -267,8 +267,10 @@ def test_filtered_noise_term_matches_frame_to_frame_spread(still: dict, still_fi
     """With the default filter (radius 2, sigma-adaptive), its weights read along the fringe
     (:func:`still_filtered`), and every default term but the lateral one, away from the steps
     (pixels 6 px or more from any change of the true height: ground truth only selects them):
-    median ratio within 15 % (measured 0.940). ``split_terms`` gives the noise term all but the
-    calibration terms, so the frame-fixed texture term is in it. The lateral term is
+    median ratio within 15 % (measured 0.887). ``split_terms`` gives the noise term all but the
+    calibration terms, so the frame-fixed texture term and the grown windows' bias are in it (on
+    these pixels the frames share 0.0100 mm rms of error, the noise term is 0.0143 mm rms against a
+    spread of 0.0122 mm). The lateral term is
     left out: on this rig's 15 px period the code-locked error pattern gives the filtered heights
     a slope where the surface has none (docs/uncertainty.md, Known limits). Near the steps the
     filter's accept/reject decisions change from frame to frame, which ``1 / sum w`` does not hold
@@ -288,10 +290,12 @@ def test_filtered_noise_term_matches_frame_to_frame_spread(still: dict, still_fi
 def test_isotropic_weights_at_a_short_period_overstate_the_noise(still: dict, still_filtered: dict) -> None:
     """The default weights' isotropic 2 px Gaussian on this rig's 15 px fringe mixes the fringe's
     hues and reads a lower chroma than the pixel's own, so the weights' noise figure reads high
-    and the noise term over-predicts the flat pixels' spread: median ratio 0.709 against 0.940
+    and the noise term over-predicts the flat pixels' spread: median ratio 0.572 against 0.887
     along the fringe; on the safe side, with heights that spread less (rms 0.0100 against 0.0122
     mm: the over-stated sigma grows more windows), but a u larger than the noise it holds
-    (docs/uncertainty.md, "The filter's weights")."""
+    (docs/uncertainty.md, "The filter's weights"). The wider windows also share more error from
+    frame to frame (0.0155 against 0.0100 mm rms), which the grown windows' bias holds and
+    ``split_terms`` counts in the noise term (0.0232 against 0.0143 mm rms)."""
     from scipy import ndimage
 
     sess = load_session(still["session"])
@@ -304,7 +308,7 @@ def test_isotropic_weights_at_a_short_period_overstate_the_noise(still: dict, st
         med[key] = float(np.median(std[m] / noise[m]))
         spread[key] = float(np.sqrt(np.mean(std[m] ** 2)))
     assert spread["paths_isotropic"] < spread["paths"], spread
-    assert 0.6 < med["paths_isotropic"] < med["paths"] - 0.1, med
+    assert 0.5 < med["paths_isotropic"] < med["paths"] - 0.1, med
 
 
 def test_clouds_carry_sigma_mm(still: dict) -> None:

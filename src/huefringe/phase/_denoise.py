@@ -65,10 +65,12 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     bias2 : float32 ndarray, optional
         Receives, per pixel whose window the sigma-adaptive pass grew, the squared bias (rad^2) of
         its weighted mean at the pixel: the accepted neighbours' values (less the local plane where
-        it has one) fitted by least squares to a plane in their offsets, whose slope ``d`` times
-        the weights' centroid ``c`` is what the mean errs by on a surface the plane does not
-        follow (a curved or shadow-bounded relief whose window has weight on one side), less the
-        fitted slope's noise variance (``(d . c)^2 - var``, 0 if negative); NaN where the first
+        it has one) modelled as a plane in their offsets plus the surface's curvature ``H`` (the
+        first-pass map's second differences ``2 max_radius`` px either side, shrunk by their own
+        noise), the plane's slope ``d`` fitted by least squares; the mean errs by ``d . c +
+        mean(o^T H o) / 2`` (``c`` the weights' centroid, ``o`` the accepted offsets): a window
+        with weight on one side on a surface the plane does not follow, and any grown window on a
+        curved surface. Less the fitted slope's noise variance (0 if negative); NaN where the first
         pass's fixed window stands (its centroid is the lateral term's) and where the pass dropped
         its plane at a kink of 5 sigma or more (a step between its probes: the lateral term's step
         part). A flat side next to a step has no slope: no bias.

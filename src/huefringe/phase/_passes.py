@@ -423,7 +423,7 @@ def _plane_box(tab, r0, r1, u0, u1, xp, yp, gu, gv, vgu, vgv):  # pragma: no cov
 
 #: The squared disagreement (in sigma^2 of its difference) of the plane's two sides from which a
 #: dropped plane counts as a step (5 sigma): there the grown window's bias is the lateral term's
-#: step part's, not :func:`_centroid_bias2`'s.
+#: step part's, not :func:`_window_bias2`'s.
 _STEP_KINK2 = np.float32(25.0)
 
 
@@ -439,7 +439,7 @@ def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     outside the image or not valid: the pixel's level). Differences wrapped to [-pi, pi). The third
     value is True where the plane was dropped for sides that disagree by 5 sigma or more (a step
     between them: the grown window's bias is then the lateral term's step part's, not
-    :func:`_centroid_bias2`'s)."""
+    :func:`_window_bias2`'s)."""
     two_pi = np.float32(2.0 * np.pi)
     inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
     pi = np.float32(np.pi)
@@ -465,20 +465,120 @@ def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _centroid_bias2(m, sw, sr):  # pragma: no cover - compiled
+def _second_difference(fl, wl, a, b, c, base):  # pragma: no cover - compiled
+    """The phase's second derivative (rad/px^2) at a pixel along one direction from the first-pass
+    estimates ``fl`` at flat indices ``a``, ``b`` (the pixel) and ``c``, ``base`` px apart:
+    ``(wrap(first_c - first_b) - wrap(first_b - first_a)) / base^2``, and its variance
+    ``(1 / wfirst_a + 4 / wfirst_b + 1 / wfirst_c) / base^4``; ``(0, 0)`` where a side is outside
+    the image or not valid."""
+    two_pi = np.float32(2.0 * np.pi)
+    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
+    pi = np.float32(np.pi)
+    zero = np.float32(0.0)
+    if a < 0 or c < 0 or wl[a] <= 0 or wl[c] <= 0:
+        return zero, zero
+    fwd = fl[c] - fl[b]
+    fwd = fwd - two_pi * np.floor((fwd + pi) * inv_two_pi)
+    bwd = fl[b] - fl[a]
+    bwd = bwd - two_pi * np.floor((bwd + pi) * inv_two_pi)
+    b4 = base * base * base * base
+    return (fwd - bwd) / (base * base), (np.float32(1.0) / wl[a] + np.float32(4.0) / wl[b]
+                                         + np.float32(1.0) / wl[c]) / b4
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _cross_difference(fl, wl, pp, pm, mp, mm, base):  # pragma: no cover - compiled
+    """The phase's mixed second derivative (rad/px^2) at a pixel from the first-pass estimates at the
+    flat indices of its four diagonal neighbours ``base`` px away (``pp`` = (+u, +v), ``pm`` = (+u,
+    -v), ...): ``(wrap(f_pp - f_pm) - wrap(f_mp - f_mm)) / (4 base^2)``, and its variance; ``(0, 0)``
+    where one is outside the image or not valid."""
+    two_pi = np.float32(2.0 * np.pi)
+    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
+    pi = np.float32(np.pi)
+    zero = np.float32(0.0)
+    if pp < 0 or pm < 0 or mp < 0 or mm < 0 or wl[pp] <= 0 or wl[pm] <= 0 or wl[mp] <= 0 or wl[mm] <= 0:
+        return zero, zero
+    x = fl[pp] - fl[pm]
+    x = x - two_pi * np.floor((x + pi) * inv_two_pi)
+    y = fl[mp] - fl[mm]
+    y = y - two_pi * np.floor((y + pi) * inv_two_pi)
+    b2 = np.float32(4.0) * base * base
+    one = np.float32(1.0)
+    return (x - y) / b2, (one / wl[pp] + one / wl[pm] + one / wl[mp] + one / wl[mm]) / (b2 * b2)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _curvature_probe(fl, wl, i0, x, n, mr, stride):  # pragma: no cover - compiled
+    """The surface's second derivative along one axis at flat index ``i0`` (coordinate ``x`` of
+    ``n`` along the axis, ``stride`` its flat stride, ``mr`` = ``max_radius``): the second
+    difference over ``2 max_radius`` px either side, where it agrees with the one over ``max_radius``
+    px within 3 standard deviations of their difference (else a step or an edge lies between the
+    two probes: 0), over ``max_radius`` px where the far probes are outside the image; its
+    variance."""
+    zero = np.float32(0.0)
+    step = mr * stride
+    b1 = np.float32(mr)
+    h1, v1 = _second_difference(fl, wl, i0 - step if x >= mr else -1, i0, i0 + step if x + mr < n else -1, b1)
+    if v1 <= 0:
+        return zero, zero
+    h2, v2 = _second_difference(fl, wl, i0 - 2 * step if x >= 2 * mr else -1, i0,
+                                i0 + 2 * step if x + 2 * mr < n else -1, np.float32(2 * mr))
+    if v2 <= 0:
+        return h1, v1
+    if (h2 - h1) * (h2 - h1) > np.float32(9.0) * (v1 + v2):
+        return zero, zero
+    return h2, v2
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _cross_probe(fl, wl, i0, u, v, w, h, mr):  # pragma: no cover - compiled
+    """The surface's mixed second derivative at flat index ``i0`` (pixel ``u, v``) from its diagonal
+    neighbours ``2 max_radius`` px away where they are inside the image, else ``max_radius``
+    (:func:`_cross_difference`); ``(0, 0)`` near the border."""
+    zero = np.float32(0.0)
+    for b in (2 * mr, mr):
+        if u >= b and u + b < w and v >= b and v + b < h:
+            return _cross_difference(fl, wl, i0 + b * w + b, i0 - b * w + b, i0 + b * w - b, i0 - b * w - b,
+                                     np.float32(b))
+    return zero, zero
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _shrunk(x, v):  # pragma: no cover - compiled
+    """An estimate ``x`` of variance ``v`` shrunk towards 0 by its own noise, ``x max(1 - v / x^2,
+    0)`` (James-Stein's positive part): a curvature lost in the noise adds nothing, a clear one
+    nearly all of itself."""
+    x = np.float64(x)
+    x2 = x * x
+    if not x2 > v:
+        return 0.0
+    return x * (1.0 - np.float64(v) / x2)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _window_bias2(m, sw, sr, hu2, huv, hv2):  # pragma: no cover - compiled
     """The squared bias (rad^2) of a grown window's weighted mean at its pixel: the accepted
-    neighbours' values (less the plane, if any) fitted by least squares to a plane in the offsets,
-    ``r = r0 + d . o``; the mean is the fit at the weights' centroid ``c``, the pixel's value is
-    ``r0``, so the mean errs by ``d . c``. Returned as ``(d . c)^2 - var(d . c)`` (the fitted
-    slope's noise, inverse-variance weights, removed; 0 if negative or the offsets are degenerate).
-    ``m``: the sums ``w du, w dv, w du^2, w dv^2, w du dv, w r du, w r dv``; ``sw = sum w``,
-    ``sr = sum w r``."""
+    neighbours' values ``r`` (less the plane, if any) modelled as ``r0 + d . o + q(o)``, ``q(o) =
+    o^T H o / 2`` with ``H`` the surface's curvature (second derivatives of the first-pass map,
+    :func:`_curvature_probe`, :func:`_cross_probe`, each shrunk by its own noise, :func:`_shrunk`)
+    and ``d`` fitted by weighted least squares to ``r - q``; the mean is the model averaged over
+    the window, so it errs from the pixel's ``r0`` by ``d . c + mean(q)`` (``c`` the weights'
+    centroid): a lopsided window on a slope the plane does not follow (next to a shadow, where the
+    plane was dropped) by the first part, every grown window on a curved surface by the second,
+    symmetric or not. Returned as ``(d . c + mean(q))^2 - var(d . c)`` (the fitted slope's noise,
+    inverse-variance weights, removed; 0 if negative or the offsets are degenerate). ``m``: the
+    sums ``w du, w dv, w du^2, w dv^2, w du dv, w (r - q) du, w (r - q) dv``; ``sw = sum w``,
+    ``sr = sum w r``; ``hu2, huv, hv2``: ``H_uu / 2``, ``H_uv``, ``H_vv / 2`` (rad / px^2)."""
     cu = m[0] / sw
     cv = m[1] / sw
-    muu = m[2] / sw - cu * cu
-    mvv = m[3] / sw - cv * cv
-    muv = m[4] / sw - cu * cv
-    rb = sr / sw
+    suu = m[2] / sw
+    svv = m[3] / sw
+    suv = m[4] / sw
+    muu = suu - cu * cu
+    mvv = svv - cv * cv
+    muv = suv - cu * cv
+    qb = hu2 * suu + huv * suv + hv2 * svv  # mean(q)
+    rb = sr / sw - qb
     ru = m[5] / sw - rb * cu
     rv = m[6] / sw - rb * cv
     det = muu * mvv - muv * muv
@@ -486,7 +586,7 @@ def _centroid_bias2(m, sw, sr):  # pragma: no cover - compiled
         return np.float32(0.0)
     gu = (mvv * ru - muv * rv) / det
     gv = (muu * rv - muv * ru) / det
-    b = gu * cu + gv * cv
+    b = gu * cu + gv * cv + qb
     vb = (cu * cu * mvv - 2.0 * cu * cv * muv + cv * cv * muu) / (det * sw)
     return np.float32(max(b * b - vb, 0.0))
 
@@ -549,7 +649,8 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     ``wout`` and ``rad`` are the same bits with or without it.
 
     With ``b2o`` of the phase's shape, it receives each grown pixel's squared bias
-    (:func:`_centroid_bias2`, rad^2) from the moments of the neighbours its rings accepted, summed
+    (:func:`_window_bias2`, rad^2) from the moments of the neighbours its rings accepted, their
+    values less the surface's curvature at the pixel (from the first-pass map), summed
     in a loop of their own after each window offset (in the pass's inner loops they cost the
     carried path its vectorisation); NaN where the first pass stands, where a box was taken and where
     the plane was dropped at a kink of 5 sigma or more (a step: the lateral term's step part holds
@@ -612,7 +713,8 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
     cg = np.empty(w, np.float32)  # the gathered carried values (``carry``)
     pcc = np.empty(w, np.float32)
     bias = b2o.shape[0] == h and b2o.shape[1] == w  # the grown window's own slope times its centroid
-    mom = np.empty((7, w), np.float32)  # sum w du, w dv, w du^2, w dv^2, w du dv, w r du, w r dv
+    mom = np.empty((7, w), np.float32)  # sum w du, w dv, w du^2, w dv^2, w du dv, w r' du, w r' dv
+    phc = np.empty((3, w), np.float32)  # the surface's curvature from the first-pass map (H_uu / 2, H_uv, H_vv / 2)
     wk = np.empty(w, np.float32)  # scratch: each pixel's accepted weight and residual at this offset
     rk = np.empty(w, np.float32)
     pk = np.empty(w, np.bool_)  # the plane dropped at a kink (a step): its window's bias is the lateral term's
@@ -705,6 +807,13 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                 continue
         pu[n] = u
         pk[n] = ku or kv
+        if bias:
+            huu, vuu = _curvature_probe(fl, wl, v * w + u, u, w, bu, 1)
+            hvv, vvv = _curvature_probe(fl, wl, v * w + u, v, h, bu, w)
+            huv, vuv = _cross_probe(fl, wl, v * w + u, u, v, w, h, bu)
+            phc[0, n] = np.float32(0.5 * _shrunk(huu, vuu))
+            phc[1, n] = np.float32(_shrunk(huv, vuv))
+            phc[2, n] = np.float32(0.5 * _shrunk(hvv, vvv))
         pgu[n] = gu
         pvu[n] = vgu
         pgv[n] = gv
@@ -789,10 +898,11 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                         rk[q] = diff - pl
                 if bias:  # the moments of the grown window's accepted neighbours (their own loop: SIMD)
                     m0, m1, m2, m3, m4, m5, m6 = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5], mom[6]
+                    h0, h1, h2 = phc[0], phc[1], phc[2]
                     duv = fdu * fdv
                     for q in range(n):
                         wq = wk[q]
-                        rq = wq * rk[q]
+                        rq = wq * (rk[q] - (h0[q] * du2 + h1[q] * duv + h2[q] * dv2))  # less the curvature
                         m0[q] += wq * fdu
                         m1[q] += wq * fdv
                         m2[q] += wq * du2
@@ -821,7 +931,9 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                         if carry:
                             cout[v, u] = pcc[q] / wsum
                         if bias and not pk[q]:
-                            b2o[v, u] = _centroid_bias2(mom[:, q], np.float64(wsum), np.float64(pacc[q]))
+                            b2o[v, u] = _window_bias2(mom[:, q], np.float64(wsum), np.float64(pacc[q]),
+                                                      np.float64(phc[0, q]), np.float64(phc[1, q]),
+                                                      np.float64(phc[2, q]))
                     out[v, u] = val if wsum >= reject_w else nan
                     wout[v, u] = wsum
                     continue
@@ -840,6 +952,8 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                 if bias:
                     for k in range(7):
                         mom[k, keep_n] = mom[k, q]
+                    for k in range(3):
+                        phc[k, keep_n] = phc[k, q]
                 keep_n += 1
             n = keep_n
             if n == 0:
