@@ -900,9 +900,11 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                     m0, m1, m2, m3, m4, m5, m6 = mom[0], mom[1], mom[2], mom[3], mom[4], mom[5], mom[6]
                     h0, h1, h2 = phc[0], phc[1], phc[2]
                     duv = fdu * fdv
+                    for q in range(n):  # the value less the curvature (a loop of its own: SIMD)
+                        rk[q] -= h0[q] * du2 + h1[q] * duv + h2[q] * dv2
                     for q in range(n):
                         wq = wk[q]
-                        rq = wq * (rk[q] - (h0[q] * du2 + h1[q] * duv + h2[q] * dv2))  # less the curvature
+                        rq = wq * rk[q]
                         m0[q] += wq * fdu
                         m1[q] += wq * fdv
                         m2[q] += wq * du2
