@@ -688,8 +688,8 @@ def test_grown_windows_report_their_own_bias() -> None:
     """``bias2``: on a noise-free ramp with shadows (windows with weight on one side) the grown
     windows' error at the pixel is their accepted neighbours' own slope times their centroid, with
     or without the local plane (a plane's slope error is the same kind): ``sqrt(bias2)`` is that
-    error less its noise share (the ramp has no curvature); on flat tops beside a step (the far side rejected, the window as
-    lopsided) it is 0, and NaN where the plane's probes straddle the step (a kink: the lateral
+    error less its noise share (the ramp has no curvature); on flat tops beside a step (the far
+    side rejected, the window as lopsided) it is 0, and NaN where the plane's probes straddle the step (a kink: the lateral
     term's); NaN where the first pass's fixed window stands."""
     rng = np.random.default_rng(29)
     vv, uu = np.mgrid[:70, :90].astype(np.float64)

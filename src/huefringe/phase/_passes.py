@@ -428,6 +428,13 @@ _STEP_KINK2 = np.float32(25.0)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def _wrap_pi(x):  # pragma: no cover - compiled
+    """A float32 phase difference wrapped to [-pi, pi), as the passes' inner loops write it inline."""
+    two_pi = np.float32(2.0 * np.pi)
+    return x - two_pi * np.floor((x + np.float32(np.pi)) * np.float32(1.0 / (2.0 * np.pi)))
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     """The local phase slope (rad/px) through a pixel along one axis, and its variance, from the
     first-pass estimates ``fl`` (the map flattened, C order) at flat indices ``a`` (``-base`` px), ``b`` (the pixel) and ``c``
@@ -440,19 +447,14 @@ def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     value is True where the plane was dropped for sides that disagree by 5 sigma or more (a step
     between them: the grown window's bias is then the lateral term's step part's, not
     :func:`_window_bias2`'s)."""
-    two_pi = np.float32(2.0 * np.pi)
-    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
-    pi = np.float32(np.pi)
     zero = np.float32(0.0)
     if a < 0 or c < 0 or wl[a] <= 0 or wl[c] <= 0:
         return zero, zero, False
     va = np.float32(1.0) / wl[a]
     vb = np.float32(1.0) / wl[b]
     vc = np.float32(1.0) / wl[c]
-    fwd = fl[c] - fl[b]
-    fwd = (fwd - two_pi * np.floor((fwd + pi) * inv_two_pi)) / base
-    bwd = fl[b] - fl[a]
-    bwd = (bwd - two_pi * np.floor((bwd + pi) * inv_two_pi)) / base
+    fwd = _wrap_pi(fl[c] - fl[b]) / base
+    bwd = _wrap_pi(fl[b] - fl[a]) / base
     dd = fwd - bwd
     if dd * dd * base * base > kink2 * (va + np.float32(4.0) * vb + vc):
         # the sides disagree (a step, an edge, a kink): no plane; flagged from _STEP_KINK2 on (a step)
@@ -471,16 +473,11 @@ def _second_difference(fl, wl, a, b, c, base):  # pragma: no cover - compiled
     ``(wrap(first_c - first_b) - wrap(first_b - first_a)) / base^2``, and its variance
     ``(1 / wfirst_a + 4 / wfirst_b + 1 / wfirst_c) / base^4``; ``(0, 0)`` where a side is outside
     the image or not valid."""
-    two_pi = np.float32(2.0 * np.pi)
-    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
-    pi = np.float32(np.pi)
     zero = np.float32(0.0)
     if a < 0 or c < 0 or wl[a] <= 0 or wl[c] <= 0:
         return zero, zero
-    fwd = fl[c] - fl[b]
-    fwd = fwd - two_pi * np.floor((fwd + pi) * inv_two_pi)
-    bwd = fl[b] - fl[a]
-    bwd = bwd - two_pi * np.floor((bwd + pi) * inv_two_pi)
+    fwd = _wrap_pi(fl[c] - fl[b])
+    bwd = _wrap_pi(fl[b] - fl[a])
     b4 = base * base * base * base
     return (fwd - bwd) / (base * base), (np.float32(1.0) / wl[a] + np.float32(4.0) / wl[b]
                                          + np.float32(1.0) / wl[c]) / b4
@@ -492,16 +489,11 @@ def _cross_difference(fl, wl, pp, pm, mp, mm, base):  # pragma: no cover - compi
     flat indices of its four diagonal neighbours ``base`` px away (``pp`` = (+u, +v), ``pm`` = (+u,
     -v), ...): ``(wrap(f_pp - f_pm) - wrap(f_mp - f_mm)) / (4 base^2)``, and its variance; ``(0, 0)``
     where one is outside the image or not valid."""
-    two_pi = np.float32(2.0 * np.pi)
-    inv_two_pi = np.float32(1.0 / (2.0 * np.pi))
-    pi = np.float32(np.pi)
     zero = np.float32(0.0)
     if pp < 0 or pm < 0 or mp < 0 or mm < 0 or wl[pp] <= 0 or wl[pm] <= 0 or wl[mp] <= 0 or wl[mm] <= 0:
         return zero, zero
-    x = fl[pp] - fl[pm]
-    x = x - two_pi * np.floor((x + pi) * inv_two_pi)
-    y = fl[mp] - fl[mm]
-    y = y - two_pi * np.floor((y + pi) * inv_two_pi)
+    x = _wrap_pi(fl[pp] - fl[pm])
+    y = _wrap_pi(fl[mp] - fl[mm])
     b2 = np.float32(4.0) * base * base
     one = np.float32(1.0)
     return (x - y) / b2, (one / wl[pp] + one / wl[pm] + one / wl[mp] + one / wl[mm]) / (b2 * b2)
