@@ -426,14 +426,6 @@ def _plane_box(tab, r0, r1, u0, u1, xp, yp, gu, gv, vgu, vgv):  # pragma: no cov
 #: step part's, not :func:`_window_bias2`'s.
 _STEP_KINK2 = np.float32(25.0)
 
-#: Where the plane's two sides disagree beyond ``plane_kink_sigma`` the plane stays if the
-#: disagreement is one curvature: the second differences over ``base``, ``1.5 base`` and ``2 base``
-#: px, equal on a quadratic surface, agree pairwise within 5 sigma of their difference (a step
-#: or a kink within the probes changes them with the base), and the sides disagree by 10 sigma
-#: at most (beyond it a step's wrapped phase can mimic one curvature; the plane is dropped as a step).
-_CURV_KINK2 = np.float32(25.0)
-_CURV_MAX2 = np.float32(100.0)
-
 
 @njit(cache=True, inline="always", error_model="numpy")
 def _wrap_pi(x):  # pragma: no cover - compiled
@@ -443,34 +435,17 @@ def _wrap_pi(x):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _curvature_gap(h1, v1, b1, h2, v2, b2, vb):  # pragma: no cover - compiled
-    """The squared disagreement, in sigma^2 of their difference, of two second differences of the
-    first-pass map through one pixel: ``h1`` over ``b1`` px either side (its outer values'
-    variances summing to ``v1``) and ``h2`` over ``b2`` px (``v2``), the pixel's own variance ``vb``
-    counted once (it enters both). Equal on a quadratic surface whatever the base; a step or a
-    kink between the probes changes it with the base."""
-    c = np.float32(2.0) / (b2 * b2) - np.float32(2.0) / (b1 * b1)
-    vh = v1 / (b1 * b1 * b1 * b1) + v2 / (b2 * b2 * b2 * b2) + c * c * vb
-    dh = h1 - h2
-    return dh * dh / vh
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _plane_slope(fl, wl, a, b, c, base, kink2, a2, c2, a3, c3, base3):  # pragma: no cover - compiled
+def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     """The local phase slope (rad/px) through a pixel along one axis, and its variance, from the
     first-pass estimates ``fl`` (the map flattened, C order) at flat indices ``a`` (``-base`` px), ``b`` (the pixel) and ``c``
     (``+base`` px), their variances ``1 / wl``: the central difference ``(first_c - first_a) /
     (2 base)``, variance ``(1 / wfirst_a + 1 / wfirst_c) / (4 base^2)``, where the two one-sided
     differences agree within ``sqrt(kink2)`` standard deviations of their difference (the
-    filter's ``plane_kink_sigma``, 3 by default) or disagree as one curvature does (up to 10 sigma,
-    the second differences over ``base``, over ``base3`` px (flat indices ``a3``, ``c3``) and over
-    ``2 base`` px (``a2``, ``c2``) pairwise within 5 sigma, where those probes are inside the image
-    (index >= 0) and valid; the central difference is a quadratic's exact slope) and the slope
-    exceeds 2 of its own; else 0 (a step, an edge or a kink between the sides, a slope lost in the
-    noise, a side outside the image or not valid: the pixel's level). Differences wrapped to
-    [-pi, pi). The third value is True where the plane was dropped for a step between the probes:
-    sides that disagree by 5 sigma or more without the far probes, else by 10 sigma or more or
-    not as one curvature (the grown window's bias is then the lateral term's step part's, not
+    filter's ``plane_kink_sigma``, 3 by default) and the slope exceeds 2 of
+    its own; else 0 (a step, an edge or a kink between the sides, a slope lost in the noise, a side
+    outside the image or not valid: the pixel's level). Differences wrapped to [-pi, pi). The third
+    value is True where the plane was dropped for sides that disagree by 5 sigma or more (a step
+    between them: the grown window's bias is then the lateral term's step part's, not
     :func:`_window_bias2`'s)."""
     zero = np.float32(0.0)
     if a < 0 or c < 0 or wl[a] <= 0 or wl[c] <= 0:
@@ -482,31 +457,8 @@ def _plane_slope(fl, wl, a, b, c, base, kink2, a2, c2, a3, c3, base3):  # pragma
     bwd = _wrap_pi(fl[b] - fl[a]) / base
     dd = fwd - bwd
     if dd * dd * base * base > kink2 * (va + np.float32(4.0) * vb + vc):
-        # the sides disagree: a step, an edge or a kink, or the surface's curvature, which reads
-        # the same second difference at every base (a step's within the probes falls as 1 / base^2)
-        t0 = dd * dd * base * base / (va + np.float32(4.0) * vb + vc)
-        if t0 > _CURV_MAX2:
-            return zero, zero, True
-        t2 = np.float32(-1.0)
-        h1 = dd / base
-        v1 = va + vc
-        far2 = a2 >= 0 and c2 >= 0 and wl[a2] > 0 and wl[c2] > 0
-        far3 = a3 >= 0 and c3 >= 0 and wl[a3] > 0 and wl[c3] > 0
-        b2 = np.float32(2.0) * base
-        h2 = (_wrap_pi(fl[c2] - fl[b]) - _wrap_pi(fl[b] - fl[a2])) / (b2 * b2) if far2 else zero
-        v2 = np.float32(1.0) / wl[a2] + np.float32(1.0) / wl[c2] if far2 else zero
-        h3 = (_wrap_pi(fl[c3] - fl[b]) - _wrap_pi(fl[b] - fl[a3])) / (base3 * base3) if far3 else zero
-        v3 = np.float32(1.0) / wl[a3] + np.float32(1.0) / wl[c3] if far3 else zero
-        if far2:
-            t2 = max(t2, _curvature_gap(h1, v1, base, h2, v2, b2, vb))
-        if far3:
-            t2 = max(t2, _curvature_gap(h1, v1, base, h3, v3, base3, vb))
-        if far2 and far3:
-            t2 = max(t2, _curvature_gap(h3, v3, base3, h2, v2, b2, vb))
-        if t2 < 0:  # no far probe: the sides' disagreement decides, as a step from _STEP_KINK2 on
-            return zero, zero, t0 > _STEP_KINK2
-        if t2 > _CURV_KINK2:  # not one curvature: no plane, a step
-            return zero, zero, True
+        # the sides disagree (a step, an edge, a kink): no plane; flagged from _STEP_KINK2 on (a step)
+        return zero, zero, dd * dd * base * base > _STEP_KINK2 * (va + np.float32(4.0) * vb + vc)
     g = np.float32(0.5) * (fwd + bwd)
     vg = (va + vc) / (np.float32(4.0) * base * base)
     if g * g <= np.float32(4.0) * vg:
@@ -640,7 +592,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     tested against the local plane through the pixel's first-pass estimate ``m``: ``o_j`` the
     neighbour's offset, ``g`` the local phase slope from the first-pass map (:func:`_plane_slope`,
     estimates ``max_radius`` px either side; 0 where it is not significant or the sides disagree
-    by more than ``sqrt(kink2)`` sigma other than as one curvature)
+    by more than ``sqrt(kink2)`` sigma)
     and ``p_j = g . o_j`` the plane's rise to the neighbour, it is accepted when
     ``p_j^2 <= k2 (s_j^2 + 1 / wfirst)`` (the ring follows the ramp's iso-phase band as far as the
     level test would reach on average, but decided by the smooth plane, not by the noisy values)
@@ -780,19 +732,10 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
             out[v, u] = first[v, u] if ws >= reject_w else nan
             continue
         bu = max_radius  # the plane from first-pass estimates as far out as the largest ring
-        b3 = bu + max(bu // 2, 1)
         gu, vgu, ku = _plane_slope(fl, wl, v * w + u - bu if u >= bu else -1, v * w + u,
-                                   v * w + u + bu if u + bu < w else -1, np.float32(bu), kink2,
-                                   v * w + u - 2 * bu if u >= 2 * bu else -1,
-                                   v * w + u + 2 * bu if u + 2 * bu < w else -1,
-                                   v * w + u - b3 if u >= b3 else -1, v * w + u + b3 if u + b3 < w else -1,
-                                   np.float32(b3))
+                                   v * w + u + bu if u + bu < w else -1, np.float32(bu), kink2)
         gv, vgv, kv = _plane_slope(fl, wl, (v - bu) * w + u if v >= bu else -1, v * w + u,
-                                   (v + bu) * w + u if v + bu < h else -1, np.float32(bu), kink2,
-                                   (v - 2 * bu) * w + u if v >= 2 * bu else -1,
-                                   (v + 2 * bu) * w + u if v + 2 * bu < h else -1,
-                                   (v - b3) * w + u if v >= b3 else -1, (v + b3) * w + u if v + b3 < h else -1,
-                                   np.float32(b3))
+                                   (v + bu) * w + u if v + bu < h else -1, np.float32(bu), kink2)
         if boxes:
             m = np.float64(first[v, u])
             sf = 1.0 / np.float64(ws)
