@@ -13,7 +13,10 @@ its relative standard error is about 1 / sqrt(2 (frames - 1))).
 prints, on the first frame's valid pixels, the median and 95th percentile of each term split from
 that u by ``uncertainty.split_terms`` (the split gives the remainder, the edge floor's and the
 texture term's part among it, to the noise term) and of the combined u (docs/uncertainty.md,
-"Terms per pixel").
+"Terms per pixel"), and the share of those pixels whose u the edge floor raised
+(``uncertainty.edge_floor``; the first frame again through the NumPy reference chain, the kernel's
+u bit for bit, with the floor's input and output compared; also the share of the pixels valid
+before the step-edge mask).
 """
 
 from __future__ import annotations
@@ -27,11 +30,12 @@ import numpy as np
 import tifffile
 from scipy import ndimage
 
-from huefringe import bench, metrology, stages, uncertainty
+from huefringe import bench, metrology, pipeline, stages, uncertainty
+from huefringe.perframe import _measure
 from huefringe.settings import load_config
 from huefringe.huetable import HueTable
 from huefringe.height import PlaneCalibration
-from huefringe.session import read_rgb
+from huefringe.session import load_session, read_rgb
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -124,7 +128,40 @@ def _terms(session: Path, out: Path, cfg: dict) -> str:
         x = np.asarray(v, np.float64)[ok]
         x = x[np.isfinite(x)]
         cells.append(f"{name} {np.median(x):.4f} / {np.percentile(x, 95):.4f}")
-    return "terms, first frame, before the lateral term (median / p95 mm): " + "; ".join(cells)
+    raised, before, same = _edge_floor_share(session, out, c, u)
+    return ("terms, first frame, before the lateral term (median / p95 mm): " + "; ".join(cells)
+            + f"; the edge floor raises u on {raised:.1%} of these pixels ({before:.1%} of the pixels valid "
+            "before the step-edge mask; the reference chain's u " + ("is the kernel's, bit for bit)" if same
+                                                                     else "DIFFERS from the kernel's)"))
+
+
+def _edge_floor_share(session: Path, out: Path, cfg: dict, u_kernel: np.ndarray) -> tuple[float, float, bool]:
+    """The first frame through the reference chain, ``edge_floor``'s input and output compared: the
+    share of the delivered valid pixels it raised, and of the pixels valid where it runs (before
+    the step-edge mask); and whether the chain's u is the kernel's (``u_kernel``)."""
+    s = load_session(session)
+    meas = copy.deepcopy(cfg["measurement"])
+    meas["kernel"] = False
+    rec: dict = {}
+    real = _measure.edge_floor
+
+    def recorder(height, valid, u):
+        before = np.array(u, copy=True)
+        res = real(height, valid, u)
+        rec.update(raised=np.asarray(valid, bool) & (res > before), valid=np.array(valid, bool))
+        return res
+
+    _measure.edge_floor = recorder
+    try:
+        fp = pipeline.prepare_frames(s, HueTable.load(out / "table_object.json"),
+                                     PlaneCalibration.load(str(out / "model.npz")), cfg["hue_model"], meas,
+                                     reader=pipeline.session_corrections(s, str(out / "camera.json"))[1])
+        r = pipeline.measure_one(fp, s.frame_ids[0])
+    finally:
+        _measure.edge_floor = real
+    same = bool(np.array_equal(r.uncertainty, u_kernel.astype(np.float32), equal_nan=True))
+    ok = np.isfinite(r.height)
+    return float(np.mean(rec["raised"][ok])), float(np.mean(rec["raised"][rec["valid"]])), same
 
 
 if __name__ == "__main__":
