@@ -218,6 +218,31 @@ def test_light_without_fringe_is_taken_out_before_the_lean(sig: float) -> None:
     assert np.array_equal(two, texture.correct(b, w, 1.3 * sig**2, offset=q))
 
 
+@pytest.mark.parametrize("shape", [(1, 4), (2, 2), (3, 1), (7, 5), (33, 17), (70, 41)])
+def test_correct_pair_is_two_corrections_bit_for_bit(shape: tuple[int, int]) -> None:
+    """``correct_pair`` (one compiled pass in blocks of rows: each pixel's ratio formed once for
+    its four neighbours, the stencil along the row's channels; float32 captures read as they are)
+    returns the arrays of two :func:`texture.correct` calls, the NumPy definition, bit for bit:
+    float32 and float64 captures, with and without the light without fringe and clipped pixels,
+    without the moved capture, at zero blur, on sizes whose rows and columns have no interior or
+    cross a block of rows."""
+    rng = np.random.default_rng(sum(shape))
+    b32 = rng.random((*shape, 3)).astype(np.float32)
+    w32 = (0.01 + rng.random((*shape, 3))).astype(np.float32)  # some below the white floor
+    q = 0.05 * rng.random((*shape, 3))
+    clipped = rng.random(shape) < 0.1
+    for b, w in ((b32, w32), (b32.astype(np.float64) * 0.7, w32.astype(np.float64) + 1e-9)):
+        for offset in (None, q):
+            for clip in (None, clipped):
+                for s1, s2 in ((0.81, 1.3 * 0.81), (0.81, None), (0.0, 0.4)):
+                    one, two = texture.correct_pair(b, w, s1, s2, clipped=clip, offset=offset)
+                    assert np.array_equal(one, texture.correct(b, w, s1, clipped=clip, offset=offset))
+                    if s2 is None:
+                        assert two is None
+                    else:
+                        assert np.array_equal(two, texture.correct(b, w, s2, clipped=clip, offset=offset))
+
+
 def test_projector_off_light_is_the_mean_of_the_captures_at_code_zero() -> None:
     """``projector_off_light``: per channel, the mean over the uniform captures whose code is 0 in
     that channel (a third of the trapezoid's bands, ``patterns.band_rgb``); noise averages out; a set

@@ -162,42 +162,70 @@ def correct(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: 
     return out.astype(np.float32)
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _ratio_row(b, w, q, v, wr, yr):  # pragma: no cover - compiled
+    """Row ``v`` of the floored white ``wr = max(W - Q, floor)`` and of the ratio ``yr = (B - Q) /
+    wr`` (:func:`lean`'s ``w`` and ``y``; ``Q`` 0 when ``q`` is None), flattened (u, c)."""
+    floor = WHITE_FLOOR
+    bv, wv = b[v], w[v]
+    if q is None:
+        for i in range(bv.shape[0]):
+            x = max(np.float64(wv[i]), floor)
+            wr[i] = x
+            yr[i] = np.float64(bv[i]) / x
+    else:
+        qv = q[v]
+        for i in range(bv.shape[0]):
+            x = max(np.float64(wv[i]) - qv[i], floor)
+            wr[i] = x
+            yr[i] = (np.float64(bv[i]) - qv[i]) / x
+
+
 @njit(cache=True, nogil=True, parallel=True)
-def _correct_pair(b, w, s1, s2, clipped, use_clip, out1, out2, want2, q):  # pragma: no cover - compiled
+def _correct_pair(b, w, s1, s2, clipped, use_clip, out1, out2, want2, q, nc):  # pragma: no cover - compiled
     """:func:`lean` of every pixel (float64, the same operations in the same order; of ``b - q``
     and ``w - q`` unless ``q`` is None, a case compiled on its own) and the two corrections
-    ``clip(b - s lean, 0, 1)`` (float32; clipped pixels as captured), rows in parallel."""
-    h, wd, nc = b.shape
-    floor = WHITE_FLOOR
-    for v in prange(h):
-        for u in range(wd):
-            keep = use_clip and clipped[v, u]
-            for c in range(nc):
-                x = b[v, u, c]
-                g = 0.0
-                if 0 < v < h - 1:
-                    if q is None:
-                        ba, bb, wa, wb = b[v + 1, u, c], b[v - 1, u, c], w[v + 1, u, c], w[v - 1, u, c]
-                    else:
-                        qa, qb = q[v + 1, u, c], q[v - 1, u, c]
-                        ba, bb, wa, wb = b[v + 1, u, c] - qa, b[v - 1, u, c] - qb, w[v + 1, u, c] - qa, w[v - 1, u, c] - qb
-                    wa = max(wa, floor)
-                    wb = max(wb, floor)
-                    g += (wa - wb) * (ba / wa - bb / wb) / 4.0
-                if 0 < u < wd - 1:
-                    if q is None:
-                        ba, bb, wa, wb = b[v, u + 1, c], b[v, u - 1, c], w[v, u + 1, c], w[v, u - 1, c]
-                    else:
-                        qa, qb = q[v, u + 1, c], q[v, u - 1, c]
-                        ba, bb, wa, wb = b[v, u + 1, c] - qa, b[v, u - 1, c] - qb, w[v, u + 1, c] - qa, w[v, u - 1, c] - qb
-                    wa = max(wa, floor)
-                    wb = max(wb, floor)
-                    g += (wa - wb) * (ba / wa - bb / wb) / 4.0
-                y1 = x if keep else min(max(x - s1 * g, 0.0), 1.0)
-                out1[v, u, c] = np.float32(y1)
-                if want2:
-                    y2 = x if keep else min(max(x - s2 * g, 0.0), 1.0)
-                    out2[v, u, c] = np.float32(y2)
+    ``clip(b - s lean, 0, 1)`` (float32; clipped pixels as captured), in blocks of rows in
+    parallel. ``b``, ``w``, ``q``, ``out1``, ``out2``: ``(H, W x nc)``, each pixel's ``nc``
+    channels side by side; ``b`` and ``w`` float32 or float64, read as float64. Each pixel's floored white and ratio are formed once, for its four neighbours
+    (a ring of three rows per block), and the stencil runs along the row's flattened channels
+    (SIMD)."""
+    h, n = b.shape
+    block = 32
+    for blk in prange((h + block - 1) // block):
+        v0 = blk * block
+        v1 = min(v0 + block, h)
+        wr = np.empty((3, n))  # rows v - 1, v, v + 1 in slots (row + 1) % 3
+        yr = np.empty((3, n))
+        g = np.empty(n)
+        if v0 > 0:
+            _ratio_row(b, w, q, v0 - 1, wr[v0 % 3], yr[v0 % 3])
+        _ratio_row(b, w, q, v0, wr[(v0 + 1) % 3], yr[(v0 + 1) % 3])
+        for v in range(v0, v1):
+            if v + 1 < h:
+                _ratio_row(b, w, q, v + 1, wr[(v + 2) % 3], yr[(v + 2) % 3])
+            wc, yc = wr[(v + 1) % 3], yr[(v + 1) % 3]
+            for i in range(n):
+                g[i] = 0.0
+            if 0 < v < h - 1:
+                wa, ya, wb, yb = wr[(v + 2) % 3], yr[(v + 2) % 3], wr[v % 3], yr[v % 3]
+                for i in range(n):
+                    g[i] += (wa[i] - wb[i]) * (ya[i] - yb[i]) / 4.0
+            for i in range(nc, n - nc):
+                g[i] += (wc[i + nc] - wc[i - nc]) * (yc[i + nc] - yc[i - nc]) / 4.0
+            bv, o1, o2 = b[v], out1[v], out2[v if want2 else 0]
+            for i in range(n):
+                o1[i] = np.float32(min(max(np.float64(bv[i]) - s1 * g[i], 0.0), 1.0))
+            if want2:
+                for i in range(n):
+                    o2[i] = np.float32(min(max(np.float64(bv[i]) - s2 * g[i], 0.0), 1.0))
+            if use_clip:  # clipped pixels as captured
+                for u in range(n // nc):
+                    if clipped[v, u]:
+                        for c in range(nc):
+                            o1[u * nc + c] = np.float32(bv[u * nc + c])
+                            if want2:
+                                o2[u * nc + c] = np.float32(bv[u * nc + c])
 
 
 def correct_pair(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_px2: float,
@@ -207,10 +235,13 @@ def correct_pair(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_
     """:func:`correct` at ``sigma2_px2`` and at ``moved_px2`` (None: not wanted) from one pass of
     :func:`lean` over the capture (compiled, rows in parallel): the arrays two calls of
     :func:`correct` return (with the same ``offset``)."""
-    b = np.ascontiguousarray(rgb, np.float64)
+    # float32 or float64 as given (read as float64 inside, exactly as a float64 copy), others as float64
+    b = np.ascontiguousarray(rgb)
+    b = b if b.dtype in (np.float32, np.float64) else b.astype(np.float64)
     if sigma2_px2 == 0 and moved_px2 is None:
         return b.astype(np.float32), None
-    w = np.ascontiguousarray(white, np.float64)
+    w = np.ascontiguousarray(white)
+    w = w if w.dtype in (np.float32, np.float64) else w.astype(np.float64)
     if b.ndim != 3 or w.shape != b.shape:
         raise ValueError(f"capture {b.shape} and white image {w.shape} must be the same (H, W, 3)")
     out1 = np.empty(b.shape, np.float32)
@@ -221,8 +252,11 @@ def correct_pair(rgb: NDArray[np.floating], white: NDArray[np.floating], sigma2_
         q = np.ascontiguousarray(offset, np.float64)
         if q.shape != b.shape:
             raise ValueError(f"capture {b.shape} and offset {q.shape} must be the same (H, W, 3)")
-    _correct_pair(b, w, float(sigma2_px2), float(moved_px2 or 0.0), clip, clipped is not None, out1, out2,
-                  moved_px2 is not None, q)
+    h, wd, nc = b.shape
+    flat = (h, wd * nc)  # each pixel's channels side by side along the row
+    _correct_pair(b.reshape(flat), w.reshape(flat), float(sigma2_px2), float(moved_px2 or 0.0), clip,
+                  clipped is not None, out1.reshape(flat), out2.reshape(flat if moved_px2 is not None else (1, 1)),
+                  moved_px2 is not None, q.reshape(flat) if q is not None else None, nc)
     return out1, (out2 if moved_px2 is not None else None)
 
 
