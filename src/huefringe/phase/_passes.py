@@ -931,23 +931,24 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                     out[v, u] = val if wsum >= reject_w else nan
                     wout[v, u] = wsum
                     continue
-                pu[keep_n] = pu[q]
-                pm[keep_n] = pm[q]
-                psf[keep_n] = psf[q]
-                pvv[keep_n] = pvv[q]
-                pvu[keep_n] = pvu[q]
-                pgv[keep_n] = pgv[q]
-                pgu[keep_n] = pgu[q]
-                pdc[keep_n] = pdc[q]
-                pacc[keep_n] = pacc[q]
-                pw[keep_n] = pw[q]
-                pcc[keep_n] = pcc[q]
-                pk[keep_n] = pk[q]
-                if bias:
-                    for k in range(7):
-                        mom[k, keep_n] = mom[k, q]
-                    for k in range(3):
-                        phc[k, keep_n] = phc[k, q]
+                if keep_n < q:  # (before the first pixel that stopped, each state is already in place)
+                    pu[keep_n] = pu[q]
+                    pm[keep_n] = pm[q]
+                    psf[keep_n] = psf[q]
+                    pvv[keep_n] = pvv[q]
+                    pvu[keep_n] = pvu[q]
+                    pgv[keep_n] = pgv[q]
+                    pgu[keep_n] = pgu[q]
+                    pdc[keep_n] = pdc[q]
+                    pacc[keep_n] = pacc[q]
+                    pw[keep_n] = pw[q]
+                    pcc[keep_n] = pcc[q]
+                    pk[keep_n] = pk[q]
+                    if bias:
+                        for k in range(7):
+                            mom[k, keep_n] = mom[k, q]
+                        for k in range(3):
+                            phc[k, keep_n] = phc[k, q]
                 keep_n += 1
             n = keep_n
             if n == 0:
