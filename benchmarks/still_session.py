@@ -2,7 +2,7 @@
 
 Usage: ./run python benchmarks/still_session.py [--frames 40] [--shape along_fringe] [--keep DIR]
 
-The session is the test's ``still`` fixture (``_still_cfg``): the demo bench at 100 x 75 px, 0.8 mm
+The session is the test's ``still`` fixture (``tests/bench_helpers.still_cfg``): the demo bench at 100 x 75 px, 0.8 mm
 pitch, 15 px period, 32 hue bands x 3 repeats, no phase shifting, no vibration, ``--frames``
 frames that differ only by noise. It is measured by the workflow's stages at config.yaml's
 defaults with the filter's weights read through a Gaussian of ``--shape`` (the test's
@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import argparse
 import copy
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -52,17 +53,10 @@ from huefringe.phase import wrap
 from huefringe.session import load_session
 from huefringe.settings import load_config
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from bench_helpers import still_cfg  # noqa: E402  (the test's session)
+
 REPO = Path(__file__).resolve().parents[1]
-
-
-def still_cfg(frames: int) -> dict:
-    """tests/test_uncertainty.py's ``_still_cfg``: the demo rig, small, no vibration."""
-    cfg = copy.deepcopy(bench.load_bench_config(bench.preset_path("demo")))
-    cfg["session"].update(width=100, height=75, pixel_pitch_mm=0.8, period_px=15, hue_bands=32, repeats=3,
-                          frames=frames)
-    cfg["phase_shift"]["enabled"] = False
-    cfg["vibration"]["amplitude_mm"] = 0.0
-    return cfg
 
 
 def _config(shape: str, lateral: bool) -> dict:

@@ -2,7 +2,8 @@
 
 Usage: ./run python benchmarks/texture_term_edge.py [--blur 0.81] [--step 0.2]
 
-The capture of tests/test_uncertainty.py's ``test_texture_term_is_the_phase_error_of_a_wrong_blur``:
+The capture of tests/test_uncertainty.py's ``test_texture_term_is_the_phase_error_of_a_wrong_blur``
+(``tests/bench_helpers.texture_edge_case``):
 a fringe (period 24 px, 0.5 + 0.4 cos) on a reflectance edge (0.2 : 0.8 at column 80 of
 16 x 160 px), blurred by a Gaussian of variance ``--blur`` px^2, its phase decoded by four-step
 phase shifting after ``texture.correct`` with a given blur. "At the edge" = rows 4-11, columns
@@ -20,11 +21,15 @@ A second or so.
 from __future__ import annotations
 
 import argparse
+import sys
+from pathlib import Path
 
 import numpy as np
-from scipy import ndimage
 
-from huefringe import texture, uncertainty
+from huefringe import uncertainty
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+from bench_helpers import texture_edge_case  # noqa: E402  (the test's capture)
 
 EDGE = (slice(4, 12), slice(76, 84))
 FAR = (slice(4, 12), slice(20, 60))
@@ -36,20 +41,7 @@ def main() -> None:
     ap.add_argument("--step", type=float, default=0.2, help="u of the +u / -u check (px^2)")
     args = ap.parse_args()
     sigma2 = args.blur
-    _, uu = np.mgrid[:16, :160].astype(np.float64)
-    refl = np.where(uu < 80, 0.2, 0.8)
-
-    def blur(x: np.ndarray) -> np.ndarray:
-        return ndimage.gaussian_filter(x, np.sqrt(sigma2), mode="nearest")
-
-    def phase(s2: float, r: np.ndarray) -> np.ndarray:
-        w = np.repeat(blur(r)[..., None], 3, axis=-1)
-        caps = []
-        for k in range(4):
-            f = 0.5 + 0.4 * np.cos(2 * np.pi * uu / 24.0 + k * np.pi / 2)
-            b = np.repeat(blur(r * f)[..., None], 3, axis=-1)
-            caps.append(texture.correct(b, w, s2)[..., 0].astype(np.float64) / w[..., 0])
-        return np.arctan2(caps[3] - caps[1], caps[0] - caps[2])
+    refl, phase = texture_edge_case(sigma2)
 
     truth = phase(0.0, np.full_like(refl, 0.5))  # no texture: the fringe's own phase
     plain = phase(0.0, refl)

@@ -17,6 +17,8 @@ from huefringe.phase import denoise_phase
 from huefringe.session import load_session
 from huefringe.uncertainty.steps import _groups, _spread
 
+from bench_helpers import still_cfg, texture_edge_case
+
 REPO = Path(__file__).resolve().parents[1]
 CONFIG = load_config(REPO / "config.yaml")
 
@@ -125,20 +127,10 @@ def test_reliability_coverage_of_gaussian_errors() -> None:
 # ------------------------------------------------------------------- on a bench session
 
 
-def _still_cfg(frames: int) -> dict:
-    """The demo rig, small (100 x 75 px, 32 bands), no vibration: frames differ only by noise."""
-    cfg = copy.deepcopy(bench.load_bench_config(bench.preset_path("demo")))
-    cfg["session"].update(width=100, height=75, pixel_pitch_mm=0.8, period_px=15, hue_bands=32, repeats=3,
-                          frames=frames)
-    cfg["phase_shift"]["enabled"] = False
-    cfg["vibration"]["amplitude_mm"] = 0.0
-    return cfg
-
-
 @pytest.fixture(scope="module")
 def still(tmp_path_factory: pytest.TempPathFactory) -> dict:
     root = tmp_path_factory.mktemp("unc")
-    session = bench.write_session(_still_cfg(40), root / "session")
+    session = bench.write_session(still_cfg(40), root / "session")
     cfg = copy.deepcopy(CONFIG)
     # the sensor model is fitted on the captures as the chain reads them: with camera.colour_demixing
     # on, the demixed channels, whose read term is 9.3e-6 (not the sensor's 6.8e-6); these
@@ -197,7 +189,7 @@ def test_sensor_noise_model_fitted_on_band_repeats(still: dict) -> None:
     -5.4 % to +4.4 %, read -6.6 % to +5.4 % over the three channels)."""
     out = Path(still["paths"]["heights"][0]).parents[1]
     m = HueTable.load(out / "table_object.json").stats["sensor_noise"]
-    cam = _still_cfg(1)["camera"]
+    cam = still_cfg(1)["camera"]
     max_dn = 255.0
     read = (cam["read_noise_dn"] / max_dn) ** 2 + 1.0 / 12.0 / max_dn**2
     for c in range(3):
@@ -1179,25 +1171,8 @@ def test_texture_term_is_the_phase_error_of_a_wrong_blur() -> None:
     -u give the same within 10 % at the edge), about 0 away from the edge, and with ``s = 0``,
     ``u = 0.81`` it predicts the uncorrected capture's error against the uniform-reflectance
     phase at the edge within 20 % (measured -11 %: the first-order correction's own remainder)."""
-    from scipy import ndimage
-
-    from huefringe import texture
-
     sigma2 = 0.81
-    vv, uu = np.mgrid[:16, :160].astype(np.float64)
-    refl = np.where(uu < 80, 0.2, 0.8)
-    blur = lambda x: ndimage.gaussian_filter(x, np.sqrt(sigma2), mode="nearest")  # noqa: E731
-    white = np.repeat(blur(refl)[..., None], 3, axis=-1)
-
-    def phase(s2: float, r: np.ndarray) -> np.ndarray:
-        w = np.repeat(blur(r)[..., None], 3, axis=-1)
-        caps = []
-        for k in range(4):
-            f = 0.5 + 0.4 * np.cos(2 * np.pi * uu / 24.0 + k * np.pi / 2)
-            b = np.repeat(blur(r * f)[..., None], 3, axis=-1)
-            caps.append(texture.correct(b, w, s2)[..., 0].astype(np.float64) / w[..., 0])
-        return np.arctan2(caps[3] - caps[1], caps[0] - caps[2])
-
+    refl, phase = texture_edge_case(sigma2)
     edge = (slice(4, 12), slice(76, 84))
     far = (slice(4, 12), slice(20, 60))
     up = uncertainty.texture_term(phase(sigma2, refl), phase(sigma2 + 0.2, refl))
