@@ -774,3 +774,44 @@ def test_grown_windows_bias_holds_the_surfaces_curvature() -> None:
     assert 0.75 < np.median(ratio) <= 1.0 and np.percentile(ratio, 25) > 0.6, np.percentile(ratio, [5, 25, 50, 95])
     ratio = np.sqrt(b2[beside]) / np.abs(err[beside])
     assert 0.9 < np.median(ratio) < 1.1 and np.percentile(ratio, 5) > 0.6, np.percentile(ratio, [5, 50, 95])
+
+
+@pytest.mark.parametrize("kink_sigma", [3.0, 10.0])
+def test_row_planes_are_the_per_pixel_probes_bit_for_bit(kink_sigma: float) -> None:
+    """The adaptive pass's row-wise local planes and curvature terms (``_row_planes``: one
+    branch-free pass over a row's inner pixels, SIMD) are the per-pixel functions' values bit for
+    bit (``_plane_slope`` along u and v, ``_curvature_probe``, ``_cross_probe``, ``_shrunk``) on a
+    first-pass map with wrapped phase, steps, invalid pixels (weight 0) and every decision of the
+    kink and agreement tests taken both ways."""
+    from huefringe.phase import _passes as P
+
+    rng = np.random.default_rng(41)
+    h, w, mr = 40, 64, 5
+    vv, uu = np.mgrid[:h, :w].astype(np.float64)
+    surface = 0.3 * uu - 0.2 * vv + 2e-3 * (uu - 30) ** 2 + np.where(uu > 40, 1.5, 0.0) + np.where(vv > 25, -2.0, 0.0)
+    first = wrap(surface + rng.normal(0.0, 0.05, (h, w))).astype(np.float32)
+    wfirst = np.exp(rng.normal(np.log(400.0), 1.0, (h, w))).astype(np.float32)
+    wfirst[rng.random((h, w)) < 0.08] = 0.0
+    fl, wl = first.ravel(), wfirst.ravel()
+    kink2 = np.float32(kink_sigma**2)
+    out = [np.empty(w, np.float32), np.empty(w, np.float32), np.empty(w, np.bool_),
+           np.empty(w, np.float32), np.empty(w, np.float32), np.empty(w, np.bool_), np.empty((3, w), np.float32)]
+    kinks = decided = 0
+    for v in range(2 * mr, h - 2 * mr):
+        P._row_planes(fl, wl, v, w, mr, kink2, True, *out)
+        for u in range(2 * mr, w - 2 * mr):
+            i = v * w + u
+            bu = np.float32(mr)
+            want = (P._plane_slope(fl, wl, i - mr, i, i + mr, bu, kink2)
+                    + P._plane_slope(fl, wl, i - mr * w, i, i + mr * w, bu, kink2))
+            got = tuple(x[u] for x in out[:6])
+            assert all(np.array_equal(a, b) for a, b in zip(got, want, strict=True)), (v, u, got, want)
+            huu, vuu = P._curvature_probe(fl, wl, i, u, w, mr, 1)
+            hvv, vvv = P._curvature_probe(fl, wl, i, v, h, mr, w)
+            huv, vuv = P._cross_probe(fl, wl, i, u, v, w, h, mr)
+            ph = (np.float32(0.5 * P._shrunk(huu, vuu)), np.float32(P._shrunk(huv, vuv)),
+                  np.float32(0.5 * P._shrunk(hvv, vvv)))
+            assert all(np.array_equal(out[6][k, u], ph[k]) for k in range(3)), (v, u, out[6][:, u], ph)
+            kinks += bool(want[2] or want[5])
+            decided += (want[0] != 0) + (want[3] != 0)
+    assert kinks > 20 and decided > 200  # both branches of the tests taken

@@ -583,6 +583,117 @@ def _window_bias2(m, sw, sr, hu2, huv, hv2):  # pragma: no cover - compiled
     return np.float32(max(b * b - vb, 0.0))
 
 
+@njit(cache=True, inline="always", error_model="numpy")
+def _plane_slope_of(fa, fb, fc, wa, wb, wc, base, kink2):  # pragma: no cover - compiled
+    """:func:`_plane_slope` from the three estimates and their weights (the sides inside the
+    image), branch-free: the same operations, their results selected (SIMD over a row)."""
+    zero = np.float32(0.0)
+    ok = (wa > 0) & (wc > 0)
+    va = np.float32(1.0) / wa
+    vb = np.float32(1.0) / wb
+    vc = np.float32(1.0) / wc
+    fwd = _wrap_pi(fc - fb) / base
+    bwd = _wrap_pi(fb - fa) / base
+    dd = fwd - bwd
+    s = va + np.float32(4.0) * vb + vc
+    x = dd * dd * base * base
+    kinked = x > kink2 * s
+    step = x > _STEP_KINK2 * s
+    g = np.float32(0.5) * (fwd + bwd)
+    vg = (va + vc) / (np.float32(4.0) * base * base)
+    keep = ok & ~kinked & (g * g > np.float32(4.0) * vg)
+    return (g if keep else zero), (vg if keep else zero), ok & kinked & step
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _second_difference_of(fa, fb, fc, wa, wb, wc, base):  # pragma: no cover - compiled
+    """:func:`_second_difference` from the three estimates and their weights (the sides inside
+    the image), branch-free."""
+    zero = np.float32(0.0)
+    ok = (wa > 0) & (wc > 0)
+    fwd = _wrap_pi(fc - fb)
+    bwd = _wrap_pi(fb - fa)
+    b4 = base * base * base * base
+    hh = (fwd - bwd) / (base * base)
+    var = (np.float32(1.0) / wa + np.float32(4.0) / wb + np.float32(1.0) / wc) / b4
+    return (hh if ok else zero), (var if ok else zero)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _curvature_of(h1, v1, h2, v2):  # pragma: no cover - compiled
+    """:func:`_curvature_probe`'s choice between its two second differences, branch-free."""
+    zero = np.float32(0.0)
+    agree = (h2 - h1) * (h2 - h1) <= np.float32(9.0) * (v1 + v2)
+    far = v2 > 0
+    near = v1 > 0
+    hh = (h2 if agree else zero) if far else h1
+    vv = (v2 if agree else zero) if far else v1
+    return (hh if near else zero), (vv if near else zero)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _shrunk_of(x, v):  # pragma: no cover - compiled
+    """:func:`_shrunk`, branch-free."""
+    x = np.float64(x)
+    x2 = x * x
+    r = x * (1.0 - np.float64(v) / x2)
+    return r if x2 > v else 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _row_planes(fl, wl, v, w, mr, kink2, bias, gu, vgu, ku, gv, vgv, kv, phc):  # pragma: no cover - compiled
+    """Row ``v``'s local planes (:func:`_plane_slope` along u and v: ``gu, vgu, ku``, ``gv, vgv,
+    kv``) and, with ``bias``, the curvature terms (:func:`_curvature_probe`, :func:`_cross_probe`,
+    :func:`_shrunk`: ``phc``) of the pixels ``u`` in ``[2 mr, w - 2 mr)`` of a row ``2 mr`` px
+    or more inside the image, where every probe lies inside it: the same operations as the
+    per-pixel functions, branch-free (SIMD over the row; unsigned indices, so no negative-index
+    wrap-around); the same bits."""
+    bf = np.float32(mr)
+    b2f = np.float32(2 * mr)
+    m1 = np.uint64(mr)
+    m2 = np.uint64(2 * mr)
+    s1 = np.uint64(mr * w)
+    s2 = np.uint64(2 * mr * w)
+    i = np.uint64(v * w)
+    for k in range(w - 4 * mr):
+        u = np.uint64(2 * mr) + np.uint64(k)
+        c = i + u
+        fb = fl[c]
+        wb = wl[c]
+        gu[u], vgu[u], ku[u] = _plane_slope_of(fl[c - m1], fb, fl[c + m1], wl[c - m1], wb, wl[c + m1], bf, kink2)
+        gv[u], vgv[u], kv[u] = _plane_slope_of(fl[c - s1], fb, fl[c + s1], wl[c - s1], wb, wl[c + s1], bf, kink2)
+    if not bias:
+        return
+    b2 = np.float32(4.0) * b2f * b2f
+    one = np.float32(1.0)
+    zero = np.float32(0.0)
+    p0, p1, p2 = phc[0], phc[1], phc[2]
+    for k in range(w - 4 * mr):
+        u = np.uint64(2 * mr) + np.uint64(k)
+        c = i + u
+        fb = fl[c]
+        wb = wl[c]
+        h1, v1 = _second_difference_of(fl[c - m1], fb, fl[c + m1], wl[c - m1], wb, wl[c + m1], bf)
+        h2, v2 = _second_difference_of(fl[c - m2], fb, fl[c + m2], wl[c - m2], wb, wl[c + m2], b2f)
+        huu, vuu = _curvature_of(h1, v1, h2, v2)
+        h1, v1 = _second_difference_of(fl[c - s1], fb, fl[c + s1], wl[c - s1], wb, wl[c + s1], bf)
+        h2, v2 = _second_difference_of(fl[c - s2], fb, fl[c + s2], wl[c - s2], wb, wl[c + s2], b2f)
+        hvv, vvv = _curvature_of(h1, v1, h2, v2)
+        pp = c + s2 + m2
+        pm = c - s2 + m2
+        mp = c + s2 - m2
+        mm = c - s2 - m2
+        wpp, wpm, wmp, wmm = wl[pp], wl[pm], wl[mp], wl[mm]
+        ok = (wpp > 0) & (wpm > 0) & (wmp > 0) & (wmm > 0)
+        x = _wrap_pi(fl[pp] - fl[pm])
+        y = _wrap_pi(fl[mp] - fl[mm])
+        huv = (x - y) / b2 if ok else zero
+        vuv = (one / wpp + one / wpm + one / wmp + one / wmm) / (b2 * b2) if ok else zero
+        p0[u] = np.float32(0.5 * _shrunk_of(huu, vuu))
+        p1[u] = np.float32(_shrunk_of(huv, vuv))
+        p2[u] = np.float32(0.5 * _shrunk_of(hvv, vvv))
+
+
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
                    rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed, kink2, b2o):
@@ -710,6 +821,25 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
     wk = np.empty(w, np.float32)  # scratch: each pixel's accepted weight and residual at this offset
     rk = np.empty(w, np.float32)
     pk = np.empty(w, np.bool_)  # the plane dropped at a kink (a step): its window's bias is the lateral term's
+    mr = max_radius
+    # the row's planes and curvatures in one branch-free pass where every probe is inside the image
+    # and enough of the row grows to pay for it; the other pixels call the per-pixel functions
+    lo, hi = 2 * mr, w - 2 * mr
+    rowwise = 2 * mr <= v < h - 2 * mr and lo < hi and max_radius > radius
+    if rowwise:
+        ngrow = 0
+        for u in range(w):
+            ngrow += (inv[v, u] > 0) & (wfirst[v, u] < target_w)
+        rowwise = 4 * ngrow >= w
+    if rowwise:
+        rgu = np.empty(w, np.float32)
+        rvgu = np.empty(w, np.float32)
+        rku = np.empty(w, np.bool_)
+        rgv = np.empty(w, np.float32)
+        rvgv = np.empty(w, np.float32)
+        rkv = np.empty(w, np.bool_)
+        rph = np.empty((3, w), np.float32)
+        _row_planes(fl, wl, v, w, mr, kink2, bias, rgu, rvgu, rku, rgv, rvgv, rkv, rph)
     n = 0
     if full:
         for u in range(w):
@@ -732,10 +862,14 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
             out[v, u] = first[v, u] if ws >= reject_w else nan
             continue
         bu = max_radius  # the plane from first-pass estimates as far out as the largest ring
-        gu, vgu, ku = _plane_slope(fl, wl, v * w + u - bu if u >= bu else -1, v * w + u,
-                                   v * w + u + bu if u + bu < w else -1, np.float32(bu), kink2)
-        gv, vgv, kv = _plane_slope(fl, wl, (v - bu) * w + u if v >= bu else -1, v * w + u,
-                                   (v + bu) * w + u if v + bu < h else -1, np.float32(bu), kink2)
+        inner = rowwise and lo <= u < hi
+        if inner:
+            gu, vgu, ku, gv, vgv, kv = rgu[u], rvgu[u], rku[u], rgv[u], rvgv[u], rkv[u]
+        else:
+            gu, vgu, ku = _plane_slope(fl, wl, v * w + u - bu if u >= bu else -1, v * w + u,
+                                       v * w + u + bu if u + bu < w else -1, np.float32(bu), kink2)
+            gv, vgv, kv = _plane_slope(fl, wl, (v - bu) * w + u if v >= bu else -1, v * w + u,
+                                       (v + bu) * w + u if v + bu < h else -1, np.float32(bu), kink2)
         if boxes:
             m = np.float64(first[v, u])
             sf = 1.0 / np.float64(ws)
@@ -799,7 +933,11 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                 continue
         pu[n] = u
         pk[n] = ku or kv
-        if bias:
+        if bias and inner:
+            phc[0, n] = rph[0, u]
+            phc[1, n] = rph[1, u]
+            phc[2, n] = rph[2, u]
+        elif bias:
             huu, vuu = _curvature_probe(fl, wl, v * w + u, u, w, bu, 1)
             hvv, vvv = _curvature_probe(fl, wl, v * w + u, v, h, bu, w)
             huv, vuv = _cross_probe(fl, wl, v * w + u, u, v, w, h, bu)
