@@ -44,7 +44,8 @@ with the camera's focal length and principal point scaled, so the view is the sa
 ``calibration u`` ``huefringe.rig.measure.calibration_spread``: the leave-one-pose-out calibrations' term,
 ``write``        the X, Y, Z, sigma and u TIFFs,
 
-with its own cvtColor and I/O floor on its frame, timed the same way. Stages are timed in interleaved rounds (medians over rounds), one core
+with its own cvtColor and I/O floor on its frame, timed the same way. Stages are timed in interleaved rounds (medians over rounds;
+with ``--reps R`` of each stage's best of R calls in a round), one core
 (``NUMBA_NUM_THREADS``, ``cv2.setNumThreads`` = ``--threads``), as CPU time of the process (so
 that time spent waiting for a core on a busy machine is left out; the best wall times are in the
 JSON). The table gives ms per frame and
@@ -190,9 +191,10 @@ def chain(rig: KernelCase, work: Path, box_chi_z: float | None = None) -> dict[s
 
 
 def _timed(calls_of: Callable[[Path], dict[str, Callable[[], Any]]], rounds: int,
-           prefix: str) -> tuple[dict[str, float], dict[str, float]]:
+           prefix: str, reps: int = 1) -> tuple[dict[str, float], dict[str, float]]:
     """Median CPU ms and best wall ms of each call over ``rounds`` interleaved rounds (after one
-    warm-up call each: compiled paths, caches; the quick references best of 5 per round)."""
+    warm-up call each: compiled paths, caches; in each round a call's best of ``reps`` calls, the
+    quick references' best of 5)."""
     cv2.setNumThreads(_THREADS)
     with tempfile.TemporaryDirectory(prefix=prefix) as tmp:
         calls = calls_of(Path(tmp))
@@ -202,16 +204,16 @@ def _timed(calls_of: Callable[[Path], dict[str, Callable[[], Any]]], rounds: int
         wall: dict[str, list[float]] = {k: [] for k in calls}
         for _ in range(rounds):
             for k, fn in calls.items():
-                reps = 5 if k in ("cvtColor", "read", "floor") else 1
-                best = min((_clock(fn) for _ in range(reps)), key=lambda x: x[0])
+                n = 5 if k in ("cvtColor", "read", "floor") else reps
+                best = min((_clock(fn) for _ in range(n)), key=lambda x: x[0])
                 per[k].append(best[0])
                 wall[k].append(best[1])
     return ({k: 1e3 * statistics.median(v) for k, v in per.items()},
             {k: 1e3 * min(v) for k, v in wall.items()})
 
 
-def bench_size(rig: KernelCase, rounds: int, box_chi_z: float | None = None) -> dict[str, Any]:
-    med, wall_ms = _timed(lambda work: chain(rig, work, box_chi_z), rounds, "hf-bench-stages-")
+def bench_size(rig: KernelCase, rounds: int, box_chi_z: float | None = None, reps: int = 1) -> dict[str, Any]:
+    med, wall_ms = _timed(lambda work: chain(rig, work, box_chi_z), rounds, "hf-bench-stages-", reps)
     ms = {"read": med["read"], "texture": med["texture"], "kernel": med["k0"],
           "filter": max(med["k1"] - med["k0"], 0.0), "adaptive": max(med["k2"] - med["k1"], 0.0),
           "uncertainty": max(med["k3"] - med["k2"], 0.0), "texture u": max(med["texture u"] - med["k3"], 0.0),
@@ -299,9 +301,10 @@ def oneshot_chain(case: dict[str, Any], work: Path) -> dict[str, Callable[[], An
     }
 
 
-def bench_oneshot(case: dict[str, Any], rounds: int) -> dict[str, Any]:
-    """Median CPU ms per stage of the one-shot rig path over ``rounds`` interleaved rounds."""
-    med, wall_ms = _timed(lambda work: oneshot_chain(case, work), rounds, "hf-bench-oneshot-")
+def bench_oneshot(case: dict[str, Any], rounds: int, reps: int = 1) -> dict[str, Any]:
+    """Median CPU ms per stage of the one-shot rig path over ``rounds`` interleaved rounds (each a
+    stage's best of ``reps`` calls)."""
+    med, wall_ms = _timed(lambda work: oneshot_chain(case, work), rounds, "hf-bench-oneshot-", reps)
     ms = {k: med[k] for k in ONESHOT_STAGES}
     compute = sum(v for k, v in ms.items() if k not in ("read", "write"))
     total = sum(ms.values())
@@ -358,6 +361,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sizes", default="640x480,1280x1024")
     ap.add_argument("--bands", type=int, default=64)
     ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--reps", type=int, default=1,
+                    help="in each round, a stage's best of this many calls (CPU time): on a machine whose speed "
+                         "changes within seconds the medians of single calls mix its speeds")
     ap.add_argument("--threads", type=int, default=1, help="numba and OpenCV threads (default: one core)")
     ap.add_argument("--tables", default="plane,oneshot",
                     help="which chains: plane (the capture-session frame), oneshot (the one-shot rig path), or both")
@@ -386,7 +392,7 @@ def main(argv: list[str] | None = None) -> int:
         base = make_case(*sizes[0], n_bands=a.bands)
         for w, h in sizes:
             rig = base if (w, h) == sizes[0] else tile_case(base, w, h)
-            r = bench_size(rig, a.rounds, a.box_chi_z)
+            r = bench_size(rig, a.rounds, a.box_chi_z, a.reps)
             results.append(r)
             print(f"\n{w} x {h}: " + ", ".join(f"{k} {v:.1f}" for k, v in r["ms"].items()) + " ms", flush=True)
             if r["box"]:
@@ -400,7 +406,7 @@ def main(argv: list[str] | None = None) -> int:
         for w, h in sizes:
             c0 = time.perf_counter()
             case = oneshot_case(w, h, a.bands)
-            r = bench_oneshot(case, a.rounds)
+            r = bench_oneshot(case, a.rounds, a.reps)
             oneshot.append(r)
             print(f"\none-shot rig {w} x {h} ({r['valid_px']} px with an order reference; set-up "
                   f"{time.perf_counter() - c0:.0f} s): " + ", ".join(f"{k} {v:.1f}" for k, v in r["ms"].items()) + " ms",
@@ -418,11 +424,13 @@ def main(argv: list[str] | None = None) -> int:
     if a.page:
         text = a.page.read_text(encoding="utf-8")
         if results and "<!-- stages:begin -->" in text:
-            note = (f"*{results[0]['threads']} thread, CPU ms per frame, medians of {a.rounds} rounds, {a.bands} bands; "
+            note = (f"*{results[0]['threads']} thread, CPU ms per frame, medians of {a.rounds} rounds"
+                    + (f" of each stage's best of {a.reps} calls" if a.reps > 1 else "") + f", {a.bands} bands; "
                     f"load average {load:.1f} on {os.cpu_count()} cores.*\n\n")
             _replace_between(a.page, "<!-- stages:begin -->\n", "<!-- stages:end -->", note + table)
         if oneshot and "<!-- oneshot-stages:begin -->" in text:
-            note = (f"*{oneshot[0]['threads']} thread, CPU ms per frame, medians of {a.rounds} rounds, {a.bands} bands; "
+            note = (f"*{oneshot[0]['threads']} thread, CPU ms per frame, medians of {a.rounds} rounds"
+                    + (f" of each stage's best of {a.reps} calls" if a.reps > 1 else "") + f", {a.bands} bands; "
                     f"load average {load:.1f} on {os.cpu_count()} cores.*\n\n")
             _replace_between(a.page, "<!-- oneshot-stages:begin -->\n", "<!-- oneshot-stages:end -->", note + otable)
     if a.json:
