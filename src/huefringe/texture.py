@@ -187,9 +187,9 @@ def _correct_pair(b, w, s1, s2, clipped, use_clip, out1, out2, want2, q, nc):  #
     and ``w - q`` unless ``q`` is None, a case compiled on its own) and the two corrections
     ``clip(b - s lean, 0, 1)`` (float32; clipped pixels as captured), in blocks of rows in
     parallel. ``b``, ``w``, ``q``, ``out1``, ``out2``: ``(H, W x nc)``, each pixel's ``nc``
-    channels side by side; ``b`` and ``w`` float32 or float64, read as float64. Each pixel's floored white and ratio are formed once, for its four neighbours
-    (a ring of three rows per block), and the stencil runs along the row's flattened channels
-    (SIMD)."""
+    channels side by side; ``b`` and ``w`` float32 or float64, read as float64. Each pixel's
+    floored white and ratio are formed once, for its four neighbours (a ring of three rows per
+    block), and the stencil runs along the row's flattened channels (SIMD)."""
     h, n = b.shape
     block = 32
     for blk in prange((h + block - 1) // block):
