@@ -779,10 +779,11 @@ def test_grown_windows_bias_holds_the_surfaces_curvature() -> None:
 @pytest.mark.parametrize("kink_sigma", [3.0, 10.0])
 def test_row_planes_are_the_per_pixel_probes_bit_for_bit(kink_sigma: float) -> None:
     """The adaptive pass's row-wise local planes and curvature terms (``_row_planes``: one
-    branch-free pass over a row's inner pixels, SIMD) are the per-pixel functions' values bit for
-    bit (``_plane_slope`` along u and v, ``_curvature_probe``, ``_cross_probe``, ``_shrunk``) on a
-    first-pass map with wrapped phase, steps, invalid pixels (weight 0) and every decision of the
-    kink and agreement tests taken both ways."""
+    branch-free pass over a row's inner pixels, SIMD, on flat offsets of its own) are the per-pixel
+    functions' values bit for bit (``_plane_slope`` along u and v, ``_curvature_probe``,
+    ``_cross_probe``, ``_shrunk``; both share the value-level definitions, so this checks the row
+    pass's probe offsets and choices) on a first-pass map with wrapped phase, steps, invalid pixels
+    (weight 0) and every decision of the kink and agreement tests taken both ways."""
     from huefringe.phase import _passes as P
 
     rng = np.random.default_rng(41)

@@ -435,6 +435,68 @@ def _wrap_pi(x):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def _plane_slope_of(fa, fb, fc, wa, wb, wc, base, kink2):  # pragma: no cover - compiled
+    """:func:`_plane_slope` from the three estimates and their weights (the sides inside the
+    image): its definition, branch-free (SIMD over a row in :func:`_row_planes`)."""
+    zero = np.float32(0.0)
+    ok = (wa > 0) & (wc > 0)
+    va = np.float32(1.0) / wa
+    vb = np.float32(1.0) / wb
+    vc = np.float32(1.0) / wc
+    fwd = _wrap_pi(fc - fb) / base
+    bwd = _wrap_pi(fb - fa) / base
+    dd = fwd - bwd
+    s = va + np.float32(4.0) * vb + vc
+    x = dd * dd * base * base
+    kinked = x > kink2 * s
+    step = x > _STEP_KINK2 * s
+    g = np.float32(0.5) * (fwd + bwd)
+    vg = (va + vc) / (np.float32(4.0) * base * base)
+    keep = ok & ~kinked & (g * g > np.float32(4.0) * vg)
+    return (g if keep else zero), (vg if keep else zero), ok & kinked & step
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _second_difference_of(fa, fb, fc, wa, wb, wc, base):  # pragma: no cover - compiled
+    """:func:`_second_difference` from the three estimates and their weights (the sides inside
+    the image): its definition, branch-free."""
+    zero = np.float32(0.0)
+    ok = (wa > 0) & (wc > 0)
+    fwd = _wrap_pi(fc - fb)
+    bwd = _wrap_pi(fb - fa)
+    b4 = base * base * base * base
+    hh = (fwd - bwd) / (base * base)
+    var = (np.float32(1.0) / wa + np.float32(4.0) / wb + np.float32(1.0) / wc) / b4
+    return (hh if ok else zero), (var if ok else zero)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _curvature_of(h1, v1, h2, v2):  # pragma: no cover - compiled
+    """:func:`_curvature_probe`'s choice between its two second differences ``(h1, v1)`` over
+    ``max_radius`` and ``(h2, v2)`` over twice that (a variance of 0: not available), branch-free."""
+    zero = np.float32(0.0)
+    agree = (h2 - h1) * (h2 - h1) <= np.float32(9.0) * (v1 + v2)
+    far = v2 > 0
+    near = v1 > 0
+    hh = (h2 if agree else zero) if far else h1
+    vv = (v2 if agree else zero) if far else v1
+    return (hh if near else zero), (vv if near else zero)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _cross_difference_of(fpp, fpm, fmp, fmm, wpp, wpm, wmp, wmm, base):  # pragma: no cover - compiled
+    """:func:`_cross_difference` from the four diagonal estimates and their weights (inside the
+    image): its definition, branch-free."""
+    zero = np.float32(0.0)
+    ok = (wpp > 0) & (wpm > 0) & (wmp > 0) & (wmm > 0)
+    x = _wrap_pi(fpp - fpm)
+    y = _wrap_pi(fmp - fmm)
+    b2 = np.float32(4.0) * base * base
+    one = np.float32(1.0)
+    return ((x - y) / b2 if ok else zero), ((one / wpp + one / wpm + one / wmp + one / wmm) / (b2 * b2) if ok else zero)
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     """The local phase slope (rad/px) through a pixel along one axis, and its variance, from the
     first-pass estimates ``fl`` (the map flattened, C order) at flat indices ``a`` (``-base`` px), ``b`` (the pixel) and ``c``
@@ -447,23 +509,9 @@ def _plane_slope(fl, wl, a, b, c, base, kink2):  # pragma: no cover - compiled
     value is True where the plane was dropped for sides that disagree by 5 sigma or more (a step
     between them: the grown window's bias is then the lateral term's step part's, not
     :func:`_window_bias2`'s)."""
-    zero = np.float32(0.0)
-    if a < 0 or c < 0 or wl[a] <= 0 or wl[c] <= 0:
-        return zero, zero, False
-    va = np.float32(1.0) / wl[a]
-    vb = np.float32(1.0) / wl[b]
-    vc = np.float32(1.0) / wl[c]
-    fwd = _wrap_pi(fl[c] - fl[b]) / base
-    bwd = _wrap_pi(fl[b] - fl[a]) / base
-    dd = fwd - bwd
-    if dd * dd * base * base > kink2 * (va + np.float32(4.0) * vb + vc):
-        # the sides disagree (a step, an edge, a kink): no plane; flagged from _STEP_KINK2 on (a step)
-        return zero, zero, dd * dd * base * base > _STEP_KINK2 * (va + np.float32(4.0) * vb + vc)
-    g = np.float32(0.5) * (fwd + bwd)
-    vg = (va + vc) / (np.float32(4.0) * base * base)
-    if g * g <= np.float32(4.0) * vg:
-        return zero, zero, False  # not significant: the level
-    return g, vg, False
+    if a < 0 or c < 0:
+        return np.float32(0.0), np.float32(0.0), False
+    return _plane_slope_of(fl[a], fl[b], fl[c], wl[a], wl[b], wl[c], base, kink2)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -473,14 +521,9 @@ def _second_difference(fl, wl, a, b, c, base):  # pragma: no cover - compiled
     ``(wrap(first_c - first_b) - wrap(first_b - first_a)) / base^2``, and its variance
     ``(1 / wfirst_a + 4 / wfirst_b + 1 / wfirst_c) / base^4``; ``(0, 0)`` where a side is outside
     the image or not valid."""
-    zero = np.float32(0.0)
-    if a < 0 or c < 0 or wl[a] <= 0 or wl[c] <= 0:
-        return zero, zero
-    fwd = _wrap_pi(fl[c] - fl[b])
-    bwd = _wrap_pi(fl[b] - fl[a])
-    b4 = base * base * base * base
-    return (fwd - bwd) / (base * base), (np.float32(1.0) / wl[a] + np.float32(4.0) / wl[b]
-                                         + np.float32(1.0) / wl[c]) / b4
+    if a < 0 or c < 0:
+        return np.float32(0.0), np.float32(0.0)
+    return _second_difference_of(fl[a], fl[b], fl[c], wl[a], wl[b], wl[c], base)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -489,14 +532,9 @@ def _cross_difference(fl, wl, pp, pm, mp, mm, base):  # pragma: no cover - compi
     flat indices of its four diagonal neighbours ``base`` px away (``pp`` = (+u, +v), ``pm`` = (+u,
     -v), ...): ``(wrap(f_pp - f_pm) - wrap(f_mp - f_mm)) / (4 base^2)``, and its variance; ``(0, 0)``
     where one is outside the image or not valid."""
-    zero = np.float32(0.0)
-    if pp < 0 or pm < 0 or mp < 0 or mm < 0 or wl[pp] <= 0 or wl[pm] <= 0 or wl[mp] <= 0 or wl[mm] <= 0:
-        return zero, zero
-    x = _wrap_pi(fl[pp] - fl[pm])
-    y = _wrap_pi(fl[mp] - fl[mm])
-    b2 = np.float32(4.0) * base * base
-    one = np.float32(1.0)
-    return (x - y) / b2, (one / wl[pp] + one / wl[pm] + one / wl[mp] + one / wl[mm]) / (b2 * b2)
+    if pp < 0 or pm < 0 or mp < 0 or mm < 0:
+        return np.float32(0.0), np.float32(0.0)
+    return _cross_difference_of(fl[pp], fl[pm], fl[mp], fl[mm], wl[pp], wl[pm], wl[mp], wl[mm], base)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -507,19 +545,12 @@ def _curvature_probe(fl, wl, i0, x, n, mr, stride):  # pragma: no cover - compil
     px within 3 standard deviations of their difference (else a step or an edge lies between the
     two probes: 0), over ``max_radius`` px where the far probes are outside the image; its
     variance."""
-    zero = np.float32(0.0)
     step = mr * stride
     b1 = np.float32(mr)
     h1, v1 = _second_difference(fl, wl, i0 - step if x >= mr else -1, i0, i0 + step if x + mr < n else -1, b1)
-    if v1 <= 0:
-        return zero, zero
     h2, v2 = _second_difference(fl, wl, i0 - 2 * step if x >= 2 * mr else -1, i0,
                                 i0 + 2 * step if x + 2 * mr < n else -1, np.float32(2 * mr))
-    if v2 <= 0:
-        return h1, v1
-    if (h2 - h1) * (h2 - h1) > np.float32(9.0) * (v1 + v2):
-        return zero, zero
-    return h2, v2
+    return _curvature_of(h1, v1, h2, v2)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -542,9 +573,8 @@ def _shrunk(x, v):  # pragma: no cover - compiled
     nearly all of itself."""
     x = np.float64(x)
     x2 = x * x
-    if not x2 > v:
-        return 0.0
-    return x * (1.0 - np.float64(v) / x2)
+    r = x * (1.0 - np.float64(v) / x2)
+    return r if x2 > v else 0.0  # branch-free (SIMD in _row_planes)
 
 
 @njit(cache=True, inline="always", error_model="numpy")
@@ -583,71 +613,15 @@ def _window_bias2(m, sw, sr, hu2, huv, hv2):  # pragma: no cover - compiled
     return np.float32(max(b * b - vb, 0.0))
 
 
-@njit(cache=True, inline="always", error_model="numpy")
-def _plane_slope_of(fa, fb, fc, wa, wb, wc, base, kink2):  # pragma: no cover - compiled
-    """:func:`_plane_slope` from the three estimates and their weights (the sides inside the
-    image), branch-free: the same operations, their results selected (SIMD over a row)."""
-    zero = np.float32(0.0)
-    ok = (wa > 0) & (wc > 0)
-    va = np.float32(1.0) / wa
-    vb = np.float32(1.0) / wb
-    vc = np.float32(1.0) / wc
-    fwd = _wrap_pi(fc - fb) / base
-    bwd = _wrap_pi(fb - fa) / base
-    dd = fwd - bwd
-    s = va + np.float32(4.0) * vb + vc
-    x = dd * dd * base * base
-    kinked = x > kink2 * s
-    step = x > _STEP_KINK2 * s
-    g = np.float32(0.5) * (fwd + bwd)
-    vg = (va + vc) / (np.float32(4.0) * base * base)
-    keep = ok & ~kinked & (g * g > np.float32(4.0) * vg)
-    return (g if keep else zero), (vg if keep else zero), ok & kinked & step
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _second_difference_of(fa, fb, fc, wa, wb, wc, base):  # pragma: no cover - compiled
-    """:func:`_second_difference` from the three estimates and their weights (the sides inside
-    the image), branch-free."""
-    zero = np.float32(0.0)
-    ok = (wa > 0) & (wc > 0)
-    fwd = _wrap_pi(fc - fb)
-    bwd = _wrap_pi(fb - fa)
-    b4 = base * base * base * base
-    hh = (fwd - bwd) / (base * base)
-    var = (np.float32(1.0) / wa + np.float32(4.0) / wb + np.float32(1.0) / wc) / b4
-    return (hh if ok else zero), (var if ok else zero)
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _curvature_of(h1, v1, h2, v2):  # pragma: no cover - compiled
-    """:func:`_curvature_probe`'s choice between its two second differences, branch-free."""
-    zero = np.float32(0.0)
-    agree = (h2 - h1) * (h2 - h1) <= np.float32(9.0) * (v1 + v2)
-    far = v2 > 0
-    near = v1 > 0
-    hh = (h2 if agree else zero) if far else h1
-    vv = (v2 if agree else zero) if far else v1
-    return (hh if near else zero), (vv if near else zero)
-
-
-@njit(cache=True, inline="always", error_model="numpy")
-def _shrunk_of(x, v):  # pragma: no cover - compiled
-    """:func:`_shrunk`, branch-free."""
-    x = np.float64(x)
-    x2 = x * x
-    r = x * (1.0 - np.float64(v) / x2)
-    return r if x2 > v else 0.0
-
-
 @njit(cache=True, nogil=True, error_model="numpy")
 def _row_planes(fl, wl, v, w, mr, kink2, bias, gu, vgu, ku, gv, vgv, kv, phc):  # pragma: no cover - compiled
     """Row ``v``'s local planes (:func:`_plane_slope` along u and v: ``gu, vgu, ku``, ``gv, vgv,
     kv``) and, with ``bias``, the curvature terms (:func:`_curvature_probe`, :func:`_cross_probe`,
     :func:`_shrunk`: ``phc``) of the pixels ``u`` in ``[2 mr, w - 2 mr)`` of a row ``2 mr`` px
-    or more inside the image, where every probe lies inside it: the same operations as the
-    per-pixel functions, branch-free (SIMD over the row; unsigned indices, so no negative-index
-    wrap-around); the same bits."""
+    or more inside the image, where every probe lies inside it: the per-pixel functions'
+    branch-free definitions (:func:`_plane_slope_of`, :func:`_second_difference_of`,
+    :func:`_curvature_of`, :func:`_cross_difference_of`) on a whole row (SIMD; unsigned indices,
+    so no negative-index wrap-around); the same bits."""
     bf = np.float32(mr)
     b2f = np.float32(2 * mr)
     m1 = np.uint64(mr)
@@ -664,9 +638,6 @@ def _row_planes(fl, wl, v, w, mr, kink2, bias, gu, vgu, ku, gv, vgv, kv, phc):  
         gv[u], vgv[u], kv[u] = _plane_slope_of(fl[c - s1], fb, fl[c + s1], wl[c - s1], wb, wl[c + s1], bf, kink2)
     if not bias:
         return
-    b2 = np.float32(4.0) * b2f * b2f
-    one = np.float32(1.0)
-    zero = np.float32(0.0)
     p0, p1, p2 = phc[0], phc[1], phc[2]
     for k in range(w - 4 * mr):
         u = np.uint64(2 * mr) + np.uint64(k)
@@ -683,15 +654,10 @@ def _row_planes(fl, wl, v, w, mr, kink2, bias, gu, vgu, ku, gv, vgv, kv, phc):  
         pm = c - s2 + m2
         mp = c + s2 - m2
         mm = c - s2 - m2
-        wpp, wpm, wmp, wmm = wl[pp], wl[pm], wl[mp], wl[mm]
-        ok = (wpp > 0) & (wpm > 0) & (wmp > 0) & (wmm > 0)
-        x = _wrap_pi(fl[pp] - fl[pm])
-        y = _wrap_pi(fl[mp] - fl[mm])
-        huv = (x - y) / b2 if ok else zero
-        vuv = (one / wpp + one / wpm + one / wmp + one / wmm) / (b2 * b2) if ok else zero
-        p0[u] = np.float32(0.5 * _shrunk_of(huu, vuu))
-        p1[u] = np.float32(_shrunk_of(huv, vuv))
-        p2[u] = np.float32(0.5 * _shrunk_of(hvv, vvv))
+        huv, vuv = _cross_difference_of(fl[pp], fl[pm], fl[mp], fl[mm], wl[pp], wl[pm], wl[mp], wl[mm], b2f)
+        p0[u] = np.float32(0.5 * _shrunk(huu, vuu))
+        p1[u] = np.float32(_shrunk(huv, vuv))
+        p2[u] = np.float32(0.5 * _shrunk(hvv, vvv))
 
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
@@ -832,14 +798,10 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
             ngrow += (inv[v, u] > 0) & (wfirst[v, u] < target_w)
         rowwise = 4 * ngrow >= w
     if rowwise:
-        rgu = np.empty(w, np.float32)
-        rvgu = np.empty(w, np.float32)
-        rku = np.empty(w, np.bool_)
-        rgv = np.empty(w, np.float32)
-        rvgv = np.empty(w, np.float32)
-        rkv = np.empty(w, np.bool_)
+        rpl = np.empty((4, w), np.float32)  # gu, vgu, gv, vgv
+        rkk = np.empty((2, w), np.bool_)  # ku, kv
         rph = np.empty((3, w), np.float32)
-        _row_planes(fl, wl, v, w, mr, kink2, bias, rgu, rvgu, rku, rgv, rvgv, rkv, rph)
+        _row_planes(fl, wl, v, w, mr, kink2, bias, rpl[0], rpl[1], rkk[0], rpl[2], rpl[3], rkk[1], rph)
     n = 0
     if full:
         for u in range(w):
@@ -864,7 +826,7 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
         bu = max_radius  # the plane from first-pass estimates as far out as the largest ring
         inner = rowwise and lo <= u < hi
         if inner:
-            gu, vgu, ku, gv, vgv, kv = rgu[u], rvgu[u], rku[u], rgv[u], rvgv[u], rkv[u]
+            gu, vgu, ku, gv, vgv, kv = rpl[0, u], rpl[1, u], rkk[0, u], rpl[2, u], rpl[3, u], rkk[1, u]
         else:
             gu, vgu, ku = _plane_slope(fl, wl, v * w + u - bu if u >= bu else -1, v * w + u,
                                        v * w + u + bu if u + bu < w else -1, np.float32(bu), kink2)
