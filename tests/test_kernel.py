@@ -66,12 +66,13 @@ def _reference(rig: dict, model: str, rgb: np.ndarray, shadow: np.ndarray, denoi
 
 
 def _prepare(rig: dict, model: str, shadow: np.ndarray, pd: bool = True, own: bool = False,
-             blur: float = perframe.WEIGHT_BLUR_PX, shape: str = perframe.WEIGHT_BLUR_SHAPE) -> kernel.Prepared:
+             blur: float = perframe.WEIGHT_BLUR_PX, shape: str = perframe.WEIGHT_BLUR_SHAPE,
+             frequency: bool = False) -> kernel.Prepared:
     table, cal = rig[model]
     return kernel.prepare(table, cal, rig["white"], hue_model=model,
                           min_saturation=CONFIG["measurement"]["min_saturation"], shadow=shadow, bit_depth=8,
                           predistortion=rig["session"].predistortion if pd else None, own_noise=own,
-                          weight_blur_px=blur, weight_blur_shape=shape)
+                          weight_blur_px=blur, weight_blur_shape=shape, phase_error_frequency=frequency)
 
 
 def _frame_u8(rig: dict, n: int) -> np.ndarray:
@@ -186,6 +187,37 @@ def test_out_buffers_and_shadow_fraction(rig: dict) -> None:
         kernel.frame_to_height(p1, u8.astype(np.int16))
     with pytest.raises(ValueError, match="hue model"):
         kernel.prepare(table, cal, rig["white"], hue_model="lab", min_saturation=CONFIG["measurement"]["min_saturation"])
+
+
+@pytest.mark.parametrize("denoise", [0, 2])
+def test_kernel_with_the_phase_error_scaled_to_the_fringe_frequency_matches_reference(rig: dict, denoise: int) -> None:
+    """``phase_error_frequency``: the kernel's heights, uncertainty and texture term are
+    measure_frame's bit for bit, with the filter and without, and the scaling moves the heights
+    (the rig's planes give a phase-error table)."""
+    from huefringe import texture
+
+    table, cal = rig["hexcone"]
+    assert cal.phase_error is not None
+    shadow = perframe.shadow_mask(rig["white"], CONFIG["measurement"]["shadow_fraction"])
+    prep = _prepare(rig, "hexcone", shadow, frequency=True)
+    adaptive = CONFIG["measurement"]["denoise_adaptive"] if denoise else None
+    n = rig["session"].frame_ids[0]
+    raw = read_rgb(rig["session"].frames[n])
+    rgb, moved = texture.correct_pair(raw, rig["white"], 0.4, 0.5, clipped=perframe.clipped_mask(raw, 8))
+    ref = perframe.measure_frame(rgb, rig["white"], table, cal, shadow=shadow, bit_depth=8, denoise_radius=denoise,
+                                 **_FRAME_KEYS, predistortion=rig["session"].predistortion, denoise_adaptive=adaptive,
+                                 texture_rgb=moved, phase_error_frequency=True)
+    m = kernel.frame_maps(prep, rgb, denoise_radius=denoise, denoise_adaptive=adaptive, texture_rgb=moved,
+                          want_uncertainty=True)
+    _assert_same(m.height, m.valid, ref)
+    np.testing.assert_array_equal(m.height, ref.height)
+    np.testing.assert_array_equal(m.uncertainty, ref.uncertainty)
+    np.testing.assert_array_equal(m.texture_u, ref.texture_u)
+    h_only = kernel.frame_maps(prep, rgb, denoise_radius=denoise, denoise_adaptive=adaptive).height
+    np.testing.assert_array_equal(h_only, ref.height)  # the path without the uncertainty too
+    plain = kernel.frame_maps(_prepare(rig, "hexcone", shadow), rgb, denoise_radius=denoise, denoise_adaptive=adaptive)
+    moved_px = np.isfinite(plain.height) & np.isfinite(m.height) & (plain.height != m.height)
+    assert moved_px.mean() > 0.1
 
 
 def test_prepared_layout(rig: dict) -> None:

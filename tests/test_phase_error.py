@@ -147,3 +147,111 @@ def test_holdout_check_applies_a_real_error_and_refuses_noise() -> None:
     assert phase_error.from_calibration(phases, valid, cal) is not None
     with pytest.raises(ValueError, match="true, false or auto"):
         phase_error.from_calibration(phases, valid, load_config({"calibration": {"phase_error": {"enabled": "yes"}}})["calibration"])
+
+
+def _frequency_cal(phi_ref: np.ndarray, a: np.ndarray | None = None, planes: tuple[float, ...] = (0.0,)):
+    """A plane calibration's fields that :func:`phase_error.frequency_inputs` reads."""
+    from types import SimpleNamespace
+
+    a = np.zeros(phi_ref.shape) if a is None else a
+    return SimpleNamespace(phi_ref=phi_ref, a=a, b=np.zeros(phi_ref.shape), planes_mm=list(planes))
+
+
+def test_frequency_inputs_are_the_reference_planes_frequency() -> None:
+    """The table's frequency is the reference phase's (tilted fringes: both components, and the
+    square of their length), whatever the other planes see."""
+    h, w = 20, 30
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+    phi_ref = np.mod(0.12 * uu + 0.03 * vv, 2 * np.pi).astype(np.float32)
+    inputs = phase_error.frequency_inputs(_frequency_cal(phi_ref, a=0.004 * uu, planes=(0.0, 3.0, 6.0)))
+    np.testing.assert_allclose(inputs[0], 0.12, atol=2e-6)
+    np.testing.assert_allclose(inputs[1], 0.03, atol=2e-6)
+    np.testing.assert_allclose(inputs[2], 0.12**2 + 0.03**2, rtol=1e-4)
+
+
+def test_correction_scaled_to_the_local_fringe_frequency() -> None:
+    """``correct_frequency`` takes out ``((g / g_0)^2 - 1) e(phi)`` (one plane, the reference: ``g_0``
+    its frequency): nothing where the phase
+    difference is flat (the reference's frequency), the analytic amount on a ramp that raises the
+    frequency by a quarter, nothing at a step between two flat sides (the step-robust slope) nor
+    at one blurred over three pixels or on a ramp four times the reference's frequency (outside
+    the range taken as a slope), and the phase difference unchanged without a table or where
+    invalid."""
+    h, w = 40, 60
+    g0 = 2 * np.pi / 48  # the reference plane's fringe: 48 px a period along the columns
+    uu = np.arange(w)[None, :] * np.ones((h, 1))
+    phi_ref = np.mod(0.2 + g0 * uu, 2 * np.pi).astype(np.float32)
+    bins = 512
+    centres = (np.arange(bins) + 0.5) * 2 * np.pi / bins
+    error = 0.02 * np.sin(3 * centres) + 0.01 * np.cos(7 * centres)
+    valid = np.ones((h, w), bool)
+    valid[5, 7] = False
+    inputs = phase_error.frequency_inputs(_frequency_cal(phi_ref))
+
+    flat = np.full((h, w), 0.3, np.float32)
+    np.testing.assert_array_equal(phase_error.correct_frequency(flat, valid, phi_ref, error, inputs), flat)
+
+    ramp = (0.25 * g0 * uu).astype(np.float32)  # g = 1.25 g0
+    got = phase_error.correct_frequency(ramp, valid, phi_ref, error, inputs)
+    inner = (slice(8, -8), slice(8, -8))
+    code = np.mod(phi_ref.astype(np.float64) + ramp, 2 * np.pi)
+    want = ramp - (1.25**2 - 1.0) * phase_error.table_at(code, error)
+    np.testing.assert_allclose(got[inner], want[inner], atol=2e-6)
+    assert np.abs(got - ramp)[inner].max() > 0.01  # the correction is there
+
+    step = np.where(uu < 30, 0.0, 1.0).astype(np.float32)
+    got = phase_error.correct_frequency(step, valid, phi_ref, error, inputs)
+    np.testing.assert_allclose(got[10:30], step[10:30], atol=1e-7)  # both sides flat: g = g0 at the step too
+
+    steep = (3.0 * g0 * uu).astype(np.float32)  # (4 g0)^2: not a slope the table's error scales with
+    got = phase_error.correct_frequency(steep, valid, phi_ref, error, inputs)
+    np.testing.assert_array_equal(got, steep)
+    blurred = step.copy()
+    blurred[:, 29:31] = [0.25, 0.75]  # a step over three pixels: their differences cross the range
+    got = phase_error.correct_frequency(blurred, valid, phi_ref, error, inputs)
+    np.testing.assert_allclose(got[10:30], blurred[10:30], atol=1e-7)
+
+    assert phase_error.correct_frequency(ramp, valid, phi_ref, error, inputs)[5, 7] == ramp[5, 7]  # invalid: kept
+    np.testing.assert_array_equal(phase_error.correct_frequency(ramp, valid, phi_ref, None, inputs), ramp)
+
+
+def test_frequency_ratio_is_its_numpy_definition() -> None:
+    """The compiled ratio against its NumPy definition (the slope: of the forward and backward
+    differences between valid pixels the smaller; a pixel on a slope when its own ``|g_ref +
+    slope|^2 / g_t^2`` lies in the range; there ``|g_ref + mean slope|^2 / g_t^2``, the
+    mean over the box's pixels on a slope (9 x 9); 1 elsewhere) on a noisy, tilted, partly invalid
+    map with a step: to 1e-12."""
+    from scipy.ndimage import uniform_filter
+
+    rng = np.random.default_rng(5)
+    h, w = 50, 70
+    vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
+    phi_ref = np.mod(0.4 + 0.13 * uu + 0.02 * vv, 2 * np.pi).astype(np.float32)
+    d = (0.03 * np.sin(uu / 9.0) + 0.02 * vv / h + rng.normal(0, 0.01, (h, w)) + np.where(uu > 40, 0.8, 0.0))
+    d = d.astype(np.float32)
+    valid = rng.random((h, w)) > 0.1
+    g = phase_error.frequency_inputs(_frequency_cal(phi_ref))
+
+    def smaller(x: np.ndarray, axis: int) -> np.ndarray:
+        xm = np.moveaxis(np.where(valid, x, np.nan), axis, 0)
+        f = np.full(xm.shape, np.nan)
+        f[:-1] = xm[1:] - xm[:-1]
+        b = np.full(xm.shape, np.nan)
+        b[1:] = f[:-1]
+        f2, b2 = np.where(np.isfinite(f), f, b), np.where(np.isfinite(b), b, f)
+        return np.moveaxis(np.nan_to_num(np.where(np.abs(f2) < np.abs(b2), f2, b2)), 0, axis)
+
+    x = d.astype(np.float64)
+    su, sv = smaller(x, 1), smaller(x, 0)
+    g02 = g[2]
+    q = ((g[0] + su) ** 2 + (g[1] + sv) ** 2) / g02
+    lo, hi = phase_error.FREQUENCY_RATIO_RANGE
+    taken = valid & (q >= lo) & (q <= hi)
+    box = phase_error.FREQUENCY_BOX_PX
+    count = uniform_filter(taken.astype(float), box, mode="constant")
+    mu = uniform_filter(np.where(taken, su, 0.0), box, mode="constant") / count
+    mv = uniform_filter(np.where(taken, sv, 0.0), box, mode="constant") / count
+    want = np.where(taken, ((g[0] + mu) ** 2 + (g[1] + mv) ** 2) / g02, 1.0)
+    got = phase_error.frequency_ratio(d, valid, g)
+    assert 0.2 < taken.mean() < 0.99  # both outcomes of the slope test occur
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)

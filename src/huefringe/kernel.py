@@ -78,7 +78,7 @@ from huefringe.perframe import (WEIGHT_BLUR_PX, WEIGHT_BLUR_SHAPE, _hue_noise_ke
                                 noise_ratio2, ratio_over, sensor_model, shadow_mask, sigma_from_slope, weight_blur_angle,
                                 weight_noise_of)
 from huefringe.phase import adaptive_kwargs, denoise_weight, denoise_weighted
-from huefringe.phase_error import correct_one
+from huefringe.phase_error import correct_frequency, correct_one, frequency_inputs
 from huefringe.session import Predistortion
 from huefringe.uncertainty import (PixelBudget, edge_floor, height_uncertainty, pixel_budget,
                                    texture_term_phase)
@@ -149,6 +149,10 @@ class Prepared:
     as ``-index - 1`` where a sample lies within the bucket (then searched)."""
     phase_error: NDArray[np.float64] | None = None
     """The plane calibration's phase-error table (``PlaneCalibration.phase_error``), or None."""
+    frequency: NDArray[np.float64] | None = None
+    """:func:`huefringe.phase_error.frequency_inputs` where the phase-error table's correction is
+    scaled to the local fringe frequency (:func:`huefringe.phase_error.correct_frequency`), else
+    None."""
     stats: dict[str, Any] = field(default_factory=dict)
     budget: PixelBudget | None = None
     """Session inputs of the per-pixel height uncertainty (:func:`huefringe.uncertainty.pixel_budget`)."""
@@ -204,6 +208,7 @@ def prepare(
     own_noise: bool = False,
     weight_blur_px: float = WEIGHT_BLUR_PX,
     weight_blur_shape: str = WEIGHT_BLUR_SHAPE,
+    phase_error_frequency: bool = False,
 ) -> Prepared:
     """Prepare a session's calibration for :func:`frame_to_height` (once per session).
 
@@ -236,6 +241,9 @@ def prepare(
         ``measure_frame``'s: the filter's weights from each pixel's own signal, or from the
         signal smoothed by a Gaussian of ``weight_blur_px`` (``perframe.weight_noise``; 0: the
         table's pooled figure), isotropic or along the fringe.
+    phase_error_frequency : bool
+        ``measure_frame``'s: the phase-error table's correction scaled to each pixel's fringe
+        frequency (:func:`huefringe.phase_error.correct_frequency`) after the filter.
     """
     model = table.model if hue_model is None else hue_model
     if model not in HUE_MODELS:
@@ -291,6 +299,8 @@ def prepare(
         prep.pd_emitted, prep.pd_code, prep.pd_slope, prep.pd_index = _predistortion_arrays(predistortion)
     if getattr(cal, "phase_error", None) is not None:
         prep.phase_error = np.ascontiguousarray(cal.phase_error, dtype=np.float64)
+        if phase_error_frequency:
+            prep.frequency = frequency_inputs(cal)
     prep.budget = pixel_budget(table, cal)
     model = sensor_model(table)
     prep.sensor = model if own_noise else None  # measure_frame's own_noise
@@ -1125,7 +1135,8 @@ def frame_maps(
     denoise = int(denoise_radius) > 0
     phase = np.empty((h, w), dtype=np.float32) if want_maps else None
     hue = np.empty((h, w), dtype=np.float32) if want_maps else None
-    dphi = np.empty((h, w), dtype=np.float32) if denoise or want_dphi or texture_rgb is not None else None
+    freq = prep.frequency is not None  # the phase-error correction scaled to the fringe frequency, after the filter
+    dphi = np.empty((h, w), dtype=np.float32) if denoise or want_dphi or texture_rgb is not None or freq else None
     # the filter's dz, s2, inv (also without the filter when the uncertainty needs them)
     weights = np.empty((3, h, w), dtype=np.float32) if denoise or want_uncertainty else None
     top = 1.0 - 0.5 / (2**prep.bit_depth - 1)
@@ -1168,11 +1179,18 @@ def frame_maps(
                                   weight_sum=sumw, ratio=ratio, ratio_sum=rsum, support=support,
                                   carry=delta if denoise else None, carry_mean=carried if denoise else None,
                                   bias2=bias2, **adaptive_kwargs(denoise_adaptive))
+        if freq:
+            smooth = correct_frequency(smooth, valid, prep.phi_ref, prep.phase_error, prep.frequency)
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     elif want_uncertainty:  # no filter: the weights path, heights from the unfiltered dz
         smooth, sumw = weights[0], weights[2]
         rsum = sumw * ratio if ratio is not None else None
         support = (sumw > 0).astype(np.float32)
+        if freq:
+            smooth = correct_frequency(smooth, valid, prep.phi_ref, prep.phase_error, prep.frequency)
+        n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
+    elif freq:  # neither: the heights again from the corrected phase difference
+        smooth = correct_frequency(dphi, valid, prep.phi_ref, prep.phase_error, prep.frequency)
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     u_map = noise_h = None
     if want_uncertainty:
@@ -1186,7 +1204,7 @@ def frame_maps(
               "guess_far": int(n_far)}
     tex_u = None
     if delta is not None:
-        tex_u = texture_term_phase(smooth if denoise else dphi, carried, height, prep.a, prep.b)
+        tex_u = texture_term_phase(smooth if denoise or freq else dphi, carried, height, prep.a, prep.b)
     return FrameMaps(height, valid, phase, hue, counts, dphi if want_dphi else None, u_map, support, tex_u, noise_h,
                      weights[2] if want_uncertainty and weights is not None else None, bias2)
 

@@ -28,6 +28,7 @@ interpolation between bin centres (:func:`correct`; the fused kernel calls the s
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -115,6 +116,212 @@ class PhaseErrorLUT:
         with atomic_path(npz) as tmp:
             with open(tmp, "wb") as f:
                 np.savez(f, error=self.error, before=self.before, after=self.after, centres=self.centres)
+
+
+#: Box (px) over which the fringe frequency's square is averaged, and the range of its ratio to
+#: the reference plane's taken as a slope (:func:`frequency_ratio`; beyond it a step's blurred
+#: pixels, left uncorrected).
+FREQUENCY_BOX_PX = 9
+FREQUENCY_RATIO_RANGE = (0.6, 1.6)
+
+
+def reference_gradient(phi_ref: NDArray[np.floating]) -> NDArray[np.float64]:
+    """The reference phase's change per pixel, ``(2, H, W)`` (along columns, along rows): central
+    wrapped differences of its float32 values (as the chain holds it), one-sided at the border; 0
+    where not finite."""
+    p = np.asarray(phi_ref, np.float32).astype(np.float64)
+    out = np.zeros((2, *p.shape))
+    for k, axis in enumerate((1, 0)):
+        if p.shape[axis] < 2:
+            continue
+        d = np.mod(np.diff(p, axis=axis) + np.pi, TWO_PI) - np.pi
+        g = np.moveaxis(out[k], axis, 0)
+        dd = np.moveaxis(d, axis, 0)
+        g[1:-1] = 0.5 * (dd[1:] + dd[:-1])
+        g[0], g[-1] = dd[0], dd[-1]
+    return np.nan_to_num(out)
+
+
+def frequency_inputs(cal: Any) -> NDArray[np.float64]:
+    """What :func:`correct_frequency` needs of a plane calibration, once per session: ``(3, H, W)``,
+    the reference phase's change per pixel (:func:`reference_gradient`, along columns and rows) and
+    its square, the fringe frequency the phase-error table's correction is taken to hold (the
+    reference plane's; the planes' mean was measured worse on the tuning cases, docs/design.md)."""
+    g = reference_gradient(np.asarray(cal.phi_ref, np.float32))
+    return np.ascontiguousarray(np.stack([g[0], g[1], g[0] ** 2 + g[1] ** 2]))
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _smaller_step(fwd, bwd, has_f, has_b):  # pragma: no cover - compiled
+    """Of a pixel's forward and backward differences the one of smaller magnitude (the one there
+    is where only one is; 0 where none)."""
+    if has_f and has_b:
+        return fwd if abs(fwd) < abs(bwd) else bwd
+    if has_f:
+        return fwd
+    if has_b:
+        return bwd
+    return 0.0
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
+def _frequency_kernel(d, ok, grad, phi_ref, error, box, lo, hi, ratio, out):  # pragma: no cover - compiled
+    """:func:`frequency_ratio` into ``ratio`` (float64) and, with ``error`` non-empty,
+    :func:`correct_frequency` into ``out`` (float32). Row by row: each pixel's slope and whether
+    its ratio is a slope's, their running sums along the row over the box, then those running down
+    the columns."""
+    h, w = d.shape
+    half = box // 2
+    su = np.zeros((h, w))  # per row: the box's sums along the row of the slopes taken, and their count
+    sv = np.zeros((h, w))
+    sc = np.zeros((h, w))
+    ru = np.zeros(w)
+    rv = np.zeros(w)
+    use = np.zeros(w)
+    taken = np.zeros((h, w), np.bool_)  # the pixel's own ratio is a slope's
+    for v in range(h):
+        for u in range(w):
+            ru[u] = 0.0
+            rv[u] = 0.0
+            use[u] = 0.0
+            if not ok[v, u]:
+                continue
+            x = np.float64(d[v, u])
+            hf = u + 1 < w and ok[v, u + 1]
+            hb = u > 0 and ok[v, u - 1]
+            du = _smaller_step(np.float64(d[v, u + 1]) - x if hf else 0.0,
+                               x - np.float64(d[v, u - 1]) if hb else 0.0, hf, hb)
+            hf = v + 1 < h and ok[v + 1, u]
+            hb = v > 0 and ok[v - 1, u]
+            dv = _smaller_step(np.float64(d[v + 1, u]) - x if hf else 0.0,
+                               x - np.float64(d[v - 1, u]) if hb else 0.0, hf, hb)
+            g0u, g0v = grad[0, v, u], grad[1, v, u]
+            g02 = grad[2, v, u]
+            if g02 > 0.0:
+                gu, gv = g0u + du, g0v + dv
+                q = (gu * gu + gv * gv) / g02
+                if lo <= q <= hi:
+                    ru[u] = du
+                    rv[u] = dv
+                    use[u] = 1.0
+                    taken[v, u] = True
+        a = 0.0
+        b = 0.0
+        c = 0.0
+        for u in range(min(half, w)):
+            a += ru[u]
+            b += rv[u]
+            c += use[u]
+        for u in range(w):
+            if u + half < w:
+                a += ru[u + half]
+                b += rv[u + half]
+                c += use[u + half]
+            if u - half - 1 >= 0:
+                a -= ru[u - half - 1]
+                b -= rv[u - half - 1]
+                c -= use[u - half - 1]
+            su[v, u] = a
+            sv[v, u] = b
+            sc[v, u] = c
+    n = error.size
+    two_pi = 2.0 * np.pi
+    au = np.zeros(w)  # the box's sums: running along the columns
+    av = np.zeros(w)
+    cnt = np.zeros(w)
+    for k in range(min(half, h)):
+        for u in range(w):
+            au[u] += su[k, u]
+            av[u] += sv[k, u]
+            cnt[u] += sc[k, u]
+    for v in range(h):
+        if v + half < h:
+            k = v + half
+            for u in range(w):
+                au[u] += su[k, u]
+                av[u] += sv[k, u]
+                cnt[u] += sc[k, u]
+        if v - half - 1 >= 0:
+            k = v - half - 1
+            for u in range(w):
+                au[u] -= su[k, u]
+                av[u] -= sv[k, u]
+                cnt[u] -= sc[k, u]
+        for u in range(w):
+            q = 1.0
+            if taken[v, u]:  # the box's mean slope, squared: its noise averaged before it is squared
+                gu = grad[0, v, u] + au[u] / cnt[u]
+                gv = grad[1, v, u] + av[u] / cnt[u]
+                q = (gu * gu + gv * gv) / grad[2, v, u]
+            ratio[v, u] = q
+        if n > 0:
+            for u in range(w):
+                q = ratio[v, u]
+                if q != 1.0:
+                    x = np.float64(d[v, u])
+                    ph = (np.float64(phi_ref[v, u]) + x) % two_pi
+                    t = ph * (n / two_pi) - 0.5
+                    i0 = math.floor(t)
+                    f = t - i0
+                    i = np.int64(i0) % n
+                    e = (1.0 - f) * error[i] + f * error[(i + 1) % n]
+                    out[v, u] = np.float32(x - (q - 1.0) * e)
+                else:
+                    out[v, u] = d[v, u]
+
+
+def _frequency(d32: NDArray[np.float32], ok: NDArray[np.bool_], grad: NDArray[np.float64], phi_ref: Any,
+               error: NDArray[np.float64], box: int, limits: tuple[float, float]) -> tuple[NDArray[np.float64],
+                                                                                         NDArray[np.float32]]:
+    ratio = np.empty(d32.shape)
+    out = np.empty(d32.shape, np.float32)
+    pr = np.ascontiguousarray(phi_ref, np.float32) if error.size else np.zeros((1, 1), np.float32)
+    _frequency_kernel(d32, ok, np.ascontiguousarray(grad, np.float64), pr, error, int(box), float(limits[0]),
+                      float(limits[1]), ratio, out)
+    return ratio, out
+
+
+def frequency_ratio(dphi: NDArray[np.floating], valid: NDArray[np.bool_], inputs: NDArray[np.float64], *,
+                    box: int = FREQUENCY_BOX_PX,
+                    limits: tuple[float, float] = FREQUENCY_RATIO_RANGE) -> NDArray[np.float64]:
+    """The local fringe frequency squared over the reference plane's, per pixel.
+
+    The code phase is ``phi_ref + dphi``; its gradient is the reference's (``inputs[:2]``,
+    :func:`frequency_inputs`) plus the phase difference's, each component the smaller of the
+    forward and backward differences between valid pixels (a step on one side leaves it alone). A
+    pixel whose own ``|g|^2 / g_t^2`` (``g_t^2 = inputs[2]``, the reference's) lies outside
+    ``limits`` is not on a slope (the blurred pixels of a step, whose differences on both sides
+    cross it) and keeps 1; the others take ``|g_ref + s|^2 / g_t^2`` with ``s`` the mean slope of
+    the phase difference over the pixels of their ``box`` x ``box`` window that are on one (the
+    noise averaged before it is squared, where it would raise the ratio by its variance). 1 also
+    where invalid or where ``g_t^2`` is 0. Compiled; float64 from the float32 phase difference.
+    """
+    d32 = np.ascontiguousarray(dphi, np.float32)
+    ok = np.ascontiguousarray(np.asarray(valid, bool) & np.isfinite(d32))
+    return _frequency(d32, ok, inputs, None, np.zeros(0), box, limits)[0]
+
+
+def correct_frequency(dphi: NDArray[np.floating], valid: NDArray[np.bool_], phi_ref: NDArray[np.floating],
+                      error: NDArray[np.float64] | None, inputs: NDArray[np.float64]) -> NDArray[np.float32]:
+    """The phase difference with the phase-error table's correction scaled to the local fringe frequency.
+
+    The table (:func:`correct`) takes out ``e(phi)``, as it holds at the reference plane's fringe
+    frequency ``g_t``. Blur's phase error grows with the square of the fringe frequency in the
+    image (the blur spans more phase), so where a slope changes the frequency to ``g`` the error is
+    ``(g / g_t)^2 e(phi)``; this takes out the rest, ``((g / g_t)^2 - 1) e(phi)``
+    (:func:`frequency_ratio` for ``(g / g_t)^2``, ``inputs`` from :func:`frequency_inputs`; ``phi =
+    phi_ref + dphi``, ``phi_ref``'s float32 values as the chain holds them; ``e`` linear between
+    bin centres as :func:`table_at`). Returns float32 (the chain's phase difference), ``dphi``
+    unchanged where the ratio is 1 (invalid, outside the slopes' range) or without a table.
+    """
+    d32 = np.ascontiguousarray(dphi, np.float32)
+    if error is None:
+        return np.array(d32, copy=True)
+    ok = np.ascontiguousarray(np.asarray(valid, bool) & np.isfinite(d32))
+    e = np.ascontiguousarray(error, np.float64)
+    if e.ndim != 1 or e.size < 3:
+        raise ValueError(f"the phase-error table must be 1-D with at least 3 bins, got shape {e.shape}")
+    return _frequency(d32, ok, inputs, phi_ref, e, FREQUENCY_BOX_PX, FREQUENCY_RATIO_RANGE)[1]
 
 
 def _circular_smooth(values: NDArray[np.float64], sigma_bins: float) -> NDArray[np.float64]:

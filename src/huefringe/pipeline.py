@@ -582,7 +582,8 @@ def prepare_frames(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: st
                                  shadow=shadow, bit_depth=s.bit_depth, predistortion=s.predistortion,
                                  own_noise=bool(measurement["own_noise"]),
                                  weight_blur_px=float(measurement["weight_blur_px"]),
-                                 weight_blur_shape=str(measurement["weight_blur_shape"]))
+                                 weight_blur_shape=str(measurement["weight_blur_shape"]),
+                                 phase_error_frequency=bool(measurement["phase_error_frequency"]))
         fp.table_invalid = float(np.mean(~t.valid))
         fp.shadow_fraction = float(shadow.mean())
         fp.buffers = (np.empty(fp.prep.shape, np.float32), np.empty(fp.prep.shape, bool))  # reused frame to frame
@@ -602,7 +603,8 @@ def _reference(fp: FramePipeline, image: NDArray[np.floating], texture_rgb: NDAr
                          bit_depth=s.bit_depth, denoise_radius=m["denoise_radius"], predistortion=s.predistortion,
                          denoise_adaptive=fp.adaptive, budget=fp.budget, own_noise=bool(m["own_noise"]),
                          texture_rgb=texture_rgb, weight_blur_px=float(m["weight_blur_px"]),
-                         weight_blur_shape=str(m["weight_blur_shape"]))
+                         weight_blur_shape=str(m["weight_blur_shape"]),
+                         phase_error_frequency=bool(m["phase_error_frequency"]))
 
 
 def measure_one(fp: FramePipeline, n: int, *, want_maps: bool = True) -> FrameResult:

@@ -82,6 +82,7 @@ def measure_frame(
     texture_rgb: NDArray[np.floating] | None = None,
     weight_blur_px: float = WEIGHT_BLUR_PX,
     weight_blur_shape: str = WEIGHT_BLUR_SHAPE,
+    phase_error_frequency: bool = False,
 ) -> FrameResult:
     """One trapezoidal frame to a height map: hue -> table -> code phase -> dphi -> height.
 
@@ -124,6 +125,10 @@ def measure_frame(
     weight_blur_shape : {"isotropic", "along_fringe"}
         That Gaussian isotropic, or along the fringe only (perpendicular to the reference phase's
         gradient, :func:`fringe_angle`; it keeps the pixel's hue) (``measurement.weight_blur_shape``).
+    phase_error_frequency : bool
+        With a phase-error table (``cal.phase_error``), after the filter its correction is scaled
+        to each pixel's fringe frequency (:func:`huefringe.phase_error.correct_frequency`:
+        ``measurement.phase_error_frequency``).
     budget : PixelBudget, optional
         Session inputs of the height uncertainty (:func:`huefringe.uncertainty.pixel_budget`,
         computed when not given); the result's ``uncertainty`` is the kernel's, bit for bit.
@@ -137,7 +142,8 @@ def measure_frame(
         moved_dphi = measure_frame(texture_rgb, white, table, cal, hue_model=hue_model, min_saturation=min_saturation,
                                    shadow=shadow, unwrap_mode=unwrap_mode, bit_depth=bit_depth,
                                    below_reference_mm=below_reference_mm, denoise_radius=0, predistortion=predistortion,
-                                   budget=budget, own_noise=own_noise).dphi
+                                   budget=budget, own_noise=own_noise,
+                                   phase_error_frequency=False).dphi  # its raw phase difference
     balanced = white_balance(rgb, white)
     hue = hue_of(balanced, hue_model, min_saturation=min_saturation)
     emitted, slope = table.to_phase_and_slope(hue)  # the phase's uncertainty needs the table slope
@@ -178,6 +184,9 @@ def measure_frame(
         sumw = weight
         rsum = sumw * ratio if ratio is not None else rsum
         support = (sumw > 0).astype(np.float32)
+    if phase_error_frequency and cal.phase_error is not None:
+        un.dphi = phase_error.correct_frequency(un.dphi, valid, cal.phi_ref, cal.phase_error,
+                                                phase_error.frequency_inputs(cal))
     height = cal.height(un.dphi)
     valid &= np.isfinite(height)
     height = np.where(valid, height, np.nan).astype(np.float32)
