@@ -196,6 +196,8 @@ CAMERA_VARIANTS = {
 VARIANTS = {
     "all on": {},
     "phase-error table off": {"calibration": {"phase_error": {"enabled": False}}},
+    # the table's correction scaled to each pixel's fringe frequency (measurement.phase_error_frequency)
+    "phase-error frequency": {"measurement": {"phase_error_frequency": True}},
     # the variants below apply the table without the leave-one-plane-out test (it decided "apply"
     # on every case of "all on"; skipping it saves its time)
     "edge mask off": {"calibration": {"phase_error": {"enabled": True}}, "measurement": {"edge_jump_mm": 0.0}},
