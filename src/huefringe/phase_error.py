@@ -146,7 +146,7 @@ def frequency_inputs(cal: Any) -> NDArray[np.float64]:
     """What :func:`correct_frequency` needs of a plane calibration, once per session: ``(3, H, W)``,
     the reference phase's change per pixel (:func:`reference_gradient`, along columns and rows) and
     its square, the fringe frequency the phase-error table's correction is taken to hold (the
-    reference plane's; the planes' mean was measured worse on the tuning cases, docs/design.md)."""
+    reference plane's: docs/design.md, "Phase-error table")."""
     g = reference_gradient(np.asarray(cal.phi_ref, np.float32))
     return np.ascontiguousarray(np.stack([g[0], g[1], g[0] ** 2 + g[1] ** 2]))
 
