@@ -28,7 +28,6 @@ interpolation between bin centres (:func:`correct`; the fused kernel calls the s
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -43,6 +42,17 @@ TWO_PI = 2.0 * np.pi
 
 
 @njit(cache=True, inline="always", error_model="numpy")
+def _table_value(phi, error):  # pragma: no cover - compiled
+    """``e(phi)`` for one float64 phase in [0, 2 pi): linear between the bin centres
+    ``(i + 1/2) 2 pi / n`` of ``error`` (periodic); :func:`table_at` is its NumPy form."""
+    n = error.size
+    x = phi * (n / (2.0 * np.pi)) - 0.5
+    i0 = int(np.floor(x))
+    f = x - i0
+    return (1.0 - f) * error[i0 % n] + f * error[(i0 + 1) % n]
+
+
+@njit(cache=True, inline="always", error_model="numpy")
 def correct_one(phi, error):  # pragma: no cover - compiled
     """``phi - e(phi)`` for one float32 phase in [0, 2 pi), wrapped to [0, 2 pi), float32.
 
@@ -50,14 +60,8 @@ def correct_one(phi, error):  # pragma: no cover - compiled
     A non-finite ``phi`` is returned unchanged."""
     if not (phi - phi == 0):
         return phi
-    n = error.size
     two_pi = 2.0 * np.pi
-    x = np.float64(phi) * (n / two_pi) - 0.5
-    i0 = int(np.floor(x))
-    f = x - i0
-    j0 = i0 % n
-    j1 = (i0 + 1) % n
-    c = np.float64(phi) - ((1.0 - f) * error[j0] + f * error[j1])
+    c = np.float64(phi) - _table_value(np.float64(phi), error)
     c = c + two_pi if c < 0.0 else (c - two_pi if c >= two_pi else c)
     r = np.float32(c)
     return np.float32(0.0) if r >= np.float32(two_pi) else r
@@ -259,12 +263,7 @@ def _frequency_kernel(d, ok, grad, phi_ref, error, box, lo, hi, ratio, out):  # 
                 q = ratio[v, u]
                 if q != 1.0:
                     x = np.float64(d[v, u])
-                    ph = (np.float64(phi_ref[v, u]) + x) % two_pi
-                    t = ph * (n / two_pi) - 0.5
-                    i0 = math.floor(t)
-                    f = t - i0
-                    i = np.int64(i0) % n
-                    e = (1.0 - f) * error[i] + f * error[(i + 1) % n]
+                    e = _table_value((np.float64(phi_ref[v, u]) + x) % two_pi, error)
                     out[v, u] = np.float32(x - (q - 1.0) * e)
                 else:
                     out[v, u] = d[v, u]
@@ -377,7 +376,8 @@ def unwrap_planes(plane_phases: dict[float, NDArray[np.floating]], plane_valid: 
 
 
 def table_at(phase: NDArray[np.floating], error: NDArray[np.float64]) -> NDArray[np.float64]:
-    """``e(phi)``: the table linear between its bin centres (periodic), float64, as :func:`correct_one`."""
+    """``e(phi)``: the table linear between its bin centres (periodic), float64: the NumPy form of
+    :func:`_table_value` (what :func:`correct_one` subtracts)."""
     n = error.size
     x = np.asarray(phase, np.float64) * (n / TWO_PI) - 0.5
     i0 = np.floor(x)
