@@ -169,98 +169,114 @@ def _smaller_step(fwd, bwd, has_f, has_b):  # pragma: no cover - compiled
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
+def _slope_row(d, ok, grad, lo, hi, half, v, su, sv, sc, taken, scratch):  # pragma: no cover - compiled
+    """Row ``v`` of :func:`_frequency_kernel`: each pixel's slope where its own ratio is a slope's
+    (``taken``), then their running sums along the row over the box (``su``, ``sv``) and the count
+    (``sc``); ``scratch`` (3, W) holds the pixels' values while their sums are formed in place."""
+    h, w = d.shape
+    for u in range(w):
+        su[u] = 0.0
+        sv[u] = 0.0
+        sc[u] = 0.0
+        taken[u] = False
+        if not ok[v, u]:
+            continue
+        x = np.float64(d[v, u])
+        hf = u + 1 < w and ok[v, u + 1]
+        hb = u > 0 and ok[v, u - 1]
+        du = _smaller_step(np.float64(d[v, u + 1]) - x if hf else 0.0,
+                           x - np.float64(d[v, u - 1]) if hb else 0.0, hf, hb)
+        hf = v + 1 < h and ok[v + 1, u]
+        hb = v > 0 and ok[v - 1, u]
+        dv = _smaller_step(np.float64(d[v + 1, u]) - x if hf else 0.0,
+                           x - np.float64(d[v - 1, u]) if hb else 0.0, hf, hb)
+        g02 = grad[2, v, u]
+        if g02 > 0.0:
+            gu, gv = grad[0, v, u] + du, grad[1, v, u] + dv
+            q = (gu * gu + gv * gv) / g02
+            if lo <= q <= hi:
+                su[u] = du
+                sv[u] = dv
+                sc[u] = 1.0
+                taken[u] = True
+    a = 0.0  # the running sums along the row, in place (the pixels' values read from the scratch)
+    b = 0.0
+    c = 0.0
+    for u in range(min(half, w)):
+        a += su[u]
+        b += sv[u]
+        c += sc[u]
+    ru, rv, rc = scratch[0], scratch[1], scratch[2]
+    ru[:] = su
+    rv[:] = sv
+    rc[:] = sc
+    for u in range(w):
+        if u + half < w:
+            a += ru[u + half]
+            b += rv[u + half]
+            c += rc[u + half]
+        if u - half - 1 >= 0:
+            a -= ru[u - half - 1]
+            b -= rv[u - half - 1]
+            c -= rc[u - half - 1]
+        su[u] = a
+        sv[u] = b
+        sc[u] = c
+
+
+@njit(cache=True, nogil=True, error_model="numpy")
 def _frequency_kernel(d, ok, grad, phi_ref, error, box, lo, hi, ratio, out):  # pragma: no cover - compiled
-    """:func:`frequency_ratio` into ``ratio`` (float64) and, with ``error`` non-empty,
-    :func:`correct_frequency` into ``out`` (float32). Row by row: each pixel's slope and whether
-    its ratio is a slope's, their running sums along the row over the box, then those running down
-    the columns."""
+    """:func:`frequency_ratio` into ``ratio`` (float64, when of the phase's shape) and, with
+    ``error`` non-empty, :func:`correct_frequency` into ``out`` (float32). Row by row: each pixel's
+    slope and whether its ratio is a slope's, their running sums along the row over the box
+    (:func:`_slope_row`, a ring of the ``box + 1`` rows the column sums need), then those running
+    down the columns."""
     h, w = d.shape
     half = box // 2
-    su = np.zeros((h, w))  # per row: the box's sums along the row of the slopes taken, and their count
-    sv = np.zeros((h, w))
-    sc = np.zeros((h, w))
-    ru = np.zeros(w)
-    rv = np.zeros(w)
-    use = np.zeros(w)
-    taken = np.zeros((h, w), np.bool_)  # the pixel's own ratio is a slope's
-    for v in range(h):
-        for u in range(w):
-            ru[u] = 0.0
-            rv[u] = 0.0
-            use[u] = 0.0
-            if not ok[v, u]:
-                continue
-            x = np.float64(d[v, u])
-            hf = u + 1 < w and ok[v, u + 1]
-            hb = u > 0 and ok[v, u - 1]
-            du = _smaller_step(np.float64(d[v, u + 1]) - x if hf else 0.0,
-                               x - np.float64(d[v, u - 1]) if hb else 0.0, hf, hb)
-            hf = v + 1 < h and ok[v + 1, u]
-            hb = v > 0 and ok[v - 1, u]
-            dv = _smaller_step(np.float64(d[v + 1, u]) - x if hf else 0.0,
-                               x - np.float64(d[v - 1, u]) if hb else 0.0, hf, hb)
-            g0u, g0v = grad[0, v, u], grad[1, v, u]
-            g02 = grad[2, v, u]
-            if g02 > 0.0:
-                gu, gv = g0u + du, g0v + dv
-                q = (gu * gu + gv * gv) / g02
-                if lo <= q <= hi:
-                    ru[u] = du
-                    rv[u] = dv
-                    use[u] = 1.0
-                    taken[v, u] = True
-        a = 0.0
-        b = 0.0
-        c = 0.0
-        for u in range(min(half, w)):
-            a += ru[u]
-            b += rv[u]
-            c += use[u]
-        for u in range(w):
-            if u + half < w:
-                a += ru[u + half]
-                b += rv[u + half]
-                c += use[u + half]
-            if u - half - 1 >= 0:
-                a -= ru[u - half - 1]
-                b -= rv[u - half - 1]
-                c -= use[u - half - 1]
-            su[v, u] = a
-            sv[v, u] = b
-            sc[v, u] = c
+    nr = box + 1
+    want_ratio = ratio.shape[0] == h and ratio.shape[1] == w
+    su = np.zeros((nr, w))  # the ring: per row, the box's sums along the row of the slopes taken, their count
+    sv = np.zeros((nr, w))
+    sc = np.zeros((nr, w))
+    taken = np.zeros((nr, w), np.bool_)  # the pixel's own ratio is a slope's
+    scratch = np.empty((3, w))
     n = error.size
     two_pi = 2.0 * np.pi
     au = np.zeros(w)  # the box's sums: running along the columns
     av = np.zeros(w)
     cnt = np.zeros(w)
     for k in range(min(half, h)):
+        r = k % nr
+        _slope_row(d, ok, grad, lo, hi, half, k, su[r], sv[r], sc[r], taken[r], scratch)
         for u in range(w):
-            au[u] += su[k, u]
-            av[u] += sv[k, u]
-            cnt[u] += sc[k, u]
+            au[u] += su[r, u]
+            av[u] += sv[r, u]
+            cnt[u] += sc[r, u]
     for v in range(h):
         if v + half < h:
             k = v + half
+            r = k % nr
+            _slope_row(d, ok, grad, lo, hi, half, k, su[r], sv[r], sc[r], taken[r], scratch)
             for u in range(w):
-                au[u] += su[k, u]
-                av[u] += sv[k, u]
-                cnt[u] += sc[k, u]
+                au[u] += su[r, u]
+                av[u] += sv[r, u]
+                cnt[u] += sc[r, u]
         if v - half - 1 >= 0:
-            k = v - half - 1
+            r = (v - half - 1) % nr
             for u in range(w):
-                au[u] -= su[k, u]
-                av[u] -= sv[k, u]
-                cnt[u] -= sc[k, u]
+                au[u] -= su[r, u]
+                av[u] -= sv[r, u]
+                cnt[u] -= sc[r, u]
+        tv = taken[v % nr]
         for u in range(w):
             q = 1.0
-            if taken[v, u]:  # the box's mean slope, squared: its noise averaged before it is squared
+            if tv[u]:  # the box's mean slope, squared: its noise averaged before it is squared
                 gu = grad[0, v, u] + au[u] / cnt[u]
                 gv = grad[1, v, u] + av[u] / cnt[u]
                 q = (gu * gu + gv * gv) / grad[2, v, u]
-            ratio[v, u] = q
-        if n > 0:
-            for u in range(w):
-                q = ratio[v, u]
+            if want_ratio:
+                ratio[v, u] = q
+            if n > 0:
                 if q != 1.0:
                     x = np.float64(d[v, u])
                     e = _table_value((np.float64(phi_ref[v, u]) + x) % two_pi, error)
@@ -272,8 +288,8 @@ def _frequency_kernel(d, ok, grad, phi_ref, error, box, lo, hi, ratio, out):  # 
 def _frequency(d32: NDArray[np.float32], ok: NDArray[np.bool_], grad: NDArray[np.float64], phi_ref: Any,
                error: NDArray[np.float64], box: int, limits: tuple[float, float]) -> tuple[NDArray[np.float64],
                                                                                          NDArray[np.float32]]:
-    ratio = np.empty(d32.shape)
-    out = np.empty(d32.shape, np.float32)
+    ratio = np.empty(d32.shape if not error.size else (0, 0))  # the ratio map only where it is asked for
+    out = np.empty(d32.shape if error.size else (0, 0), np.float32)
     pr = np.ascontiguousarray(phi_ref, np.float32) if error.size else np.zeros((1, 1), np.float32)
     _frequency_kernel(d32, ok, np.ascontiguousarray(grad, np.float64), pr, error, int(box), float(limits[0]),
                       float(limits[1]), ratio, out)
