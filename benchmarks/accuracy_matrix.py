@@ -269,6 +269,8 @@ VARIANTS.update({
     "radius 3 target 0.004": {"measurement": {"denoise_radius": 3, "denoise_adaptive": {"target_sigma_rad": 0.004}}},
     # the grown rings' plane kept on curved reliefs (docs/uncertainty.md, "The plane's kink test")
     "plane kink 10": {"measurement": {"denoise_adaptive": {"plane_kink_sigma": 10.0}}},
+    # the grown windows' bias term where the plane lacked a probe (docs/uncertainty.md, "The grown windows' bias")
+    "posterior bias": {"measurement": {"denoise_adaptive": {"lacking_probe_bias": "posterior"}}},
 })
 #: variants measured on some cases only, by words of the case name (the adaptive filter acts on
 #: weak signal: the photo reliefs; the camera corrections on the cases with such a camera)

@@ -4,6 +4,7 @@ realistic sensors.
 
 Usage: ./run python benchmarks/coverage_bins.py [--scenes NAME ...] [--frames-demo 3] [--keep DIR] [--markdown FILE]
                                                 [--filter-check] [--box-chi-z Z] [--plane-kink-sigma S]
+                                                [--lacking-probe-bias posterior]
 
 Scenes (``SCENES``): the capture-session demo (bench preset ``demo``, the session
 ``gauge-blocks-demo`` of config.yaml, 400 x 300, its first ``--frames-demo`` frames), and the
@@ -33,7 +34,9 @@ results in a folder of their own beside the default's) and prints, per scene, ho
 grew (a box, or the rings after the box's band, scatter or mean test), and runs the filter check
 with it. ``--plane-kink-sigma S`` measures with ``measurement.denoise_adaptive.plane_kink_sigma`` set to
 ``S`` (the grown rings' plane kept up to that disagreement of its sides; results in a folder of their
-own). Each scene also prints the median and 95th percentile of |e|.
+own). ``--lacking-probe-bias posterior`` measures with ``measurement.denoise_adaptive.lacking_probe_bias``
+set to it (the grown windows' bias term where the local plane lacked a probe; results in a folder of
+their own). Each scene also prints the median and 95th percentile of |e|.
 
 ``--filter-check`` adds what the misses come from (docs/uncertainty.md): the phase filter at the
 defaults (radius 2, sigma-adaptive to 0.002 rad, up to radius 6, neighbours rejected beyond
@@ -174,10 +177,10 @@ class BoxShare:
 
 
 def measure_scene(name: str, root: Path, frames_demo: int, box_chi_z: float | None = None,
-                  kink_sigma: float | None = None) -> dict:
-    """The scene measured at config.yaml's defaults (``box_chi_z`` or ``kink_sigma`` given: with the
-    adaptive support's ``box_chi_z`` or ``plane_kink_sigma`` set to it, in a results folder of its
-    own), its truth and pixel kinds."""
+                  kink_sigma: float | None = None, lacking_probe_bias: str | None = None) -> dict:
+    """The scene measured at config.yaml's defaults (``box_chi_z``, ``kink_sigma`` or
+    ``lacking_probe_bias`` given: with the adaptive support's ``box_chi_z``, ``plane_kink_sigma`` or
+    ``lacking_probe_bias`` set to it, in a results folder of its own), its truth and pixel kinds."""
     case = _demo(frames_demo) if name == "demo" else {**am.CASES, **am.NOISE_CASES}[name]
     where = root / am._slug(name if name != "demo" else f"demo-{frames_demo}")
     session, tables = am._case_dirs(where, case["cfg"])
@@ -188,6 +191,9 @@ def measure_scene(name: str, root: Path, frames_demo: int, box_chi_z: float | No
     if kink_sigma is not None:
         adaptive["plane_kink_sigma"] = kink_sigma
         tag = ("" if tag == "all-on" else tag + "-") + f"plane-kink-{kink_sigma:g}"
+    if lacking_probe_bias is not None:
+        adaptive["lacking_probe_bias"] = lacking_probe_bias
+        tag = ("" if tag == "all-on" else tag + "-") + f"lacking-probe-{lacking_probe_bias}"
     out = where / tag
     variant = {"measurement": {"denoise_adaptive": adaptive}} if adaptive else {}
     share = BoxShare()
@@ -347,13 +353,17 @@ def main() -> None:
     ap.add_argument("--plane-kink-sigma", type=float, default=None,
                     help="measure with measurement.denoise_adaptive.plane_kink_sigma set to this (results in a "
                          "folder of their own; default: config.yaml's value)")
+    ap.add_argument("--lacking-probe-bias", choices=("posterior", "unbiased"), default=None,
+                    help="measure with measurement.denoise_adaptive.lacking_probe_bias set to this (results in a "
+                         "folder of their own; default: config.yaml's value)")
     args = ap.parse_args()
     t0 = time.perf_counter()
     results, tables = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         root = args.keep or Path(tmp)
         for name in args.scenes:
-            r = measure_scene(name, root, args.frames_demo, args.box_chi_z, args.plane_kink_sigma)
+            r = measure_scene(name, root, args.frames_demo, args.box_chi_z, args.plane_kink_sigma,
+                              args.lacking_probe_bias)
             results[name], tables[name] = r, bin_table(r)
             sh = r["shape"]
             print(f"\n## {name} ({SCENES[name]}; {sh['width']} x {sh['height']}, {r['frames']} frames, "

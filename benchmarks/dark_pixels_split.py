@@ -38,6 +38,13 @@ level (the object white's channel mean over its 99th percentile), as in ``covera
    linear fit, :func:`local_linear_sketch`): spread over each one's prediction, the shared error
    and the frame-to-frame spread in mm.
 
+6. Per white level and by whether the sigma-adaptive pass's local plane had its probes (the
+   pixels ``max_radius`` px either side along each axis valid in every frame and inside the image):
+   the 2u coverage, the frame-to-frame and shared error and the rms u of the written u at the
+   defaults and with ``measurement.denoise_adaptive.lacking_probe_bias: posterior`` (``posterior``,
+   the same heights): where a probe lacks, the plane is dropped and the grown window's bias term
+   is all u has for its slope.
+
 About 1 min on one core with ``--keep`` holding the session (2 min without).
 """
 
@@ -68,7 +75,9 @@ from huefringe.session import load_session, read_rgb  # noqa: E402
 BINS = ((0.1, 0.2), (0.2, 0.35), (0.35, 0.5), (0.5, 0.7), (0.7, 0.85), (0.85, np.inf))
 OFF = {"texture_uncertainty": False, "lateral_uncertainty_px": 0.0, "lateral_step_px": 0.0}
 RUNS = {"core": OFF, "fixed": {**OFF, "denoise_adaptive": {"enabled": False}},
-        "raw": {**OFF, "denoise_radius": 0, "edge_jump_mm": 0.0}}
+        "raw": {**OFF, "denoise_radius": 0, "edge_jump_mm": 0.0},
+        "posterior": {"denoise_adaptive": {"lacking_probe_bias": "posterior"}}}
+PROBES = {"both axes' probes there": None, "a probe lacking along u": "u", "along v": "v", "along both": "uv"}
 FILTERS = {"adaptive, k = 3 (defaults)": {"k": 3.0, "max_radius": 6, "target_sigma": 0.002, "reject_sigma": 0.03},
            "adaptive, k = 3, plane kink 10": {"k": 3.0, "max_radius": 6, "target_sigma": 0.002, "reject_sigma": 0.03,
                                               "plane_kink_sigma": 10.0},
@@ -275,7 +284,39 @@ def main() -> None:
             print(f"| {name} | spread / predicted | " + " | ".join(c1) + " |")
             print("| | shared error mm | " + " | ".join(c2) + " |")
             print("| | frame-to-frame mm | " + " | ".join(c3) + " |")
+        probe_table(where, ids, h, u, truth, level)
         print(f"\n({time.perf_counter() - t0:.0f} s)")
+
+
+def probe_table(where: Path, ids: list[int], h: np.ndarray, u: np.ndarray, truth: np.ndarray,
+                level: np.ndarray) -> None:
+    """Table 6 (module docstring): coverage by whether the grown windows' local plane had its probes."""
+    up = _read(where / "posterior", ids, ".u")
+    hp = _read(where / "posterior", ids, "")
+    assert np.array_equal(h, hp, equal_nan=True)  # the same heights
+    e = h - truth
+    ok = np.all(np.isfinite(e) & np.isfinite(u) & np.isfinite(up), axis=0)
+    r = 6  # measurement.denoise_adaptive.max_radius, the probes' distance
+    pad = np.pad(np.all(np.isfinite(h), axis=0), r, constant_values=False)
+    has_u = pad[r:-r, :-2 * r] & pad[r:-r, 2 * r:]
+    has_v = pad[:-2 * r, r:-r] & pad[2 * r:, r:-r]
+    masks = {None: has_u & has_v, "u": ~has_u & has_v, "v": has_u & ~has_v, "uv": ~has_u & ~has_v}
+    print("\n2u coverage by whether the local plane had its probes (6 px either side, valid in every frame): "
+          "defaults / lacking_probe_bias posterior; frame-to-frame and shared error, rms u (defaults / posterior), mm:\n")
+    print("| probes | white level | pixels | 2u | frame-to-frame | shared | rms u |")
+    print("| --- | --- | ---: | ---: | ---: | ---: | ---: |")
+    for name, key in PROBES.items():
+        for lo, hi in ((0.1, 0.35), (0.35, 0.7), (0.7, np.inf)):
+            b = ok & masks[key] & (level >= lo) & (level < hi)
+            if b.sum() < 100:
+                continue
+            eb = e[:, b]
+            f2f = float(np.sqrt(np.mean(eb.std(axis=0, ddof=1) ** 2)))
+            shared = float(np.sqrt(max(np.mean(eb.mean(axis=0) ** 2) - f2f**2 / len(ids), 0.0)))
+            cov = [float(np.mean(np.abs(eb) <= 2.0 * x[:, b])) for x in (u, up)]
+            ru = [float(np.sqrt(np.mean(x[:, b] ** 2))) for x in (u, up)]
+            print(f"| {name} | {_label(lo, hi)} | {int(b.sum())} | {cov[0]:.3f} / {cov[1]:.3f} | {f2f:.4f} | {shared:.4f} "
+                  f"| {ru[0]:.4f} / {ru[1]:.4f} |")
 
 
 def _draw_stats(o: np.ndarray, swa: np.ndarray, d_true: np.ndarray,

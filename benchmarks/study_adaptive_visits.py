@@ -87,7 +87,8 @@ def main(argv: list[str] | None = None) -> int:
     out, wout, rad = (np.empty_like(dz) for _ in range(3))
     none32 = np.empty((1, 1), np.float32)
     args = (dz, s2, inv, first, wfirst, radius, ad["max_radius"], k2, tw, rw, out, wout, rad, True,
-            0.0, none32, False, none32, none32, none32, none32, np.float32(ad["plane_kink_sigma"] ** 2), none32)
+            0.0, none32, False, none32, none32, none32, none32, np.float32(ad["plane_kink_sigma"] ** 2), none32,
+            ad["lacking_probe_bias"] == "posterior")
     _adaptive_pass(*args)  # compiled or loaded from the cache
     cpu = []
     for _ in range(a.rounds):

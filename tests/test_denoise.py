@@ -216,8 +216,9 @@ def _adaptive_by_pixel(d, s2, inv, first, wfirst, radius, max_radius, k2, target
 #: ``_adaptive_pass``'s carry arguments when nothing is carried (and ``boxed`` not asked for)
 _NO_CARRY = (False, np.empty((1, 1), np.float32), np.empty((1, 1), np.float32), np.empty((1, 1), np.float32),
              np.empty((1, 1), np.float32))
-#: ``_adaptive_pass``'s ``kink2`` at the default ``plane_kink_sigma`` (3), and no bias map asked for
-_KINK3 = (np.float32(9.0), np.empty((1, 1), np.float32))
+#: ``_adaptive_pass``'s ``kink2`` at the default ``plane_kink_sigma`` (3), no bias map asked for (and the
+#: default ``lacking_probe_bias``)
+_KINK3 = (np.float32(9.0), np.empty((1, 1), np.float32), False)
 
 
 def _first_pass(d: np.ndarray, sigma: np.ndarray, valid: np.ndarray, radius: int) -> tuple[np.ndarray, ...]:
@@ -290,7 +291,7 @@ def test_plane_kink_sigma_is_the_definitions_threshold() -> None:
     for kink in (1.0, 3.0, 10.0):
         got, got_w = np.empty_like(dz), np.empty_like(dz)
         _adaptive_pass(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, got, got_w, none, False, 0.0, none,
-                       *_NO_CARRY, np.float32(kink**2), _KINK3[1])
+                       *_NO_CARRY, np.float32(kink**2), *_KINK3[1:])
         want, want_w, _ = _adaptive_by_pixel(dz, s2, inv, first, wfirst, 1, 5, k2, tw, rw, kink)
         assert np.array_equal(got.view(np.uint32), want.view(np.uint32))
         assert np.array_equal(got_w.view(np.uint32), want_w.view(np.uint32))
@@ -684,6 +685,24 @@ def test_grown_windows_on_a_textured_ramp_have_the_predicted_spread() -> None:
         assert abs(float(np.mean(o))) < 2e-3  # and unbiased on the ramp
 
 
+def _slope_unknown(first: np.ndarray, wfirst: np.ndarray, bu: int, axis: int) -> np.ndarray:
+    """NumPy definition of the adaptive pass's test of whether nothing says the surface is flat along
+    ``axis`` where the local plane lacks a probe (``bu`` px either side): both probes missing
+    (outside or not valid), or the one there differs from the pixel's first-pass estimate by a
+    significant slope (``g^2 > 4 var(g)``); False where both probes are there."""
+    f = np.moveaxis(first.astype(np.float64), axis, 0)
+    wm = np.moveaxis(wfirst.astype(np.float64), axis, 0)
+    lo, lw = np.full(f.shape, np.nan), np.zeros(f.shape)
+    hi, hw = np.full(f.shape, np.nan), np.zeros(f.shape)
+    lo[bu:], lw[bu:], hi[:-bu], hw[:-bu] = f[:-bu], wm[:-bu], f[bu:], wm[bu:]
+    oka, okc = lw > 0, hw > 0
+    d = np.where(okc, hi, lo) - f
+    g = (d - 2 * np.pi * np.floor((d + np.pi) / (2 * np.pi))) / bu
+    with np.errstate(divide="ignore", invalid="ignore"):
+        significant = g * g > 4.0 * (1.0 / np.where(okc, hw, lw) + 1.0 / wm) / bu**2
+    return np.moveaxis(np.where(oka & okc, False, np.where(~oka & ~okc, True, significant)), 0, axis)
+
+
 def test_grown_windows_report_their_own_bias() -> None:
     """``bias2``: on a noise-free ramp with shadows (windows with weight on one side) the grown
     windows' error at the pixel is their accepted neighbours' own slope times their centroid, with
@@ -731,6 +750,98 @@ def test_grown_windows_report_their_own_bias() -> None:
     none = denoise_phase(np.where(valid, ramp, np.nan), sigma, valid, **kw)
     assert np.array_equal(none, denoise_phase(np.where(valid, ramp, np.nan), sigma, valid, bias2=b2, **kw),
                           equal_nan=True)  # asking for it changes no phase
+
+
+def test_posterior_bias_covers_the_error_where_the_plane_lacked_a_probe() -> None:
+    """``bias2`` with ``lacking_probe_bias="posterior"``, on the surfaces of
+    :func:`test_grown_windows_report_their_own_bias`: where the plane lacked a probe and nothing says
+    the surface is flat there (beside the shadows on the ramp) it is the error plus its noise
+    share, so it covers the error; elsewhere it is the default's (the error less its noise share);
+    on the flat tops beside a step still 0 (the probe left reads no slope)."""
+    rng = np.random.default_rng(29)
+    vv, uu = np.mgrid[:70, :90].astype(np.float64)
+    sigma = np.exp(rng.normal(np.log(0.05), 0.5, uu.shape)).astype(np.float32)
+    sigma[:, 40:44] *= 4.0
+    valid = np.ones(uu.shape, bool)
+    valid[:, 60:66] = False
+    valid[45:51, :] = False
+    kw = {"radius": 2, "k": 3.0, "max_radius": 5, "target_sigma": 0.004}
+    ramp = (0.007 * uu - 0.004 * vv).astype(np.float32)
+    step = np.where(uu >= 30, 1.5, 0.0).astype(np.float32)
+    for surface, sloped in ((ramp, True), (step, False)):
+        b2, ws = np.zeros(uu.shape, np.float32), np.zeros(uu.shape, np.float32)
+        out = denoise_phase(np.where(valid, surface, np.nan), sigma, valid, weight_sum=ws, bias2=b2,
+                            lacking_probe_bias="posterior", **kw)
+        err = np.abs(out.astype(np.float64) - surface)
+        wf = np.zeros(uu.shape, np.float32)  # the first pass's estimates and weights: which windows grew
+        first = denoise_phase(np.where(valid, surface, np.nan), sigma, valid, radius=2, k=3.0, weight_sum=wf)
+        inner = valid & (uu >= 6) & (uu < 84) & (vv >= 6) & (vv < 64)
+        grown = inner & (wf < 1 / 0.004**2) & (ws > wf)
+        unknown = _slope_unknown(first, wf, 5, 1) | _slope_unknown(first, wf, 5, 0)
+        if sloped:  # the fit is exact on a ramp; the term less its slope's noise variance (about 0.002 rad here)
+            known = grown & ~unknown
+            big = known & (err > 0.005)
+            assert big.sum() > 100  # lopsided windows do err
+            ratio = np.sqrt(b2[big]) / err[big]
+            assert 0.75 < np.median(ratio) <= 1.0, np.percentile(ratio, [5, 50, 95])
+            # never more than the error itself but where the first pass's own centroid error (its
+            # weights follow the texture) reads as a curvature in its second differences
+            excess = np.sqrt(b2[known]) - err[known]
+            assert np.mean(excess <= 1e-4) > 0.995 and excess.max() < 0.002, (np.mean(excess <= 1e-4), excess.max())
+            # beside the shadows, where a probe falls on them and the one left reads the ramp's slope:
+            # the error plus its noise share, so at least the error
+            beside = grown & unknown
+            pad = np.pad(valid, 5, constant_values=False)  # a probe 5 px along an axis outside or not valid
+            lacks = ~(pad[5:-5, :-10] & pad[5:-5, 10:] & pad[:-10, 5:-5] & pad[10:, 5:-5])
+            assert beside.sum() > 300 and not (beside & ~lacks).any()
+            ratio = np.sqrt(b2[beside & (err > 0.005)]) / err[beside & (err > 0.005)]
+            assert np.all(np.sqrt(b2[beside]) >= err[beside] - 1e-4) and 1.0 < np.median(ratio) < 1.2, \
+                np.percentile(ratio, [5, 50, 95])
+            assert np.isfinite(b2[grown]).all()  # shadows drop the plane, no kink: computed everywhere
+        else:
+            assert grown.sum() > 300 and err[grown].max() < 1e-5  # no slope on either side of the step
+            assert np.nanmax(np.sqrt(b2[grown])) < 1e-4
+            # where the plane's probes straddle the step (a kink) the window's bias is left to the
+            # lateral term (NaN); farther away the term is computed, and 0
+            kinked = grown & np.isnan(b2)
+            assert kinked.any() and np.abs(uu[kinked] - 30).max() <= 6
+            assert np.isfinite(b2[grown & (np.abs(uu - 30) > 6)]).all()
+        assert np.isnan(b2[inner & (wf >= 1 / 0.004**2)]).all()  # NaN: the fixed window
+
+
+def test_lacking_probe_bias_changes_only_the_bias_where_the_plane_lacked_a_probe() -> None:
+    """``lacking_probe_bias``: ``"unbiased"`` (the default) reports ``b^2 - var(b)`` beside the shadows too, where
+    ``"posterior"`` reports ``b^2 + var(b)``: the two differ only on the pixels whose
+    plane lacked a probe where nothing says the surface is flat (the NumPy definition above), and
+    there the posterior is the larger on nearly all; the phase and the weights are the same bits;
+    anything else is refused."""
+    rng = np.random.default_rng(29)
+    vv, uu = np.mgrid[:70, :90].astype(np.float64)
+    sigma = np.exp(rng.normal(np.log(0.05), 0.5, uu.shape)).astype(np.float32)
+    valid = np.ones(uu.shape, bool)
+    valid[:, 60:66] = False
+    valid[45:51, :] = False
+    kw = {"radius": 2, "k": 3.0, "max_radius": 5, "target_sigma": 0.004}
+    d = np.where(valid, 0.007 * uu - 0.004 * vv + rng.normal(0, 1, uu.shape) * sigma, np.nan).astype(np.float32)
+    got = {}
+    for mode in ("posterior", "unbiased"):
+        b2, ws = np.zeros(uu.shape, np.float32), np.zeros(uu.shape, np.float32)
+        out = denoise_phase(d, sigma, valid, weight_sum=ws, bias2=b2, lacking_probe_bias=mode, **kw)
+        got[mode] = out, ws, b2.astype(np.float64)
+    assert np.array_equal(got["posterior"][0], got["unbiased"][0], equal_nan=True)
+    assert np.array_equal(got["posterior"][1], got["unbiased"][1])
+    wf = np.zeros(uu.shape, np.float32)
+    first = denoise_phase(d, sigma, valid, radius=2, k=3.0, weight_sum=wf)
+    unknown = _slope_unknown(first, wf, 5, 1) | _slope_unknown(first, wf, 5, 0)
+    bp, bu_ = got["posterior"][2], got["unbiased"][2]
+    fin = np.isfinite(bp) & np.isfinite(bu_)
+    assert np.array_equal(np.isnan(bp), np.isnan(bu_))
+    same = fin & ~unknown
+    assert same.sum() > 500 and np.array_equal(bp[same], bu_[same])
+    moved = fin & unknown
+    assert moved.sum() > 100 and np.all(bp[moved] >= bu_[moved]) and np.mean(bp[moved] > bu_[moved]) > 0.9
+    with pytest.raises(ValueError, match="lacking_probe_bias"):
+        denoise_phase(d, sigma, valid, lacking_probe_bias="flat", **kw)
 
 
 def test_grown_windows_bias_holds_the_surfaces_curvature() -> None:

@@ -11,6 +11,10 @@ from huefringe.settings import defaults
 from ._passes import _adaptive_pass, _denoise_kernel, _denoise_kernel_carry, _denoise_weights, _own_side, window_sums
 
 
+#: The values of ``lacking_probe_bias`` (``measurement.denoise_adaptive.lacking_probe_bias``).
+LACKING_PROBE_BIAS = ("posterior", "unbiased")
+
+
 def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid: NDArray[np.bool_],
                   *, radius: int = 2, k: float = 3.0, max_radius: int = 0, target_sigma: float = 0.0,
                   reject_sigma: float = 0.0, weight_sum: NDArray[np.float32] | None = None,
@@ -18,7 +22,8 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
                   support: NDArray[np.float32] | None = None, box_chi_z: float = 0.0,
                   plane_kink_sigma: float = 3.0, carry: NDArray[np.float32] | None = None,
                   carry_mean: NDArray[np.float32] | None = None,
-                  bias2: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+                  bias2: NDArray[np.float32] | None = None,
+                  lacking_probe_bias: str = "unbiased") -> NDArray[np.float32]:
     """Edge-preserving, uncertainty-weighted local mean of a phase map.
 
     Each valid pixel becomes the inverse-variance weighted mean of itself and the valid pixels
@@ -70,10 +75,19 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
         noise), the plane's slope ``d`` fitted by least squares; the mean errs by ``d . c +
         mean(o^T H o) / 2`` (``c`` the weights' centroid, ``o`` the accepted offsets): a window
         with weight on one side on a surface the plane does not follow, and any grown window on a
-        curved surface. Less the fitted slope's noise variance (0 if negative); NaN where the first
+        curved surface. Less the fitted slope's noise variance (0 if negative), plus it instead
+        where the plane lacked one of its probes and nothing says the surface is flat there
+        (``lacking_probe_bias``); NaN where the first
         pass's fixed window stands (its centroid is the lateral term's) and where the pass dropped
         its plane at a kink of 5 sigma or more (a step between its probes: the lateral term's step
         part). A flat side next to a step has no slope: no bias.
+    lacking_probe_bias : {"posterior", "unbiased"}
+        ``bias2`` where the local plane lacked a probe (outside the image or not valid) along an
+        axis and nothing says the surface is flat there (both probes missing, or the one there
+        with a significant one-sided slope): ``"unbiased"`` (the default) ``max(b^2 - var(b), 0)``
+        as everywhere else; ``"posterior"`` the estimate's posterior mean square under a flat prior,
+        ``b^2 + var(b)``, no plane test having stood for a slope the noise alone could make.
+        The phase is the same either way (docs/uncertainty.md, "The grown windows' bias").
     carry, carry_mean : float32 ndarray, optional
         ``carry_mean`` receives each pixel's weighted mean of ``carry`` (finite everywhere) over
         the neighbours its final window accepted, ``sum(w carry) / sum(w)`` (0 where not valid):
@@ -116,7 +130,7 @@ def denoise_phase(dphi: NDArray[np.floating], sigma: NDArray[np.floating], valid
     return denoise_weighted(dz, s2, inv, radius=radius, k=k, max_radius=max_radius, target_sigma=target_sigma,
                             reject_sigma=reject_sigma, weight_sum=weight_sum, ratio=ratio, ratio_sum=ratio_sum,
                             support=support, box_chi_z=box_chi_z, plane_kink_sigma=plane_kink_sigma, carry=carry,
-                            carry_mean=carry_mean, bias2=bias2)
+                            carry_mean=carry_mean, bias2=bias2, lacking_probe_bias=lacking_probe_bias)
 
 
 def denoise_weight_sums(dphi: NDArray[np.floating], sigma: NDArray[np.floating],
@@ -139,7 +153,8 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
                      support: NDArray[np.float32] | None = None, box_chi_z: float = 0.0,
                      plane_kink_sigma: float = 3.0, carry: NDArray[np.float32] | None = None,
                      carry_mean: NDArray[np.float32] | None = None,
-                     bias2: NDArray[np.float32] | None = None) -> NDArray[np.float32]:
+                     bias2: NDArray[np.float32] | None = None,
+                     lacking_probe_bias: str = "unbiased") -> NDArray[np.float32]:
     """:func:`denoise_phase` on its prepared float32 inputs (for callers that compute them on
     the fly, like the fused kernel): ``ok = valid & finite(dphi) & finite(sigma) & sigma > 0``,
     ``dz = ok ? dphi : 0``, ``s2 = float32(clip(ok ? sigma : 1, 1e-9, 1e9)) ** 2`` and
@@ -149,6 +164,8 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
     (:func:`denoise_phase`). The phase and ``weight_sum`` do not depend on whether the other
     two are asked for.
     """
+    if lacking_probe_bias not in LACKING_PROBE_BIAS:
+        raise ValueError(f"lacking_probe_bias must be one of {', '.join(LACKING_PROBE_BIAS)}, got {lacking_probe_bias!r}")
     arrays = [np.ascontiguousarray(x, dtype=np.float32) for x in (dz, s2, inv)]
     if not arrays[0].shape == arrays[1].shape == arrays[2].shape or arrays[0].ndim != 2:
         raise ValueError("dz, s2 and inv must be 2-D arrays of the same shape")
@@ -192,7 +209,8 @@ def denoise_weighted(dz: NDArray[np.float32], s2: NDArray[np.float32], inv: NDAr
         _adaptive_pass(*arrays, out, wsum, int(radius), int(max(max_radius, radius)), k2, target_w, reject_w, final,
                        wfinal, rad, full, float(box_chi_z) if grows else 0.0, s2min, carry is not None, c, cfirst,
                        cfinal, np.empty((1, 1), np.float32), np.float32(float(plane_kink_sigma) ** 2),
-                       bias2 if bias2 is not None else np.empty((1, 1), np.float32))
+                       bias2 if bias2 is not None else np.empty((1, 1), np.float32),
+                       lacking_probe_bias == "posterior")
         out, wsum = final, wfinal
     else:
         rad = np.float32(radius)
@@ -262,16 +280,17 @@ def band_floor(s2: NDArray[np.float32], max_radius: int) -> NDArray[np.float32]:
 def adaptive_kwargs(opts: dict | None) -> dict:
     """:func:`denoise_phase` / :func:`denoise_weighted` keywords of a ``measurement.denoise_adaptive``
     block (``enabled``, ``max_radius``, ``target_sigma_rad``, ``reject_sigma_rad``, ``box_chi_z``,
-    ``plane_kink_sigma``); ``{}`` when
+    ``plane_kink_sigma``, ``lacking_probe_bias``); ``{}`` when
     absent or disabled (the fixed window). Keys the block leaves out take their value from
     ``defaults.yaml`` (:func:`huefringe.settings.defaults`)."""
     if opts is None or opts is False:
         return {}
     o = dict(opts) if opts is not True else {}
-    if not {"enabled", "max_radius", "target_sigma_rad", "reject_sigma_rad", "box_chi_z", "plane_kink_sigma"} <= o.keys():
+    if not {"enabled", "max_radius", "target_sigma_rad", "reject_sigma_rad", "box_chi_z", "plane_kink_sigma",
+            "lacking_probe_bias"} <= o.keys():
         o = {**defaults()["measurement"]["denoise_adaptive"], **o}  # a configured block is complete
     if not o["enabled"]:
         return {}
     return {"max_radius": int(o["max_radius"]), "target_sigma": float(o["target_sigma_rad"]),
             "reject_sigma": float(o["reject_sigma_rad"]), "box_chi_z": float(o["box_chi_z"]),
-            "plane_kink_sigma": float(o["plane_kink_sigma"])}
+            "plane_kink_sigma": float(o["plane_kink_sigma"]), "lacking_probe_bias": str(o["lacking_probe_bias"])}

@@ -578,7 +578,34 @@ def _shrunk(x, v):  # pragma: no cover - compiled
 
 
 @njit(cache=True, inline="always", error_model="numpy")
-def _window_bias2(m, sw, sr, hu2, huv, hv2):  # pragma: no cover - compiled
+def _slope_unknown(fl, wl, i0, x, n, bu, stride):  # pragma: no cover - compiled
+    """Whether nothing says the surface is flat along one axis at flat index ``i0`` (coordinate
+    ``x`` of ``n`` along the axis, ``stride`` its flat stride) where the local plane lacks a probe
+    (:func:`_plane_slope`'s estimates ``bu`` px either side, one of them outside the image or not
+    valid): both probes missing, or the one there is differs from the pixel's first-pass estimate
+    by a significant slope, ``g^2 > 4 var(g)`` (the plane's own significance test, one-sided: ``g``
+    the wrapped difference over ``bu``, ``var(g) = (1 / w_probe + 1 / w_pixel) / bu^2``). False
+    where both probes are there (the plane's own tests decide)."""
+    step = bu * stride
+    a = i0 - step if x >= bu else -1
+    c = i0 + step if x + bu < n else -1
+    oka = a >= 0 and wl[a] > 0
+    okc = c >= 0 and wl[c] > 0
+    if oka and okc:
+        return False
+    if not oka and not okc:
+        return True
+    j = c if okc else a
+    two_pi = 2.0 * np.pi
+    d = np.float64(fl[j]) - np.float64(fl[i0])
+    d = d - two_pi * np.floor((d + np.pi) / two_pi)
+    g = d / bu
+    vg = (1.0 / np.float64(wl[j]) + 1.0 / np.float64(wl[i0])) / (bu * bu)
+    return g * g > 4.0 * vg
+
+
+@njit(cache=True, inline="always", error_model="numpy")
+def _window_bias2(m, sw, sr, hu2, huv, hv2, unknown=False):  # pragma: no cover - compiled
     """The squared bias (rad^2) of a grown window's weighted mean at its pixel: the accepted
     neighbours' values ``r`` (less the plane, if any) modelled as ``r0 + d . o + q(o)``, ``q(o) =
     o^T H o / 2`` with ``H`` the surface's curvature (second derivatives of the first-pass map,
@@ -588,7 +615,10 @@ def _window_bias2(m, sw, sr, hu2, huv, hv2):  # pragma: no cover - compiled
     centroid): a lopsided window on a slope the plane does not follow (next to a shadow, where the
     plane was dropped) by the first part, every grown window on a curved surface by the second,
     symmetric or not. Returned as ``(d . c + mean(q))^2 - var(d . c)`` (the fitted slope's noise,
-    inverse-variance weights, removed; 0 if negative or the offsets are degenerate). ``m``: the
+    inverse-variance weights, removed: a slope the noise could make adds nothing on average; 0 if
+    negative or the offsets are degenerate). With ``unknown`` (the plane lacked a probe and
+    nothing says the surface is flat there, :func:`_slope_unknown`) there is no such null: the
+    estimate's posterior mean square under a flat prior, ``(d . c + mean(q))^2 + var(d . c)``. ``m``: the
     sums ``w du, w dv, w du^2, w dv^2, w du dv, w (r - q) du, w (r - q) dv``; ``sw = sum w``,
     ``sr = sum w r``; ``hu2, huv, hv2``: ``H_uu / 2``, ``H_uv``, ``H_vv / 2`` (rad / px^2)."""
     cu = m[0] / sw
@@ -610,6 +640,8 @@ def _window_bias2(m, sw, sr, hu2, huv, hv2):  # pragma: no cover - compiled
     gv = (muu * rv - muv * ru) / det
     b = gu * cu + gv * cv + qb
     vb = (cu * cu * mvv - 2.0 * cu * cv * muv + cv * cv * muu) / (det * sw)
+    if unknown:
+        return np.float32(b * b + vb)
     return np.float32(max(b * b - vb, 0.0))
 
 
@@ -662,7 +694,7 @@ def _row_planes(fl, wl, v, w, mr, kink2, bias, gu, vgu, ku, gv, vgv, kv, phc):  
 
 @njit(cache=True, nogil=True, error_model="numpy", parallel=True)
 def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
-                   rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed, kink2, b2o):
+                   rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed, kink2, b2o, posterior):
     """Second pass of :func:`denoise_weighted` for the pixels whose first-pass variance
     ``1 / wfirst`` exceeds ``1 / target_w``: the window grows ring by ring (Chebyshev radius
     ``radius + 1 .. max_radius``) until the accepted weights reach ``target_w``. Neighbours are
@@ -723,7 +755,12 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
     in a loop of their own after each window offset (in the pass's inner loops they cost the
     carried path its vectorisation); NaN where the first pass stands, where a box was taken and where
     the plane was dropped at a kink of 5 sigma or more (a step: the lateral term's step part holds
-    that window's mixing; counted twice, the gauge blocks' edge zones are over-covered).
+    that window's mixing; counted twice, the gauge blocks' edge zones are over-covered). Where the
+    plane lacked a probe along an axis and nothing says the surface is flat there (both probes
+    missing, or the one valid probe's one-sided slope significant: :func:`_slope_unknown`) the
+    term is the estimate's posterior mean square, ``b^2 + var(b)``, not ``b^2 - var(b)``: no
+    plane test stood for a slope the noise alone could make (with ``posterior``; without it
+    ``b^2 - var(b)`` there too).
     The phase and the other outputs are the same bits with or without it."""
     h, w = d.shape
     boxes = chi_z > 0
@@ -744,7 +781,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
         for v in range(vb0, min(vb0 + block, h)):
             _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout, rad,
                           full, chi_z, s2min, carry, c, cfirst, cout, boxed, mark, boxes, v, tab, nring, t0,
-                          built, xc, fl, wl, kink2, b2o)
+                          built, xc, fl, wl, kink2, b2o, posterior)
             if boxes:
                 built = min(v + big + 1, h) - t0
 
@@ -752,7 +789,7 @@ def _adaptive_pass(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, 
 @njit(cache=True, nogil=True, error_model="numpy")
 def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, reject_w, out, wout,  # pragma: no cover
                   rad, full, chi_z, s2min, carry, c, cfirst, cout, boxed, mark, boxes, v, tab, nring, t0, built, xc,
-                  fl, wl, kink2, b2o):
+                  fl, wl, kink2, b2o, posterior):
     """One row of :func:`_adaptive_pass` (its tables' ring built up to the rows the row's boxes reach)."""
     h, w = d.shape
     nan = np.float32(np.nan)
@@ -787,6 +824,7 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
     wk = np.empty(w, np.float32)  # scratch: each pixel's accepted weight and residual at this offset
     rk = np.empty(w, np.float32)
     pk = np.empty(w, np.bool_)  # the plane dropped at a kink (a step): its window's bias is the lateral term's
+    pun = np.empty(w, np.bool_)  # the plane lacked a probe where nothing says the surface is flat (_slope_unknown)
     mr = max_radius
     # the row's planes and curvatures in one branch-free pass where every probe is inside the image
     # and enough of the row grows to pay for it; the other pixels call the per-pixel functions
@@ -895,6 +933,9 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                 continue
         pu[n] = u
         pk[n] = ku or kv
+        pun[n] = False
+        if bias and posterior:
+            pun[n] = _slope_unknown(fl, wl, v * w + u, u, w, bu, 1) or _slope_unknown(fl, wl, v * w + u, v, h, bu, w)
         if bias and inner:
             phc[0, n] = rph[0, u]
             phc[1, n] = rph[1, u]
@@ -1027,7 +1068,7 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                         if bias and not pk[q]:
                             b2o[v, u] = _window_bias2(mom[:, q], np.float64(wsum), np.float64(pacc[q]),
                                                       np.float64(phc[0, q]), np.float64(phc[1, q]),
-                                                      np.float64(phc[2, q]))
+                                                      np.float64(phc[2, q]), pun[q])
                     out[v, u] = val if wsum >= reject_w else nan
                     wout[v, u] = wsum
                     continue
@@ -1044,6 +1085,7 @@ def _adaptive_row(d, s2, inv, first, wfirst, radius, max_radius, k2, target_w, r
                     pw[keep_n] = pw[q]
                     pcc[keep_n] = pcc[q]
                     pk[keep_n] = pk[q]
+                    pun[keep_n] = pun[q]
                     if bias:
                         for k in range(7):
                             mom[k, keep_n] = mom[k, q]
