@@ -582,7 +582,7 @@ def _slope_unknown(fl, wl, i0, x, n, bu, stride):  # pragma: no cover - compiled
     """Whether nothing says the surface is flat along one axis at flat index ``i0`` (coordinate
     ``x`` of ``n`` along the axis, ``stride`` its flat stride) where the local plane lacks a probe
     (:func:`_plane_slope`'s estimates ``bu`` px either side, one of them outside the image or not
-    valid): both probes missing, or the one there is differs from the pixel's first-pass estimate
+    valid): both probes missing, or the one there differs from the pixel's first-pass estimate
     by a significant slope, ``g^2 > 4 var(g)`` (the plane's own significance test, one-sided: ``g``
     the wrapped difference over ``bu``, ``var(g) = (1 / w_probe + 1 / w_pixel) / bu^2``). False
     where both probes are there (the plane's own tests decide)."""
