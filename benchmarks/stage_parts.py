@@ -59,8 +59,7 @@ def main() -> None:  # noqa: C901, PLR0915 - one frame, the parts in turn
     N = args.calls
     cv2.setNumThreads(1)
 
-
-    def cpu(fn, n=N):
+    def cpu(fn, n=N):  # noqa: ANN001, ANN202
         fn()
         ts = []
         for _ in range(n):
@@ -69,10 +68,8 @@ def main() -> None:  # noqa: C901, PLR0915 - one frame, the parts in turn
             ts.append(time.process_time() - c)
         return 1e3 * min(ts)
 
-
-    def report(name, ms):
+    def report(name, ms):  # noqa: ANN001, ANN202
         print(f"{name:60s} {ms:7.2f} ms   (load {os.getloadavg()[0]:.2f})", flush=True)
-
 
     which = args.parts or ["all"]
     print("load at start", os.getloadavg())
@@ -83,15 +80,15 @@ def main() -> None:  # noqa: C901, PLR0915 - one frame, the parts in turn
     shadow = perframe.shadow_mask(rig.white, m["shadow_fraction"])
     prep = kernel.prepare(rig.table, rig.cal, rig.white, hue_model="hexcone", min_saturation=m["min_saturation"],
                           shadow=shadow, bit_depth=8)
-    print("u_sensor", prep.u_sensor is not None, "weight_blur_px", prep.weight_blur_px, "sensor", prep.sensor is not None)
     raw = rig.frame.astype(np.float32) * np.float32(1 / 255)
     clip = perframe.clipped_mask(raw, 8)
     rgb = texture.correct(raw, rig.white, 0.4, clipped=clip, offset=rig.offset)
     _, moved = texture.correct_pair(raw, rig.white, 0.4, 0.5, clipped=clip, offset=rig.offset)
 
-    # capture the inputs of the named calls inside frame_maps
+    # the inputs of the named calls inside frame_maps, captured from one call of each kind
     cap = {}
-    def spy(mod, name, key=None):
+
+    def spy(mod, name, key=None):  # noqa: ANN001, ANN202
         f = getattr(mod, name)
         def w(*a, **k):
             cap.setdefault(key or name, (a, k))
@@ -104,9 +101,8 @@ def main() -> None:  # noqa: C901, PLR0915 - one frame, the parts in turn
         orig[n] = spy(kernel, n)
     for n in ("first_pass", "_adaptive_pass", "window_sums"):
         orig[n] = spy(dn, n)
-    import huefringe.perframe._noise as pn
     orig["smoothed_signal"] = spy(pn, "smoothed_signal")
-    full_t = kernel.frame_maps(prep, rgb, want_dphi=True, denoise_radius=radius, denoise_adaptive=adaptive,
+    kernel.frame_maps(prep, rgb, want_dphi=True, denoise_radius=radius, denoise_adaptive=adaptive,
                                want_uncertainty=True, texture_rgb=moved)
     captex = dict(cap)
     cap.clear()
@@ -120,11 +116,8 @@ def main() -> None:  # noqa: C901, PLR0915 - one frame, the parts in turn
     for n in ("first_pass", "_adaptive_pass", "window_sums"):
         setattr(dn, n, orig[n])
     pn.smoothed_signal = orig["smoothed_signal"]
-    print("captured:", sorted(capu), "tex:", sorted(captex))
-    valid = full.valid
-    print("valid fraction", valid.mean())
 
-    def call(d, n):
+    def call(d, n):  # noqa: ANN001, ANN202
         a, k = d[n]
         return lambda: orig[n](*a, **k)
 
