@@ -245,22 +245,16 @@ def _frequency_kernel(d, ok, grad, phi_ref, error, box, lo, hi, ratio, out):  # 
     au = np.zeros(w)  # the box's sums: running along the columns
     av = np.zeros(w)
     cnt = np.zeros(w)
-    for k in range(min(half, h)):
-        r = k % nr
-        _slope_row(d, ok, grad, lo, hi, half, k, su[r], sv[r], sc[r], taken[r], scratch)
-        for u in range(w):
-            au[u] += su[r, u]
-            av[u] += sv[r, u]
-            cnt[u] += sc[r, u]
+    built = 0  # the rows whose slopes have entered the column sums
     for v in range(h):
-        if v + half < h:
-            k = v + half
-            r = k % nr
-            _slope_row(d, ok, grad, lo, hi, half, k, su[r], sv[r], sc[r], taken[r], scratch)
+        while built < min(v + half + 1, h):  # the box's rows down to v + half, in order
+            r = built % nr
+            _slope_row(d, ok, grad, lo, hi, half, built, su[r], sv[r], sc[r], taken[r], scratch)
             for u in range(w):
                 au[u] += su[r, u]
                 av[u] += sv[r, u]
                 cnt[u] += sc[r, u]
+            built += 1
         if v - half - 1 >= 0:
             r = (v - half - 1) % nr
             for u in range(w):
