@@ -1179,18 +1179,15 @@ def frame_maps(
                                   weight_sum=sumw, ratio=ratio, ratio_sum=rsum, support=support,
                                   carry=delta if denoise else None, carry_mean=carried if denoise else None,
                                   bias2=bias2, **adaptive_kwargs(denoise_adaptive))
-        if freq:
-            smooth = correct_frequency(smooth, valid, prep.phi_ref, prep.phase_error, prep.frequency)
-        n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     elif want_uncertainty:  # no filter: the weights path, heights from the unfiltered dz
         smooth, sumw = weights[0], weights[2]
         rsum = sumw * ratio if ratio is not None else None
         support = (sumw > 0).astype(np.float32)
-        if freq:
-            smooth = correct_frequency(smooth, valid, prep.phi_ref, prep.phase_error, prep.frequency)
-        n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
-    elif freq:  # neither: the heights again from the corrected phase difference
-        smooth = correct_frequency(dphi, valid, prep.phi_ref, prep.phase_error, prep.frequency)
+    else:  # neither: the kernel's heights stand unless the correction below changes the phase difference
+        smooth = dphi
+    if freq:
+        smooth = correct_frequency(smooth, valid, prep.phi_ref, prep.phase_error, prep.frequency)
+    if denoise or want_uncertainty or freq:  # the heights again from the phase difference the chain ends with
         n_valid = _height_kernel(smooth, prep.a, prep.b, valid, height, phase)
     u_map = noise_h = None
     if want_uncertainty:
