@@ -1,6 +1,6 @@
 """What a photo relief's dark pixels' error is made of, by switching the bench's camera effects off.
 
-Usage: ./run python benchmarks/dark_pixels_blur.py [--frames 4] [--keep DIR]
+Usage: ./run python benchmarks/dark_pixels_blur.py [--frames 4] [--keep DIR] [--bands]
 
 A tuning scene only (the hold-outs score, they are not looked into): the astronaut photo relief seen
 by the coffee hold-out's sensor class (``benchmarks/filter_centroid.py``'s scene: 8 e- / 5,000 e-,
@@ -19,6 +19,16 @@ calibration and texture-blur estimate). Per white level (the object white's chan
 coverage of the written u, and the rms over the frames' phase (36 bins of the unfiltered wrapped
 phase, from the object table) of the error's mean per phase bin: the part of the error locked to
 the fringe. Under a minute on one core (about 20 s here: each rendering is 320 x 240, 4 frames).
+
+``--bands`` adds a table per rendering with a lens blur: how large a blur the first-order
+texture-edge correction wants where its lean is weak or strong. The session's own blur estimate
+(``texture.blur_from_phases``: the instrumental-variable slope between two frames' fine structure
+of the raw phase measured as captured and after the correction at ``sigma^2 = 1``, over the pixels
+whose ``|g|`` lies between its 0.5 and 0.9 quantiles) taken again in other quantile bands of
+``|g|`` (the same frames, camera corrections and shadow mask as ``pipeline.session_texture_blur``),
+each with its jackknife standard error over 8 strips, beside the bench's true blur (its lens's
+variance; the pixel's own integration not counted). Where the lean is strongest the correction's
+first order over-predicts, and the blur that fits is smaller.
 """
 
 from __future__ import annotations
@@ -38,9 +48,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import accuracy_matrix as am  # noqa: E402
 import filter_centroid as fc  # noqa: E402
 
-from huefringe import bench, colour  # noqa: E402
+from huefringe import bench, colour, kernel, texture  # noqa: E402
+from huefringe.height import PlaneCalibration  # noqa: E402
 from huefringe.huetable import HueTable  # noqa: E402
+from huefringe.perframe import shadow_mask  # noqa: E402
+from huefringe.pipeline import TEXTURE_BLUR_FRAMES, session_corrections  # noqa: E402
 from huefringe.session import load_session, read_rgb  # noqa: E402
+from huefringe.settings import defaults  # noqa: E402
 
 BINS = ((0.1, 0.2), (0.2, 0.35), (0.35, 0.5), (0.5, 0.7), (0.7, np.inf))
 PHASE_BINS = 36
@@ -50,6 +64,35 @@ VARIANTS = {"as is": ({}, {}), "noise-free": (QUIET, {}),
             "noise-free, no lens blur": ({**QUIET, "lens_blur_sigma_px": 0.0}, {}),
             "noise-free, no ambient or stray light": (QUIET, DARK),
             "noise-free, neither": ({**QUIET, "lens_blur_sigma_px": 0.0}, DARK)}
+
+
+#: the quantile bands of |g| of ``--bands`` (the estimate's own is the second)
+G_BANDS = ((0.2, 0.5), (0.5, 0.9), (0.9, 0.97), (0.97, 0.99), (0.99, 0.999))
+
+
+def blur_bands(where: Path, offset: bool = False) -> tuple[float, list[dict]]:
+    """The blur the measured session used and ``texture.blur_from_phases`` in each band of :data:`G_BANDS`
+    (no significance test), on the frames ``pipeline.session_texture_blur`` reads; with ``offset`` the
+    correction takes out the light without fringe first, as the measurement's does (the estimate's
+    does not)."""
+    s = load_session(where / "session")
+    cal = PlaneCalibration.load(str(where / "all-on" / "model.npz"))
+    table = HueTable.load(glob.glob(str(where / "tables" / "*" / "table_object.json"))[0])
+    cam = where / "all-on" / "camera.json"
+    read = session_corrections(s, cam if cam.exists() else None)[1].rgb
+    c = defaults()["calibration"]
+    white = read(s.object_white)
+    prep = kernel.prepare(table, cal, white, hue_model=defaults()["hue_model"], min_saturation=c["min_saturation"],
+                          shadow=shadow_mask(white, c["shadow_fraction"]), bit_depth=s.bit_depth,
+                          predistortion=s.predistortion)
+    plain, unit = [], []
+    for n in s.frame_ids[:TEXTURE_BLUR_FRAMES]:
+        rgb = read(s.frames[n])
+        for sigma2, out in ((0.0, plain), (1.0, unit)):
+            corrected = texture.correct(rgb, white, sigma2, offset=cal.projector_off if offset else None)
+            m = kernel.frame_maps(prep, corrected, denoise_radius=0, want_dphi=True)
+            out.append(np.where(m.valid, m.dphi, np.nan))
+    return float(cal.texture_blur_px2 or 0.0), [texture.blur_from_phases(plain, unit, band=b, min_t=0.0) for b in G_BANDS]
 
 
 def _label(lo: float, hi: float) -> str:
@@ -83,6 +126,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--frames", type=int, default=4)
     ap.add_argument("--keep", type=Path, default=None, help="keep the sessions and results here; reuse them")
+    ap.add_argument("--bands", action="store_true", help="and the blur the correction wants per band of its lean")
     args = ap.parse_args()
     t0 = time.perf_counter()
     print("| rendering | quantity | " + " | ".join(_label(lo, hi) for lo, hi in BINS) + " | all |")
@@ -109,6 +153,20 @@ def main() -> None:
             for i, (q, cells) in enumerate(rows.items()):
                 print(f"| {name if i == 0 else ''} | {q} | " + " | ".join(cells) + " |")
             sys.stdout.flush()
+        if args.bands:
+            print("\nthe blur (px^2) the first-order correction wants per quantile band of its lean |g| (instrumental-"
+                  "variable slope, +- its jackknife standard error over 8 strips); the estimate's own band is 0.5-0.9:\n")
+            print("| rendering | correction | true blur | used | " + " | ".join(f"{lo:g}-{hi:g}" for lo, hi in G_BANDS) + " |")
+            print("| --- | --- | ---: | ---: |" + " ---: |" * len(G_BANDS))
+            for name, (camera, light) in VARIANTS.items():
+                true = float(camera.get("lens_blur_sigma_px", fc.scene(args.frames)["camera"]["lens_blur_sigma_px"])) ** 2
+                if true == 0.0:
+                    continue
+                for offset, how in ((False, "the estimate's (no offset)"), (True, "the measurement's (offset out)")):
+                    used, rows = blur_bands(root / am._slug(f"astronaut-8e-5ke-p48-72x1-{args.frames}f-{name}"), offset)
+                    cells = [f"{r['raw_px2']:.2f} +- {r['stderr_px2']:.2f}" if r.get("stderr_px2") is not None else "-"
+                             for r in rows]  # -: the frames' predicted corrections do not correlate there
+                    print(f"| {name} | {how} | {true:.2f} | {used:.2f} | " + " | ".join(cells) + " |")
     print(f"\n({time.perf_counter() - t0:.0f} s)")
 
 
