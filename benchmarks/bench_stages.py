@@ -345,9 +345,24 @@ def oneshot_markdown(results: list[dict[str, Any]]) -> str:
     return _stage_table(results, ONESHOT_STAGES, "one-shot rig stage", "decode … calibration u", per_floor=True)
 
 
+#: docs/throughput.md's target: the plane path's compute at 640 x 480 on one core (ms a frame)
+TARGET_COMPUTE_MS = 30.0
+
+
+def target_line(results: list[dict[str, Any]]) -> str:
+    """Whether the plane path's 640 x 480 compute meets :data:`TARGET_COMPUTE_MS` ("" without that size)."""
+    r = next((r for r in results if tuple(r["size"]) == (640, 480)), None)
+    if r is None:
+        return ""
+    got = r["compute_ms"]
+    verdict = "met" if got <= TARGET_COMPUTE_MS else f"missed by {got / TARGET_COMPUTE_MS:.1f} ×"
+    return (f"\n**Target** (640 × 480, {r['threads']} thread): compute ≤ {TARGET_COMPUTE_MS:g} ms a frame: "
+            f"{got:.1f} ms, {verdict}.\n")
+
+
 def markdown(results: list[dict[str, Any]], command: str) -> str:
-    """The plane path's table: ms per frame and x cvtColor per size."""
-    return _stage_table(results, STAGES, "stage", "texture … flags", per_floor=False)
+    """The plane path's table (ms per frame and x cvtColor per size) and the target's line."""
+    return _stage_table(results, STAGES, "stage", "texture … flags", per_floor=False) + target_line(results)
 
 
 def _replace_between(page: Path, begin: str, end: str, body: str) -> None:

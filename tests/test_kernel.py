@@ -327,6 +327,20 @@ def test_quick_benchmark_runs(tmp_path: Path) -> None:
     assert text.endswith("<!-- oneshot-stages:end -->\n")
 
 
+def test_stage_table_states_the_compute_target(monkeypatch: pytest.MonkeyPatch) -> None:
+    """The stage benchmark's plane table ends with the 640 x 480 compute target and whether it is
+    met (docs/throughput.md); sizes without 640 x 480 print none."""
+    monkeypatch.syspath_prepend(str(REPO / "benchmarks"))
+    import bench_stages
+
+    def res(w: int, h: int, ms: float) -> dict:
+        return {"size": [w, h], "compute_ms": ms, "threads": 1}
+
+    assert "79.6 ms, missed by 2.7 ×" in bench_stages.target_line([res(640, 480, 79.6), res(1280, 1024, 348.0)])
+    assert bench_stages.target_line([res(640, 480, 29.9)]).endswith("29.9 ms, met.\n")
+    assert bench_stages.target_line([res(160, 120, 12.8)]) == ""
+
+
 @pytest.mark.parametrize("pd", [True, False])
 def test_kernel_matches_reference_with_phase_error_and_adaptive_filter(rig: dict, pd: bool) -> None:
     """A strong phase-error table (0.1 rad) and the sigma-adaptive filter with rejection: the
