@@ -500,10 +500,8 @@ def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibratio
     and one that a leave-one-out calibration cannot triangulate (behind a device) gets an
     infinite term (the calibrations do not agree that the point exists).
     """
-    u_axes = np.where(frame.valid[..., None], np.zeros(3), np.nan)
-    u_ray = np.where(frame.valid, 0.0, np.nan)
     if not jackknife:
-        return u_axes, u_ray
+        return np.where(frame.valid[..., None], np.zeros(3), np.nan), np.where(frame.valid, 0.0, np.nan)
     n = len(jackknife)
     if n < 4:
         raise RigError(f"{n} leave-one-pose-out calibrations; the calibration's term needs at least 4")
@@ -523,8 +521,9 @@ def calibration_spread(frame: RigFrame, jackknife: list[tuple[str, RigCalibratio
                      borderMode=cv2.BORDER_REPLICATE)
     with np.errstate(invalid="ignore", divide="ignore"):
         est = fine[..., :4] / fine[..., 4:5]
-    u_axes[frame.valid] = est[frame.valid][:, :3]
-    u_ray[frame.valid] = est[frame.valid][:, 3]
+    both = np.full((h, w, 4), np.nan)  # the axes' terms and the ray's, NaN where not valid
+    np.copyto(both, est, where=frame.valid[..., None])
+    u_axes, u_ray = both[..., :3], both[..., 3]
     # a valid pixel with no sample around it (a small island, the edge of a region): its own term
     alone = frame.valid & ~np.isfinite(u_ray)
     if alone.any():

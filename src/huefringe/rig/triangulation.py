@@ -361,6 +361,37 @@ def epipolar_residual(
     return residual.reshape(shape), sigma.reshape(shape)
 
 
+@numba.njit(cache=True, nogil=True, error_model="numpy")
+def _plane_finish(d, t, slope, s, want, R, T, idx, xyz, sigma, sigma_ray, good):  # pragma: no cover - numba
+    """:func:`triangulate`'s outputs for one coordinate, per ray ``i`` of pixel ``idx[i]``: the point
+    ``p = t d``, kept where it lies in front of both devices and is finite, with ``sigma`` per axis
+    ``|d slope s|`` and along the unit ray ``|(d slope) . d / |d|| s|`` (0 without ``want``): the
+    NumPy expressions of the two-coordinate path, operation for operation, with the dot product
+    along the ray summed in order (NumPy's ``einsum`` may pair its three terms otherwise: the
+    same bits but for ``sigma_ray``'s last bit)."""
+    for i in range(t.size):
+        ti = t[i]
+        p0, p1, p2 = d[i, 0] * ti, d[i, 1] * ti, d[i, 2] * ti
+        if not (p2 > 0 and R[2, 0] * p0 + R[2, 1] * p1 + R[2, 2] * p2 + T[2] > 0):
+            continue
+        if not (math.isfinite(p0) and math.isfinite(p1) and math.isfinite(p2)):
+            continue
+        j = idx[i]
+        xyz[j, 0], xyz[j, 1], xyz[j, 2] = p0, p1, p2
+        good[j] = True
+        if not want:
+            sigma[j, 0], sigma[j, 1], sigma[j, 2], sigma_ray[j] = 0.0, 0.0, 0.0, 0.0
+            continue
+        si, sl = s[i], slope[i]
+        g0, g1, g2 = d[i, 0] * sl, d[i, 1] * sl, d[i, 2] * sl
+        v0, v1, v2 = g0 * si, g1 * si, g2 * si
+        sigma[j, 0], sigma[j, 1], sigma[j, 2] = math.sqrt(v0 * v0), math.sqrt(v1 * v1), math.sqrt(v2 * v2)
+        nrm = math.sqrt(d[i, 0] * d[i, 0] + d[i, 1] * d[i, 1] + d[i, 2] * d[i, 2])
+        dot = g0 * (d[i, 0] / nrm) + g1 * (d[i, 1] / nrm) + g2 * (d[i, 2] / nrm)
+        r = dot * si
+        sigma_ray[j] = math.sqrt(r * r)
+
+
 def _plane_solve(calib: RigCalibration, d: F64, coord: F64, axis: int) -> tuple[F64, F64]:
     """Where rays ``d`` meet the projector surface ``pixel[axis] = coord``, and ``dt / dcoord``.
 
@@ -521,6 +552,16 @@ def triangulate(
     s_sub = {k: sig[k][idx] for k in need}
     wants = {k: bool(np.any(s_sub[k] > 0)) for k in need}
     grads: dict[str, F64] = {}
+    if mode != "both":  # one coordinate: the points, their terms and the grids in one compiled pass
+        t, slope = _plane_solve(calib, d, sub[mode], 0 if mode == "u" else 1)
+        xyz = np.full((ref.size, 3), np.nan)
+        sigma = np.full((ref.size, 3), np.nan)
+        sigma_ray = np.full(ref.size, np.nan)
+        good = np.zeros(ref.size, dtype=bool)
+        _plane_finish(np.ascontiguousarray(d), t, slope, s_sub[mode], wants[mode], calib.R, calib.T, idx, xyz, sigma,
+                      sigma_ray, good)
+        return Triangulated(xyz.reshape(*shape, 3), sigma.reshape(*shape, 3), good.reshape(shape),
+                            sigma_ray.reshape(shape))
     if mode == "both":
         pts, (gu, gv) = _ray_solve(calib, d, sub["u"], sub["v"], (wants["u"], wants["v"]))
         grads = {k: g for k, g in (("u", gu), ("v", gv)) if g is not None}
