@@ -284,7 +284,7 @@ def sensor_model(table: HueTable) -> NDArray[np.float32] | None:
 
 
 def frame_hue_noise(table: HueTable, rgb: NDArray[Any], gains: NDArray[np.float32], hue_model: str,
-                    scale: float = 1.0) -> NDArray[np.float64]:
+                    scale: float = 1.0, pooled: NDArray[np.float64] | None = None) -> NDArray[np.float64]:
     """Per-pixel hue noise (rad) of this capture, from its own signal and the sensor-noise model.
 
     Each channel's variance ``gain_c * signal_c + read_c`` (:func:`sensor_model`), times the
@@ -293,9 +293,10 @@ def frame_hue_noise(table: HueTable, rgb: NDArray[Any], gains: NDArray[np.float3
     ``C = max - min``; HSI: the gradient of ``atan2(y, x)``). Where the table has no model, or
     the hue is undefined, the table's pooled figure (:func:`capture_noise`). ``rgb``: the frame
     as the kernel receives it (float in [0, 1], or integer codes with their ``scale``); the
-    fused kernel calls the same compiled loop, so both agree bit for bit.
+    fused kernel calls the same compiled loop, so both agree bit for bit. ``pooled``: the table's
+    :func:`capture_noise` when the caller has it already.
     """
-    fallback = capture_noise(table)
+    fallback = capture_noise(table) if pooled is None else pooled
     model = sensor_model(table)
     if model is None:
         return fallback

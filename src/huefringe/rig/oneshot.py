@@ -286,7 +286,8 @@ def trapezoid_coordinate(rgb: NDArray[np.floating], white: NDArray[np.floating],
     if model is not None:  # the capture's noise from its own signal
         gains = white_gains(white, floor=floor)
         pooled = capture_noise(table)
-        noise = pooled * np.sqrt(noise_ratio2(frame_hue_noise(table, rgb, gains, table.model), pooled).astype(np.float64))
+        own = frame_hue_noise(table, rgb, gains, table.model, pooled=pooled)
+        noise = pooled * np.sqrt(noise_ratio2(own, pooled).astype(np.float64))
         if weight_blur_px > 0:
             noise_w = weight_noise_of(pooled, model, rgb, gains, table.model == "hsi", weight_blur_px)[0]
     s_tab = table_phase_sigma(table, slope, floor_slope)
