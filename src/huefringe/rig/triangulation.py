@@ -551,7 +551,6 @@ def triangulate(
     sub = {k: coords[k][idx] for k in need}
     s_sub = {k: sig[k][idx] for k in need}
     wants = {k: bool(np.any(s_sub[k] > 0)) for k in need}
-    grads: dict[str, F64] = {}
     if mode != "both":  # one coordinate: the points, their terms and the grids in one compiled pass
         t, slope = _plane_solve(calib, d, sub[mode], 0 if mode == "u" else 1)
         xyz = np.full((ref.size, 3), np.nan)
@@ -562,14 +561,8 @@ def triangulate(
                       sigma_ray, good)
         return Triangulated(xyz.reshape(*shape, 3), sigma.reshape(*shape, 3), good.reshape(shape),
                             sigma_ray.reshape(shape))
-    if mode == "both":
-        pts, (gu, gv) = _ray_solve(calib, d, sub["u"], sub["v"], (wants["u"], wants["v"]))
-        grads = {k: g for k, g in (("u", gu), ("v", gv)) if g is not None}
-    else:
-        t, slope = _plane_solve(calib, d, sub[mode], 0 if mode == "u" else 1)
-        pts = d * t[:, None]
-        if wants[mode]:
-            grads[mode] = d * slope[:, None]
+    pts, (gu, gv) = _ray_solve(calib, d, sub["u"], sub["v"], (wants["u"], wants["v"]))
+    grads = {k: g for k, g in (("u", gu), ("v", gv)) if g is not None}
     var = np.zeros_like(pts)
     var_ray = np.zeros(len(pts))
     ray = d / np.linalg.norm(d, axis=1, keepdims=True)
