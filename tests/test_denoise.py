@@ -798,8 +798,15 @@ def test_posterior_bias_covers_the_error_where_the_plane_lacked_a_probe() -> Non
             assert np.all(np.sqrt(b2[beside]) >= err[beside] - 1e-4) and 1.0 < np.median(ratio) < 1.2, \
                 np.percentile(ratio, [5, 50, 95])
             assert np.isfinite(b2[grown]).all()  # shadows drop the plane, no kink: computed everywhere
-        else:  # the flat tops: the probe left reads no slope, the default's 0 (the kinks as the default's test)
-            assert grown.sum() > 300 and np.nanmax(np.sqrt(b2[grown])) < 1e-4
+        else:  # the flat tops: the probe left reads no slope, the default's 0
+            assert grown.sum() > 300 and err[grown].max() < 1e-5  # no slope on either side of the step
+            assert np.nanmax(np.sqrt(b2[grown])) < 1e-4
+            # where the plane's probes straddle the step (a kink) the window's bias is left to the
+            # lateral term (NaN); farther away the term is computed, and 0
+            kinked = grown & np.isnan(b2)
+            assert kinked.any() and np.abs(uu[kinked] - 30).max() <= 6
+            assert np.isfinite(b2[grown & (np.abs(uu - 30) > 6)]).all()
+        assert np.isnan(b2[inner & (wf >= 1 / 0.004**2)]).all()  # NaN: the fixed window
 
 
 def test_lacking_probe_bias_changes_only_the_bias_where_the_plane_lacked_a_probe() -> None:
