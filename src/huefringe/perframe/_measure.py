@@ -157,14 +157,16 @@ def measure_frame(
     un = unwrap(dphi, valid, unwrap_mode)  # type: ignore[arg-type]
     # this frame's own-signal hue noise: in the weights with own_noise, else in the uncertainty only
     gains = white_gains(white)
-    own = frame_hue_noise(table, rgb, gains, hue_model) if own_noise or sensor_model(table) is not None else None
-    ratio = noise_ratio2(own, capture_noise(table)) if own is not None and not own_noise else None
+    pooled = capture_noise(table)
+    own = (frame_hue_noise(table, rgb, gains, hue_model, pooled=pooled)
+           if own_noise or sensor_model(table) is not None else None)
+    ratio = noise_ratio2(own, pooled) if own is not None and not own_noise else None
     weighted = weight_noise(table, rgb, gains, hue_model, weight_blur_px,
                             angle=weight_blur_angle(cal.phi_ref, weight_blur_shape)) \
         if ratio is not None and denoise_radius > 0 else None
     if weighted is not None:  # the weights from the smoothed signal; u's ratio against them
         ratio = ratio_over(ratio, weighted[1])
-    sigma = phase_sigma(table, slope, noise=own if own_noise else (weighted[0] if weighted is not None else None))
+    sigma = phase_sigma(table, slope, noise=own if own_noise else (weighted[0] if weighted is not None else pooled))
     if predistortion is not None:
         sigma = sigma * np.abs(predistortion.decode_slope(emitted))
     sumw = np.zeros(valid.shape, np.float32)
