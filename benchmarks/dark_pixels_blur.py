@@ -48,11 +48,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import accuracy_matrix as am  # noqa: E402
 import filter_centroid as fc  # noqa: E402
 
-from huefringe import bench, colour, kernel, texture  # noqa: E402
+from huefringe import bench, colour, texture  # noqa: E402
 from huefringe.height import PlaneCalibration  # noqa: E402
 from huefringe.huetable import HueTable  # noqa: E402
-from huefringe.perframe import shadow_mask  # noqa: E402
-from huefringe.pipeline import TEXTURE_BLUR_FRAMES, session_corrections  # noqa: E402
+from huefringe.pipeline import session_corrections, session_texture_phases  # noqa: E402
 from huefringe.session import load_session, read_rgb  # noqa: E402
 from huefringe.settings import defaults  # noqa: E402
 
@@ -72,26 +71,17 @@ G_BANDS = ((0.2, 0.5), (0.5, 0.9), (0.9, 0.97), (0.97, 0.99), (0.99, 0.999))
 
 def blur_bands(where: Path, offset: bool = False) -> tuple[float, list[dict]]:
     """The blur the measured session used and ``texture.blur_from_phases`` in each band of :data:`G_BANDS`
-    (no significance test), on the frames ``pipeline.session_texture_blur`` reads; with ``offset`` the
-    correction takes out the light without fringe first, as the measurement's does (the estimate's
-    does not)."""
+    (no significance test), on the phases ``pipeline.session_texture_blur`` reads
+    (``pipeline.session_texture_phases``); with ``offset`` the correction takes out the light without
+    fringe first, as the measurement's does (the estimate's does not)."""
     s = load_session(where / "session")
     cal = PlaneCalibration.load(str(where / "all-on" / "model.npz"))
     table = HueTable.load(glob.glob(str(where / "tables" / "*" / "table_object.json"))[0])
     cam = where / "all-on" / "camera.json"
-    read = session_corrections(s, cam if cam.exists() else None)[1].rgb
-    c = defaults()["calibration"]
-    white = read(s.object_white)
-    prep = kernel.prepare(table, cal, white, hue_model=defaults()["hue_model"], min_saturation=c["min_saturation"],
-                          shadow=shadow_mask(white, c["shadow_fraction"]), bit_depth=s.bit_depth,
-                          predistortion=s.predistortion)
-    plain, unit = [], []
-    for n in s.frame_ids[:TEXTURE_BLUR_FRAMES]:
-        rgb = read(s.frames[n])
-        for sigma2, out in ((0.0, plain), (1.0, unit)):
-            corrected = texture.correct(rgb, white, sigma2, offset=cal.projector_off if offset else None)
-            m = kernel.frame_maps(prep, corrected, denoise_radius=0, want_dphi=True)
-            out.append(np.where(m.valid, m.dphi, np.nan))
+    reader = session_corrections(s, cam if cam.exists() else None)[1]
+    plain, unit = session_texture_phases(s, table, cal, defaults()["hue_model"], defaults()["calibration"],
+                                         reader.rgb(s.object_white), reader=reader,
+                                         offset=cal.projector_off if offset else None)
     return float(cal.texture_blur_px2 or 0.0), [texture.blur_from_phases(plain, unit, band=b, min_t=0.0) for b in G_BANDS]
 
 

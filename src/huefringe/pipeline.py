@@ -37,7 +37,8 @@ from huefringe.uncertainty import (PixelBudget, add_lateral, common_interpolatio
 
 __all__ = ["Calibrated", "FramePipeline", "FrameResult", "bayer_noise_correlation", "frame_results", "measure_one",
            "noise_aware_adaptive", "prepare_frames", "prepare_session", "session_camera_record",
-           "session_corrections", "session_hue_table", "session_plane_calibration", "session_texture_blur"]
+           "session_corrections", "session_hue_table", "session_plane_calibration", "session_texture_blur",
+           "session_texture_phases"]
 
 _log = logging.getLogger("huefringe")
 
@@ -424,6 +425,30 @@ def session_projector_off(s: Session, calibration: Mapping[str, Any],
     return texture.projector_off_light((read(p), codes[i]) for i in sorted(chosen) for p in s.object_bands[i])
 
 
+def session_texture_phases(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str,
+                           calibration: Mapping[str, Any], white: NDArray[np.floating], *,
+                           reader: CaptureReader | None = None, offset: NDArray[np.floating] | None = None,
+                           ) -> tuple[list[NDArray[np.float64]], list[NDArray[np.float64]]]:
+    """The raw phase differences (the kernel, no phase filter; NaN where not valid) of the session's
+    first object frames (up to :data:`TEXTURE_BLUR_FRAMES`) as captured and after
+    :func:`huefringe.texture.correct` with ``sigma^2 = 1`` (with ``offset`` taken out first; the
+    blur estimate's own are without it): the inputs of :func:`huefringe.texture.blur_from_phases`.
+    ``white``: the object white image as ``reader`` reads it."""
+    read = (reader or CaptureReader()).rgb  # the frames as the chains read them (re-demosaic, registration)
+    prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=calibration["min_saturation"],
+                          shadow=shadow_mask(white, calibration["shadow_fraction"]), bit_depth=s.bit_depth,
+                          predistortion=s.predistortion)
+    plain: list[NDArray[np.float64]] = []
+    unit: list[NDArray[np.float64]] = []
+    for n in s.frame_ids[:TEXTURE_BLUR_FRAMES]:
+        rgb = read(s.frames[n])
+        for sigma2, out in ((0.0, plain), (1.0, unit)):
+            m = kernel.frame_maps(prep, texture.correct(rgb, white, sigma2, offset=offset), denoise_radius=0,
+                                  want_dphi=True)
+            out.append(np.where(m.valid, m.dphi, np.nan))
+    return plain, unit
+
+
 def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_model: str,
                          calibration: Mapping[str, Any], *, reader: CaptureReader | None = None) -> dict[str, Any]:
     """The camera's blur variance (px^2) for the texture-edge correction, from the session's first
@@ -455,15 +480,7 @@ def session_texture_blur(s: Session, t: HueTable, cal: PlaneCalibration, hue_mod
 
     if len(frames) < 2:
         return fallback({"sigma2_px2": 0.0, "samples": 0, "pairs": 0, "frames": list(frames)}, "one frame, no phase estimate")
-    prep = kernel.prepare(t, cal, white, hue_model=hue_model, min_saturation=calibration["min_saturation"],
-                          shadow=shadow_mask(white, calibration["shadow_fraction"]), bit_depth=s.bit_depth,
-                          predistortion=s.predistortion)
-    plain, unit = [], []
-    for n in frames:
-        rgb = read(s.frames[n])
-        for sigma2, out in ((0.0, plain), (1.0, unit)):
-            m = kernel.frame_maps(prep, texture.correct(rgb, white, sigma2), denoise_radius=0, want_dphi=True)
-            out.append(np.where(m.valid, m.dphi, np.nan))
+    plain, unit = session_texture_phases(s, t, cal, hue_model, calibration, white, reader=reader)
     est = {**texture.blur_from_phases(plain, unit), "frames": [int(n) for n in frames]}
     if "rejected" in est:
         return fallback(est, "phase estimate refused (see rejected)")
