@@ -15,6 +15,7 @@ import importlib.util
 import json
 import os
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -30,7 +31,7 @@ _why_not = missing_reason() or (
     None if importlib.util.find_spec("snakemake_executor_plugin_slurm")
     else "snakemake-executor-plugin-slurm not installed (the 'slurm' extra; tools/bootstrap.sh installs it)"
 )
-# slow: nineteen dependent SLURM jobs, mostly waiting for the plugin's status polls. It shares
+# slow: two dozen dependent SLURM jobs, mostly Snakemake starting in each and the plugin's status polls. It shares
 # nothing with tests running beside it (pytest -n 2): its own ports, temp folder and daemons.
 pytestmark = [pytest.mark.slow, pytest.mark.skipif(_why_not is not None, reason=_why_not or "")]
 
@@ -130,8 +131,19 @@ def _declared(log: str) -> dict[str, dict[str, int | str]]:
     return {slurm_id: jobs[job] for job, slurm_id in re.findall(r"Job (\d+) has been submitted with SLURM jobid (\d+)", log)}
 
 
+def _bench_sessions(tmp_path: Path, *workdirs: Path) -> None:
+    """The bench's sessions written once, by a local run of their rule, and copied into each
+    workdir: the runs compared measure the same bytes, and the cluster runs the measuring jobs."""
+    prep = _workdir(tmp_path / "prep")
+    targets = [f"sessions/{s}/session.yaml" for s in ("slurm-demo", "rig-gauge", "rig-poses")]
+    _snakemake(prep, "--cores", "2", *targets, env=dict(os.environ))
+    for wd in workdirs:
+        shutil.copytree(prep / "sessions", wd / "sessions")
+
+
 def test_profile_run_matches_a_local_run_byte_for_byte(slurm: LocalSlurm, tmp_path: Path) -> None:
     local, cluster = _workdir(tmp_path / "local"), _workdir(tmp_path / "cluster")
+    _bench_sessions(tmp_path, local, cluster)
     # the local reference runs while the cluster run waits for its jobs
     reference = _snakemake_start(local, "--cores", "2", env=dict(os.environ))
     # the profile as documented; only the first status check comes sooner than a real cluster needs
