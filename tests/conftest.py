@@ -16,7 +16,8 @@ def _shares_a_built_fixture(item: pytest.Item) -> bool:
         return False
     for defs in info.name2fixturedefs.values():
         for d in defs:
-            if d.scope in ("module", "session") and Path(d.func.__code__.co_filename).resolve().parent == _TESTS:
+            code = getattr(getattr(d, "func", None), "__code__", None)
+            if d.scope in ("module", "session") and code is not None and Path(code.co_filename).resolve().parent == _TESTS:
                 return True
     return False
 
