@@ -111,6 +111,23 @@ def test_a_measurement_job_loads_no_mesh_render_or_figure_library() -> None:
         stages.not_a_stage  # noqa: B018
 
 
+@pytest.mark.parametrize(("names", "unused"), [
+    ("check_session, camera_calibration, hue_table, plane_calibration", ("scipy.optimize", "open3d", "trimesh")),
+    ("render, metrology, rig_measure, rig_metrology", ("open3d",)),
+])
+def test_calibration_and_report_jobs_load_no_library_they_do_not_call(names: str, unused: tuple[str, ...]) -> None:
+    """SciPy's optimisers load where a projector gamma is fitted, Open3D where a mesh is cleaned
+    (its stage, ``mesh``), not in every job of the same stage module (0.4 and 0.7-0.9 s of a job's
+    start-up)."""
+    import subprocess
+    import sys
+
+    code = (f"import sys; from huefringe.stages import {names}, run_from_snakemake; "
+            f"print(' '.join(m for m in {unused!r} if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.split() == []
+
+
 def _refused(session: str, summary: str) -> None:
     from huefringe.session import SessionError
 

@@ -20,7 +20,6 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
-from scipy.optimize import least_squares
 
 from . import colour
 from .huetable import RAD_PER_COUNT, HueTable
@@ -309,6 +308,8 @@ def projector_gamma(code: ArrayLike, hue: ArrayLike, *, model: str = "hexcone") 
     p0 = np.concatenate([np.arange(6) * np.pi / 3.0 + (h[0] - c[0]), np.full(3, 2.2)])
     lo = np.concatenate([np.full(6, -np.inf), np.full(3, 0.1)])
     hi = np.concatenate([np.full(6, np.inf), np.full(3, 10.0)])
+    from scipy.optimize import least_squares  # here, not at import: the calibration jobs load no optimiser
+
     fit = least_squares(lambda p: _gamma_model(p, c) - h, p0, bounds=(lo, hi), x_scale="jac")
     gamma = fit.x[6:].copy()
     res = fit.fun

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-import open3d as o3d
 import scipy.sparse
 import scipy.sparse.csgraph
 import trimesh
 from numpy.typing import NDArray
+
+if TYPE_CHECKING:
+    import open3d as o3d
 
 
 # --------------------------------------------------------------------------------------------
@@ -17,6 +19,8 @@ from numpy.typing import NDArray
 # --------------------------------------------------------------------------------------------
 def to_open3d(mesh: trimesh.Trimesh) -> o3d.geometry.TriangleMesh:
     """Convert a trimesh mesh (with vertex colours if any) to an Open3D triangle mesh."""
+    import open3d as o3d  # here, not at import: the render and metrology jobs load no Open3D
+
     out = o3d.geometry.TriangleMesh(
         o3d.utility.Vector3dVector(np.ascontiguousarray(mesh.vertices, dtype=np.float64)),
         o3d.utility.Vector3iVector(np.ascontiguousarray(mesh.faces, dtype=np.int32)),
@@ -101,6 +105,8 @@ def clean_mesh(
     Open3D's statistical outlier removal is deliberately not used: on a grid mesh it flags
     the border vertices (they have fewer close neighbours), eating the outline.
     """
+    import open3d as o3d
+
     if len(mesh.faces) == 0:
         return from_open3d(o3d.geometry.TriangleMesh(), dict(mesh.metadata))
     m = to_open3d(mesh)
