@@ -721,6 +721,17 @@ def _shadowed_surfaces() -> tuple:
     return uu, vv, sigma, valid, kw, ramp, step
 
 
+def _assert_flat_tops_beside_the_step(b2: np.ndarray, err: np.ndarray, grown: np.ndarray, uu: np.ndarray) -> None:
+    """The grown windows' bias on the flat tops either side of :func:`_shadowed_surfaces`' step (at
+    u = 30): no error, a bias of 0; where the plane's probes straddle the step (a kink) the window's
+    bias is left to the lateral term (NaN), farther away it is computed."""
+    assert grown.sum() > 300 and err[grown].max() < 1e-5  # no slope on either side of the step
+    assert np.nanmax(np.sqrt(b2[grown])) < 1e-4
+    kinked = grown & np.isnan(b2)
+    assert kinked.any() and np.abs(uu[kinked] - 30).max() <= 6
+    assert np.isfinite(b2[grown & (np.abs(uu - 30) > 6)]).all()
+
+
 def test_grown_windows_report_their_own_bias() -> None:
     """``bias2``: on a noise-free ramp with shadows (windows with weight on one side) the grown
     windows' error at the pixel is their accepted neighbours' own slope times their centroid, with
@@ -748,13 +759,7 @@ def test_grown_windows_report_their_own_bias() -> None:
             assert np.mean(excess <= 1e-4) > 0.995 and excess.max() < 0.002, (np.mean(excess <= 1e-4), excess.max())
             assert np.isfinite(b2[grown]).all()  # shadows drop the plane, no kink: computed everywhere
         else:
-            assert grown.sum() > 300 and err[grown].max() < 1e-5  # no slope on either side of the step
-            assert np.nanmax(np.sqrt(b2[grown])) < 1e-4
-            # where the plane's probes straddle the step (a kink) the window's bias is left to the
-            # lateral term (NaN); farther away the term is computed, and 0
-            kinked = grown & np.isnan(b2)
-            assert kinked.any() and np.abs(uu[kinked] - 30).max() <= 6
-            assert np.isfinite(b2[grown & (np.abs(uu - 30) > 6)]).all()
+            _assert_flat_tops_beside_the_step(b2, err, grown, uu)
         assert np.isnan(b2[inner & (wf >= 1 / 0.004**2)]).all()  # NaN: the fixed window
     none = denoise_phase(np.where(valid, ramp, np.nan), sigma, valid, **kw)
     assert np.array_equal(none, denoise_phase(np.where(valid, ramp, np.nan), sigma, valid, bias2=b2, **kw),
@@ -799,13 +804,7 @@ def test_posterior_bias_covers_the_error_where_the_plane_lacked_a_probe() -> Non
                 np.percentile(ratio, [5, 50, 95])
             assert np.isfinite(b2[grown]).all()  # shadows drop the plane, no kink: computed everywhere
         else:  # the flat tops: the probe left reads no slope, the default's 0
-            assert grown.sum() > 300 and err[grown].max() < 1e-5  # no slope on either side of the step
-            assert np.nanmax(np.sqrt(b2[grown])) < 1e-4
-            # where the plane's probes straddle the step (a kink) the window's bias is left to the
-            # lateral term (NaN); farther away the term is computed, and 0
-            kinked = grown & np.isnan(b2)
-            assert kinked.any() and np.abs(uu[kinked] - 30).max() <= 6
-            assert np.isfinite(b2[grown & (np.abs(uu - 30) > 6)]).all()
+            _assert_flat_tops_beside_the_step(b2, err, grown, uu)
         assert np.isnan(b2[inner & (wf >= 1 / 0.004**2)]).all()  # NaN: the fixed window
 
 
